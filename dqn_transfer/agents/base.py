@@ -1,0 +1,86 @@
+"""What every learner offers the trainer, and the pieces all learners share.
+
+A learner drives the K agents of a team at once: observations come in as ``float32 [K, D]``,
+actions go out as ``int64 [K]``. It sees observation vectors and their segment layout, never the game.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any, Protocol
+
+import numpy as np
+import torch
+
+ObsLayout = Sequence[tuple[str, int]]
+
+
+class Learner(Protocol):
+    """The interface the trainer, checkpoints and transfer rely on (see ``dqn_transfer.agents``)."""
+
+    algorithm: str
+    num_agents: int
+    obs_layout: list[tuple[str, int]]
+    num_actions: int
+
+    def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, greedy: bool = False) -> np.ndarray:
+        """Epsilon-greedy actions ``[K]`` (pure greedy, consuming no randomness, when ``greedy``)."""
+        ...
+
+    def update(
+        self,
+        obs: np.ndarray,
+        actions: np.ndarray,
+        rewards: np.ndarray,
+        next_obs: np.ndarray,
+        terminated: np.ndarray,
+        truncated: np.ndarray,
+        live: np.ndarray,
+        step: int,
+    ) -> dict[str, np.ndarray]:
+        """Learn from one joint env step; ``live`` marks the agents that acted in it.
+
+        ``step`` counts env steps including this one (1 for the first). Returns ``{"td_loss": [K],
+        "q_mean": [K]}``, nan for agents that were not updated.
+        """
+        ...
+
+    def agent_tensors(self, i: int) -> dict[str, torch.Tensor]:
+        """Agent ``i``'s values, as stored in ``agent_{i}.safetensors`` (CPU, contiguous)."""
+        ...
+
+    def load_agent_tensors(self, i: int, tensors: dict[str, torch.Tensor]) -> None: ...
+
+    def network_meta(self) -> dict[str, Any]:
+        """JSON-able shape information written beside the tensors."""
+        ...
+
+    def training_state(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Everything besides ``agent_tensors`` that a resumed run needs to continue bit-identically."""
+        ...
+
+    def load_training_state(self, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None: ...
+
+
+def normalize_layout(obs_layout: ObsLayout) -> list[tuple[str, int]]:
+    """Layouts come back from JSON as lists of lists; use ``(name, size)`` tuples throughout."""
+    return [(str(name), int(size)) for name, size in obs_layout]
+
+
+def epsilon_greedy(
+    greedy_actions: np.ndarray, epsilon: float | np.ndarray, num_actions: int, rng: np.random.Generator
+) -> np.ndarray:
+    """Replace each greedy action by a uniformly random one with probability ``epsilon``.
+
+    Always draws two numbers per agent, so the random stream, and thus every later draw, does not
+    depend on the value of epsilon.
+    """
+    explore = rng.random(greedy_actions.shape) < epsilon
+    random_actions = rng.integers(0, num_actions, size=greedy_actions.shape)
+    return np.where(explore, random_actions, greedy_actions).astype(np.int64)
+
+
+def check_tensor_shape(name: str, tensor: torch.Tensor, shape: Sequence[int]) -> None:
+    """Loading a tensor of the wrong shape must fail with the name, not deep inside a copy."""
+    if tuple(tensor.shape) != tuple(shape):
+        raise ValueError(f"tensor '{name}' has shape {list(tensor.shape)}, expected {list(shape)}")

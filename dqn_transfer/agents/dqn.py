@@ -1,0 +1,313 @@
+"""DQN and Double DQN for a team of K agents, batched into one network module and one optimizer.
+
+The algorithm is CleanRL's ``dqn.py`` per agent (read ``DQNLearner.update`` top to bottom):
+store the transition; every ``train_freq`` env steps after ``learning_starts``, take
+``gradient_steps`` steps of Huber loss between ``Q(s, a)`` and the bootstrapped target on a uniform
+replay batch (Adam, gradient-norm clip); sync the target network by a hard copy every
+``target_update`` env steps (``tau == 1``) or by Polyak averaging after every gradient step.
+
+What is particular here: all K agents are one ``BatchedMLP`` (stacked weights), their replay is one
+``[K, capacity, ...]`` storage, and one Adam step updates everyone. The loss is the *sum* of the
+agents' mean losses, so each agent's gradient is exactly the one its own network would get, and
+gradients are clipped per agent. With ``share_parameters`` the team shares one network instead (the
+parameter-sharing baseline): a single member whose forward pass serves all agents, replay still per
+agent, loss the *mean* over agents.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from dqn_transfer.agents.base import ObsLayout, epsilon_greedy, normalize_layout
+from dqn_transfer.agents.networks import BatchedMLP
+from dqn_transfer.agents.replay import ReplayBuffer
+
+
+def dqn_targets(
+    rewards: torch.Tensor, next_q_target: torch.Tensor, terminated: torch.Tensor, gamma: float
+) -> torch.Tensor:
+    """``y = r + gamma * max_a Q_target(s', a) * (1 - terminated)``.
+
+    Only termination cuts the bootstrap: a truncated episode (time limit) still has a future.
+    """
+    return rewards + gamma * next_q_target.max(dim=-1).values * (1.0 - terminated.float())
+
+
+def double_dqn_targets(
+    rewards: torch.Tensor,
+    next_q_online: torch.Tensor,
+    next_q_target: torch.Tensor,
+    terminated: torch.Tensor,
+    gamma: float,
+) -> torch.Tensor:
+    """``y = r + gamma * Q_target(s', argmax_a Q_online(s', a)) * (1 - terminated)``.
+
+    The online network picks the action and the target network scores it, which removes the
+    overestimation of taking the max of one noisy estimate (van Hasselt et al., 2016).
+    """
+    next_actions = next_q_online.argmax(dim=-1, keepdim=True)
+    next_q = next_q_target.gather(-1, next_actions).squeeze(-1)
+    return rewards + gamma * next_q * (1.0 - terminated.float())
+
+
+class DQNLearner:
+    """K DQN / Double DQN agents (see the module docstring). Implements ``Learner``."""
+
+    def __init__(
+        self,
+        num_agents: int,
+        obs_layout: ObsLayout,
+        num_actions: int,
+        *,
+        double: bool = False,  # Double DQN target instead of the DQN max target
+        lr: float = 1e-3,  # Adam learning rate
+        gamma: float = 0.99,  # discount factor
+        batch_size: int = 64,  # transitions sampled per agent per gradient step
+        buffer_size: int = 50_000,  # replay capacity per agent
+        learning_starts: int = 1_000,  # env steps of pure collection before the first gradient step
+        train_freq: int = 1,  # env steps between training rounds
+        gradient_steps: int = 1,  # gradient steps per training round
+        target_update: int = 500,  # env steps between hard target copies (used when tau == 1)
+        tau: float = 1.0,  # 1.0: hard copy every target_update steps; < 1: Polyak after each gradient step
+        hidden: Sequence[int] = (64, 64),  # hidden layer sizes of the Q-network (ReLU)
+        max_grad_norm: float = 10.0,  # per-agent gradient-norm clip
+        share_parameters: bool = False,  # one network for all agents (parameter-sharing baseline)
+        device: torch.device | str = "cpu",
+        seed: int = 0,  # fixes the initial weights, exploration and replay sampling
+    ) -> None:
+        self.algorithm = "double_dqn" if double else "dqn"
+        self.num_agents = num_agents
+        self.obs_layout = normalize_layout(obs_layout)
+        self.obs_dim = sum(size for _, size in self.obs_layout)
+        self.num_actions = num_actions
+        self.double = double
+        self.lr = lr
+        self.gamma = gamma
+        self.batch_size = batch_size
+        self.learning_starts = learning_starts
+        self.train_freq = train_freq
+        self.gradient_steps = gradient_steps
+        self.target_update = target_update
+        self.tau = tau
+        self.hidden = [int(h) for h in hidden]
+        self.max_grad_norm = max_grad_norm
+        self.share_parameters = share_parameters
+        self.device = torch.device(device)
+
+        # Independent random streams: weights (torch, CPU so the seed gives the same weights on
+        # any device), exploration and replay sampling (numpy, their states are JSON-able).
+        init_generator = torch.Generator().manual_seed(seed)
+        explore_seed, replay_seed = np.random.SeedSequence(seed).spawn(2)
+        self.rng = np.random.default_rng(explore_seed)
+
+        num_members = 1 if share_parameters else num_agents
+        self.q_network = BatchedMLP(num_members, self.obs_dim, self.hidden, num_actions, init_generator)
+        self.q_network.to(self.device)
+        self.target_network = BatchedMLP(num_members, self.obs_dim, self.hidden, num_actions).to(self.device)
+        self.target_network.update_from(self.q_network, tau=1.0)
+        self.target_network.requires_grad_(False)
+        self.frozen_layers: list[int] = []
+        self.optimizer = torch.optim.Adam(self.q_network.parameters(), lr=lr)
+        self.replay = ReplayBuffer(
+            num_agents, buffer_size, self.obs_dim, np.random.default_rng(replay_seed), self.device
+        )
+        self.num_gradient_steps = 0
+
+    # ------------------------------------------------------------------------------------ acting
+
+    def _q_values(self, network: BatchedMLP, obs: torch.Tensor) -> torch.Tensor:
+        """``obs [K, B, D] -> Q [K, B, A]``; a shared network sees all agents as one big batch."""
+        if self.share_parameters:
+            k, b, d = obs.shape
+            return network(obs.reshape(1, k * b, d)).reshape(k, b, -1)
+        return network(obs)
+
+    @torch.no_grad()
+    def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, greedy: bool = False) -> np.ndarray:
+        """One forward pass for the whole team, then per-agent epsilon-greedy.
+
+        Actions are returned for every agent; those of non-live agents are ignored by the game.
+        """
+        obs_t = torch.as_tensor(np.asarray(obs, dtype=np.float32), device=self.device)
+        q_values = self._q_values(self.q_network, obs_t.unsqueeze(1)).squeeze(1)
+        greedy_actions = q_values.argmax(dim=-1).cpu().numpy()
+        if greedy:
+            return greedy_actions.astype(np.int64)
+        return epsilon_greedy(greedy_actions, epsilon, self.num_actions, self.rng)
+
+    # ---------------------------------------------------------------------------------- learning
+
+    def update(
+        self,
+        obs: np.ndarray,
+        actions: np.ndarray,
+        rewards: np.ndarray,
+        next_obs: np.ndarray,
+        terminated: np.ndarray,
+        truncated: np.ndarray,
+        live: np.ndarray,
+        step: int,
+    ) -> dict[str, np.ndarray]:
+        """Store the live agents' transitions, train on schedule, sync the target on schedule.
+
+        ``step`` counts env steps including this one. Returns per-agent ``td_loss`` and ``q_mean``
+        (mean ``Q(s, a)`` of the batch) averaged over this round's gradient steps, nan if no training.
+        """
+        self.replay.add(obs, actions, rewards, next_obs, terminated, truncated, mask=live)
+
+        td_loss = np.full(self.num_agents, np.nan)
+        q_mean = np.full(self.num_agents, np.nan)
+        if step > self.learning_starts and step % self.train_freq == 0:
+            rounds = [self._gradient_step() for _ in range(self.gradient_steps)]
+            td_loss = np.mean([losses for losses, _ in rounds], axis=0, dtype=np.float64)
+            q_mean = np.mean([q for _, q in rounds], axis=0, dtype=np.float64)
+
+        if self.tau == 1.0 and step % self.target_update == 0:
+            self.target_network.update_from(self.q_network, tau=1.0)
+        return {"td_loss": td_loss, "q_mean": q_mean}
+
+    def _gradient_step(self) -> tuple[np.ndarray, np.ndarray]:
+        """One Adam step for all agents; per-agent loss and mean Q(s, a) (nan for empty agents)."""
+        batch = self.replay.sample(self.batch_size)
+        with torch.no_grad():
+            next_q_target = self._q_values(self.target_network, batch["next_obs"])
+            if self.double:
+                next_q_online = self._q_values(self.q_network, batch["next_obs"])
+                targets = double_dqn_targets(
+                    batch["rewards"], next_q_online, next_q_target, batch["terminated"], self.gamma
+                )
+            else:
+                targets = dqn_targets(batch["rewards"], next_q_target, batch["terminated"], self.gamma)
+
+        q_values = self._q_values(self.q_network, batch["obs"])
+        q_taken = q_values.gather(-1, batch["actions"].unsqueeze(-1)).squeeze(-1)  # Q(s, a) [K, B]
+        agent_losses = F.smooth_l1_loss(q_taken, targets, reduction="none").mean(dim=1)  # [K]
+        valid = batch["valid"]
+        agent_losses = torch.where(valid, agent_losses, torch.zeros_like(agent_losses))
+        # Sum: each agent's gradient is its own loss's. Shared network: mean, the usual batch average.
+        loss = agent_losses.sum() / valid.sum().clamp(min=1) if self.share_parameters else agent_losses.sum()
+
+        self.optimizer.zero_grad()
+        loss.backward()
+        self.q_network.clip_grad_norm_(self.max_grad_norm)
+        self.optimizer.step()
+        if self.tau < 1.0:
+            self.target_network.update_from(self.q_network, tau=self.tau)
+        self.num_gradient_steps += 1
+
+        valid_np = valid.cpu().numpy()
+        losses = np.where(valid_np, agent_losses.detach().cpu().numpy(), np.nan)
+        q_means = np.where(valid_np, q_taken.detach().mean(dim=1).cpu().numpy(), np.nan)
+        return losses, q_means
+
+    # ------------------------------------------------------------------ transfer and exchange
+
+    def freeze(self, layer_indices: Iterable[int]) -> None:
+        """Keep these layers' weights and biases fixed (negative indices count from the output).
+
+        The weights of a layer are one stacked Parameter for all agents, so freezing applies to the
+        whole team. A frozen Parameter gets no gradient, and Adam skips parameters without one, so
+        not even leftover momentum moves it.
+        """
+        layers = [range(self.q_network.num_layers)[index] for index in layer_indices]  # IndexError if absent
+        for l in layers:
+            for parameter in self.q_network.layer(l):
+                parameter.requires_grad_(False)
+        self.frozen_layers = sorted({*self.frozen_layers, *layers})
+
+    def reset_optimizer(self) -> None:
+        """Fresh Adam moments, e.g. after loading transferred weights learned on another task."""
+        self.optimizer = torch.optim.Adam(self.q_network.parameters(), lr=self.lr)
+
+    def _member(self, i: int) -> int:
+        if not 0 <= i < self.num_agents:
+            raise IndexError(f"agent index {i} out of range for {self.num_agents} agents")
+        return 0 if self.share_parameters else i
+
+    def get_member_weights(self, i: int) -> dict[str, torch.Tensor]:
+        """Agent i's online network, ``layers.{l}.weight`` ``[out, in]`` / ``layers.{l}.bias``."""
+        return self.q_network.member_state(self._member(i))
+
+    def set_member_weights(self, i: int, tensors: dict[str, torch.Tensor]) -> None:
+        """Overwrite agent i's online network (the target follows at its next sync)."""
+        self.q_network.load_member_state(self._member(i), tensors)
+
+    # -------------------------------------------------------------------------- checkpoints
+
+    def agent_tensors(self, i: int) -> dict[str, torch.Tensor]:
+        """``q.layers.{l}.weight|bias`` (online) and ``target.layers.{l}.weight|bias``.
+
+        With ``share_parameters`` every agent returns the one shared network.
+        """
+        m = self._member(i)
+        tensors = {f"q.{name}": t for name, t in self.q_network.member_state(m).items()}
+        tensors.update({f"target.{name}": t for name, t in self.target_network.member_state(m).items()})
+        return tensors
+
+    def load_agent_tensors(self, i: int, tensors: dict[str, torch.Tensor]) -> None:
+        """Load ``q.*`` and, if present, ``target.*`` (else the target becomes a copy of ``q.*``).
+
+        With ``share_parameters`` all agents load into the one shared network: the last load wins.
+        """
+        m = self._member(i)
+        online = {name[2:]: t for name, t in tensors.items() if name.startswith("q.")}
+        target = {name[7:]: t for name, t in tensors.items() if name.startswith("target.")}
+        self.q_network.load_member_state(m, online, name_prefix="q.")
+        self.target_network.load_member_state(m, target or online, name_prefix="target." if target else "q.")
+
+    def network_meta(self) -> dict[str, Any]:
+        return {
+            "obs_dim": self.obs_dim,
+            "num_actions": self.num_actions,
+            "hidden": list(self.hidden),
+            "activation": "relu",
+            "share_parameters": self.share_parameters,
+        }
+
+    def training_state(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Adam moments (by parameter name), replay storage and pointers, RNG states, counters.
+
+        The network weights themselves are in ``agent_tensors``: resume = ``load_agent_tensors``
+        for every agent, then ``load_training_state``.
+        """
+        arrays = {f"replay.{name}": value for name, value in self.replay.state_dict().items()}
+        names = {id(p): name for name, p in self.q_network.named_parameters()}
+        for parameter, state in self.optimizer.state.items():
+            for key, value in state.items():
+                value = np.ascontiguousarray(value.detach().cpu().numpy())
+                arrays[f"optim.{names[id(parameter)]}.{key}"] = value
+        meta = {
+            "explore_rng": self.rng.bit_generator.state,
+            "replay_rng": self.replay.rng.bit_generator.state,
+            "num_gradient_steps": self.num_gradient_steps,
+            "frozen_layers": list(self.frozen_layers),
+        }
+        return arrays, meta
+
+    def load_training_state(self, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
+        self.replay.load_state_dict(
+            {name[len("replay.") :]: value for name, value in arrays.items() if name.startswith("replay.")}
+        )
+        self.freeze(meta["frozen_layers"])
+        # Through Adam's own load_state_dict (state keyed by parameter position), which puts each
+        # moment on its parameter's device and keeps "step" where Adam expects it.
+        optimizer_state = self.optimizer.state_dict()
+        optimizer_state["state"] = {}
+        for index, (name, _) in enumerate(self.q_network.named_parameters()):
+            prefix = f"optim.{name}."
+            state = {
+                key[len(prefix) :]: torch.from_numpy(np.array(value))
+                for key, value in arrays.items()
+                if key.startswith(prefix)
+            }
+            if state:
+                optimizer_state["state"][index] = state
+        self.optimizer.load_state_dict(optimizer_state)
+        self.rng.bit_generator.state = meta["explore_rng"]
+        self.replay.rng.bit_generator.state = meta["replay_rng"]
+        self.num_gradient_steps = int(meta["num_gradient_steps"])

@@ -1,0 +1,251 @@
+"""Tabular SARSA (the study's base learner) and Q-learning for K agents.
+
+Each agent has its own Q-table keyed by the exact observation (the bytes of its float32 vector).
+An unseen observation is worth 0 for every action, unless the agent has a *fallback*: a table
+from another agent (set by transfer) that is looked up on a projection of the observation and
+initialises the entry the first time it is updated.
+
+Update of agent i for a transition ``(s, a, r, s')``, learning rate ``alpha = lr``::
+
+    y = r                                  if s' is terminal
+    y = r + gamma * Q(s', a')              SARSA: a' epsilon-greedy on Q(s', .), played next
+    y = r + gamma * max_a' Q(s', a')       Q-learning
+    Q(s, a) <- Q(s, a) + alpha * (y - Q(s, a))
+
+A truncated episode (time limit) bootstraps like any non-terminal step. SARSA picks ``a'`` at
+update time with the epsilon of the last ``act``, and the next ``act`` on ``s'`` returns that same
+action, so the update follows the policy actually played (on-policy).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+
+from dqn_transfer.agents.base import ObsLayout, check_tensor_shape, epsilon_greedy, normalize_layout
+
+ALGORITHMS = ("sarsa", "qlearning")
+_NO_ACTION = -1  # empty slot of the SARSA next-action cache
+
+
+def huber(td_error: float) -> float:
+    """The DQN loss of a TD error (smooth L1), so tabular and deep ``td_loss`` curves compare."""
+    magnitude = abs(td_error)
+    return 0.5 * magnitude**2 if magnitude < 1.0 else magnitude - 0.5
+
+
+class _Fallback:
+    """A read-only Q-table looked up on ``obs[projection]``."""
+
+    def __init__(self, keys: np.ndarray, values: np.ndarray, projection: np.ndarray) -> None:
+        self.keys = np.ascontiguousarray(keys, dtype=np.float32)
+        self.values = np.ascontiguousarray(values, dtype=np.float32)
+        self.projection = np.asarray(projection, dtype=np.int64)
+        self.table = {key.tobytes(): row for key, row in zip(self.keys, self.values)}
+
+    def get(self, obs: np.ndarray) -> np.ndarray | None:
+        return self.table.get(obs[self.projection].tobytes())
+
+
+class TabularLearner:
+    """K independent Q-tables updated by SARSA or Q-learning (see the module docstring)."""
+
+    def __init__(
+        self,
+        algorithm: str,
+        num_agents: int,
+        obs_layout: ObsLayout,
+        num_actions: int,
+        *,
+        lr: float = 0.1,  # alpha, the step size of the table update
+        gamma: float = 0.99,  # discount factor
+        rng: np.random.Generator,  # exploration and tie-breaking
+    ) -> None:
+        if algorithm not in ALGORITHMS:
+            raise ValueError(f"unknown tabular algorithm {algorithm!r}; expected one of {list(ALGORITHMS)}")
+        self.algorithm = algorithm
+        self.num_agents = num_agents
+        self.obs_layout = normalize_layout(obs_layout)
+        self.obs_dim = sum(size for _, size in self.obs_layout)
+        self.num_actions = num_actions
+        self.lr = lr
+        self.gamma = gamma
+        self.rng = rng
+        self.tables: list[dict[bytes, np.ndarray]] = [{} for _ in range(num_agents)]
+        self.fallbacks: list[_Fallback | None] = [None] * num_agents
+        # SARSA: the action chosen for next_obs at the last update, and that observation.
+        self.epsilon = np.zeros(num_agents)  # per agent: transferred agents may explore less
+        self.next_action = np.full(num_agents, _NO_ACTION, dtype=np.int64)
+        self.next_action_obs = np.zeros((num_agents, self.obs_dim), dtype=np.float32)
+
+    # ---------------------------------------------------------------------------------- tables
+
+    def q_values(self, i: int, obs: np.ndarray) -> np.ndarray:
+        """Agent i's Q-values of one observation, without adding an entry (do not modify)."""
+        row = self.tables[i].get(obs.tobytes())
+        if row is None:
+            fallback = self.fallbacks[i]
+            row = fallback.get(obs) if fallback is not None else None
+        return row if row is not None else np.zeros(self.num_actions, dtype=np.float32)
+
+    def _entry(self, i: int, obs: np.ndarray) -> np.ndarray:
+        """Agent i's table row for ``obs``, created (from the fallback, else zeros) when unseen."""
+        key = obs.tobytes()
+        if key not in self.tables[i]:
+            self.tables[i][key] = self.q_values(i, obs).copy()
+        return self.tables[i][key]
+
+    def _greedy(self, q: np.ndarray) -> int:
+        """Argmax with random tie-breaking: a fresh table is all ties, and always taking the
+        first action would bias early exploration towards it."""
+        best = np.flatnonzero(q == q.max())
+        return int(best[0]) if best.size == 1 else int(self.rng.choice(best))
+
+    def _epsilon_greedy(self, q: np.ndarray, epsilon: float) -> int:
+        return int(epsilon_greedy(np.array([self._greedy(q)]), epsilon, self.num_actions, self.rng)[0])
+
+    def set_fallback(
+        self, keys: np.ndarray, values: np.ndarray, projection: np.ndarray, agent: int | None = None
+    ) -> None:
+        """Initialise unseen entries from a table keyed on ``obs[projection]`` (all agents by default).
+
+        ``keys [N, Ds]`` float32, ``values [N, A]`` float32, ``projection [Ds]``: the indices of the
+        observation columns that form a key. Observations not in it stay at 0.
+        """
+        keys, values, projection = np.asarray(keys), np.asarray(values), np.asarray(projection)
+        well_formed = keys.ndim == 2 and projection.shape == (keys.shape[1],)
+        if not well_formed or values.shape != (len(keys), self.num_actions):
+            raise ValueError(
+                f"fallback table is malformed: keys {list(keys.shape)}, values {list(values.shape)}, "
+                f"projection {list(projection.shape)}, {self.num_actions} actions"
+            )
+        if projection.size and (projection.min() < 0 or projection.max() >= self.obs_dim):
+            raise ValueError(f"fallback projection points outside the {self.obs_dim} observation columns")
+        agents = range(self.num_agents) if agent is None else [agent]
+        for i in agents:
+            self.fallbacks[i] = _Fallback(keys, values, projection)
+
+    # ---------------------------------------------------------------------------------- acting
+
+    def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, greedy: bool = False) -> np.ndarray:
+        """Epsilon-greedy per live agent; SARSA replays the action its last update chose for ``obs``.
+
+        ``greedy`` (evaluation) takes the first argmax, uses no cached action and draws no
+        randomness, so evaluating does not change the training run. Non-live agents get action 0.
+        """
+        obs = np.asarray(obs, dtype=np.float32)
+        actions = np.zeros(self.num_agents, dtype=np.int64)
+        if not greedy:
+            self.epsilon = np.broadcast_to(np.asarray(epsilon, dtype=float), (self.num_agents,)).copy()
+        for i in np.flatnonzero(live):
+            if greedy:
+                actions[i] = int(np.argmax(self.q_values(i, obs[i])))
+            elif self._cached(i, obs[i]):
+                actions[i] = self.next_action[i]
+                self.next_action[i] = _NO_ACTION
+            else:
+                actions[i] = self._epsilon_greedy(self.q_values(i, obs[i]), self.epsilon[i])
+        return actions
+
+    def _cached(self, i: int, obs: np.ndarray) -> bool:
+        """Whether agent i's last update chose its next action for exactly this observation."""
+        return self.next_action[i] != _NO_ACTION and self.next_action_obs[i].tobytes() == obs.tobytes()
+
+    # -------------------------------------------------------------------------------- learning
+
+    def update(
+        self,
+        obs: np.ndarray,
+        actions: np.ndarray,
+        rewards: np.ndarray,
+        next_obs: np.ndarray,
+        terminated: np.ndarray,
+        truncated: np.ndarray,
+        live: np.ndarray,
+        step: int,
+    ) -> dict[str, np.ndarray]:
+        """One table update per live agent. ``q_mean`` is ``Q(s, a)`` before the update, ``td_loss``
+        the Huber loss of the TD error. ``step`` is unused (tabular learning has no schedule)."""
+        obs = np.asarray(obs, dtype=np.float32)
+        next_obs = np.asarray(next_obs, dtype=np.float32)
+        rewards = np.asarray(rewards, dtype=np.float32)
+        td_loss = np.full(self.num_agents, np.nan)
+        q_mean = np.full(self.num_agents, np.nan)
+        for i in np.flatnonzero(live):
+            self.next_action[i] = _NO_ACTION
+            row, a = self._entry(i, obs[i]), int(actions[i])
+            target = rewards[i]
+            if not terminated[i]:
+                bootstrap = self._bootstrap(i, next_obs[i], cache=not truncated[i])
+                target = rewards[i] + np.float32(self.gamma) * bootstrap
+            td_error = target - row[a]
+            q_mean[i], td_loss[i] = row[a], huber(float(td_error))
+            row[a] += np.float32(self.lr) * td_error
+        return {"td_loss": td_loss, "q_mean": q_mean}
+
+    def _bootstrap(self, i: int, next_obs: np.ndarray, cache: bool) -> np.float32:
+        """The value of ``next_obs`` the target uses: Q(s', a') for SARSA, max Q(s', .) for Q-learning.
+
+        SARSA caches a' to be played next, unless the episode ends here (truncation): then the next
+        act() starts a new episode and a' is used only in this target.
+        """
+        q_next = self.q_values(i, next_obs)
+        if self.algorithm == "qlearning":
+            return q_next.max()
+        next_action = self._epsilon_greedy(q_next, self.epsilon[i])
+        if cache:
+            self.next_action[i] = next_action
+            self.next_action_obs[i] = next_obs
+        return q_next[next_action]
+
+    # ----------------------------------------------------------------------------- checkpoints
+
+    def agent_tensors(self, i: int) -> dict[str, torch.Tensor]:
+        """``keys [N, D]`` / ``values [N, A]`` float32 in insertion order, plus the fallback
+        (``fallback_keys``, ``fallback_values``, ``fallback_projection`` int64) if set."""
+        table = self.tables[i]
+        keys = np.zeros((len(table), self.obs_dim), dtype=np.float32)
+        values = np.zeros((len(table), self.num_actions), dtype=np.float32)
+        for n, (key, row) in enumerate(table.items()):
+            keys[n] = np.frombuffer(key, dtype=np.float32)
+            values[n] = row
+        tensors = {"keys": torch.from_numpy(keys), "values": torch.from_numpy(values)}
+        fallback = self.fallbacks[i]
+        if fallback is not None:
+            tensors["fallback_keys"] = torch.from_numpy(fallback.keys.copy())
+            tensors["fallback_values"] = torch.from_numpy(fallback.values.copy())
+            tensors["fallback_projection"] = torch.from_numpy(fallback.projection.copy())
+        return tensors
+
+    def load_agent_tensors(self, i: int, tensors: dict[str, torch.Tensor]) -> None:
+        """Replace agent i's table (and fallback: set if the tensors have one, cleared otherwise)."""
+        keys = tensors["keys"].detach().cpu()
+        check_tensor_shape("keys", keys, (keys.shape[0], self.obs_dim))
+        check_tensor_shape("values", tensors["values"], (keys.shape[0], self.num_actions))
+        values = tensors["values"].detach().cpu().numpy().astype(np.float32)
+        keys_np = keys.numpy().astype(np.float32)
+        self.tables[i] = {key.tobytes(): row.copy() for key, row in zip(keys_np, values)}
+        self.fallbacks[i] = None
+        if "fallback_keys" in tensors:
+            self.set_fallback(
+                tensors["fallback_keys"].detach().cpu().numpy(),
+                tensors["fallback_values"].detach().cpu().numpy(),
+                tensors["fallback_projection"].detach().cpu().numpy(),
+                agent=i,
+            )
+
+    def network_meta(self) -> dict[str, Any]:
+        return {"obs_dim": self.obs_dim, "num_actions": self.num_actions}
+
+    def training_state(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """The SARSA next-action cache and the RNG state (the tables are in ``agent_tensors``)."""
+        arrays = {"next_action": self.next_action.copy(), "next_action_obs": self.next_action_obs.copy()}
+        return arrays, {"rng": self.rng.bit_generator.state, "epsilon": self.epsilon.tolist()}
+
+    def load_training_state(self, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
+        self.next_action = np.asarray(arrays["next_action"], dtype=np.int64).copy()
+        self.next_action_obs = np.asarray(arrays["next_action_obs"], dtype=np.float32).copy()
+        self.rng.bit_generator.state = meta["rng"]
+        self.epsilon = np.broadcast_to(np.asarray(meta["epsilon"], dtype=float), (self.num_agents,)).copy()

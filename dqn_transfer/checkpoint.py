@@ -1,0 +1,416 @@
+"""Self-describing, pickle-free checkpoints: one ``agent_{i}.safetensors`` file per agent.
+
+A checkpoint holds tensors only, plus a JSON ``meta`` string under the safetensors metadata key
+``"meta"``. The caller supplies the meta; by convention (what ``list`` shows and what
+:func:`check_compatible` reads) it has ``algorithm``, ``obs_layout``, ``num_actions``, ``network``,
+``env`` (with ``size``), ``mode``, ``steps``, ``episodes`` and ``last_eval`` (the last greedy evaluation,
+e.g. ``{"team_return": ..., "success_rate": ...}``). Saving adds ``format_version``, ``kind`` and
+``digest``, a SHA-256 over the tensors, so a copied file is complete on its own and a damaged one is
+detected.
+
+Why so strict on loading: checkpoints are shared between colleagues, and a pickle (what ``torch.save``
+writes) runs arbitrary code when loaded. So nothing here ever calls ``torch.load`` or ``pickle``; a
+file is sniffed first and refused when it looks like a pickle or a PyTorch zip, and every other
+problem (missing, truncated, foreign, newer, tampered) is a :class:`CheckpointError` with one line
+naming the file and the problem.
+
+Resume state (optimizer, replay, RNG, counters) uses the same container through
+:func:`save_training_state` / :func:`load_training_state`, with numpy arrays instead of torch tensors.
+Writes are atomic (temp file in the same directory, fsync, ``os.replace``), so a killed run never
+leaves a half-written file under the final name.
+
+Command line::
+
+    python -m dqn_transfer.checkpoint list|show|verify PATH   # a file, a run dir or a checkpoints dir
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import re
+import secrets
+import sys
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import safetensors
+import safetensors.numpy
+
+if TYPE_CHECKING:  # torch is only needed to save/load agent tensors, not to inspect files
+    import torch
+
+FORMAT_VERSION = 1
+META_KEY = "meta"
+AGENT_KIND = "agent"
+TRAINING_STATE_KIND = "training_state"
+
+_KIND_NAMES = {AGENT_KIND: "an agent checkpoint", TRAINING_STATE_KIND: "a training-state file"}
+_PICKLE_SUFFIXES = {".pt", ".pth", ".pkl", ".pickle", ".ckpt"}
+_ZIP_MAGIC = b"PK\x03\x04"  # torch.save's default container: a zip holding a pickle
+_PICKLE_PROTO = 0x80  # first byte of a pickle written with protocol >= 2
+_HEADER_LEN_BYTES = 8  # safetensors: little-endian u64 header length, then the JSON header
+_ALGORITHM_FAMILY = {"sarsa": "tabular", "qlearning": "tabular", "dqn": "dqn", "double_dqn": "dqn"}
+
+
+class CheckpointError(Exception):
+    """A checkpoint cannot be written, read or used; the message is one user-facing line."""
+
+
+@dataclass(frozen=True)
+class CheckpointInfo:
+    """What a verified file contains, without decoding its tensors into a framework."""
+
+    path: Path
+    meta: dict[str, Any]
+    tensors: dict[str, tuple[str, list[int]]]  # name -> (safetensors dtype, shape)
+    size_bytes: int
+
+
+# ---------------------------------------------------------------------------------------------
+# Writing
+
+
+def save_agent_checkpoint(path: str | os.PathLike, tensors: Mapping[str, torch.Tensor],
+                          meta: Mapping[str, Any]) -> None:
+    """Atomically write one agent's tensors and meta (the caller's ``meta`` is not modified)."""
+    import safetensors.torch
+
+    tensors = {name: t.detach().cpu().contiguous() for name, t in tensors.items()}
+    _save(Path(path), tensors, meta, AGENT_KIND, safetensors.torch.save)
+
+
+def save_training_state(path: str | os.PathLike, arrays: Mapping[str, np.ndarray],
+                        meta: Mapping[str, Any]) -> None:
+    """Atomically write resume state: numpy arrays plus JSON meta, no pickle."""
+    arrays = {name: np.ascontiguousarray(a) for name, a in arrays.items()}
+    _save(Path(path), arrays, meta, TRAINING_STATE_KIND, safetensors.numpy.save)
+
+
+def _save(path: Path, tensors: dict[str, Any], meta: Mapping[str, Any], kind: str,
+          serialize: Callable[..., bytes]) -> None:
+    # The digest is computed from the serialized tensors (name, dtype, shape, bytes as stored), so
+    # the reader checks exactly what is on disk, whatever framework wrote it. Serializing twice
+    # costs little next to the training that produced the tensors.
+    digest = tensor_digest(safetensors.deserialize(serialize(tensors)))
+    full_meta = {**meta, "format_version": FORMAT_VERSION, "kind": kind, "digest": digest}
+    try:
+        meta_json = json.dumps(full_meta, default=_json_default)
+    except (TypeError, ValueError) as e:
+        raise CheckpointError(f"{path}: meta is not JSON-serialisable ({e})") from None
+    _atomic_write(path, serialize(tensors, metadata={META_KEY: meta_json}))
+
+
+def _json_default(value: Any) -> Any:
+    """Let numpy scalars/arrays (e.g. eval metrics) into the JSON meta as plain numbers/lists."""
+    if isinstance(value, (np.generic, np.ndarray)):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} is not JSON-serialisable")
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    """Write ``data`` so that ``path`` holds either the old file or the complete new one."""
+    tmp_name = None
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        # Not tempfile.mkstemp: its 0600 mode would make shared checkpoints unreadable to others.
+        tmp_name = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
+        fd = os.open(tmp_name, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp_name, path)
+        tmp_name = None
+        if os.name == "posix":  # make the rename itself durable
+            dir_fd = os.open(path.parent, os.O_RDONLY)
+            try:
+                os.fsync(dir_fd)
+            finally:
+                os.close(dir_fd)
+    except OSError as e:
+        raise CheckpointError(f"{path}: cannot write checkpoint ({e})") from None
+    finally:
+        if tmp_name is not None and os.path.exists(tmp_name):
+            os.unlink(tmp_name)
+
+
+# ---------------------------------------------------------------------------------------------
+# Reading
+
+
+def tensor_digest(entries: list[tuple[str, dict[str, Any]]]) -> str:
+    """SHA-256 over tensors sorted by name: each name, dtype and shape, then its raw bytes.
+
+    ``entries`` is :func:`safetensors.deserialize`'s output. Dtype and shape fix each tensor's byte
+    length, so the concatenation is unambiguous.
+    """
+    h = hashlib.sha256()
+    for name, entry in sorted(entries, key=lambda e: e[0]):
+        h.update(json.dumps([name, entry["dtype"], list(entry["shape"])]).encode() + b"\n")
+        h.update(entry["data"])
+    return h.hexdigest()
+
+
+def verify_checkpoint(path: str | os.PathLike, kind: str | None = None) -> CheckpointInfo:
+    """Check a file completely (format, meta, digest) without decoding or unpickling anything.
+
+    ``kind`` (``"agent"`` or ``"training_state"``), when given, must match the file's.
+    """
+    info, _ = _read(Path(path), kind)
+    return info
+
+
+def load_agent_checkpoint(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+    """Verified tensors (CPU) and meta of one agent checkpoint; see :func:`verify_checkpoint`."""
+    import safetensors.torch
+
+    info, data = _read(Path(path), AGENT_KIND)
+    return _decode(info.path, data, safetensors.torch.load), info.meta
+
+
+def load_training_state(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Verified arrays and meta written by :func:`save_training_state`."""
+    info, data = _read(Path(path), TRAINING_STATE_KIND)
+    return _decode(info.path, data, safetensors.numpy.load), info.meta
+
+
+def _decode(path: Path, data: bytes, load: Callable[[bytes], dict[str, Any]]) -> dict[str, Any]:
+    try:
+        return load(data)
+    except safetensors.SafetensorError as e:
+        raise CheckpointError(f"{path}: cannot decode tensors ({e})") from None
+
+
+def _read(path: Path, kind: str | None) -> tuple[CheckpointInfo, bytes]:
+    """Read, sniff and fully verify ``path``; every failure is one CheckpointError line."""
+    data = _read_bytes(path)
+    header = _parse_header(path, data)
+    meta = _parse_meta(path, header)
+    if kind is not None and meta.get("kind", kind) != kind:
+        raise CheckpointError(f"{path}: is {_KIND_NAMES.get(meta['kind'], repr(meta['kind']))}, "
+                              f"not {_KIND_NAMES[kind]}")
+    try:
+        entries = safetensors.deserialize(data)
+    except safetensors.SafetensorError as e:
+        raise CheckpointError(f"{path}: corrupt or truncated safetensors data ({e})") from None
+    if tensor_digest(entries) != meta.get("digest"):
+        raise CheckpointError(f"{path}: tensor digest mismatch: the file is corrupt or was modified")
+    tensors = {name: (e["dtype"], list(e["shape"])) for name, e in sorted(entries, key=lambda e: e[0])}
+    return CheckpointInfo(path, meta, tensors, len(data)), data
+
+
+def _read_bytes(path: Path) -> bytes:
+    refusal = (f"{path} is a pickle/PyTorch file, not a safetensors checkpoint; "
+               "refusing to load it (pickles can run code)")
+    if not path.exists():
+        raise CheckpointError(f"{path}: no such checkpoint file")
+    if path.is_dir():
+        raise CheckpointError(f"{path}: is a directory, not a checkpoint file "
+                              "(give agent_<i>.safetensors, or use the CLI on the directory)")
+    if path.suffix.lower() in _PICKLE_SUFFIXES:
+        raise CheckpointError(refusal)
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise CheckpointError(f"{path}: cannot read checkpoint ({e.strerror})") from None
+    if not data:
+        raise CheckpointError(f"{path}: empty file, not a checkpoint")
+    if data.startswith(_ZIP_MAGIC) or (data[0] == _PICKLE_PROTO and not _looks_like_safetensors(data)):
+        raise CheckpointError(refusal)
+    return data
+
+
+def _looks_like_safetensors(data: bytes) -> bool:
+    """A safetensors header length is a plausible u64 and the JSON header opens with ``{``.
+
+    Needed because a valid header length can itself start with byte 0x80 (e.g. 128 bytes).
+    """
+    if len(data) <= _HEADER_LEN_BYTES:
+        return False
+    n = int.from_bytes(data[:_HEADER_LEN_BYTES], "little")
+    return n <= len(data) - _HEADER_LEN_BYTES and data[_HEADER_LEN_BYTES:_HEADER_LEN_BYTES + 1] == b"{"
+
+
+def _parse_header(path: Path, data: bytes) -> dict[str, Any]:
+    if len(data) < _HEADER_LEN_BYTES:
+        raise CheckpointError(f"{path}: truncated file ({len(data)} bytes), not a safetensors checkpoint")
+    n = int.from_bytes(data[:_HEADER_LEN_BYTES], "little")
+    if n > len(data) - _HEADER_LEN_BYTES:
+        raise CheckpointError(f"{path}: truncated or not a safetensors file (header length {n} "
+                              f"exceeds the file size {len(data)})")
+    try:
+        header = json.loads(data[_HEADER_LEN_BYTES:_HEADER_LEN_BYTES + n])
+    except (UnicodeDecodeError, json.JSONDecodeError):
+        raise CheckpointError(f"{path}: invalid safetensors header (not JSON); "
+                              "not a safetensors checkpoint") from None
+    if not isinstance(header, dict):
+        raise CheckpointError(f"{path}: invalid safetensors header (not a JSON object)")
+    return header
+
+
+def _parse_meta(path: Path, header: dict[str, Any]) -> dict[str, Any]:
+    metadata = header.get("__metadata__")
+    if not isinstance(metadata, dict) or META_KEY not in metadata:
+        raise CheckpointError(f"{path}: no '{META_KEY}' in the safetensors metadata; "
+                              "not a dqn_transfer checkpoint")
+    try:
+        meta = json.loads(metadata[META_KEY])
+    except (TypeError, json.JSONDecodeError):
+        raise CheckpointError(f"{path}: the '{META_KEY}' metadata is not valid JSON") from None
+    if not isinstance(meta, dict):
+        raise CheckpointError(f"{path}: the '{META_KEY}' metadata is not a JSON object")
+    version = meta.get("format_version")
+    if not isinstance(version, int) or isinstance(version, bool):
+        raise CheckpointError(f"{path}: meta has no integer format_version; not a dqn_transfer checkpoint")
+    if version > FORMAT_VERSION:
+        raise CheckpointError(f"{path}: format_version {version} is newer than this dqn_transfer "
+                              f"supports ({FORMAT_VERSION}); upgrade dqn_transfer to load it")
+    if not isinstance(meta.get("digest"), str):
+        raise CheckpointError(f"{path}: meta has no tensor digest; cannot verify the file")
+    return meta
+
+
+# ---------------------------------------------------------------------------------------------
+# Compatibility
+
+
+def check_compatible(meta: Mapping[str, Any], expected: Mapping[str, Any]) -> None:
+    """Refuse a checkpoint that does not fit the run, naming the first mismatch.
+
+    ``expected`` may hold ``algorithm`` (compared by family: tabular vs DQN, since Double DQN can
+    continue a DQN network), ``obs_layout``, ``num_actions``, ``size`` (map side, read from
+    ``meta["env"]["size"]`` or ``meta["size"]``; skipped if the checkpoint does not record it) and
+    any other key, compared for equality with ``meta[key]``.
+    """
+    for key, want in expected.items():
+        if key == "size":
+            env = meta.get("env")
+            have = env.get("size") if isinstance(env, Mapping) else None
+            have = meta.get("size") if have is None else have
+            if have is not None and int(have) != int(want):
+                raise CheckpointError(f"checkpoint was trained on a {have}x{have} map; "
+                                      f"this run uses {want}x{want}")
+            continue
+        if key not in meta:
+            raise CheckpointError(f"checkpoint meta does not record {key!r}; cannot check compatibility")
+        have = meta[key]
+        if key == "algorithm":
+            fam_have, fam_want = _family(have), _family(want)
+            if fam_have != fam_want:
+                raise CheckpointError(f"checkpoint holds a {fam_have} agent ({have}); "
+                                      f"this run uses a {fam_want} agent ({want})")
+        elif key == "obs_layout":
+            if _layout_str(have) != _layout_str(want):
+                raise CheckpointError(f"checkpoint obs_layout [{_layout_str(have)}] differs from "
+                                      f"this run's [{_layout_str(want)}]")
+        elif key == "num_actions":
+            if int(have) != int(want):
+                raise CheckpointError(f"checkpoint has {have} actions; this run has {want}")
+        elif _normalise(have) != _normalise(want):
+            raise CheckpointError(f"checkpoint has {key}={have!r}; this run expects {want!r}")
+
+
+def _family(algorithm: str) -> str:
+    return _ALGORITHM_FAMILY.get(str(algorithm), str(algorithm))
+
+
+def _layout_str(layout: Any) -> str:
+    return ", ".join(f"{name}:{int(size)}" for name, size in layout)
+
+
+def _normalise(value: Any) -> Any:
+    """Compare JSON-read values with in-memory ones (tuples come back from JSON as lists)."""
+    return json.loads(json.dumps(value, default=_json_default))
+
+
+# ---------------------------------------------------------------------------------------------
+# Finding files and the command line
+
+
+def find_checkpoints(path: str | os.PathLike) -> list[Path]:
+    """Agent checkpoints under ``path``: a file, a run dir (``run/checkpoints``) or a checkpoints dir.
+
+    Sorted by agent index (``agent_10`` after ``agent_2``). A file is returned as is, so loading it
+    gives the precise refusal (pickle, not safetensors, ...).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise CheckpointError(f"{path}: no such file or directory")
+    if path.is_file():
+        return [path]
+    directory = path / "checkpoints" if (path / "checkpoints").is_dir() else path
+    files = sorted(directory.glob("agent_*.safetensors"), key=_natural_key)
+    if not files:
+        raise CheckpointError(f"{directory}: no agent_*.safetensors checkpoints found")
+    return files
+
+
+def _natural_key(path: Path) -> list[Any]:
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", path.name)]
+
+
+def _format_list_row(info: CheckpointInfo) -> str:
+    meta = info.meta
+    last_eval = meta.get("last_eval")
+    eval_return = last_eval.get("team_return") if isinstance(last_eval, Mapping) else None
+    eval_text = "-" if eval_return is None else f"{float(eval_return):.2f}"
+    return (f"{info.path.name}  algorithm={meta.get('algorithm', '-')}  steps={meta.get('steps', '-')}"
+            f"  episodes={meta.get('episodes', '-')}  eval_return={eval_text}"
+            f"  size={_human_size(info.size_bytes)}")
+
+
+def _format_show(info: CheckpointInfo) -> str:
+    lines = [f"# {info.path}", json.dumps(info.meta, indent=2), "tensors:"]
+    lines += [f"  {name}  {dtype}  {shape}" for name, (dtype, shape) in info.tensors.items()]
+    return "\n".join(lines)
+
+
+def _human_size(n_bytes: int) -> str:
+    if n_bytes < 1024:
+        return f"{n_bytes} B"
+    size = n_bytes / 1024
+    for unit in ("KiB", "MiB"):
+        if size < 1024:
+            return f"{size:.1f} {unit}"
+        size /= 1024
+    return f"{size:.1f} GiB"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``list`` / ``show`` / ``verify`` checkpoints; exit 1 with one ``error:`` line per bad file."""
+    parser = argparse.ArgumentParser(prog="python -m dqn_transfer.checkpoint",
+                                     description="Inspect dqn_transfer safetensors checkpoints.")
+    parser.add_argument("command", choices=["list", "show", "verify"])
+    parser.add_argument("path", help="a checkpoint file, a run directory or a checkpoints directory")
+    args = parser.parse_args(argv)
+
+    try:
+        files = find_checkpoints(args.path)
+    except CheckpointError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    failed = False
+    for file in files:
+        try:
+            info = verify_checkpoint(file)
+        except CheckpointError as e:
+            print(f"error: {e}", file=sys.stderr)
+            failed = True
+            continue
+        if args.command == "list":
+            print(_format_list_row(info))
+        elif args.command == "show":
+            print(_format_show(info))
+        else:
+            print(f"OK {file}")
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,496 @@
+"""The treasure-hunt game: a pure numpy core stepping K agents at once (DESIGN section 3).
+
+The trainer drives :class:`TreasureHuntGame` directly (arrays in, arrays out); the PettingZoo and
+Gymnasium faces are thin wrappers around it. Everything that does not change during a run is
+precomputed once per map (next-cell tables, BFS distances, view windows) so a step is a handful
+of numpy fancy-indexing operations, with a Python slow path only on steps where an agent enters a
+chest or a trap.
+
+Choices the specification leaves open, made here:
+
+* ``reward_mode="team"``: every agent live before the step receives the sum of the step's
+  rewards; agents that were already done receive 0 (they are not part of the transition).
+* A non-live agent's observation stays its last one (the observation after its final move).
+* ``competitive`` mode: an agent's ``treasures`` segment (and the chest plane of its ``view``)
+  changes only when the agent itself enters a chest: taking it, finding it empty, or losing a
+  tie there. Seeing a chest in the view window does *not* reveal its contents; the view shows what
+  the agent believes.
+* ``cooperative``/``deliberative``: every agent sees the true chest state.
+* ``deliberative`` ties: agents are considered in index order; each gets the nearest chest
+  (lowest chest number on equal distance), or none when there are more agents than chests, that
+  still leaves a minimum-total assignment for the others (see :func:`assign_agents`). An agent
+  that ends keeps its last assignment in its final observation.
+* Two agents entering the same full chest in one step: the winner is drawn with the generator
+  passed to :meth:`TreasureHuntGame.reset`; every loser gets ``step_reward`` and (in competitive
+  mode) learns the chest is empty.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from dqn_transfer.envs.maps import GridMap, resolve_map
+
+MODES = ("competitive", "cooperative", "deliberative")
+REWARD_MODES = ("individual", "team")
+OBS_ENCODINGS = ("onehot", "coords")
+RENDER_MODES = ("ansi", "rgb_array")
+ACTION_MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))  # 0 up, 1 down, 2 left, 3 right
+
+_FREE, _CHEST, _TRAP = 0, 1, 2  # what a move can land on (an obstacle sends the agent home)
+
+CELL_PX = 16
+_COLOURS = {
+    "free": (235, 235, 235),
+    "obstacle": (60, 60, 60),
+    "chest_full": (255, 196, 0),
+    "chest_empty": (150, 110, 60),
+    "trap": (200, 30, 30),
+    "grid": (200, 200, 200),
+}
+_AGENT_COLOURS = np.array(
+    [(31, 119, 180), (44, 160, 44), (148, 103, 189), (23, 190, 207), (227, 119, 194),
+     (255, 127, 14), (140, 86, 75), (127, 127, 127), (188, 189, 34), (0, 0, 128)],
+    dtype=np.uint8,
+)
+
+
+def check_choice(name: str, value: object, choices: tuple[str, ...]) -> str:
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {', '.join(choices)}; got {value!r}")
+    return value  # type: ignore[return-value]
+
+
+def check_render_mode(render_mode: str | None) -> str | None:
+    if render_mode is not None:
+        check_choice("render_mode", render_mode, RENDER_MODES)
+    return render_mode
+
+
+def _check_reward(name: str, value: object) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.number)):
+        raise ValueError(f"{name} must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise ValueError(f"{name} must be finite, got {value}")
+    return float(value)
+
+
+def _check_int(name: str, value: object, low: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+        raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+    return int(value)
+
+
+def assign_agents(cost: np.ndarray) -> np.ndarray:
+    """Chest column for each agent row (``-1``: none) minimising the total integer ``cost``.
+
+    Among the optimal assignments, ties go to the lower agent index: agents are fixed in index
+    order, each to its most preferred option -- cheapest chest, then lowest column, then no chest
+    (only possible with more agents than chests) -- for which the remaining agents can still
+    complete an assignment of minimum total. Exact on integers; a few small
+    ``linear_sum_assignment`` calls, done only when chests or live agents change.
+    """
+    num_rows, num_cols = cost.shape
+    rows, cols = linear_sum_assignment(cost)
+    best = int(cost[rows, cols].sum())
+    pairs = len(rows)
+    current = np.full(num_rows, -1, dtype=np.int64)
+    current[rows] = cols
+    fixed_cost, fixed_pairs = 0, 0
+    free_cols = list(range(num_cols))
+    for agent in range(num_rows):
+        options = sorted(free_cols, key=lambda c: (cost[agent, c], c))
+        if num_rows > num_cols:
+            options.append(-1)
+        rest_rows = np.arange(agent + 1, num_rows)
+        for option in options:
+            if option != current[agent]:
+                rest_cols = np.array([c for c in free_cols if c != option], dtype=np.int64)
+                sub = cost[np.ix_(rest_rows, rest_cols)]
+                sub_rows, sub_cols = linear_sum_assignment(sub) if sub.size else ((), ())
+                own_pair = int(option >= 0)
+                total = fixed_cost + (int(cost[agent, option]) if option >= 0 else 0)
+                total += int(sub[sub_rows, sub_cols].sum()) if len(sub_rows) else 0
+                if fixed_pairs + own_pair + len(sub_rows) != pairs or total != best:
+                    continue
+                current[rest_rows] = -1
+                current[rest_rows[np.asarray(sub_rows, dtype=np.int64)]] = rest_cols[
+                    np.asarray(sub_cols, dtype=np.int64)
+                ]
+                current[agent] = option
+            if option >= 0:
+                fixed_cost += int(cost[agent, option])
+                fixed_pairs += 1
+                free_cols.remove(option)
+            break
+    return current
+
+
+class TreasureHuntGame:
+    """K agents hunting the chests of one map; see the module docstring for the rules' details."""
+
+    def __init__(
+        self,
+        grid_map: GridMap,
+        *,
+        mode: str = "competitive",
+        reward_mode: str = "individual",
+        obs_encoding: str = "onehot",
+        view_radius: int = 0,
+        max_steps: int | None = None,
+        treasure_reward: float = 100.0,
+        trap_reward: float = -100.0,
+        step_reward: float = -1.0,
+        num_agents: int | None = None,
+        include_treasures: bool = True,
+    ) -> None:
+        self.map = grid_map
+        self.mode = check_choice("mode", mode, MODES)
+        self.reward_mode = check_choice("reward_mode", reward_mode, REWARD_MODES)
+        self.obs_encoding = check_choice("obs_encoding", obs_encoding, OBS_ENCODINGS)
+        self.view_radius = _check_int("view_radius", view_radius, 0)
+        n = grid_map.size
+        self.size = n
+        self.max_steps = n * n if max_steps is None else _check_int("max_steps", max_steps, 1)
+        self.treasure_reward = _check_reward("treasure_reward", treasure_reward)
+        self.trap_reward = _check_reward("trap_reward", trap_reward)
+        self.step_reward = _check_reward("step_reward", step_reward)
+        if num_agents is None:
+            num_agents = grid_map.num_agents
+        elif isinstance(num_agents, bool) or not 1 <= num_agents <= grid_map.num_agents:
+            raise ValueError(
+                f"num_agents must be between 1 and the map's {grid_map.num_agents} starts, "
+                f"got {num_agents!r}"
+            )
+        self.num_agents = int(num_agents)
+        self.num_treasures = grid_map.num_treasures
+        self.num_actions = len(ACTION_MOVES)
+        self.include_treasures = bool(include_treasures)
+        self._build_tables()
+        self._build_obs_layout()
+        k, agents = self.num_treasures, self.num_agents
+        self._pos = self._starts.copy()
+        self._live = np.ones(agents, dtype=bool)
+        self._live_idx = np.arange(agents)
+        self._chest_full = np.ones(k, dtype=bool)
+        # Each agent's belief about each chest, plus a constant-0 column k: the "no chest" entry
+        # the view's chest plane indexes for cells without a chest.
+        self._belief = np.zeros((agents, k + 1), dtype=np.float32)
+        self._assigned = np.full(agents, -1, dtype=np.int64)
+        self._obs = np.zeros((agents, self.obs_dim), dtype=np.float32)
+        self._rng = np.random.default_rng(0)
+        self._t = 0
+        self.treasures_collected = 0
+
+    # ------------------------------------------------------------------ precomputation
+    def _build_tables(self) -> None:
+        n, gm = self.size, self.map
+        cells = n * n
+        flat = lambda cell: cell[0] * n + cell[1]  # noqa: E731
+        obstacle = np.zeros(cells, dtype=bool)
+        obstacle[[flat(c) for c in gm.obstacles]] = True
+        self._kind = np.full(cells, _FREE, dtype=np.int8)
+        self._kind[[flat(c) for c in gm.traps]] = _TRAP
+        self._kind[[flat(c) for c in gm.chests]] = _CHEST
+        self._chest_of = np.full(cells, self.num_treasures, dtype=np.int64)  # k = no chest
+        self._chest_of[[flat(c) for c in gm.chests]] = np.arange(self.num_treasures)
+        self._starts = np.array([flat(c) for c in gm.starts[: self.num_agents]], dtype=np.int64)
+        self._coords = np.stack(np.divmod(np.arange(cells), n), axis=1).astype(np.float32) / (n - 1)
+
+        rows, cols = np.divmod(np.arange(cells), n)
+        moves = np.empty((cells, len(ACTION_MOVES)), dtype=np.int64)
+        for a, (dr, dc) in enumerate(ACTION_MOVES):
+            rr, cc = rows + dr, cols + dc
+            inside = (rr >= 0) & (rr < n) & (cc >= 0) & (cc < n)
+            moves[:, a] = np.where(inside, rr * n + cc, np.arange(cells))  # off-grid: stay
+        # Per agent, because bumping into an obstacle sends an agent to its own start.
+        self._next = np.where(obstacle[moves][None], self._starts[:, None, None], moves[None])
+
+        if self.mode == "deliberative":
+            unreachable = self.num_agents * cells  # worse than any assignment of reachable pairs
+            dist = np.stack([gm.distances_from(c).reshape(-1) for c in gm.chests])
+            self._chest_dist = np.where(dist < 0, unreachable, dist)
+
+        r = self.view_radius
+        if r > 0:
+            span = np.arange(-r, r + 1)
+            wr = rows[:, None, None] + span[None, :, None]  # [cells, W, 1]
+            wc = cols[:, None, None] + span[None, None, :]  # [cells, 1, W]
+            inside = (wr >= 0) & (wr < n) & (wc >= 0) & (wc < n)
+            idx = np.where(inside, np.clip(wr, 0, n - 1) * n + np.clip(wc, 0, n - 1), 0)
+            idx = idx.reshape(cells, -1)
+            inside = inside.reshape(cells, -1)
+            blocked = np.where(inside, obstacle[idx], True)
+            trap = inside & (self._kind[idx] == _TRAP)
+            self._view_static = np.concatenate([blocked, trap], axis=1).astype(np.float32)
+            self._view_chest = np.where(inside, self._chest_of[idx], self.num_treasures)
+
+    def _build_obs_layout(self) -> None:
+        k = self.num_treasures
+        layout = [("position", self.size**2 if self.obs_encoding == "onehot" else 2)]
+        if self.include_treasures:
+            layout.append(("treasures", k))
+        if self.mode == "deliberative":
+            layout.append(("assignment", k))
+        if self.view_radius > 0:
+            layout.append(("view", 3 * (2 * self.view_radius + 1) ** 2))
+        self._layout = layout
+        offsets, start = {}, 0
+        for name, width in layout:
+            offsets[name] = (start, start + width)
+            start += width
+        self._offsets = offsets
+        self.obs_dim = start
+
+    def obs_layout(self) -> list[tuple[str, int]]:
+        """Named observation segments, in order; the same for every agent."""
+        return list(self._layout)
+
+    def single_agent_game(self) -> TreasureHuntGame:
+        """The source task of transfer: agent 0 alone on the same map, observing position [+ view]."""
+        return TreasureHuntGame(
+            self.map,
+            mode="competitive",
+            obs_encoding=self.obs_encoding,
+            view_radius=self.view_radius,
+            max_steps=self.max_steps,
+            treasure_reward=self.treasure_reward,
+            trap_reward=self.trap_reward,
+            step_reward=self.step_reward,
+            num_agents=1,
+            include_treasures=False,
+        )
+
+    # ------------------------------------------------------------------ state
+    @property
+    def live(self) -> np.ndarray:
+        return self._live.copy()
+
+    @property
+    def done(self) -> bool:
+        return self._live_idx.size == 0
+
+    @property
+    def chest_full(self) -> np.ndarray:
+        return self._chest_full.copy()
+
+    @property
+    def positions(self) -> np.ndarray:
+        """``[K, 2]`` (row, col) of every agent."""
+        return np.stack(np.divmod(self._pos, self.size), axis=1)
+
+    @property
+    def assignment(self) -> np.ndarray:
+        """Chest assigned to each agent (deliberative mode; ``-1``: none)."""
+        return self._assigned.copy()
+
+    @property
+    def steps(self) -> int:
+        return self._t
+
+    # ------------------------------------------------------------------ dynamics
+    def reset(self, rng: np.random.Generator) -> np.ndarray:
+        """Agents to their starts, every chest full; ``rng`` draws the winners of chest ties."""
+        self._rng = rng
+        self._pos[:] = self._starts
+        self._live[:] = True
+        self._live_idx = np.arange(self.num_agents)
+        self._chest_full[:] = True
+        self._belief[:, : self.num_treasures] = 1.0
+        self._t = 0
+        self.treasures_collected = 0
+        self._assigned[:] = -1
+        if self.mode == "deliberative":
+            self._assign()
+        self._obs[:] = 0.0
+        self._write_obs(self._live_idx, self._pos, None, env_changed=True)
+        return self._obs.copy()
+
+    def step(
+        self, actions: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+        """Move every live agent at once; actions of non-live agents are ignored."""
+        idx = self._live_idx
+        if idx.size == 0:
+            raise RuntimeError("the episode is over: call reset() before step()")
+        acts = np.asarray(actions)[idx]
+        if acts.min() < 0 or acts.max() >= self.num_actions:
+            raise ValueError(f"actions must be in 0..{self.num_actions - 1}, got {acts.tolist()}")
+        old = self._pos[idx]
+        new = self._next[idx, old, acts]
+        self._pos[idx] = new
+        self._t += 1
+        agents = self.num_agents
+        rewards = np.zeros(agents, dtype=np.float32)
+        rewards[idx] = self.step_reward
+        terminated = np.zeros(agents, dtype=bool)
+        trap = np.zeros(agents, dtype=bool)
+        kinds = self._kind[new]
+        events = bool(kinds.any())
+        collected = self._resolve_events(idx, new, kinds, rewards, terminated, trap) if events else 0
+        truncated = np.zeros(agents, dtype=bool)
+        if self._t >= self.max_steps:
+            truncated[idx] = ~terminated[idx]
+        ended = terminated | truncated
+        if ended.any():  # a chest is only ever emptied by an agent that thereby ends
+            self._live &= ~ended
+            self._live_idx = np.flatnonzero(self._live)
+            if self.mode == "deliberative" and self._live_idx.size:
+                self._assign()
+        self._write_obs(idx, new, old, env_changed=events)
+        if self.reward_mode == "team":
+            rewards[idx] = rewards[idx].sum()
+        info = {"treasures_collected": collected, "trap": trap, "live": self._live.copy()}
+        return self._obs.copy(), rewards, terminated, truncated, info
+
+    def _resolve_events(
+        self,
+        idx: np.ndarray,
+        new: np.ndarray,
+        kinds: np.ndarray,
+        rewards: np.ndarray,
+        terminated: np.ndarray,
+        trap: np.ndarray,
+    ) -> int:
+        """Slow path for the few steps where some agent entered a chest or a trap."""
+        contenders: dict[int, list[int]] = {}
+        hits = np.flatnonzero(kinds)
+        for agent, cell, kind in zip(idx[hits].tolist(), new[hits].tolist(), kinds[hits].tolist()):
+            if kind == _TRAP:
+                rewards[agent] = self.trap_reward
+                terminated[agent] = trap[agent] = True
+            else:
+                contenders.setdefault(int(self._chest_of[cell]), []).append(agent)
+        collected = 0
+        for chest, group in contenders.items():
+            if self._chest_full[chest]:
+                winner = group[int(self._rng.integers(len(group)))] if len(group) > 1 else group[0]
+                self._chest_full[chest] = False
+                rewards[winner] = self.treasure_reward
+                terminated[winner] = True
+                collected += 1
+                if self.mode != "competitive":  # announced: everybody knows the truth
+                    self._belief[:, chest] = 0.0
+            self._belief[group, chest] = 0.0  # whoever entered saw it empty (or emptied it)
+        self.treasures_collected += collected
+        return collected
+
+    def _assign(self) -> None:
+        """Coordinator: live agents to full chests, minimum total shortest-path length."""
+        live = self._live_idx
+        full = np.flatnonzero(self._chest_full)
+        self._assigned[live] = -1
+        if live.size and full.size:
+            cost = self._chest_dist[np.ix_(full, self._pos[live])].T
+            picks = assign_agents(cost)
+            self._assigned[live] = np.where(picks >= 0, full[picks], -1)
+
+    def _write_obs(
+        self, rows: np.ndarray, new: np.ndarray, old: np.ndarray | None, env_changed: bool
+    ) -> None:
+        """Refresh the observation rows of the agents that just moved (others keep their last)."""
+        obs = self._obs
+        if self.obs_encoding == "onehot":
+            if old is not None:
+                obs[rows, old] = 0.0
+            obs[rows, new] = 1.0
+        else:
+            obs[rows, 0:2] = self._coords[new]
+        if env_changed:
+            k = self.num_treasures
+            if self.include_treasures:
+                lo, hi = self._offsets["treasures"]
+                obs[rows, lo:hi] = self._belief[rows, :k]
+            if self.mode == "deliberative":
+                lo, hi = self._offsets["assignment"]
+                obs[rows, lo:hi] = 0.0
+                chosen = self._assigned[rows]
+                has = chosen >= 0
+                obs[rows[has], lo + chosen[has]] = 1.0
+        if self.view_radius > 0:
+            lo, hi = self._offsets["view"]
+            mid = hi - self._view_chest.shape[1]
+            obs[rows, lo:mid] = self._view_static[new]
+            obs[rows, mid:hi] = self._belief[rows[:, None], self._view_chest[new]]
+
+    # ------------------------------------------------------------------ rendering
+    def render_ansi(self) -> str:
+        """The grid (``T`` full chest, ``t`` empty chest, digits: live agents, ``*``: several)."""
+        grid = [["." if ch.isdigit() else ch for ch in row] for row in self.map.rows]
+        for chest, (r, c) in enumerate(self.map.chests):
+            grid[r][c] = "T" if self._chest_full[chest] else "t"
+        for agent in self._live_idx.tolist():
+            r, c = divmod(int(self._pos[agent]), self.size)
+            grid[r][c] = "*" if grid[r][c].isdigit() else str(agent)
+        status = (
+            f"step {self._t}/{self.max_steps}  live agents: {self._live_idx.tolist()}  "
+            f"full chests: {int(self._chest_full.sum())}/{self.num_treasures}"
+        )
+        return "\n".join("".join(row) for row in grid) + "\n" + status
+
+    def render_rgb(self) -> np.ndarray:
+        """``[n*16, n*16, 3]`` uint8 image: cells coloured by type, live agents drawn on top."""
+        n, px = self.size, CELL_PX
+        colour = np.empty((n, n, 3), dtype=np.uint8)
+        colour[:] = _COLOURS["free"]
+        for r, c in self.map.obstacles:
+            colour[r, c] = _COLOURS["obstacle"]
+        for r, c in self.map.traps:
+            colour[r, c] = _COLOURS["trap"]
+        for chest, (r, c) in enumerate(self.map.chests):
+            colour[r, c] = _COLOURS["chest_full" if self._chest_full[chest] else "chest_empty"]
+        img = np.repeat(np.repeat(colour, px, axis=0), px, axis=1)
+        img[::px, :] = _COLOURS["grid"]
+        img[:, ::px] = _COLOURS["grid"]
+        pad = px // 4
+        for agent in self._live_idx.tolist():
+            r, c = divmod(int(self._pos[agent]), n)
+            img[r * px + pad : (r + 1) * px - pad, c * px + pad : (c + 1) * px - pad] = (
+                _AGENT_COLOURS[agent % len(_AGENT_COLOURS)]
+            )
+        return img
+
+
+def make_game(
+    *,
+    size: int | None = None,
+    num_treasures: int | None = None,
+    num_traps: int | None = None,
+    num_agents: int | None = None,
+    complexity: float | None = None,
+    map_seed: int | None = None,
+    layout: str | None = None,
+    layout_file: str | None = None,
+    max_steps: int | None = None,
+    mode: str = "competitive",
+    reward_mode: str = "individual",
+    obs_encoding: str = "onehot",
+    view_radius: int = 0,
+    treasure_reward: float = 100.0,
+    trap_reward: float = -100.0,
+    step_reward: float = -1.0,
+    render_mode: str | None = None,
+) -> TreasureHuntGame:
+    """The game for the env keyword arguments of DESIGN section 8 (the ``env`` config group).
+
+    ``render_mode`` is only validated here (rendering belongs to the faces), so a whole env config
+    can be passed as it is. Map parameters left ``None`` take :func:`resolve_map`'s defaults.
+    """
+    check_render_mode(render_mode)
+    grid_map = resolve_map(
+        size, num_treasures, num_traps, num_agents, complexity, map_seed, layout, layout_file
+    )
+    return TreasureHuntGame(
+        grid_map,
+        mode=mode,
+        reward_mode=reward_mode,
+        obs_encoding=obs_encoding,
+        view_radius=view_radius,
+        max_steps=max_steps,
+        treasure_reward=treasure_reward,
+        trap_reward=trap_reward,
+        step_reward=step_reward,
+    )

@@ -1,0 +1,432 @@
+"""Treasure-hunt maps: generation, parsing and validation (DESIGN section 3).
+
+A map is an ``n x n`` ASCII grid, one row per line, with the legend
+
+    ``.`` free    ``#`` obstacle    ``T`` treasure chest    ``X`` trap    ``0``-``9`` agent start
+
+Every map, generated or given, obeys the same rules:
+
+1. the non-obstacle cells (free, chests, traps, starts) are 4-connected: no closed area;
+2. no trap is in the 8-neighbourhood of a chest ("not right beside");
+3. every chest is reachable from every start through cells that are neither obstacles nor traps;
+4. start digits are ``0..m-1`` without gaps or duplicates, and there is at least one chest.
+
+Cells are named ``row r, col c`` counting from 0, top-left first: the same convention as the
+``position`` observation index ``r * n + c``.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections import deque
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+Cell = tuple[int, int]
+
+FREE, OBSTACLE, CHEST, TRAP = ".", "#", "T", "X"
+LEGEND = frozenset(FREE + OBSTACLE + CHEST + TRAP + "0123456789")
+MAX_AGENTS = 10  # one start digit per agent
+DEFAULT_SIZE = 10
+DEFAULT_TREASURES = 1
+
+# Bounded retries of generate_layout: at least this many obstacle layouts, and object placements
+# per layout; small maps (cheap attempts, tight fits) get more, about _WORK_BUDGET / cells.
+_MIN_OBSTACLE_ATTEMPTS = 3
+_MIN_OBJECT_ATTEMPTS = 10
+_WORK_BUDGET = 2000
+
+_STEPS4 = ((-1, 0), (1, 0), (0, -1), (0, 1))
+_STEPS8 = tuple((dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if (dr, dc) != (0, 0))
+
+
+def _name(cell: Cell) -> str:
+    return f"row {cell[0]}, col {cell[1]}"
+
+
+def _neighbours(cell: Cell, size: int, steps: Iterable[Cell] = _STEPS4) -> Iterable[Cell]:
+    r, c = cell
+    for dr, dc in steps:
+        rr, cc = r + dr, c + dc
+        if 0 <= rr < size and 0 <= cc < size:
+            yield rr, cc
+
+
+def _flood(start: Cell, size: int, blocked: set[Cell] | frozenset[Cell]) -> set[Cell]:
+    """Cells 4-connected to ``start`` that are not blocked."""
+    seen = {start}
+    todo = [start]
+    while todo:
+        for nxt in _neighbours(todo.pop(), size):
+            if nxt not in seen and nxt not in blocked:
+                seen.add(nxt)
+                todo.append(nxt)
+    return seen
+
+
+@dataclass(frozen=True)
+class GridMap:
+    """A validated map. Build it with :func:`parse_layout`, which checks every rule."""
+
+    size: int
+    rows: tuple[str, ...]
+    chests: tuple[Cell, ...]  # row-major: the order of the `treasures` and `assignment` segments
+    traps: tuple[Cell, ...]
+    starts: tuple[Cell, ...]  # index = agent
+    obstacles: frozenset[Cell]
+
+    @property
+    def layout(self) -> str:
+        return "\n".join(self.rows)
+
+    @property
+    def num_agents(self) -> int:
+        return len(self.starts)
+
+    @property
+    def num_treasures(self) -> int:
+        return len(self.chests)
+
+    @property
+    def num_traps(self) -> int:
+        return len(self.traps)
+
+    def distances_from(self, cell: Cell) -> np.ndarray:
+        """BFS path lengths from ``cell`` avoiding obstacles and traps, ``-1`` where unreachable.
+
+        Grid moves are symmetric, so this is also the distance *to* ``cell`` from everywhere: the
+        deliberative coordinator computes it once per chest.
+        """
+        blocked = self.obstacles | frozenset(self.traps)
+        dist = np.full((self.size, self.size), -1, dtype=np.int64)
+        dist[cell] = 0
+        queue = deque([cell])
+        while queue:
+            cur = queue.popleft()
+            for nxt in _neighbours(cur, self.size):
+                if dist[nxt] < 0 and nxt not in blocked:
+                    dist[nxt] = dist[cur] + 1
+                    queue.append(nxt)
+        return dist
+
+
+def parse_layout(text: str) -> GridMap:
+    """Parse and validate an ASCII layout; a broken rule raises ``ValueError`` naming rule and cell.
+
+    Blank leading/trailing lines and trailing whitespace are ignored, so layouts can be pasted
+    from files or triple-quoted strings as they are.
+    """
+    lines = [line.rstrip() for line in text.splitlines()]
+    while lines and not lines[0]:
+        lines.pop(0)
+    while lines and not lines[-1]:
+        lines.pop()
+    if not lines:
+        raise ValueError("layout is empty")
+    width = len(lines[0])
+    for r, line in enumerate(lines):
+        if len(line) != width:
+            raise ValueError(
+                f"layout has ragged rows: row 0 has {width} cells but row {r} has {len(line)}"
+            )
+    size = len(lines)
+    if width != size:
+        raise ValueError(f"layout is not square: {size} rows of {width} cells (it must be n x n)")
+    if size < 2:
+        raise ValueError("layout must be at least 2 x 2")
+
+    obstacles, chests, traps, starts = set(), [], [], {}
+    for r, line in enumerate(lines):
+        for c, ch in enumerate(line):
+            if ch not in LEGEND:
+                raise ValueError(
+                    f"unknown character {ch!r} at {_name((r, c))} (legend: . # T X 0-9)"
+                )
+            if ch == OBSTACLE:
+                obstacles.add((r, c))
+            elif ch == CHEST:
+                chests.append((r, c))
+            elif ch == TRAP:
+                traps.append((r, c))
+            elif ch.isdigit():
+                if int(ch) in starts:
+                    raise ValueError(
+                        f"start digit {ch} appears twice: at {_name(starts[int(ch)])} "
+                        f"and at {_name((r, c))}"
+                    )
+                starts[int(ch)] = (r, c)
+    if not starts:
+        raise ValueError("layout has no agent start: put the digit 0 on a cell")
+    missing = sorted(set(range(max(starts) + 1)) - set(starts))
+    if missing:
+        raise ValueError(
+            f"start digits must be 0..m-1 without gaps: found {sorted(starts)}, missing {missing}"
+        )
+    if not chests:
+        raise ValueError("layout has no treasure chest 'T'")
+
+    open_cells = {(r, c) for r in range(size) for c in range(size)} - obstacles
+    region = _flood(starts[0], size, obstacles)
+    if region != open_cells:
+        cut = min(open_cells - region)
+        raise ValueError(
+            f"closed area: cell at {_name(cut)} is walled off from start 0 at {_name(starts[0])} "
+            "(all non-obstacle cells must be 4-connected)"
+        )
+    chest_set = set(chests)
+    for trap in traps:
+        for nb in _neighbours(trap, size, _STEPS8):
+            if nb in chest_set:
+                raise ValueError(f"trap at {_name(trap)} is beside treasure at {_name(nb)}")
+    blocked = obstacles | set(traps)
+    for agent in sorted(starts):
+        reach = _flood(starts[agent], size, blocked)
+        for chest in chests:
+            if chest not in reach:
+                raise ValueError(
+                    f"treasure at {_name(chest)} is unreachable from start {agent} at "
+                    f"{_name(starts[agent])} without crossing obstacles or traps"
+                )
+    return GridMap(
+        size=size,
+        rows=tuple(lines),
+        chests=tuple(chests),
+        traps=tuple(traps),
+        starts=tuple(starts[i] for i in range(len(starts))),
+        obstacles=frozenset(obstacles),
+    )
+
+
+def _check_int(name: str, value: object, low: int, high: int | None = None) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{name} must be an integer, got {value!r}")
+    if value < low or (high is not None and value > high):
+        bound = f">= {low}" if high is None else f"between {low} and {high}"
+        raise ValueError(f"{name} must be {bound}, got {value}")
+    return int(value)
+
+
+def _neighbour_table(size: int, steps: Iterable[Cell]) -> list[list[int]]:
+    """Flat-index neighbours of every cell: generation floods thousands of times, so it works on
+    integers and a ``bytearray`` of blocked cells rather than tuples and sets."""
+    return [
+        [r * size + c for r, c in _neighbours(divmod(i, size), size, steps)]
+        for i in range(size * size)
+    ]
+
+
+def _joined(targets: list[int], nbrs: list[list[int]], blocked: bytearray) -> bool:
+    """True if all ``targets`` lie in one unblocked component (the flood stops once all are found)."""
+    remaining = set(targets[1:])
+    seen = {targets[0]}
+    todo = [targets[0]]
+    while todo and remaining:
+        for nxt in nbrs[todo.pop()]:
+            if nxt not in seen and not blocked[nxt]:
+                seen.add(nxt)
+                remaining.discard(nxt)
+                todo.append(nxt)
+    return not remaining
+
+
+def _splits(cell: int, nbrs: list[list[int]], blocked: bytearray) -> bool:
+    """Whether blocking ``cell`` (already marked) separates its open neighbours from each other."""
+    open_nbs = [nb for nb in nbrs[cell] if not blocked[nb]]
+    return len(open_nbs) > 1 and not _joined(open_nbs, nbrs, blocked)
+
+
+def _place_obstacles(
+    count: int, nbrs: list[list[int]], rng: np.random.Generator
+) -> bytearray:
+    """Add obstacles one at a time at random, rejecting any that would split the open cells.
+
+    Always succeeds while at least one open cell would remain: a leaf of a spanning tree of the
+    open cells can always be removed, so every pass over the candidates accepts at least one.
+    """
+    blocked = bytearray(len(nbrs))
+    candidates = rng.permutation(len(nbrs)).tolist()
+    placed = 0
+    while placed < count:
+        rejected = []
+        for cell in candidates:
+            if placed == count:
+                break
+            blocked[cell] = 1
+            if _splits(cell, nbrs, blocked):
+                blocked[cell] = 0
+                rejected.append(cell)
+            else:
+                placed += 1
+        candidates = rejected
+    return blocked
+
+
+def _place_objects(
+    obstacles: bytearray,
+    num_treasures: int,
+    num_traps: int,
+    num_agents: int,
+    nbrs: list[list[int]],
+    nbrs8: list[list[int]],
+    rng: np.random.Generator,
+) -> tuple[list[int], list[int], list[int]] | None:
+    """Chests and starts at random on free cells, then traps one at a time, each rejected if it
+    touches a chest or cuts a chest off from a start; ``None`` if the traps do not fit."""
+    free = [i for i, b in enumerate(obstacles) if not b]
+    picks = rng.permutation(len(free))[: num_treasures + num_agents].tolist()
+    chests = sorted(free[i] for i in picks[:num_treasures])
+    starts = [free[i] for i in picks[num_treasures:]]
+    excluded = set(chests) | set(starts) | {nb for ch in chests for nb in nbrs8[ch]}
+    candidates = [cell for cell in free if cell not in excluded]
+    if len(candidates) < num_traps:
+        return None
+    keys = chests + starts
+    blocked = bytearray(obstacles)
+    traps: list[int] = []
+    for tried, i in enumerate(rng.permutation(len(candidates)).tolist()):
+        if len(traps) == num_traps or len(traps) + len(candidates) - tried < num_traps:
+            break
+        cell = candidates[i]
+        blocked[cell] = 1
+        if _splits(cell, nbrs, blocked) and not _joined(keys, nbrs, blocked):
+            blocked[cell] = 0
+        else:
+            traps.append(cell)
+    if len(traps) < num_traps:
+        return None
+    return chests, sorted(traps), starts
+
+
+def generate_layout(
+    size: int,
+    num_treasures: int,
+    num_traps: int | None = None,
+    num_agents: int | None = None,
+    complexity: float = 0.0,
+    seed: int | None = None,
+) -> str:
+    """A random layout obeying every map rule, with exactly ``round(complexity * size**2)`` obstacles.
+
+    ``num_traps`` and ``num_agents`` default to ``num_treasures``. The same ``seed`` gives the same
+    map. An infeasible request raises ``ValueError`` naming the parameter after a bounded number of
+    attempts (it never loops forever).
+    """
+    size = _check_int("size", size, 2)
+    num_treasures = _check_int("num_treasures", num_treasures, 1)
+    num_traps = _check_int("num_traps", num_treasures if num_traps is None else num_traps, 0)
+    num_agents = _check_int(
+        "num_agents", num_treasures if num_agents is None else num_agents, 1, MAX_AGENTS
+    )
+    if isinstance(complexity, bool) or not isinstance(complexity, (int, float, np.floating)):
+        raise ValueError(f"complexity must be a number in [0, 1), got {complexity!r}")
+    if not 0.0 <= complexity < 1.0:
+        raise ValueError(f"complexity must be in [0, 1), got {complexity}")
+    cells = size * size
+    num_obstacles = round(complexity * size * size)  # DESIGN: round(Rc * n*n)
+    num_objects = num_treasures + num_traps + num_agents
+    if num_objects > cells:
+        raise ValueError(
+            f"num_treasures + num_traps + num_agents = {num_objects} objects do not fit on a "
+            f"{size} x {size} map (size={size}, {cells} cells)"
+        )
+    if num_objects > cells - num_obstacles:
+        raise ValueError(
+            f"complexity={complexity} puts {num_obstacles} obstacles on a {size} x {size} map, "
+            f"leaving {cells - num_obstacles} free cells for num_treasures + num_traps + "
+            f"num_agents = {num_objects} objects"
+        )
+    rng = np.random.default_rng(seed)
+    nbrs, nbrs8 = _neighbour_table(size, _STEPS4), _neighbour_table(size, _STEPS8)
+    obstacle_attempts = max(_MIN_OBSTACLE_ATTEMPTS, _WORK_BUDGET // 10 // cells)
+    object_attempts = max(_MIN_OBJECT_ATTEMPTS, _WORK_BUDGET // cells)
+    for _ in range(obstacle_attempts):
+        obstacles = _place_obstacles(num_obstacles, nbrs, rng)
+        for _ in range(object_attempts):
+            placed = _place_objects(
+                obstacles, num_treasures, num_traps, num_agents, nbrs, nbrs8, rng
+            )
+            if placed is not None:
+                return _render(size, obstacles, *placed)
+    raise ValueError(
+        f"num_traps={num_traps} traps do not fit on a {size} x {size} map with "
+        f"num_treasures={num_treasures}, num_agents={num_agents} and complexity={complexity}: "
+        "no trap may touch a treasure or cut one off from a start "
+        f"({obstacle_attempts * object_attempts} placements tried)"
+    )
+
+
+def _render(
+    size: int, obstacles: bytearray, chests: list[int], traps: list[int], starts: list[int]
+) -> str:
+    grid = [OBSTACLE if blocked else FREE for blocked in obstacles]
+    for mark, cells in ((CHEST, chests), (TRAP, traps)):
+        for cell in cells:
+            grid[cell] = mark
+    for agent, cell in enumerate(starts):
+        grid[cell] = str(agent)
+    return "\n".join("".join(grid[r * size : (r + 1) * size]) for r in range(size))
+
+
+def resolve_map(
+    size: int | None = None,
+    num_treasures: int | None = None,
+    num_traps: int | None = None,
+    num_agents: int | None = None,
+    complexity: float | None = None,
+    map_seed: int | None = None,
+    layout: str | None = None,
+    layout_file: str | Path | None = None,
+) -> GridMap:
+    """The run's map: the given layout (string or file) if any, else a generated one.
+
+    ``None`` means "not given": a generated map then uses ``DEFAULT_SIZE``, ``DEFAULT_TREASURES``,
+    no obstacles and ``map_seed`` 0, so the map of a run is fixed unless asked otherwise.
+    A layout fixes the size and the counts, so the generation parameters are ignored; one warning
+    names those given that differ from the layout (``map_seed`` has no counterpart in a layout and
+    is named when given and not 0).
+    """
+    if layout is not None and layout_file is not None:
+        raise ValueError("give either layout or layout_file, not both")
+    if layout_file is not None:
+        try:
+            layout = Path(layout_file).read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as err:
+            reason = err.strerror if isinstance(err, OSError) and err.strerror else str(err)
+            raise ValueError(f"cannot read layout_file '{layout_file}': {reason}") from None
+    if layout is None:
+        return parse_layout(
+            generate_layout(
+                DEFAULT_SIZE if size is None else size,
+                DEFAULT_TREASURES if num_treasures is None else num_treasures,
+                num_traps,
+                num_agents,
+                0.0 if complexity is None else complexity,
+                seed=0 if map_seed is None else map_seed,
+            )
+        )
+    grid_map = parse_layout(layout)
+    given = {"size": size, "num_treasures": num_treasures, "num_traps": num_traps,
+             "num_agents": num_agents}
+    actual = {"size": grid_map.size, "num_treasures": grid_map.num_treasures,
+              "num_traps": grid_map.num_traps, "num_agents": grid_map.num_agents}
+    differing = [
+        f"{key}={value} (layout: {actual[key]})"
+        for key, value in given.items()
+        if value is not None and value != actual[key]
+    ]
+    if complexity is not None and round(complexity * grid_map.size * grid_map.size) != len(
+        grid_map.obstacles
+    ):
+        differing.append(f"complexity={complexity} (layout: {len(grid_map.obstacles)} obstacles)")
+    if map_seed not in (None, 0):
+        differing.append(f"map_seed={map_seed} (a layout is not generated)")
+    if differing:
+        warnings.warn(
+            "a layout fixes the map; ignoring generation parameters: " + ", ".join(differing),
+            UserWarning,
+            stacklevel=2,
+        )
+    return grid_map

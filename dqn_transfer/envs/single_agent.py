@@ -1,0 +1,53 @@
+"""Gymnasium face: ``TreasureHunt-v0``, the single-agent MDP of a treasure-hunt map.
+
+The source task of transfer: agent 0 alone on the same map (its start, every chest and trap),
+observing ``position`` [+ ``view``]; terminated on a chest or a trap, truncated at ``max_steps``.
+It accepts the same keyword arguments as the multi-agent faces so one env config serves both;
+``mode`` and ``reward_mode`` are validated but make no difference to a lone agent.
+"""
+
+from __future__ import annotations
+
+import gymnasium
+import numpy as np
+from gymnasium import spaces
+
+from dqn_transfer.envs.game import make_game
+
+
+class TreasureHuntEnv(gymnasium.Env):
+    metadata = {"render_modes": ["ansi", "rgb_array"], "render_fps": 4}
+
+    def __init__(self, render_mode: str | None = None, **env_kwargs) -> None:
+        self.game = make_game(render_mode=render_mode, **env_kwargs).single_agent_game()
+        self.render_mode = render_mode
+        self.observation_space = spaces.Box(0.0, 1.0, shape=(self.game.obs_dim,), dtype=np.float32)
+        self.action_space = spaces.Discrete(self.game.num_actions)
+        self._action = np.zeros(1, dtype=np.int64)
+
+    def obs_layout(self) -> list[tuple[str, int]]:
+        return self.game.obs_layout()
+
+    def reset(
+        self, *, seed: int | None = None, options: dict | None = None
+    ) -> tuple[np.ndarray, dict]:
+        super().reset(seed=seed)
+        return self.game.reset(self.np_random)[0], {}
+
+    def step(self, action: int) -> tuple[np.ndarray, float, bool, bool, dict]:
+        self._action[0] = action
+        obs, reward, terminated, truncated, info = self.game.step(self._action)
+        return (
+            obs[0],
+            float(reward[0]),
+            bool(terminated[0]),
+            bool(truncated[0]),
+            {"treasures_collected": info["treasures_collected"], "trap": bool(info["trap"][0])},
+        )
+
+    def render(self) -> str | np.ndarray | None:
+        if self.render_mode == "ansi":
+            return self.game.render_ansi()
+        if self.render_mode == "rgb_array":
+            return self.game.render_rgb()
+        return None

@@ -1,0 +1,455 @@
+"""The training loop: config -> game + learners -> loop -> logs, evaluations, checkpoints.
+
+This is the only module that knows the game, the learners, the checkpoint files and the logger.
+One *step* is one joint environment step: every live agent acts once.  The loop:
+
+1. act epsilon-greedily for every live agent (one batched forward for all K agents);
+2. step the game, hand the K transitions to the learner (which stores them and trains);
+3. at an episode end: log per-agent and team statistics, reset the game;
+4. every ``eval_every`` steps: greedy evaluation on separately seeded episodes -> ``metrics.jsonl``;
+5. at the first episode end after every ``checkpoint_every`` steps: checkpoint.  Checkpoints sit on
+   episode boundaries so that a resumed run replays exactly what the uninterrupted run would have.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import sys
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dqn_transfer.config import (
+    Algorithm,
+    ConfigError,
+    Device,
+    Exchange,
+    TrainConfig,
+    register_configs,
+    to_plain,
+    validate,
+)
+
+log = logging.getLogger("dqn_transfer.train")
+
+TRAINING_STATE = "training_state.safetensors"
+LOG_EVERY = 200  # env steps between td_loss / q_mean / epsilon / sps points in TensorBoard
+
+
+def make_game(env_cfg: dict[str, Any], source_task: bool = False):
+    """The game of ``env_cfg``; ``source_task`` gives the single-agent MDP of TreasureHunt-v0."""
+    from dqn_transfer.envs import make_game as make_env_game
+
+    try:
+        game = make_env_game(**env_cfg)
+    except (ValueError, OSError) as err:
+        raise ConfigError(f"env: {err}") from err
+    return game.single_agent_game() if source_task else game
+
+
+def resolve_device(device: Device) -> str:
+    import torch
+
+    if device is Device.auto:
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if device is Device.cuda and not torch.cuda.is_available():
+        raise ConfigError("device=cuda but no CUDA device is available here (use device=cpu or device=auto)")
+    return device.value
+
+
+@dataclass
+class Counters:
+    """What the loop needs, beyond the learner, to continue exactly where it stopped."""
+
+    step: int = 0
+    episodes: int = 0
+    evaluations: int = 0
+    next_checkpoint: int = 0
+    env_rng_state: dict = field(default_factory=dict)
+
+
+class EpisodeStats:
+    """Running per-episode sums and the recent history shown in the progress bar."""
+
+    def __init__(self, num_agents: int):
+        self.returns = np.zeros(num_agents)
+        self.lengths = np.zeros(num_agents, dtype=np.int64)
+        self.traps = 0
+        self.recent_team_returns: deque[float] = deque(maxlen=20)
+        self.window_returns: list[np.ndarray] = []  # per-agent returns since the last exchange
+
+    def add(self, rewards: np.ndarray, live_before: np.ndarray, traps: np.ndarray) -> None:
+        self.returns += rewards
+        self.lengths += live_before
+        self.traps += int(np.sum(traps))
+
+    def reset(self) -> None:
+        self.returns[:] = 0.0
+        self.lengths[:] = 0
+        self.traps = 0
+
+
+def team_return_of(rewards: np.ndarray, reward_mode: str) -> float:
+    """Team return of one step: the sum of the agents' own rewards (not K times it in team mode)."""
+    return float(rewards.max() if reward_mode == "team" and rewards.size else rewards.sum())
+
+
+def evaluate(learner, game, episodes: int, seed: int, evaluation: int) -> dict[str, float]:
+    """Greedy episodes, each seeded from (seed, evaluation, episode): independent of training history."""
+    team_returns, success, traps, lengths = [], [], [], []
+    num_agents = game.num_agents
+    reward_mode = game.reward_mode
+    for episode in range(episodes):
+        obs = game.reset(np.random.default_rng([seed, 1_000_003, evaluation, episode]))
+        team_return, length, trapped = 0.0, 0, 0
+        while not game.done:
+            live_before = game.live.copy()
+            actions = learner.act(obs, live_before, epsilon=0.0, greedy=True)
+            obs, rewards, _, _, info = game.step(actions)
+            team_return += team_return_of(rewards[live_before], reward_mode)
+            trapped += int(np.sum(info["trap"]))
+            length += 1
+        team_returns.append(team_return)
+        success.append(game.treasures_collected / game.num_treasures)
+        traps.append(trapped / num_agents)
+        lengths.append(length)
+    return {
+        "team_return": float(np.mean(team_returns)),
+        "success_rate": float(np.mean(success)),
+        "trap_rate": float(np.mean(traps)),
+        "episode_length": float(np.mean(lengths)),
+    }
+
+
+def epsilons_at(config: TrainConfig, step: int, transferred: np.ndarray) -> np.ndarray:
+    """Per-agent exploration rate: linear decay, from ``transfer.epsilon_start`` for transferred agents."""
+    from dqn_transfer.agents.schedules import linear_schedule
+
+    duration = max(1, int(config.agent.exploration_fraction * config.total_steps))
+    return np.array([
+        linear_schedule(config.transfer.epsilon_start if is_transferred else config.agent.eps_start,
+                        config.agent.eps_end, duration, step)
+        for is_transferred in transferred
+    ])
+
+
+class Trainer:
+    """Owns one run directory: builds everything, runs the loop, writes every artefact."""
+
+    def __init__(self, config: TrainConfig, run_dir: Path, *, source_task: bool = False,
+                 launch_dir: Path | None = None):
+        validate(config)
+        self.config = config
+        self.plain = to_plain(config)
+        self.run_dir = Path(run_dir)
+        self.launch_dir = Path(launch_dir) if launch_dir is not None else Path.cwd()
+        self.source_task = source_task
+        self.checkpoint_dir = self.run_dir / "checkpoints"
+        self.metrics_path = self.run_dir / "metrics.jsonl"
+        self.device = resolve_device(config.device)
+        self.game = make_game(self.plain["env"], source_task)
+        self.eval_game = make_game(self.plain["env"], source_task)
+        from dqn_transfer.agents import make_learner
+
+        self.learner = make_learner(self.plain["agent"], self.game.num_agents, self.game.obs_layout(),
+                                    self.game.num_actions, seed=config.seed, device=self.device)
+        self.counters = Counters(next_checkpoint=config.checkpoint_every)
+        self.transfer_info: dict[str, Any] | None = None
+        self.last_eval: dict[str, float] = {}
+
+    # ------------------------------------------------------------------ setup
+    def prepare(self) -> None:
+        """Resume, or start fresh (with transfer if asked); refuses to overwrite another run."""
+        has_state = (self.checkpoint_dir / TRAINING_STATE).exists()
+        if self.config.resume:
+            if not has_state:
+                raise ConfigError(
+                    f"resume=true but {self.run_dir} holds no {TRAINING_STATE}: pass the run directory "
+                    "to resume with hydra.run.dir=PATH")
+            self._load_state()
+            return
+        if has_state:
+            raise ConfigError(f"{self.run_dir} already holds a run; pass resume=true to continue it "
+                              "or choose another hydra.run.dir")
+        if self.config.transfer.enabled and not self.source_task:
+            from dqn_transfer.transfer import apply_transfer
+
+            self.transfer_info = apply_transfer(self.config, self.learner, self.game, self.plain,
+                                                self.launch_dir)
+
+    @property
+    def transferred(self) -> np.ndarray:
+        """Which agents started from the transfer source."""
+        flags = np.zeros(self.game.num_agents, dtype=bool)
+        if self.transfer_info is not None:
+            flags[self.transfer_info["targets"]] = True
+        return flags
+
+    # ------------------------------------------------------------- checkpoints
+    def agent_meta(self, index: int) -> dict[str, Any]:
+        game = self.game
+        return {
+            "algorithm": self.plain["agent"]["algorithm"],
+            "agent_index": index,
+            "obs_layout": [[name, size] for name, size in game.obs_layout()],
+            "num_actions": game.num_actions,
+            "network": self.learner.network_meta(),
+            "env": {**self.plain["env"], "size": game.size, "num_treasures": game.num_treasures,
+                    "num_agents": game.num_agents, "layout": game.map.layout},
+            "mode": self.plain["env"]["mode"],
+            "source_task": self.source_task,
+            "agent": self.plain["agent"],
+            "seed": self.config.seed,
+            "steps": self.counters.step,
+            "episodes": self.counters.episodes,
+            "last_eval": self.last_eval,
+            "transfer": self.transfer_info,
+        }
+
+    def save_checkpoint(self) -> None:
+        """Agent files first (for sharing), then the resume state, which alone is read on resume."""
+        from dqn_transfer.checkpoint import save_agent_checkpoint, save_training_state
+
+        self.checkpoint_dir.mkdir(parents=True, exist_ok=True)
+        arrays: dict[str, np.ndarray] = {}
+        for i in range(self.game.num_agents):
+            tensors = self.learner.agent_tensors(i)
+            save_agent_checkpoint(self.checkpoint_dir / f"agent_{i}.safetensors", tensors, self.agent_meta(i))
+            arrays.update({f"agent_{i}/{name}": t.numpy() for name, t in tensors.items()})
+        learner_arrays, learner_meta = self.learner.training_state()
+        arrays.update({f"learner/{name}": a for name, a in learner_arrays.items()})
+        meta = {
+            "counters": self.counters.__dict__,
+            "learner": learner_meta,
+            "last_eval": self.last_eval,
+            "transfer": self.transfer_info,
+            "obs_layout": [[name, size] for name, size in self.game.obs_layout()],
+            "algorithm": self.plain["agent"]["algorithm"],
+        }
+        save_training_state(self.checkpoint_dir / TRAINING_STATE, arrays, meta)
+
+    def _load_state(self) -> None:
+        import torch
+
+        from dqn_transfer.checkpoint import CheckpointError, load_training_state
+
+        arrays, meta = load_training_state(self.checkpoint_dir / TRAINING_STATE)
+        expected_layout = [[name, size] for name, size in self.game.obs_layout()]
+        if meta.get("obs_layout") != expected_layout or meta.get("algorithm") != self.plain["agent"]["algorithm"]:
+            raise CheckpointError(
+                f"{self.checkpoint_dir}: the run was made with algorithm {meta.get('algorithm')} and obs layout "
+                f"{meta.get('obs_layout')}; this config gives {self.plain['agent']['algorithm']} and "
+                f"{expected_layout} — resume with the run's own config (its .hydra/overrides.yaml)")
+        for i in range(self.game.num_agents):
+            prefix = f"agent_{i}/"
+            self.learner.load_agent_tensors(i, {k[len(prefix):]: torch.from_numpy(v.copy())
+                                                for k, v in arrays.items() if k.startswith(prefix)})
+        self.learner.load_training_state({k[len("learner/"):]: v for k, v in arrays.items()
+                                          if k.startswith("learner/")}, meta["learner"])
+        self.counters = Counters(**meta["counters"])
+        self.last_eval = meta["last_eval"]
+        self.transfer_info = meta["transfer"]
+        self._truncate_metrics(self.counters.step)
+        log.info("resumed %s at step %d (episode %d)", self.run_dir, self.counters.step, self.counters.episodes)
+
+    def _truncate_metrics(self, step: int) -> None:
+        """Drop evaluations the killed run wrote after its last checkpoint; they will be redone."""
+        if not self.metrics_path.exists():
+            return
+        lines = [line for line in self.metrics_path.read_text().splitlines()
+                 if line.strip() and json.loads(line)["step"] <= step]
+        self.metrics_path.write_text("".join(line + "\n" for line in lines))
+
+    # --------------------------------------------------------------- evaluation
+    def run_evaluation(self, logger) -> None:
+        step = self.counters.step
+        result = evaluate(self.learner, self.eval_game, self.config.eval_episodes, self.config.seed,
+                          self.counters.evaluations)
+        self.counters.evaluations += 1
+        self.last_eval = result
+        record: dict[str, Any] = {"step": step, **result, "episodes": self.counters.episodes,
+                                  "epsilon": float(epsilons_at(self.config, step, self.transferred).mean()),
+                                  "wall_time": time.time()}
+        if step == 0 and self.transfer_info is not None:
+            record["transfer_source"] = self.transfer_info
+        with self.metrics_path.open("a") as stream:
+            stream.write(json.dumps(record) + "\n")
+        logger.scalar("eval/team_return", result["team_return"], step)
+        logger.scalar("eval/success_rate", result["success_rate"], step)
+        log.info("eval step %d: team_return %.1f success_rate %.2f trap_rate %.2f", step,
+                 result["team_return"], result["success_rate"], result["trap_rate"])
+
+    # --------------------------------------------------------------------- loop
+    def run(self) -> dict[str, Any]:
+        from tqdm import tqdm
+
+        from dqn_transfer.logging import RunLogger
+
+        self.prepare()
+        config, game, learner, counters = self.config, self.game, self.learner, self.counters
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        logger = RunLogger(self.run_dir / "tb", game.num_agents, self.plain,
+                           purge_step=counters.step if config.resume else None)
+        if self.transfer_info is not None and not config.resume:
+            logger.text("transfer/source", json.dumps(self.transfer_info, indent=2))
+        if config.total_steps == 0:
+            self.save_checkpoint()
+            logger.close()
+            log.info("total_steps=0: wrote the initial checkpoints to %s", self.checkpoint_dir)
+            return {"step": 0, "last_eval": {}}
+        if counters.step == 0:
+            self.run_evaluation(logger)
+
+        env_rng = np.random.default_rng([config.seed, 17])
+        if counters.env_rng_state:
+            env_rng.bit_generator.state = counters.env_rng_state
+        counters.env_rng_state = env_rng.bit_generator.state
+        obs = game.reset(env_rng)
+        stats = EpisodeStats(game.num_agents)
+        window_td, window_q = [], []
+        exchange = config.transfer.exchange
+        shared_transitions: list[tuple] = []
+        reward_mode = self.plain["env"]["reward_mode"]
+        bar = tqdm(total=config.total_steps, initial=counters.step, disable=not config.progress,
+                   unit="step", dynamic_ncols=True, file=sys.stderr)
+        sps_clock, sps_step = time.perf_counter(), counters.step
+        team_return = 0.0
+        transferred = self.transferred
+        while counters.step < config.total_steps:
+            epsilon = epsilons_at(config, counters.step, transferred)
+            live_before = game.live.copy()
+            actions = learner.act(obs, live_before, epsilon=epsilon)
+            next_obs, rewards, terminated, truncated, info = game.step(actions)
+            counters.step += 1
+            update = learner.update(obs, actions, rewards, next_obs, terminated, truncated, live_before,
+                                    counters.step)
+            if exchange is Exchange.shared_replay:
+                shared_transitions.append((obs, actions, rewards, next_obs, terminated, truncated, live_before))
+            obs = next_obs
+            stats.add(rewards, live_before, info["trap"])
+            team_return += team_return_of(rewards[live_before], reward_mode)
+            window_td.append(update["td_loss"])
+            window_q.append(update["q_mean"])
+
+            if game.done:
+                counters.episodes += 1
+                self._log_episode(logger, stats, team_return, counters.step)
+                stats.recent_team_returns.append(team_return)
+                stats.window_returns.append(stats.returns.copy())
+                team_return = 0.0
+                stats.reset()
+                if exchange is not Exchange.none and counters.episodes % config.transfer.exchange_every == 0:
+                    self._exchange(stats, shared_transitions, logger)
+                if counters.step >= counters.next_checkpoint:
+                    counters.env_rng_state = env_rng.bit_generator.state
+                    self.save_checkpoint()
+                    while counters.next_checkpoint <= counters.step:
+                        counters.next_checkpoint += config.checkpoint_every
+                obs = game.reset(env_rng)
+
+            if counters.step % config.eval_every == 0:
+                self.run_evaluation(logger)
+            if counters.step % LOG_EVERY == 0 or counters.step == config.total_steps:
+                now = time.perf_counter()
+                sps = (counters.step - sps_step) / max(now - sps_clock, 1e-9)
+                sps_clock, sps_step = now, counters.step
+                self._log_training(logger, window_td, window_q, epsilon, sps, counters.step)
+                window_td, window_q = [], []
+                recent = stats.recent_team_returns
+                bar.set_postfix(team_return=f"{np.mean(recent):.1f}" if recent else "-",
+                                eps=f"{epsilon.mean():.2f}", sps=f"{sps:.0f}", refresh=False)
+                bar.update(counters.step - bar.n)
+        bar.close()
+        if counters.step % config.eval_every != 0:
+            self.run_evaluation(logger)
+        counters.env_rng_state = env_rng.bit_generator.state
+        self.save_checkpoint()
+        logger.close()
+        log.info("done: %d steps, %d episodes; last eval %s; checkpoints in %s", counters.step,
+                 counters.episodes, self.last_eval, self.checkpoint_dir)
+        return {"step": counters.step, "episodes": counters.episodes, "last_eval": self.last_eval}
+
+    def _log_episode(self, logger, stats: EpisodeStats, team_return: float, step: int) -> None:
+        logger.agent_scalars("episodic_return", stats.returns, step)
+        logger.agent_scalars("episodic_length", stats.lengths, step)
+        logger.scalar("team/return", team_return, step)
+        logger.scalar("team/treasures_collected", self.game.treasures_collected, step)
+        logger.scalar("team/trap_rate", stats.traps / self.game.num_agents, step)
+
+    @staticmethod
+    def _log_training(logger, window_td, window_q, epsilon: np.ndarray, sps: float, step: int) -> None:
+        import warnings
+
+        with warnings.catch_warnings():  # all-NaN columns (no update yet) are expected and skipped
+            warnings.simplefilter("ignore", RuntimeWarning)
+            if window_td:
+                logger.agent_scalars("td_loss", np.nanmean(np.asarray(window_td, dtype=float), axis=0), step)
+                logger.agent_scalars("q_mean", np.nanmean(np.asarray(window_q, dtype=float), axis=0), step)
+        logger.scalar("train/epsilon", float(epsilon.mean()), step)
+        logger.scalar("train/sps", sps, step)
+
+    def _exchange(self, stats: EpisodeStats, shared_transitions: list[tuple], logger) -> None:
+        """Team knowledge exchange (DESIGN §6), once every ``exchange_every`` episodes."""
+        from dqn_transfer.transfer import exchange_best, exchange_replay
+
+        if self.config.transfer.exchange is Exchange.best:
+            best = exchange_best(self.learner, np.asarray(stats.window_returns), self.config.transfer.exchange_tau)
+            logger.scalar("team/exchange_best_agent", best, self.counters.step)
+        else:
+            exchange_replay(self.learner, shared_transitions)
+            shared_transitions.clear()
+        stats.window_returns.clear()
+
+
+def train(config: TrainConfig, run_dir: Path, **kwargs) -> dict[str, Any]:
+    """Run (or resume) one training run into ``run_dir``; returns a short summary."""
+    return Trainer(config, run_dir, **kwargs).run()
+
+
+def _user_errors() -> tuple[type[Exception], ...]:
+    from dqn_transfer.checkpoint import CheckpointError
+    from dqn_transfer.transfer_mapping import TransferError
+
+    return ConfigError, CheckpointError, TransferError
+
+
+def report_user_error(err: Exception) -> None:
+    """One line on stderr and in the run's log file; no traceback for a user's mistake."""
+    message = f"error: {err}"
+    print(message, file=sys.stderr)
+    record = log.makeRecord(log.name, logging.ERROR, __file__, 0, message, None, None)
+    for handler in logging.getLogger().handlers:
+        if isinstance(handler, logging.FileHandler):
+            handler.handle(record)
+
+
+register_configs()
+
+
+def main() -> None:
+    """Hydra entry point (``python train.py``); user errors end in one line and exit code 1."""
+    import hydra
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.utils import get_original_cwd
+    from omegaconf import DictConfig, OmegaConf
+
+    @hydra.main(version_base="1.3", config_path=str(Path(__file__).resolve().parent.parent / "conf"),
+                config_name="config")
+    def _main(cfg: DictConfig) -> float:
+        run_dir = Path(HydraConfig.get().runtime.output_dir)
+        try:
+            config: TrainConfig = OmegaConf.to_object(cfg)  # type: ignore[assignment]
+            summary = train(config, run_dir, launch_dir=Path(get_original_cwd()))
+        except _user_errors() as err:
+            report_user_error(err)
+            sys.exit(1)
+        team_return = summary["last_eval"].get("team_return", math.nan)
+        return float(team_return)  # the objective a Hydra sweeper (e.g. Optuna) would optimise
+
+    _main()

@@ -1,0 +1,177 @@
+"""``transfer=on``: start agents from a pretrained agent instead of random weights (DESIGN §6).
+
+Where the source comes from:
+- ``transfer.source`` is a checkpoint file, or a run directory (then ``transfer.source_agent``);
+- unset, a source agent is pretrained on the source task — ``TreasureHunt-v0``, the single-agent MDP
+  of the same map — for ``transfer.pretrain_steps`` and cached under
+  ``outputs/pretrained/<hash of the source config>/``, so the next run with the same source config
+  reuses it.  A file lock makes parallel sweep jobs pretrain it once.
+
+How it maps: by observation segment name (:mod:`dqn_transfer.transfer_mapping`); segments only the
+target has get zero input weights, so at step 0 the transferred agents compute exactly the source's
+Q-values.  Also here: the team knowledge exchange run during training (``transfer.exchange``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import fcntl
+import hashlib
+import json
+import logging
+import warnings
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from dqn_transfer.checkpoint import CheckpointError, check_compatible, find_checkpoints, load_agent_checkpoint
+from dqn_transfer.config import TABULAR, Algorithm, TrainConfig, TransferConfig
+from dqn_transfer.transfer_mapping import TransferError, transfer_dqn_tensors, transfer_tabular_tensors
+
+log = logging.getLogger("dqn_transfer.transfer")
+
+# What defines a pretrained source: the map, the source task's dynamics and the learner.
+_SOURCE_ENV_KEYS = ("size", "num_treasures", "num_traps", "num_agents", "complexity", "map_seed", "layout",
+                    "layout_file", "max_steps", "obs_encoding", "view_radius", "treasure_reward",
+                    "trap_reward", "step_reward")
+
+
+def source_config(config: TrainConfig) -> TrainConfig:
+    """The config of the source-task pretraining run: same map and learner, no transfer."""
+    pretrain_steps = config.transfer.pretrain_steps
+    return dataclasses.replace(
+        config,
+        transfer=TransferConfig(),
+        total_steps=pretrain_steps,
+        eval_every=max(1, pretrain_steps // 10),
+        checkpoint_every=max(1, pretrain_steps // 4),
+        resume=False,
+    )
+
+
+def source_hash(plain: dict[str, Any], layout: str) -> str:
+    """Hash of everything that shapes the pretrained source; the map enters by its actual layout."""
+    env = {key: plain["env"][key] for key in _SOURCE_ENV_KEYS}
+    env["layout_file"] = None  # the layout text below identifies the map, wherever the file lives
+    env["layout"] = layout
+    key = {"env": env, "agent": plain["agent"], "seed": plain["seed"],
+           "pretrain_steps": plain["transfer"]["pretrain_steps"]}
+    return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def pretrained_source(config: TrainConfig, plain: dict[str, Any], layout: str, launch_dir: Path) -> Path:
+    """Pretrain on TreasureHunt-v0 once per source config; later runs reuse the cached checkpoint."""
+    from dqn_transfer.train import TRAINING_STATE, train
+
+    cache_root = Path(config.transfer.cache_dir) if config.transfer.cache_dir else launch_dir / "outputs" / "pretrained"
+    run_dir = cache_root / source_hash(plain, layout)
+    checkpoint = run_dir / "checkpoints" / "agent_0.safetensors"
+    run_dir.mkdir(parents=True, exist_ok=True)
+    with open(run_dir / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # parallel sweep jobs: the first pretrains, the others wait
+        if _is_complete(checkpoint, config.transfer.pretrain_steps):
+            log.info("transfer: reusing the pretrained source %s", checkpoint)
+            return checkpoint
+        pretrain = source_config(config)
+        resume = (run_dir / "checkpoints" / TRAINING_STATE).exists()  # a pretraining that was killed
+        log.info("transfer: pretraining a source agent on TreasureHunt-v0 for %d steps into %s%s",
+                 pretrain.total_steps, run_dir, " (resuming)" if resume else "")
+        train(dataclasses.replace(pretrain, resume=resume), run_dir, source_task=True, launch_dir=launch_dir)
+    return checkpoint
+
+
+def _is_complete(checkpoint: Path, steps: int) -> bool:
+    if not checkpoint.exists():
+        return False
+    _, meta = load_agent_checkpoint(checkpoint)
+    return meta.get("steps") == steps
+
+
+def resolve_source(transfer: TransferConfig, launch_dir: Path) -> Path:
+    """A checkpoint file, or agent ``source_agent`` of a run/checkpoints directory."""
+    path = Path(transfer.source).expanduser()
+    if not path.is_absolute():
+        path = launch_dir / path
+    files = find_checkpoints(path)
+    if path.is_file():
+        return files[0]
+    wanted = f"agent_{transfer.source_agent}.safetensors"
+    for file in files:
+        if file.name == wanted:
+            return file
+    raise CheckpointError(f"{path}: has no {wanted} (transfer.source_agent={transfer.source_agent}; "
+                          f"found {', '.join(f.name for f in files)})")
+
+
+def apply_transfer(config: TrainConfig, learner, game, plain: dict[str, Any], launch_dir: Path) -> dict[str, Any]:
+    """Load the source into the target agents; returns what the run records about its source."""
+    transfer = config.transfer
+    pretrained = transfer.source is None
+    path = pretrained_source(config, plain, game.map.layout, launch_dir) if pretrained else resolve_source(transfer, launch_dir)
+    tensors, meta = load_agent_checkpoint(path)
+    algorithm = plain["agent"]["algorithm"]
+    check_compatible(meta, {"algorithm": algorithm, "num_actions": game.num_actions, "size": game.size})
+    target_layout = game.obs_layout()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        if Algorithm(algorithm) in TABULAR:
+            mapped = transfer_tabular_tensors(tensors, meta["obs_layout"], target_layout,
+                                              num_actions=game.num_actions)
+        else:
+            mapped = transfer_dqn_tensors(tensors, meta["obs_layout"], target_layout,
+                                          list(config.agent.hidden), game.num_actions)
+    for warning in caught:
+        log.warning("transfer: %s", warning.message)
+    targets = list(range(game.num_agents)) if transfer.targets is None else list(transfer.targets)
+    bad = [i for i in targets if not 0 <= i < game.num_agents]
+    if bad:
+        raise TransferError(f"transfer.targets {bad} out of range for {game.num_agents} agents")
+    for i in targets:
+        learner.load_agent_tensors(i, mapped)
+    if transfer.freeze:
+        try:
+            learner.freeze(transfer.freeze)
+        except IndexError:
+            raise TransferError(f"transfer.freeze={list(transfer.freeze)}: the network has "
+                                f"{len(config.agent.hidden) + 1} layers (0..{len(config.agent.hidden)})") from None
+    info = {
+        "source": str(path.resolve()),
+        "digest": meta["digest"],
+        "source_algorithm": meta.get("algorithm"),
+        "source_obs_layout": meta["obs_layout"],
+        "source_steps": meta.get("steps"),
+        "pretrained": pretrained,
+        "targets": targets,
+    }
+    log.info("transfer: agents %s start from %s (digest %s...)", targets, path, meta["digest"][:12])
+    return info
+
+
+# ------------------------------------------------------------------------------ team knowledge exchange
+
+def exchange_best(learner, window_returns: np.ndarray, tau: float) -> int:
+    """Every other agent moves its weights ``tau`` of the way to the best agent's (soft copy).
+
+    The best agent is the one with the highest mean episodic return over the exchange window.
+    """
+    best = int(np.argmax(window_returns.mean(axis=0)))
+    best_weights = learner.get_member_weights(best)
+    for i in range(learner.num_agents):
+        if i != best:
+            own = learner.get_member_weights(i)
+            learner.set_member_weights(i, {name: (1 - tau) * own[name] + tau * best_weights[name] for name in own})
+    return best
+
+
+def exchange_replay(learner, transitions: Sequence[tuple]) -> None:
+    """Each agent adds its team-mates' transitions of the window to its own replay row."""
+    if not transitions:
+        return
+    obs, actions, rewards, next_obs, terminated, truncated, live = (np.stack(column) for column in zip(*transitions))
+    for giver in range(learner.num_agents):
+        taken = live[:, giver]  # only the steps where the giver was acting
+        experience = [field[taken, giver] for field in (obs, actions, rewards, next_obs, terminated, truncated)]
+        for receiver in range(learner.num_agents):
+            if receiver != giver:
+                learner.replay.extend(receiver, *experience)

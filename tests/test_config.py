@@ -1,0 +1,78 @@
+"""Every config option composes through Hydra; typos, wrong types and out-of-range values are refused."""
+
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+from hydra.errors import ConfigCompositionException
+from omegaconf import OmegaConf
+from omegaconf.errors import ValidationError
+
+from dqn_transfer.config import Algorithm, ConfigError, Mode, TrainConfig, register_configs, validate
+
+CONF_DIR = str(Path(__file__).resolve().parent.parent / "conf")
+register_configs()
+
+
+def compose_config(*overrides: str) -> TrainConfig:
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        cfg = compose(config_name="config", overrides=list(overrides))
+    return OmegaConf.to_object(cfg)
+
+
+@pytest.mark.parametrize("env", ["simple", "complex"])
+@pytest.mark.parametrize("mode", ["competitive", "cooperative", "deliberative"])
+@pytest.mark.parametrize("agent", ["sarsa", "qlearning", "dqn", "double_dqn"])
+@pytest.mark.parametrize("transfer", ["off", "on"])
+def test_every_group_option_composes(env, mode, agent, transfer):
+    config = compose_config(f"env={env}", f"mode={mode}", f"agent={agent}", f"transfer={transfer}")
+    assert config.env.mode is Mode(mode)
+    assert config.agent.algorithm is Algorithm(agent)
+    assert config.transfer.enabled is (transfer == "on")
+    validate(config)
+
+
+def test_defaults_are_the_documented_ones():
+    config = compose_config()
+    assert config.agent.algorithm is Algorithm.double_dqn
+    assert config.env.size == 6 and config.env.mode is Mode.competitive
+    assert config.transfer.enabled is False
+    assert config.agent.hidden == [64, 64]
+
+
+def test_mode_group_sets_the_env_mode_not_a_new_key():
+    config = compose_config("mode=deliberative", "env=complex")
+    assert config.env.mode is Mode.deliberative and config.env.size == 10
+
+
+@pytest.mark.parametrize("override", [
+    "agent.learning_rate=0.1",  # typo of agent.lr
+    "env.sise=8",
+    "agent.gamma=high",  # wrong type
+    "total_steps=many",
+    "env.mode=telepathic",  # not a Mode
+    "agent=ppo",  # no such group option
+])
+def test_bad_overrides_are_refused(override):
+    with pytest.raises((ConfigCompositionException, ValidationError)):
+        compose_config(override)
+
+
+@pytest.mark.parametrize("override, message", [
+    ("agent.gamma=1.5", "agent.gamma must be in \\[0, 1\\]"),
+    ("agent.batch_size=0", "agent.batch_size must be >= 1"),
+    ("total_steps=-5", "total_steps must be >= 0"),
+    ("env.complexity=1.2", "env.complexity must be in \\[0, 1\\)"),
+    ("agent.hidden=[]", "agent.hidden must be a non-empty list"),
+    ("agent.tau=0", "agent.tau must be in \\(0, 1\\]"),
+])
+def test_out_of_range_values_name_the_key(override, message):
+    config = compose_config(override)
+    with pytest.raises(ConfigError, match=message):
+        validate(config)
+
+
+def test_tabular_learners_refuse_network_only_options():
+    config = compose_config("agent=sarsa", "transfer=on", "transfer.exchange=best")
+    with pytest.raises(ConfigError, match="needs a DQN learner"):
+        validate(config)

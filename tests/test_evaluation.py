@@ -1,0 +1,263 @@
+"""Transfer metrics and bootstrap CIs on hand-made curves and run directories (values worked by hand)."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dqn_transfer import evaluation
+from dqn_transfer.evaluation import (
+    EvaluationError,
+    asymptotic_performance,
+    bootstrap_ci,
+    compare_runs,
+    format_table,
+    jumpstart,
+    learning_curve,
+    mean_curve,
+    read_metrics,
+    time_to_threshold,
+    total_reward,
+    transfer_ratio,
+)
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def curve(steps, values):
+    return np.array(steps, dtype=float), np.array(values, dtype=float)
+
+
+def make_run(path: Path, returns: list[float], seed: int | None = None, step_every: int = 10) -> Path:
+    path.mkdir(parents=True)
+    lines = [json.dumps({"step": i * step_every, "team_return": r, "success_rate": 0.5})
+             for i, r in enumerate(returns)]
+    (path / "metrics.jsonl").write_text("\n".join(lines) + "\n")
+    if seed is not None:
+        (path / ".hydra").mkdir()
+        (path / ".hydra" / "config.yaml").write_text(f"seed: {seed}\ntotal_steps: 20\n")
+    return path
+
+
+# ------------------------------------------------------------------ metrics on curves
+
+
+def test_total_reward_is_the_trapezoid_area():
+    # 10 * (0 + 5) / 2 + 10 * (5 + 10) / 2 = 25 + 75 = 100
+    assert total_reward(curve([0, 10, 20], [0, 5, 10])) == 100.0
+    # 10 * (-30 - 10) / 2 + 10 * (-10 + 0) / 2 = -200 - 50 = -250
+    assert total_reward(curve([0, 10, 20], [-30, -10, 0])) == -250.0
+    assert total_reward(curve([5], [3])) == 0.0
+
+
+def test_asymptotic_performance_averages_the_tail():
+    values = list(range(10))
+    assert asymptotic_performance(curve(range(10), values)) == 9.0  # ceil(0.1 * 10) = 1 -> 9
+    assert asymptotic_performance(curve(range(10), values), 0.3) == 8.0  # (7 + 8 + 9) / 3
+    # 0.1 * 30 is 3.0000000000000004 in floating point; still the last 3: (27 + 28 + 29) / 3 = 28
+    assert asymptotic_performance(curve(range(30), range(30))) == 28.0
+    assert asymptotic_performance(curve([0, 10, 20], [1, 2, 3]), 1.0) == 2.0  # (1 + 2 + 3) / 3
+
+
+def test_jumpstart_compares_the_first_common_evaluation():
+    # -20 - (-50) = 30
+    assert jumpstart(curve([0, 10, 20], [-20, -10, 0]), curve([0, 10, 20], [-50, -30, -10])) == 30.0
+    # first common step is 10: 5 - 2 = 3
+    assert jumpstart(curve([10, 20], [5, 6]), curve([0, 10, 20], [-1, 2, 3])) == 3.0
+    with pytest.raises(ValueError, match="share no evaluation step"):
+        jumpstart(curve([5, 15], [0, 0]), curve([0, 10], [0, 0]))
+
+
+def test_time_to_threshold_is_the_first_step_at_or_above():
+    c = curve([0, 10, 20, 30], [-5, 0, 3, 1])
+    assert time_to_threshold(c, 2.0) == 20.0
+    assert time_to_threshold(c, 0.0) == 10.0  # inclusive
+    assert math.isnan(time_to_threshold(c, 4.0))
+
+
+def test_transfer_ratio_uses_areas_above_the_common_floor():
+    transfer = curve([0, 10, 20], [-40, -20, -20])
+    baseline = curve([0, 10, 20], [-60, -40, -20])
+    # floor = -60. transfer above it: [20, 40, 40] -> 10*(20+40)/2 + 10*(40+40)/2 = 300 + 400 = 700
+    # baseline above it: [0, 20, 40] -> 10*(0+20)/2 + 10*(20+40)/2 = 100 + 300 = 400
+    # ratio = (700 - 400) / 400 = 0.75
+    assert transfer_ratio(transfer, baseline) == pytest.approx(0.75)
+    # invariant to shifting and scaling every return (e.g. a different step cost offset)
+    def rescaled(c):
+        return c[0], 2.0 * c[1] + 1000.0
+
+    assert transfer_ratio(rescaled(transfer), rescaled(baseline)) == pytest.approx(0.75)
+    assert transfer_ratio(baseline, baseline) == 0.0
+    assert transfer_ratio(baseline, transfer) < 0.0
+
+
+def test_transfer_ratio_on_partly_overlapping_grids():
+    # transfer v = s on [0, 20]; baseline v = s - 10 on [10, 30]; both cover [10, 20]:
+    # transfer 10 -> 20, baseline 0 -> 10, floor 0
+    # areas 10*(10+20)/2 = 150 and 10*(0+10)/2 = 50 -> (150 - 50) / 50 = 2
+    assert transfer_ratio(curve([0, 20], [0, 20]), curve([10, 30], [0, 20])) == pytest.approx(2.0)
+    # baseline flat at the floor: area 0 -> inf; both flat and equal: 0 / 0 -> nan
+    assert transfer_ratio(curve([0, 20], [0, 20]), curve([10, 30], [0, 0])) == math.inf
+    assert math.isnan(transfer_ratio(curve([0, 10], [-5, -5]), curve([0, 10], [-5, -5])))
+    assert math.isnan(transfer_ratio(curve([0, 10], [1, 2]), curve([20, 30], [1, 2])))  # no overlap
+
+
+def test_curves_are_validated():
+    with pytest.raises(ValueError, match="strictly increasing"):
+        total_reward(curve([0, 10, 10], [1, 2, 3]))
+    with pytest.raises(ValueError, match="equal length"):
+        total_reward(curve([0, 10], [1]))
+
+
+# ------------------------------------------------------------------ bootstrap
+
+
+def test_bootstrap_ci_constant_data_has_zero_width():
+    assert bootstrap_ci([3.0, 3.0, 3.0, 3.0], np.random.default_rng(0)) == (3.0, 3.0, 3.0)
+
+
+def test_bootstrap_ci_on_two_values():
+    # resampled means of [0, 1]: 0 w.p. 1/4, 0.5 w.p. 1/2, 1 w.p. 1/4, so the 2.5% and 97.5%
+    # quantiles are 0 and 1, while the 30% and 70% quantiles (confidence 0.4) are both 0.5
+    assert bootstrap_ci([0.0, 1.0], np.random.default_rng(0)) == (0.5, 0.0, 1.0)
+    assert bootstrap_ci([0.0, 1.0], np.random.default_rng(0), confidence=0.4) == (0.5, 0.5, 0.5)
+
+
+def test_bootstrap_ci_contains_the_mean_and_is_reproducible():
+    values = [1.0, 2.0, 3.0, 4.0, 5.0]
+    mean, low, high = bootstrap_ci(values, np.random.default_rng(1))
+    assert mean == 3.0 and 1.0 <= low < 3.0 < high <= 5.0
+    assert bootstrap_ci(values, np.random.default_rng(1)) == (mean, low, high)
+    _, low_50, high_50 = bootstrap_ci(values, np.random.default_rng(1), confidence=0.5)
+    assert low <= low_50 < high_50 <= high
+
+
+def test_bootstrap_ci_single_value_has_no_interval():
+    mean, low, high = bootstrap_ci([7.0], np.random.default_rng(0))
+    assert mean == 7.0 and math.isnan(low) and math.isnan(high)
+    with pytest.raises(ValueError):
+        bootstrap_ci([], np.random.default_rng(0))
+
+
+# ------------------------------------------------------------------ run directories
+
+
+def test_read_metrics_and_learning_curve(tmp_path: Path):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "metrics.jsonl").write_text(
+        '{"step": 20, "team_return": -4.0}\n'
+        '{"step": 10, "team_return": -9.0}\n'
+        '\n'
+        '{"step": 20, "team_return": -3.0, "success_rate": 1.0}\n'  # resumed run re-evaluated step 20
+        '{"step": 30, "team_ret'  # killed mid-write
+    )
+    with pytest.warns(UserWarning, match="incomplete last line 5"):
+        assert len(read_metrics(run)) == 3
+    with pytest.warns(UserWarning):
+        steps, values = learning_curve(run)
+    np.testing.assert_array_equal(steps, [10.0, 20.0])
+    np.testing.assert_array_equal(values, [-9.0, -3.0])  # the later record of step 20 wins
+    with pytest.warns(UserWarning), pytest.raises(EvaluationError,
+                                                  match="available: success_rate, team_return"):
+        learning_curve(run, "episodic_length")
+
+
+def test_read_metrics_errors(tmp_path: Path):
+    with pytest.raises(EvaluationError, match="no such run directory"):
+        read_metrics(tmp_path / "missing")
+    with pytest.raises(EvaluationError, match="metrics.jsonl: missing"):
+        read_metrics(tmp_path)
+    (tmp_path / "metrics.jsonl").write_text('{"step": 0}\nnot json\n{"step": 10}\n')
+    with pytest.raises(EvaluationError, match="line 2 is not valid JSON"):
+        read_metrics(tmp_path)
+
+
+def test_mean_curve_uses_the_common_steps():
+    steps, values = mean_curve([curve([0, 10, 20], [0, 2, 4]), curve([0, 10], [2, 6])])
+    np.testing.assert_array_equal(steps, [0.0, 10.0])
+    np.testing.assert_array_equal(values, [1.0, 4.0])  # (0 + 2) / 2, (2 + 6) / 2
+
+
+@pytest.fixture
+def runs(tmp_path: Path) -> tuple[list[Path], list[Path]]:
+    """Evaluations at steps 0, 10, 20; transfer given in reverse seed order to exercise pairing."""
+    baseline = [make_run(tmp_path / "b0", [-60, -40, -20], seed=0),
+                make_run(tmp_path / "b1", [-40, -20, 0], seed=1)]
+    transfer = [make_run(tmp_path / "t1", [-10, 0, 10], seed=1),
+                make_run(tmp_path / "t0", [-30, -10, 0], seed=0)]
+    return transfer, baseline
+
+
+def test_compare_runs_by_hand(runs):
+    transfer, baseline = runs
+    r = compare_runs(transfer, baseline, threshold=-5.0)
+    # mean baseline curve: [-50, -30, -10]
+    # jumpstart: t0 -30 - (-50) = 20, t1 -10 - (-50) = 40 -> mean 30; 95% CI of 2 values [20, 40]
+    assert r["jumpstart"] == {"mean": 30.0, "low": 20.0, "high": 40.0, "n": 2}
+    # transfer_ratio vs mean baseline, floor -50; baseline above it [0, 20, 40] -> area 100 + 300 = 400
+    # t0 above floor [20, 40, 50] -> 300 + 450 = 750 -> 350/400 = 0.875
+    # t1 above floor [40, 50, 60] -> 450 + 550 = 1000 -> 600/400 = 1.5;  mean (0.875 + 1.5) / 2 = 1.1875
+    assert r["transfer_ratio"]["mean"] == pytest.approx(1.1875)
+    # asymptotic (last of 3 evaluations): transfer [10, 0] -> 5, baseline [-20, 0] -> -10,
+    # differences by seed: t0 - b0 = 0 - (-20) = 20, t1 - b1 = 10 - 0 = 10 -> 15, CI [10, 20]
+    assert r["asymptotic_performance/transfer"]["mean"] == 5.0
+    assert r["asymptotic_performance/baseline"]["mean"] == -10.0
+    assert r["asymptotic_performance/difference"] == {"mean": 15.0, "low": 10.0, "high": 20.0, "n": 2}
+    # total reward: t0 -200 - 50 = -250, t1 -50 + 50 = 0 -> -125; b0 -500 - 300 = -800, b1 -300 - 100 = -400
+    # -> -600; differences 550 and 400 -> 475
+    assert r["total_reward/transfer"]["mean"] == -125.0
+    assert r["total_reward/baseline"]["mean"] == -600.0
+    assert r["total_reward/difference"]["mean"] == 475.0
+    # threshold -5: t0 at step 20, t1 at step 10 -> 15; b0 never (nan, left out), b1 at 20 -> n = 1
+    # difference only where both reach it: t1 - b1 = 10 - 20 = -10 (pairing t1 with b0 would give none)
+    assert r["time_to_threshold/transfer"]["mean"] == 15.0
+    baseline_ttt = r["time_to_threshold/baseline"]
+    assert (baseline_ttt["mean"], baseline_ttt["n"]) == (20.0, 1) and math.isnan(baseline_ttt["low"])
+    assert r["time_to_threshold/difference"]["mean"] == -10.0
+    assert r["time_to_threshold/difference"]["n"] == 1
+
+
+def test_compare_runs_without_threshold_and_with_unequal_counts(runs):
+    transfer, baseline = runs
+    with pytest.warns(UserWarning, match="2 transfer vs 1 baseline"):
+        r = compare_runs(transfer, baseline[:1])
+    assert "time_to_threshold/transfer" not in r
+    # only b0 is left, so the mean baseline is b0; t0 pairs with b0: asymptotic 0 - (-20) = 20
+    assert r["asymptotic_performance/difference"]["n"] == 1
+    assert r["asymptotic_performance/difference"]["mean"] == 20.0
+
+
+def test_format_table():
+    results = {"jumpstart": {"mean": 30.0, "low": 20.0, "high": 40.0, "n": 2},
+               "time_to_threshold/baseline": {"mean": 20.0, "low": math.nan, "high": math.nan, "n": 1}}
+    assert format_table(results) == (
+        "| metric | mean | 95% CI | n |\n"
+        "|---|---:|---:|---:|\n"
+        "| jumpstart | 30 | [20, 40] | 2 |\n"
+        "| time_to_threshold/baseline | 20 | n/a | 1 |"
+    )
+
+
+def test_cli_prints_the_table(runs, capsys):
+    transfer, baseline = runs
+    args = ["--transfer", *map(str, transfer), "--baseline", *map(str, baseline), "--threshold", "-5"]
+    assert evaluation.main(args) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("| metric | mean | 95% CI | n |")
+    assert "| jumpstart | 30 | [20, 40] | 2 |" in out
+
+
+def test_cli_missing_dir_is_one_error_line(tmp_path: Path):
+    result = subprocess.run(
+        [sys.executable, "-m", "dqn_transfer.evaluation", "--transfer", str(tmp_path / "nope"),
+         "--baseline", str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 1
+    assert "Traceback" not in result.stderr
+    assert result.stderr.splitlines() == [f"error: {tmp_path / 'nope'}: no such run directory"]
