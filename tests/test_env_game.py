@@ -6,6 +6,8 @@ Every expected value below is worked out from the rules, not read off the code.
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -158,7 +160,8 @@ def test_obs_layout_sizes_position_index_and_coords():
     assert np.flatnonzero(obs[1, :25]).tolist() == [21]  # (4, 1): 4 * 5 + 1
     assert obs[:, 25:].tolist() == [[1.0, 1.0], [1.0, 1.0]]
     obs = game.step(np.array([RIGHT, UP]))[0]
-    assert np.flatnonzero(obs[0, :25]).tolist() == [13] and np.flatnonzero(obs[1, :25]).tolist() == [16]
+    assert np.flatnonzero(obs[0, :25]).tolist() == [13]  # (2, 3)
+    assert np.flatnonzero(obs[1, :25]).tolist() == [16]  # (3, 1)
     game, obs = make(layout, obs_encoding="coords", mode="deliberative", view_radius=2)
     assert game.obs_layout() == [("position", 2), ("treasures", 2), ("assignment", 2), ("view", 75)]
     assert obs.shape == (2, 81) and obs.dtype == np.float32
@@ -268,7 +271,7 @@ def test_parallel_env_hand_episode_and_render():
     assert term == {"agent_0": True, "agent_1": False} and env.agents == ["agent_1"]
     assert obs["agent_1"][9] == 0.0
     assert env.render().splitlines()[:2] == [".t.", "..1"]
-    for _ in range(7):
+    for _ in range(8):  # steps 2..9: the 9th (= n * n) move truncates
         _, rew, term, trunc, _ = env.step({"agent_1": DOWN})
     assert set(rew) == {"agent_1"} and trunc == {"agent_1": True} and env.agents == []
 
@@ -282,3 +285,25 @@ def test_rgb_render_draws_cells_and_agents():
     assert len({tuple(agent), tuple(chest), tuple(trap), tuple(free)}) == 4
     env.step({"agent_0": DOWN})
     assert tuple(env.render()[8, 8]) == tuple(free)  # the agent left (0,0)
+
+
+def _brute_force_assignment(cost: np.ndarray) -> list[int]:
+    """Every maximum assignment; keep the minimum total, then the agent-by-agent preference
+    (a chest before none; nearer chest; lower chest number) in agent index order."""
+    num_agents, num_chests = cost.shape
+    candidates = []
+    for assignment in itertools.product([*range(num_chests), -1], repeat=num_agents):
+        used = [c for c in assignment if c >= 0]
+        if len(used) != len(set(used)) or len(used) != min(num_agents, num_chests):
+            continue
+        total = sum(cost[a, c] for a, c in enumerate(assignment) if c >= 0)
+        preference = [(0, cost[a, c], c) if c >= 0 else (1, 0, 0) for a, c in enumerate(assignment)]
+        candidates.append((total, preference, list(assignment)))
+    return min(candidates)[2]
+
+
+def test_assign_agents_matches_brute_force_on_tie_heavy_matrices():
+    rng = np.random.default_rng(0)
+    for _ in range(400):
+        cost = rng.integers(0, 3, size=(rng.integers(1, 5), rng.integers(1, 5)))
+        assert assign_agents(cost).tolist() == _brute_force_assignment(cost), cost

@@ -165,6 +165,7 @@ def test_trap_beside_treasure_diagonal_and_unreachable_second_start():
         (dict(size=5, num_treasures=0), "num_treasures must be >= 1"),
         (dict(size=5, num_treasures=1, num_traps=-1), "num_traps must be >= 0"),
         (dict(size=5, num_treasures=1, num_agents=11), "num_agents must be between 1 and 10"),
+        (dict(size=9, num_treasures=11), "num_agents defaults to num_treasures=11"),
         (dict(size=5, num_treasures=1, complexity=1.0), r"complexity must be in \[0, 1\)"),
         (dict(size=5, num_treasures=1, complexity=-0.1), r"complexity must be in \[0, 1\)"),
         (dict(size=3, num_treasures=4, num_traps=4, num_agents=2), "num_treasures.*do not fit"),

@@ -84,6 +84,17 @@ def _check_int(name: str, value: object, low: int) -> int:
     return int(value)
 
 
+def _best_matching(
+    cost: np.ndarray, rows: np.ndarray, cols: np.ndarray
+) -> tuple[int, int, np.ndarray, np.ndarray]:
+    """Minimum-cost maximum matching of ``rows`` to ``cols``: (pairs, total, rows, cols)."""
+    if len(rows) == 0 or len(cols) == 0:
+        return 0, 0, rows[:0], cols[:0]
+    sub = cost[np.ix_(rows, cols)]
+    r, c = linear_sum_assignment(sub)
+    return len(r), int(sub[r, c].sum()), rows[r], cols[c]
+
+
 def assign_agents(cost: np.ndarray) -> np.ndarray:
     """Chest column for each agent row (``-1``: none) minimising the total integer ``cost``.
 
@@ -94,38 +105,32 @@ def assign_agents(cost: np.ndarray) -> np.ndarray:
     ``linear_sum_assignment`` calls, done only when chests or live agents change.
     """
     num_rows, num_cols = cost.shape
-    rows, cols = linear_sum_assignment(cost)
-    best = int(cost[rows, cols].sum())
-    pairs = len(rows)
+    all_rows, all_cols = np.arange(num_rows), np.arange(num_cols)
+    pairs, best, rows, cols = _best_matching(cost, all_rows, all_cols)
+    # One optimal assignment, kept consistent with the choices fixed so far.
     current = np.full(num_rows, -1, dtype=np.int64)
     current[rows] = cols
-    fixed_cost, fixed_pairs = 0, 0
-    free_cols = list(range(num_cols))
+    fixed_pairs, fixed_cost, free_cols = 0, 0, list(range(num_cols))
     for agent in range(num_rows):
         options = sorted(free_cols, key=lambda c: (cost[agent, c], c))
         if num_rows > num_cols:
             options.append(-1)
-        rest_rows = np.arange(agent + 1, num_rows)
+        rest_rows = all_rows[agent + 1 :]
         for option in options:
-            if option != current[agent]:
-                rest_cols = np.array([c for c in free_cols if c != option], dtype=np.int64)
-                sub = cost[np.ix_(rest_rows, rest_cols)]
-                sub_rows, sub_cols = linear_sum_assignment(sub) if sub.size else ((), ())
-                own_pair = int(option >= 0)
-                total = fixed_cost + (int(cost[agent, option]) if option >= 0 else 0)
-                total += int(sub[sub_rows, sub_cols].sum()) if len(sub_rows) else 0
-                if fixed_pairs + own_pair + len(sub_rows) != pairs or total != best:
-                    continue
+            if option == current[agent]:
+                break  # the assignment in hand already makes this choice
+            own_pairs, own_cost = (1, int(cost[agent, option])) if option >= 0 else (0, 0)
+            rest_cols = np.array([c for c in free_cols if c != option], dtype=np.int64)
+            n, total, rows, cols = _best_matching(cost, rest_rows, rest_cols)
+            if fixed_pairs + own_pairs + n == pairs and fixed_cost + own_cost + total == best:
                 current[rest_rows] = -1
-                current[rest_rows[np.asarray(sub_rows, dtype=np.int64)]] = rest_cols[
-                    np.asarray(sub_cols, dtype=np.int64)
-                ]
+                current[rows] = cols
                 current[agent] = option
-            if option >= 0:
-                fixed_cost += int(cost[agent, option])
-                fixed_pairs += 1
-                free_cols.remove(option)
-            break
+                break
+        if current[agent] >= 0:
+            fixed_pairs += 1
+            fixed_cost += int(cost[agent, current[agent]])
+            free_cols.remove(int(current[agent]))
     return current
 
 
@@ -250,7 +255,7 @@ class TreasureHuntGame:
         return list(self._layout)
 
     def single_agent_game(self) -> TreasureHuntGame:
-        """The source task of transfer: agent 0 alone on the same map, observing position [+ view]."""
+        """The source task of transfer: agent 0 alone on this map, observing position [+ view]."""
         return TreasureHuntGame(
             self.map,
             mode="competitive",
@@ -330,7 +335,9 @@ class TreasureHuntGame:
         trap = np.zeros(agents, dtype=bool)
         kinds = self._kind[new]
         events = bool(kinds.any())
-        collected = self._resolve_events(idx, new, kinds, rewards, terminated, trap) if events else 0
+        collected = 0
+        if events:
+            collected = self._resolve_events(idx, new, kinds, rewards, terminated, trap)
         truncated = np.zeros(agents, dtype=bool)
         if self._t >= self.max_steps:
             truncated[idx] = ~terminated[idx]

@@ -219,7 +219,7 @@ def _neighbour_table(size: int, steps: Iterable[Cell]) -> list[list[int]]:
 
 
 def _joined(targets: list[int], nbrs: list[list[int]], blocked: bytearray) -> bool:
-    """True if all ``targets`` lie in one unblocked component (the flood stops once all are found)."""
+    """True if all ``targets`` lie in one unblocked component (the flood stops once they are)."""
     remaining = set(targets[1:])
     seen = {targets[0]}
     todo = [targets[0]]
@@ -308,7 +308,7 @@ def generate_layout(
     complexity: float = 0.0,
     seed: int | None = None,
 ) -> str:
-    """A random layout obeying every map rule, with exactly ``round(complexity * size**2)`` obstacles.
+    """A random layout obeying every map rule, with ``round(complexity * size * size)`` obstacles.
 
     ``num_traps`` and ``num_agents`` default to ``num_treasures``. The same ``seed`` gives the same
     map. An infeasible request raises ``ValueError`` naming the parameter after a bounded number of
@@ -317,6 +317,11 @@ def generate_layout(
     size = _check_int("size", size, 2)
     num_treasures = _check_int("num_treasures", num_treasures, 1)
     num_traps = _check_int("num_traps", num_treasures if num_traps is None else num_traps, 0)
+    if num_agents is None and num_treasures > MAX_AGENTS:
+        raise ValueError(
+            f"num_agents defaults to num_treasures={num_treasures}, more than the {MAX_AGENTS} "
+            "start digits: give num_agents"
+        )
     num_agents = _check_int(
         "num_agents", num_treasures if num_agents is None else num_agents, 1, MAX_AGENTS
     )
