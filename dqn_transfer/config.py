@@ -89,7 +89,7 @@ class AgentConfig:
     train_freq: int = 1  # env steps between updates
     gradient_steps: int = 1  # gradient steps per update
     target_update: int = 500  # env steps between hard target copies (used when tau == 1)
-    tau: float = 1.0  # 1.0: hard copy; < 1: Polyak averaging after every gradient step
+    tau: float = 0.01  # 1.0: hard copy every target_update steps; < 1: Polyak averaging after every gradient step
     hidden: List[int] = field(default_factory=lambda: [64, 64])  # MLP hidden sizes
     eps_start: float = 1.0  # initial exploration rate
     eps_end: float = 0.05  # final exploration rate
@@ -129,6 +129,7 @@ class TrainConfig:
     progress: bool = True  # tqdm progress bar
     resume: bool = False  # continue the run in hydra.run.dir from its last checkpoint
     device: Device = Device.cpu
+    threads: int = 1  # torch CPU threads: tiny networks run fastest on one, and sweep jobs don't oversubscribe
 
 
 def register_configs() -> None:
@@ -173,6 +174,7 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
     _check(cfg.eval_every >= 1, f"eval_every must be >= 1, got {cfg.eval_every}")
     _check(cfg.eval_episodes >= 1, f"eval_episodes must be >= 1, got {cfg.eval_episodes}")
     _check(cfg.checkpoint_every >= 1, f"checkpoint_every must be >= 1, got {cfg.checkpoint_every}")
+    _check(cfg.threads >= 1, f"threads must be >= 1, got {cfg.threads}")
     _check(transfer.pretrain_steps >= 1, f"transfer.pretrain_steps must be >= 1, got {transfer.pretrain_steps}")
     _check(0.0 <= transfer.epsilon_start <= 1.0,
            f"transfer.epsilon_start must be in [0, 1], got {transfer.epsilon_start}")

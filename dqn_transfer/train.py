@@ -24,6 +24,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from hydra.experimental.callback import Callback
+from omegaconf import DictConfig
 
 from dqn_transfer.config import (
     Algorithm,
@@ -53,14 +55,19 @@ def make_game(env_cfg: dict[str, Any], source_task: bool = False):
     return game.single_agent_game() if source_task else game
 
 
-def resolve_device(device: Device) -> str:
+def resolve_device(device: Device, threads: int) -> str:
     import torch
 
+    torch.set_num_threads(threads)
     if device is Device.auto:
         return "cuda" if torch.cuda.is_available() else "cpu"
     if device is Device.cuda and not torch.cuda.is_available():
         raise ConfigError("device=cuda but no CUDA device is available here (use device=cpu or device=auto)")
     return device.value
+
+
+def existing_run_message(run_dir: Path) -> str:
+    return f"{run_dir} already holds a run; pass resume=true to continue it or choose another hydra.run.dir"
 
 
 @dataclass
@@ -152,7 +159,7 @@ class Trainer:
         self.source_task = source_task
         self.checkpoint_dir = self.run_dir / "checkpoints"
         self.metrics_path = self.run_dir / "metrics.jsonl"
-        self.device = resolve_device(config.device)
+        self.device = resolve_device(config.device, config.threads)
         self.game = make_game(self.plain["env"], source_task)
         self.eval_game = make_game(self.plain["env"], source_task)
         from dqn_transfer.agents import make_learner
@@ -162,6 +169,7 @@ class Trainer:
         self.counters = Counters(next_checkpoint=config.checkpoint_every)
         self.transfer_info: dict[str, Any] | None = None
         self.last_eval: dict[str, float] = {}
+        self.last_eval_step: int | None = None  # step of the last line in metrics.jsonl
 
     # ------------------------------------------------------------------ setup
     def prepare(self) -> None:
@@ -175,8 +183,7 @@ class Trainer:
             self._load_state()
             return
         if has_state:
-            raise ConfigError(f"{self.run_dir} already holds a run; pass resume=true to continue it "
-                              "or choose another hydra.run.dir")
+            raise ConfigError(existing_run_message(self.run_dir))
         if self.config.transfer.enabled and not self.source_task:
             from dqn_transfer.transfer import apply_transfer
 
@@ -200,8 +207,10 @@ class Trainer:
             "obs_layout": [[name, size] for name, size in game.obs_layout()],
             "num_actions": game.num_actions,
             "network": self.learner.network_meta(),
-            "env": {**self.plain["env"], "size": game.size, "num_treasures": game.num_treasures,
-                    "num_agents": game.num_agents, "layout": game.map.layout},
+            # The map as played: ``make_game(**meta["env"])`` rebuilds it from the layout alone.
+            "env": {**self.plain["env"], "layout": game.map.layout, "layout_file": None,
+                    "size": game.size, "num_treasures": game.num_treasures, "num_traps": game.map.num_traps,
+                    "num_agents": game.map.num_agents, "complexity": None, "map_seed": None},
             "mode": self.plain["env"]["mode"],
             "source_task": self.source_task,
             "agent": self.plain["agent"],
@@ -255,16 +264,20 @@ class Trainer:
         self.counters = Counters(**meta["counters"])
         self.last_eval = meta["last_eval"]
         self.transfer_info = meta["transfer"]
-        self._truncate_metrics(self.counters.step)
+        self._truncate_metrics(self.counters.evaluations)
         log.info("resumed %s at step %d (episode %d)", self.run_dir, self.counters.step, self.counters.episodes)
 
-    def _truncate_metrics(self, step: int) -> None:
-        """Drop evaluations the killed run wrote after its last checkpoint; they will be redone."""
+    def _truncate_metrics(self, evaluations: int) -> None:
+        """Keep the evaluations the checkpoint counted; the killed run's later ones will be redone.
+
+        By count, not by step: the loop checkpoints *before* evaluating the same step, so a line at
+        the checkpoint's step may be one the checkpoint does not know about.
+        """
         if not self.metrics_path.exists():
             return
-        lines = [line for line in self.metrics_path.read_text().splitlines()
-                 if line.strip() and json.loads(line)["step"] <= step]
+        lines = [line for line in self.metrics_path.read_text().splitlines() if line.strip()][:evaluations]
         self.metrics_path.write_text("".join(line + "\n" for line in lines))
+        self.last_eval_step = json.loads(lines[-1])["step"] if lines else None
 
     # --------------------------------------------------------------- evaluation
     def run_evaluation(self, logger) -> None:
@@ -273,6 +286,7 @@ class Trainer:
                           self.counters.evaluations)
         self.counters.evaluations += 1
         self.last_eval = result
+        self.last_eval_step = step
         record: dict[str, Any] = {"step": step, **result, "episodes": self.counters.episodes,
                                   "epsilon": float(epsilons_at(self.config, step, self.transferred).mean()),
                                   "wall_time": time.time()}
@@ -303,8 +317,8 @@ class Trainer:
             logger.close()
             log.info("total_steps=0: wrote the initial checkpoints to %s", self.checkpoint_dir)
             return {"step": 0, "last_eval": {}}
-        if counters.step == 0:
-            self.run_evaluation(logger)
+        if counters.step % config.eval_every == 0 and self.last_eval_step != counters.step:
+            self.run_evaluation(logger)  # step 0, or a resumed checkpoint's step whose eval was lost
 
         env_rng = np.random.default_rng([config.seed, 17])
         if counters.env_rng_state:
@@ -366,7 +380,7 @@ class Trainer:
                                 eps=f"{epsilon.mean():.2f}", sps=f"{sps:.0f}", refresh=False)
                 bar.update(counters.step - bar.n)
         bar.close()
-        if counters.step % config.eval_every != 0:
+        if self.last_eval_step != counters.step:  # not twice when resuming a finished run
             self.run_evaluation(logger)
         counters.env_rng_state = env_rng.bit_generator.state
         self.save_checkpoint()
@@ -419,6 +433,17 @@ def _user_errors() -> tuple[type[Exception], ...]:
     return ConfigError, CheckpointError, TransferError
 
 
+class RefuseExistingRun(Callback):
+    """Hydra callback: refuse a new run in a run directory that holds one *before* Hydra rewrites
+    its ``.hydra/`` record (the trainer's own check comes after that)."""
+
+    def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
+        run_dir = Path(config.hydra.run.dir)
+        if not config.resume and (run_dir / "checkpoints" / TRAINING_STATE).exists():
+            print(f"error: {existing_run_message(run_dir)}", file=sys.stderr)
+            sys.exit(1)
+
+
 def report_user_error(err: Exception) -> None:
     """One line on stderr and in the run's log file; no traceback for a user's mistake."""
     message = f"error: {err}"
@@ -437,7 +462,7 @@ def main() -> None:
     import hydra
     from hydra.core.hydra_config import HydraConfig
     from hydra.utils import get_original_cwd
-    from omegaconf import DictConfig, OmegaConf
+    from omegaconf import OmegaConf
 
     @hydra.main(version_base="1.3", config_path=str(Path(__file__).resolve().parent.parent / "conf"),
                 config_name="config")

@@ -64,7 +64,8 @@ def pretrained_source(config: TrainConfig, plain: dict[str, Any], layout: str, l
     """Pretrain on TreasureHunt-v0 once per source config; later runs reuse the cached checkpoint."""
     from dqn_transfer.train import TRAINING_STATE, train
 
-    cache_root = Path(config.transfer.cache_dir) if config.transfer.cache_dir else launch_dir / "outputs" / "pretrained"
+    # Relative to the launch dir, like transfer.source: the process cwd may be a run dir (chdir, SLURM).
+    cache_root = launch_dir / Path(config.transfer.cache_dir or "outputs/pretrained").expanduser()
     run_dir = cache_root / source_hash(plain, layout)
     checkpoint = run_dir / "checkpoints" / "agent_0.safetensors"
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -111,16 +112,19 @@ def apply_transfer(config: TrainConfig, learner, game, plain: dict[str, Any], la
     path = pretrained_source(config, plain, game.map.layout, launch_dir) if pretrained else resolve_source(transfer, launch_dir)
     tensors, meta = load_agent_checkpoint(path)
     algorithm = plain["agent"]["algorithm"]
-    check_compatible(meta, {"algorithm": algorithm, "num_actions": game.num_actions, "size": game.size})
     target_layout = game.obs_layout()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        if Algorithm(algorithm) in TABULAR:
-            mapped = transfer_tabular_tensors(tensors, meta["obs_layout"], target_layout,
-                                              num_actions=game.num_actions)
-        else:
-            mapped = transfer_dqn_tensors(tensors, meta["obs_layout"], target_layout,
-                                          list(config.agent.hidden), game.num_actions)
+        try:
+            check_compatible(meta, {"algorithm": algorithm, "num_actions": game.num_actions, "size": game.size})
+            if Algorithm(algorithm) in TABULAR:
+                mapped = transfer_tabular_tensors(tensors, meta["obs_layout"], target_layout,
+                                                  num_actions=game.num_actions)
+            else:
+                mapped = transfer_dqn_tensors(tensors, meta["obs_layout"], target_layout,
+                                              list(config.agent.hidden), game.num_actions)
+        except (CheckpointError, TransferError) as err:
+            raise TransferError(f"transfer source {path}: {err}") from None
     for warning in caught:
         log.warning("transfer: %s", warning.message)
     targets = list(range(game.num_agents)) if transfer.targets is None else list(transfer.targets)
@@ -153,14 +157,16 @@ def apply_transfer(config: TrainConfig, learner, game, plain: dict[str, Any], la
 def exchange_best(learner, window_returns: np.ndarray, tau: float) -> int:
     """Every other agent moves its weights ``tau`` of the way to the best agent's (soft copy).
 
-    The best agent is the one with the highest mean episodic return over the exchange window.
+    Layers kept fixed by ``transfer.freeze`` stay as they are. The best agent is the one with the highest mean episodic return over the exchange window.
     """
     best = int(np.argmax(window_returns.mean(axis=0)))
     best_weights = learner.get_member_weights(best)
+    frozen = {f"layers.{l}.{kind}" for l in learner.frozen_layers for kind in ("weight", "bias")}
     for i in range(learner.num_agents):
         if i != best:
             own = learner.get_member_weights(i)
-            learner.set_member_weights(i, {name: (1 - tau) * own[name] + tau * best_weights[name] for name in own})
+            learner.set_member_weights(i, {name: own[name] if name in frozen else
+                                           (1 - tau) * own[name] + tau * best_weights[name] for name in own})
     return best
 
 

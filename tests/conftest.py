@@ -1,0 +1,109 @@
+"""Shared test helpers: running the ``python train.py`` command line in a subprocess.
+
+The CLI tests call the real entry point, as a user would, so they cover Hydra's config handling,
+the exit code and what lands on stdout/stderr. Each subprocess costs a few seconds of imports,
+so tests reuse runs (module-scoped fixtures) and start independent runs side by side.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+TRAIN_PY = REPO / "train.py"
+TRAIN_TIMEOUT = 300  # seconds; a hung run fails the test instead of the suite
+
+
+def train_env() -> dict[str, str]:
+    """A fixed, quiet environment: fixed hash seed, one BLAS/OpenMP thread, no Hydra full traces.
+
+    One thread keeps tiny networks fast when several runs share two cores, and keeps them
+    reproducible. HYDRA_FULL_ERROR would turn Hydra's one-line errors into tracebacks.
+    """
+    env = dict(os.environ)
+    env.pop("HYDRA_FULL_ERROR", None)
+    env.update(PYTHONHASHSEED="0", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
+    return env
+
+
+def train_command(run_dir: Path, overrides: Iterable[str]) -> list[str]:
+    return [sys.executable, str(TRAIN_PY), *overrides, "progress=false", f"hydra.run.dir={run_dir}"]
+
+
+@dataclass
+class TrainResult:
+    """What one ``python train.py`` invocation left behind."""
+
+    args: list[str]
+    returncode: int
+    stdout: str
+    stderr: str
+    run_dir: Path
+
+    @property
+    def output(self) -> str:
+        return self.stdout + self.stderr
+
+    def check(self) -> "TrainResult":
+        assert self.returncode == 0, (
+            f"train.py {' '.join(self.args)} exited {self.returncode}\n"
+            f"--- stdout\n{self.stdout}\n--- stderr\n{self.stderr}")
+        return self
+
+
+def run_train(cwd: Path, *overrides: str, run_dir: Path | None = None, check: bool = True) -> TrainResult:
+    """Run ``python train.py OVERRIDES progress=false hydra.run.dir=RUN_DIR`` with ``cwd`` as launch dir.
+
+    ``run_dir`` defaults to ``cwd / "run"``; ``check`` asserts exit status 0 (with the output).
+    """
+    cwd = Path(cwd)
+    run_dir = Path(run_dir) if run_dir is not None else cwd / "run"
+    proc = subprocess.run(train_command(run_dir, overrides), cwd=cwd, env=train_env(), capture_output=True,
+                          text=True, timeout=TRAIN_TIMEOUT)
+    result = TrainResult(list(overrides), proc.returncode, proc.stdout, proc.stderr, run_dir)
+    return result.check() if check else result
+
+
+def start_train(cwd: Path, *overrides: str, run_dir: Path) -> subprocess.Popen:
+    """Start a run in the background (e.g. to kill it); output goes to ``run_dir``'s sibling .out file."""
+    out = open(Path(run_dir).with_suffix(".out"), "w")
+    try:
+        return subprocess.Popen(train_command(run_dir, overrides), cwd=cwd, env=train_env(), stdout=out,
+                                stderr=subprocess.STDOUT)
+    finally:
+        out.close()  # the child holds its own descriptor
+
+
+def run_many(jobs: Sequence[tuple[Path, Sequence[str], Path | None]], check: bool = True) -> list[TrainResult]:
+    """Run independent ``(cwd, overrides, run_dir)`` jobs side by side, one per CPU core."""
+    workers = max(2, min(len(jobs), os.cpu_count() or 2))
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        futures = [pool.submit(run_train, cwd, *overrides, run_dir=run_dir, check=False)
+                   for cwd, overrides, run_dir in jobs]
+        results = [future.result() for future in futures]
+    if check:
+        for result in results:
+            result.check()
+    return results
+
+
+@pytest.fixture(scope="session")
+def train_cli():
+    """The helpers above, for tests that prefer a fixture to an import."""
+    return run_train
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _one_torch_thread():
+    """In-process tests too: one intra-op thread (what the trainer uses by default, config `threads`)."""
+    import torch
+
+    torch.set_num_threads(1)
