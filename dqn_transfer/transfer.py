@@ -25,9 +25,20 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from dqn_transfer.checkpoint import CheckpointError, check_compatible, find_checkpoints, load_agent_checkpoint
+from dqn_transfer.checkpoint import (
+    CheckpointError,
+    check_compatible,
+    find_checkpoints,
+    load_agent_checkpoint,
+    load_training_state,
+)
 from dqn_transfer.config import TABULAR, Algorithm, TrainConfig, TransferConfig
-from dqn_transfer.transfer_mapping import TransferError, transfer_dqn_tensors, transfer_tabular_tensors
+from dqn_transfer.transfer_mapping import (
+    TransferError,
+    plan_segment_mapping,
+    transfer_dqn_tensors,
+    transfer_tabular_tensors,
+)
 
 log = logging.getLogger("dqn_transfer.transfer")
 
@@ -133,6 +144,8 @@ def apply_transfer(config: TrainConfig, learner, game, plain: dict[str, Any], la
         raise TransferError(f"transfer.targets {bad} out of range for {game.num_agents} agents")
     for i in targets:
         learner.load_agent_tensors(i, mapped)
+    if not transfer.reset_optimizer:
+        carry_optimizer_state(learner, path, meta, target_layout, targets)
     if transfer.freeze:
         try:
             learner.freeze(transfer.freeze)
@@ -150,6 +163,43 @@ def apply_transfer(config: TrainConfig, learner, game, plain: dict[str, Any], la
     }
     log.info("transfer: agents %s start from %s (digest %s...)", targets, path, meta["digest"][:12])
     return info
+
+
+def carry_optimizer_state(learner, source: Path, meta: dict[str, Any], target_layout, targets: list[int]) -> None:
+    """``transfer.reset_optimizer=false``: start the targets' Adam moments from the source's.
+
+    The moments live in the source run's resume state beside the agent file; the first layer's rows
+    are mapped by segment like its weights (zero for target-only segments).
+    """
+    from dqn_transfer.train import TRAINING_STATE
+
+    if not hasattr(learner, "set_member_optimizer_state"):
+        raise TransferError("transfer.reset_optimizer=false needs a DQN learner (tabular learners have no optimizer)")
+    state_path = source.parent / TRAINING_STATE
+    if not state_path.exists():
+        raise TransferError(f"transfer.reset_optimizer=false needs the source's optimizer state, but {state_path} "
+                            "does not exist (share the run's whole checkpoints/ directory, or use reset_optimizer=true)")
+    arrays, _ = load_training_state(state_path)
+    member = 0 if meta["network"].get("share_parameters") else int(meta["agent_index"])
+    plan = plan_segment_mapping(meta["obs_layout"], target_layout)
+    moments: dict[str, dict[str, np.ndarray]] = {}
+    step = 0
+    for layer in range(len(meta["network"]["hidden"]) + 1):
+        for name in (f"weight_{layer}", f"bias_{layer}"):
+            prefix = f"learner/optim.{name}."
+            if prefix + "exp_avg" not in arrays:  # frozen in the source, or it never trained
+                continue
+            step = int(np.asarray(arrays[prefix + "step"]).reshape(-1)[0])
+            moments[name] = {}
+            for key in ("exp_avg", "exp_avg_sq"):
+                value = arrays[prefix + key][member]
+                if name == "weight_0":  # [in, out]: rows are observation columns
+                    mapped = np.zeros((plan.target_dim, value.shape[1]), dtype=value.dtype)
+                    mapped[plan.projection] = value[plan.source_columns]
+                    value = mapped
+                moments[name][key] = value
+    for i in targets:
+        learner.set_member_optimizer_state(i, moments, step)
 
 
 # ------------------------------------------------------------------------------ team knowledge exchange

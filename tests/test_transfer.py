@@ -531,3 +531,35 @@ def test_shared_replay_gives_each_agent_its_teammates_transitions(work, dqn_sour
     # Over the run: own transitions (one per live step) + what the teammate shared.
     own = trainer.learner.replay.size - shared_total
     assert (own > 0).all() and (own <= trainer.counters.step).all()
+
+
+# ----------------------------------------------------------------------------- optimizer carry-over
+
+def test_reset_optimizer_false_carries_the_sources_adam_moments(work, dqn_source):
+    """Moments come from the source's resume state; layer 0's rows map like its weights."""
+    source_state = load_file(str(dqn_source.parent / "training_state.safetensors"))
+    config = make_config(TEAM_MAP, DQN_AGENT, transfer=TransferConfig(
+        enabled=True, source=str(dqn_source), reset_optimizer=False, targets=[1]))
+    trainer = Trainer(config, work / "carry_adam", launch_dir=work)
+    trainer.run()
+    state = trainer.learner.optimizer.state
+    weight_0 = trainer.learner.q_network.weight_0  # [K, in, out]; rows 0..24 position, 25..26 treasures
+    for key in ("exp_avg", "exp_avg_sq"):
+        source_moment = source_state[f"learner/optim.weight_0.{key}"][0]  # [25, 32]
+        carried = state[weight_0][key]
+        torch.testing.assert_close(carried[1, :N * N], source_moment)
+        assert torch.count_nonzero(carried[1, N * N:]) == 0  # treasures rows: no history
+        assert torch.count_nonzero(carried[0]) == 0  # agent 0 was not a target
+        torch.testing.assert_close(state[trainer.learner.q_network.bias_1][key][1],
+                                   source_state[f"learner/optim.bias_1.{key}"][0])
+    assert float(state[weight_0]["step"]) == float(source_state["learner/optim.weight_0.step"].reshape(-1)[0])
+
+
+def test_reset_optimizer_false_needs_the_sources_resume_state(work, dqn_source):
+    lone = work / "lone" / "agent_0.safetensors"
+    lone.parent.mkdir(exist_ok=True)
+    lone.write_bytes(dqn_source.read_bytes())
+    config = make_config(TEAM_MAP, DQN_AGENT, transfer=TransferConfig(
+        enabled=True, source=str(lone), reset_optimizer=False))
+    with pytest.raises(TransferError, match="needs the source's optimizer state"):
+        Trainer(config, work / "carry_adam_lone", launch_dir=work).run()

@@ -224,6 +224,25 @@ class DQNLearner:
         """Fresh Adam moments, e.g. after loading transferred weights learned on another task."""
         self.optimizer = torch.optim.Adam(self.q_network.parameters(), lr=self.lr)
 
+    def set_member_optimizer_state(self, i: int, moments: dict[str, dict[str, np.ndarray]], step: int) -> None:
+        """Adam moments for agent i's slice of each stacked parameter, e.g. carried over by transfer.
+
+        ``moments[name]`` holds ``exp_avg`` and ``exp_avg_sq`` shaped like one member's slice of
+        parameter ``name``. Adam keeps one ``step`` per stacked parameter, shared by all agents.
+        """
+        m = self._member(i)
+        for name, parameter in self.q_network.named_parameters():
+            if name not in moments:  # e.g. a layer the source kept frozen has no moments
+                continue
+            state = self.optimizer.state[parameter]
+            if not state:  # what Adam would create at its first step
+                state["step"] = torch.tensor(0.0)
+                state["exp_avg"] = torch.zeros_like(parameter, memory_format=torch.preserve_format)
+                state["exp_avg_sq"] = torch.zeros_like(parameter, memory_format=torch.preserve_format)
+            for key in ("exp_avg", "exp_avg_sq"):
+                state[key][m] = torch.as_tensor(moments[name][key], device=self.device)
+            state["step"] = torch.tensor(float(step))
+
     def _member(self, i: int) -> int:
         if not 0 <= i < self.num_agents:
             raise IndexError(f"agent index {i} out of range for {self.num_agents} agents")
