@@ -240,6 +240,7 @@ class Trainer:
             "transfer": self.transfer_info,
             "obs_layout": [[name, size] for name, size in self.game.obs_layout()],
             "algorithm": self.plain["agent"]["algorithm"],
+            "config": self.plain,  # what resume=true continues with
         }
         save_training_state(self.checkpoint_dir / TRAINING_STATE, arrays, meta)
 
@@ -254,7 +255,7 @@ class Trainer:
             raise CheckpointError(
                 f"{self.checkpoint_dir}: the run was made with algorithm {meta.get('algorithm')} and obs layout "
                 f"{meta.get('obs_layout')}; this config gives {self.plain['agent']['algorithm']} and "
-                f"{expected_layout} — resume with the run's own config (its .hydra/overrides.yaml)")
+                f"{expected_layout}")
         for i in range(self.game.num_agents):
             prefix = f"agent_{i}/"
             self.learner.load_agent_tensors(i, {k[len(prefix):]: torch.from_numpy(v.copy())
@@ -433,6 +434,41 @@ def _user_errors() -> tuple[type[Exception], ...]:
     return ConfigError, CheckpointError, TransferError
 
 
+# What a resumed run may change; everything else is the run's own saved config.
+RESUMABLE_KEYS = ("total_steps", "progress", "checkpoint_every", "device", "threads")
+
+
+def resume_config(state: Path, cfg: DictConfig, overrides: list[str]) -> TrainConfig:
+    """The saved config of the run being resumed, with the command line's resumable overrides.
+
+    ``resume=true hydra.run.dir=DIR`` alone continues the run as it was configured; an override that
+    would change what is being learned (``agent.lr=...``, ``agent=sarsa``) is refused by name.
+    """
+    from omegaconf import OmegaConf
+
+    from dqn_transfer.checkpoint import load_training_state
+
+    _, meta = load_training_state(state)
+    saved = OmegaConf.merge(OmegaConf.structured(TrainConfig), meta["config"])
+    # Hydra has just written the resume command's composition there; record the run's own instead.
+    record = state.parent.parent / ".hydra" / "config.yaml"
+    OmegaConf.save(saved, record)
+    for override in overrides:
+        key = override.split("=", 1)[0].lstrip("+~")
+        if key == "resume" or key.startswith("hydra"):
+            continue
+        wanted = OmegaConf.select(cfg, key)
+        if key in RESUMABLE_KEYS:
+            OmegaConf.update(saved, key, wanted)
+        elif wanted != (have := OmegaConf.select(saved, key)):
+            shown = "" if isinstance(have, DictConfig) else f" ({key}={have})"
+            raise ConfigError(f"resume=true: '{override}' differs from the run's own setting{shown}; a resumed "
+                              f"run may change only {', '.join(RESUMABLE_KEYS)}")
+    saved.resume = True
+    OmegaConf.save(saved, record)
+    return OmegaConf.to_object(saved)  # type: ignore[return-value]
+
+
 class RefuseExistingRun(Callback):
     """Hydra callback: refuse a new run in a run directory that holds one *before* Hydra rewrites
     its ``.hydra/`` record (the trainer's own check comes after that)."""
@@ -469,7 +505,11 @@ def main() -> None:
     def _main(cfg: DictConfig) -> float:
         run_dir = Path(HydraConfig.get().runtime.output_dir)
         try:
-            config: TrainConfig = OmegaConf.to_object(cfg)  # type: ignore[assignment]
+            state = run_dir / "checkpoints" / TRAINING_STATE
+            if cfg.resume and state.exists():
+                config = resume_config(state, cfg, HydraConfig.get().overrides.task)
+            else:
+                config = OmegaConf.to_object(cfg)  # type: ignore[assignment]
             summary = train(config, run_dir, launch_dir=Path(get_original_cwd()))
         except _user_errors() as err:
             report_user_error(err)

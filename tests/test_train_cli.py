@@ -469,3 +469,24 @@ def test_kill_between_a_checkpoint_and_its_evaluation_loses_nothing(tmp_path, mo
     resumed, reference = (without_timing(read_metrics(tmp_path / name)) for name in ("killed", "reference"))
     assert [m["step"] for m in resumed] == list(range(91))
     assert resumed == reference
+
+
+def test_resume_continues_with_the_runs_own_config(tmp_path):
+    """`resume=true hydra.run.dir=DIR` alone continues a sarsa run as sarsa (the default agent is
+    double_dqn), may extend total_steps, and refuses to change a learning setting."""
+    from conftest import run_train
+
+    first = run_train(tmp_path, "agent=sarsa", "agent.lr=0.3", "total_steps=300", "eval_every=100")
+    refused = run_train(tmp_path, "resume=true", "agent.lr=0.5", check=False)
+    assert refused.returncode != 0 and "Traceback" not in refused.output
+    assert "'agent.lr=0.5' differs from the run's own setting (agent.lr=0.3)" in refused.stderr
+    run_train(tmp_path, "resume=true", "total_steps=500")
+    record = (first.run_dir / ".hydra" / "config.yaml").read_text()
+    assert "algorithm: sarsa" in record and "lr: 0.3" in record and "total_steps: 500" in record
+    steps = [json.loads(line)["step"] for line in (first.run_dir / "metrics.jsonl").read_text().splitlines()]
+    assert steps == [0, 100, 200, 300, 400, 500]
+    from safetensors import safe_open
+
+    with safe_open(str(first.run_dir / "checkpoints" / "agent_0.safetensors"), framework="numpy") as f:
+        meta = json.loads(f.metadata()["meta"])
+    assert meta["algorithm"] == "sarsa" and meta["steps"] == 500
