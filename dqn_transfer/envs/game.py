@@ -424,6 +424,14 @@ class TreasureHuntGame:
             obs[rows, mid:hi] = self._belief[rows[:, None], self._view_chest[new]]
 
     # ------------------------------------------------------------------ rendering
+    def render(self, render_mode: str | None) -> str | np.ndarray | None:
+        """What both faces' ``render()`` return: text for ``ansi``, an RGB array for ``rgb_array``."""
+        if render_mode == "ansi":
+            return self.render_ansi()
+        if render_mode == "rgb_array":
+            return self.render_rgb()
+        return None
+
     def render_ansi(self) -> str:
         """The grid (``T`` full chest, ``t`` empty chest, digits: live agents, ``*``: several)."""
         grid = [["." if ch.isdigit() else ch for ch in row] for row in self.map.rows]

@@ -46,8 +46,4 @@ class TreasureHuntEnv(gymnasium.Env):
         )
 
     def render(self) -> str | np.ndarray | None:
-        if self.render_mode == "ansi":
-            return self.game.render_ansi()
-        if self.render_mode == "rgb_array":
-            return self.game.render_rgb()
-        return None
+        return self.game.render(self.render_mode)

@@ -81,11 +81,7 @@ class TreasureHuntParallelEnv(ParallelEnv):
         )
 
     def render(self) -> str | np.ndarray | None:
-        if self.render_mode == "ansi":
-            return self.game.render_ansi()
-        if self.render_mode == "rgb_array":
-            return self.game.render_rgb()
-        return None
+        return self.game.render(self.render_mode)
 
     def close(self) -> None:
         """Nothing to release: rendering draws into arrays, no window."""
