@@ -386,8 +386,9 @@ class Trainer:
         counters.env_rng_state = env_rng.bit_generator.state
         self.save_checkpoint()
         logger.close()
-        log.info("done: %d steps, %d episodes; last eval %s; checkpoints in %s", counters.step,
-                 counters.episodes, self.last_eval, self.checkpoint_dir)
+        log.info("done: %d steps, %d episodes; last eval %s; checkpoints in %s; watch with "
+                 "`tensorboard --logdir %s`", counters.step, counters.episodes, self.last_eval,
+                 self.checkpoint_dir, self.run_dir / "tb")
         return {"step": counters.step, "episodes": counters.episodes, "last_eval": self.last_eval}
 
     def _log_episode(self, logger, stats: EpisodeStats, team_return: float, step: int) -> None:
