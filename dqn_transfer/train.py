@@ -18,6 +18,7 @@ import logging
 import math
 import sys
 import time
+import warnings
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -400,8 +401,6 @@ class Trainer:
 
     @staticmethod
     def _log_training(logger, window_td, window_q, epsilon: np.ndarray, sps: float, step: int) -> None:
-        import warnings
-
         with warnings.catch_warnings():  # all-NaN columns (no update yet) are expected and skipped
             warnings.simplefilter("ignore", RuntimeWarning)
             if window_td:
@@ -481,6 +480,12 @@ class RefuseExistingRun(Callback):
             sys.exit(1)
 
 
+def log_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Warnings (e.g. "a layout fixes the map; ignoring ...") as one line of the run's log, not a
+    Python warning with a file name and a source line."""
+    log.warning("%s", message)
+
+
 def report_user_error(err: Exception) -> None:
     """One line on stderr and in the run's log file; no traceback for a user's mistake."""
     message = f"error: {err}"
@@ -504,6 +509,7 @@ def main() -> None:
     @hydra.main(version_base="1.3", config_path=str(Path(__file__).resolve().parent.parent / "conf"),
                 config_name="config")
     def _main(cfg: DictConfig) -> float:
+        warnings.showwarning = log_warning
         run_dir = Path(HydraConfig.get().runtime.output_dir)
         try:
             state = run_dir / "checkpoints" / TRAINING_STATE

@@ -129,16 +129,26 @@ class DQNLearner:
 
     @torch.no_grad()
     def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, greedy: bool = False) -> np.ndarray:
-        """One forward pass for the whole team, then per-agent epsilon-greedy.
+        """Per-agent epsilon-greedy; one forward pass for the whole team, skipped if everyone explores.
 
         Actions are returned for every agent; those of non-live agents are ignored by the game.
         """
-        obs_t = torch.as_tensor(np.asarray(obs, dtype=np.float32), device=self.device)
-        q_values = self._q_values(self.q_network, obs_t.unsqueeze(1)).squeeze(1)
-        greedy_actions = q_values.argmax(dim=-1).cpu().numpy()
+        obs = np.asarray(obs, dtype=np.float32)
         if greedy:
-            return greedy_actions.astype(np.int64)
-        return epsilon_greedy(greedy_actions, epsilon, self.num_actions, self.rng)
+            return self._greedy_actions(obs)
+        # The exploration draws come first, from the shared epsilon_greedy (the same draws, so the same
+        # random stream): given -1 as every greedy action, it returns -1 exactly where the agent exploits.
+        actions = epsilon_greedy(np.full(obs.shape[0], -1, dtype=np.int64), epsilon, self.num_actions, self.rng)
+        exploit = actions < 0
+        if exploit.any():
+            np.copyto(actions, self._greedy_actions(obs), where=exploit)
+        return actions
+
+    def _greedy_actions(self, obs: np.ndarray) -> np.ndarray:
+        """``argmax_a Q(obs, a)`` per agent, ``obs`` float32 ``[K, D]``."""
+        obs_t = torch.as_tensor(obs, device=self.device)
+        q_values = self._q_values(self.q_network, obs_t.unsqueeze(1)).squeeze(1)
+        return q_values.argmax(dim=-1).cpu().numpy().astype(np.int64, copy=False)
 
     # ---------------------------------------------------------------------------------- learning
 
@@ -187,10 +197,12 @@ class DQNLearner:
         q_values = self._q_values(self.q_network, batch["obs"])
         q_taken = q_values.gather(-1, batch["actions"].unsqueeze(-1)).squeeze(-1)  # Q(s, a) [K, B]
         agent_losses = F.smooth_l1_loss(q_taken, targets, reduction="none").mean(dim=1)  # [K]
-        valid = batch["valid"]
-        agent_losses = torch.where(valid, agent_losses, torch.zeros_like(agent_losses))
+        valid = self.replay.size > 0  # what batch["valid"] holds, without a device round trip
+        if not valid.all():
+            valid_t = torch.from_numpy(valid).to(self.device)
+            agent_losses = torch.where(valid_t, agent_losses, torch.zeros_like(agent_losses))
         # Sum: each agent's gradient is its own loss's. Shared network: mean, the usual batch average.
-        loss = agent_losses.sum() / valid.sum().clamp(min=1) if self.share_parameters else agent_losses.sum()
+        loss = agent_losses.sum() / max(int(valid.sum()), 1) if self.share_parameters else agent_losses.sum()
 
         self.optimizer.zero_grad()
         loss.backward()
@@ -200,10 +212,8 @@ class DQNLearner:
             self.target_network.update_from(self.q_network, tau=self.tau)
         self.num_gradient_steps += 1
 
-        valid_np = valid.cpu().numpy()
-        losses = np.where(valid_np, agent_losses.detach().cpu().numpy(), np.nan)
-        q_means = np.where(valid_np, q_taken.detach().mean(dim=1).cpu().numpy(), np.nan)
-        return losses, q_means
+        stats = torch.stack([agent_losses.detach(), q_taken.detach().mean(dim=1)]).cpu().numpy()  # one transfer
+        return np.where(valid, stats[0], np.nan), np.where(valid, stats[1], np.nan)
 
     # ------------------------------------------------------------------ transfer and exchange
 

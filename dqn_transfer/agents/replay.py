@@ -58,6 +58,11 @@ class ReplayBuffer:
         return (self.num_agents, length, *extra)
 
     def _write(self, rows: np.ndarray, cols: np.ndarray, data: dict[str, np.ndarray]) -> None:
+        if self.device.type == "cpu":
+            # Through numpy views of the storage (shared memory): a third of the torch indexing cost.
+            for name, tensor in self.storage.items():
+                tensor.numpy()[rows, cols] = data[name]
+            return
         rows_t, cols_t = torch.from_numpy(rows).to(self.device), torch.from_numpy(cols).to(self.device)
         for name, dtype in _FIELDS.items():
             value = torch.as_tensor(np.asarray(data[name]), dtype=dtype, device=self.device)
@@ -115,9 +120,15 @@ class ReplayBuffer:
         """
         high = np.maximum(self.size, 1)[:, None]
         cols = self.rng.integers(0, high, size=(self.num_agents, batch_size))
-        rows_t = torch.arange(self.num_agents, device=self.device)[:, None]
-        cols_t = torch.from_numpy(cols).to(self.device)
-        batch = {name: tensor[rows_t, cols_t] for name, tensor in self.storage.items()}
+        # One flat gather per field (row k, slot c is element k * capacity + c of the [K * capacity, ...]
+        # view): much cheaper than indexing with a row tensor and a column tensor.
+        flat = (np.arange(self.num_agents)[:, None] * self.capacity + cols).reshape(-1)
+        flat_t = torch.from_numpy(flat).to(self.device)
+        shape = (self.num_agents, batch_size)
+        batch = {
+            name: tensor.flatten(0, 1).index_select(0, flat_t).unflatten(0, shape)
+            for name, tensor in self.storage.items()
+        }
         batch["valid"] = torch.from_numpy(self.size > 0).to(self.device)
         return batch
 
