@@ -103,7 +103,7 @@ def _save(path: Path, tensors: dict[str, Any], meta: Mapping[str, Any], kind: st
         meta_json = json.dumps(full_meta, default=_json_default)
     except (TypeError, ValueError) as e:
         raise CheckpointError(f"{path}: meta is not JSON-serialisable ({e})") from None
-    _atomic_write(path, serialize(tensors, metadata={META_KEY: meta_json}))
+    atomic_write(path, serialize(tensors, metadata={META_KEY: meta_json}))
 
 
 def _json_default(value: Any) -> Any:
@@ -113,7 +113,7 @@ def _json_default(value: Any) -> Any:
     raise TypeError(f"{type(value).__name__} is not JSON-serialisable")
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
+def atomic_write(path: Path, data: bytes) -> None:
     """Write ``data`` so that ``path`` holds either the old file or the complete new one."""
     tmp_name = None
     try:

@@ -74,6 +74,7 @@ class EnvConfig:
     treasure_reward: float = 100.0
     trap_reward: float = -100.0
     step_reward: float = -1.0
+    render_mode: Optional[str] = None  # accepted for the env kwargs of DESIGN §8; training does not render
 
 
 @dataclass
@@ -88,8 +89,8 @@ class AgentConfig:
     learning_starts: int = 1_000  # env steps of pure collection before the first update
     train_freq: int = 1  # env steps between updates
     gradient_steps: int = 1  # gradient steps per update
-    target_update: int = 500  # env steps between hard target copies (used when tau == 1)
-    tau: float = 0.01  # 1.0: hard copy every target_update steps; < 1: Polyak averaging after every gradient step
+    target_update: int = 1  # env steps between target-network updates (SB3's target_update_interval)
+    tau: float = 0.01  # each target update: target <- tau*online + (1-tau)*target; 1.0 = hard copy
     hidden: List[int] = field(default_factory=lambda: [64, 64])  # MLP hidden sizes
     eps_start: float = 1.0  # initial exploration rate
     eps_end: float = 0.05  # final exploration rate
@@ -180,13 +181,21 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
            f"transfer.epsilon_start must be in [0, 1], got {transfer.epsilon_start}")
     _check(transfer.exchange_every >= 1, f"transfer.exchange_every must be >= 1, got {transfer.exchange_every}")
     _check(0.0 < transfer.exchange_tau <= 1.0, f"transfer.exchange_tau must be in (0, 1], got {transfer.exchange_tau}")
-    _check(all(i >= 0 for i in transfer.freeze), f"transfer.freeze must list layer indices >= 0, got {list(transfer.freeze)}")
     is_tabular = Algorithm(agent.algorithm) in TABULAR
     if is_tabular:
         _check(transfer.exchange == Exchange.none,
                f"transfer.exchange={Exchange(transfer.exchange).value} needs a DQN learner, not {Algorithm(agent.algorithm).value}")
         _check(not transfer.freeze, "transfer.freeze applies to network layers; tabular learners have none")
         _check(not agent.share_parameters, "agent.share_parameters applies to the DQN learners only")
+    else:
+        layers = len(agent.hidden) + 1
+        _check(all(-layers <= i < layers for i in transfer.freeze),
+               f"transfer.freeze={list(transfer.freeze)}: the network has {layers} layers (0..{layers - 1})")
+    if agent.share_parameters:
+        _check(transfer.targets is None, "transfer.targets: with agent.share_parameters=true all agents share one "
+                                         "network, so all of them are transferred (leave targets unset)")
+        _check(transfer.exchange != Exchange.best, "transfer.exchange=best: with agent.share_parameters=true "
+                                                    "there is only one network to exchange")
 
 
 def to_plain(cfg: DictConfig | TrainConfig) -> dict[str, Any]:

@@ -85,10 +85,11 @@ def learning_curve(run_dir: str | os.PathLike, metric: str = "team_return") -> C
     records = read_metrics(run_dir)
     by_step: dict[int, float] = {}
     for record in records:
-        if metric in record and "step" in record:
+        if isinstance(record.get(metric), (int, float)) and "step" in record:
             by_step[int(record["step"])] = float(record[metric])
     if not by_step:
-        available = sorted({key for record in records for key in record} - {"step"})
+        available = sorted({key for record in records for key, value in record.items()
+                            if isinstance(value, (int, float))} - {"step"})
         raise EvaluationError(f"{Path(run_dir) / METRICS_FILE}: no {metric!r} evaluations "
                               f"(available: {', '.join(available) or 'none'})")
     steps = np.array(sorted(by_step), dtype=np.float64)

@@ -79,6 +79,7 @@ class Counters:
     episodes: int = 0
     evaluations: int = 0
     next_checkpoint: int = 0
+    exploration_steps: int = 1  # epsilon's decay horizon, fixed when the run starts (resume may extend total_steps)
     env_rng_state: dict = field(default_factory=dict)
 
 
@@ -135,11 +136,15 @@ def evaluate(learner, game, episodes: int, seed: int, evaluation: int) -> dict[s
     }
 
 
-def epsilons_at(config: TrainConfig, step: int, transferred: np.ndarray) -> np.ndarray:
-    """Per-agent exploration rate: linear decay, from ``transfer.epsilon_start`` for transferred agents."""
+def exploration_steps(config: TrainConfig) -> int:
+    return max(1, int(config.agent.exploration_fraction * config.total_steps))
+
+
+def epsilons_at(config: TrainConfig, step: int, transferred: np.ndarray, duration: int) -> np.ndarray:
+    """Per-agent exploration rate: linear decay over ``duration`` steps, from ``transfer.epsilon_start``
+    for transferred agents."""
     from dqn_transfer.agents.schedules import linear_schedule
 
-    duration = max(1, int(config.agent.exploration_fraction * config.total_steps))
     return np.array([
         linear_schedule(config.transfer.epsilon_start if is_transferred else config.agent.eps_start,
                         config.agent.eps_end, duration, step)
@@ -167,7 +172,7 @@ class Trainer:
 
         self.learner = make_learner(self.plain["agent"], self.game.num_agents, self.game.obs_layout(),
                                     self.game.num_actions, seed=config.seed, device=self.device)
-        self.counters = Counters(next_checkpoint=config.checkpoint_every)
+        self.counters = Counters(next_checkpoint=config.checkpoint_every, exploration_steps=exploration_steps(config))
         self.transfer_info: dict[str, Any] | None = None
         self.last_eval: dict[str, float] = {}
         self.last_eval_step: int | None = None  # step of the last line in metrics.jsonl
@@ -242,6 +247,7 @@ class Trainer:
             "obs_layout": [[name, size] for name, size in self.game.obs_layout()],
             "algorithm": self.plain["agent"]["algorithm"],
             "config": self.plain,  # what resume=true continues with
+            "layout": self.game.map.layout,  # the map itself: a layout file may have changed since
         }
         save_training_state(self.checkpoint_dir / TRAINING_STATE, arrays, meta)
 
@@ -257,6 +263,9 @@ class Trainer:
                 f"{self.checkpoint_dir}: the run was made with algorithm {meta.get('algorithm')} and obs layout "
                 f"{meta.get('obs_layout')}; this config gives {self.plain['agent']['algorithm']} and "
                 f"{expected_layout}")
+        if meta.get("layout") != self.game.map.layout:
+            raise CheckpointError(f"{self.checkpoint_dir}: the run was trained on another map:\n"
+                                  f"{meta.get('layout')}\nthis config gives\n{self.game.map.layout}")
         for i in range(self.game.num_agents):
             prefix = f"agent_{i}/"
             self.learner.load_agent_tensors(i, {k[len(prefix):]: torch.from_numpy(v.copy())
@@ -277,8 +286,10 @@ class Trainer:
         """
         if not self.metrics_path.exists():
             return
+        from dqn_transfer.checkpoint import atomic_write
+
         lines = [line for line in self.metrics_path.read_text().splitlines() if line.strip()][:evaluations]
-        self.metrics_path.write_text("".join(line + "\n" for line in lines))
+        atomic_write(self.metrics_path, "".join(line + "\n" for line in lines).encode())
         self.last_eval_step = json.loads(lines[-1])["step"] if lines else None
 
     # --------------------------------------------------------------- evaluation
@@ -289,9 +300,9 @@ class Trainer:
         self.counters.evaluations += 1
         self.last_eval = result
         self.last_eval_step = step
+        epsilon = epsilons_at(self.config, step, self.transferred, self.counters.exploration_steps)
         record: dict[str, Any] = {"step": step, **result, "episodes": self.counters.episodes,
-                                  "epsilon": float(epsilons_at(self.config, step, self.transferred).mean()),
-                                  "wall_time": time.time()}
+                                  "epsilon": float(epsilon.mean()), "wall_time": time.time()}
         if step == 0 and self.transfer_info is not None:
             record["transfer_source"] = self.transfer_info
         with self.metrics_path.open("a") as stream:
@@ -338,7 +349,7 @@ class Trainer:
         team_return = 0.0
         transferred = self.transferred
         while counters.step < config.total_steps:
-            epsilon = epsilons_at(config, counters.step, transferred)
+            epsilon = epsilons_at(config, counters.step, transferred, counters.exploration_steps)
             live_before = game.live.copy()
             actions = learner.act(obs, live_before, epsilon=epsilon)
             next_obs, rewards, terminated, truncated, info = game.step(actions)

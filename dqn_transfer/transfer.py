@@ -119,6 +119,10 @@ def resolve_source(transfer: TransferConfig, launch_dir: Path) -> Path:
 def apply_transfer(config: TrainConfig, learner, game, plain: dict[str, Any], launch_dir: Path) -> dict[str, Any]:
     """Load the source into the target agents; returns what the run records about its source."""
     transfer = config.transfer
+    targets = list(range(game.num_agents)) if transfer.targets is None else list(transfer.targets)
+    bad = [i for i in targets if not 0 <= i < game.num_agents]
+    if bad:
+        raise TransferError(f"transfer.targets {bad} out of range for {game.num_agents} agents")
     pretrained = transfer.source is None
     path = pretrained_source(config, plain, game.map.layout, launch_dir) if pretrained else resolve_source(transfer, launch_dir)
     tensors, meta = load_agent_checkpoint(path)
@@ -134,24 +138,21 @@ def apply_transfer(config: TrainConfig, learner, game, plain: dict[str, Any], la
             else:
                 mapped = transfer_dqn_tensors(tensors, meta["obs_layout"], target_layout,
                                               list(config.agent.hidden), game.num_actions)
-        except (CheckpointError, TransferError) as err:
+        except (CheckpointError, ValueError) as err:  # TransferError is a ValueError
             raise TransferError(f"transfer source {path}: {err}") from None
+        except (KeyError, IndexError, TypeError) as err:  # a meta or tensor this format never writes
+            raise TransferError(f"transfer source {path}: malformed checkpoint ({type(err).__name__}: {err})") from None
     for warning in caught:
         log.warning("transfer: %s", warning.message)
-    targets = list(range(game.num_agents)) if transfer.targets is None else list(transfer.targets)
-    bad = [i for i in targets if not 0 <= i < game.num_agents]
-    if bad:
-        raise TransferError(f"transfer.targets {bad} out of range for {game.num_agents} agents")
     for i in targets:
         learner.load_agent_tensors(i, mapped)
     if not transfer.reset_optimizer:
+        if len(targets) != game.num_agents:  # Adam keeps one step count per stacked parameter
+            raise TransferError("transfer.reset_optimizer=false needs every agent as a target "
+                                f"(transfer.targets={targets}): the agents share Adam's step count")
         carry_optimizer_state(learner, path, meta, target_layout, targets)
-    if transfer.freeze:
-        try:
-            learner.freeze(transfer.freeze)
-        except IndexError:
-            raise TransferError(f"transfer.freeze={list(transfer.freeze)}: the network has "
-                                f"{len(config.agent.hidden) + 1} layers (0..{len(config.agent.hidden)})") from None
+    if transfer.freeze:  # indices were checked against agent.hidden by config.validate
+        learner.freeze(transfer.freeze)
     info = {
         "source": str(path.resolve()),
         "digest": meta["digest"],
@@ -179,7 +180,10 @@ def carry_optimizer_state(learner, source: Path, meta: dict[str, Any], target_la
     if not state_path.exists():
         raise TransferError(f"transfer.reset_optimizer=false needs the source's optimizer state, but {state_path} "
                             "does not exist (share the run's whole checkpoints/ directory, or use reset_optimizer=true)")
-    arrays, _ = load_training_state(state_path)
+    arrays, state_meta = load_training_state(state_path)
+    if state_meta.get("counters", {}).get("step") != meta.get("steps") or state_meta.get("obs_layout") != meta["obs_layout"]:
+        raise TransferError(f"{state_path} is not the resume state of {source.name} (other steps or obs layout); "
+                            "use reset_optimizer=true")
     member = 0 if meta["network"].get("share_parameters") else int(meta["agent_index"])
     plan = plan_segment_mapping(meta["obs_layout"], target_layout)
     moments: dict[str, dict[str, np.ndarray]] = {}

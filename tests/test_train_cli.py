@@ -28,7 +28,7 @@ MAP = "0...T\n.#...\n...#.\nX....\n1..T.\n"
 SIZE, NUM_AGENTS, NUM_TREASURES = 5, 2, 2
 
 BASE = ("env.layout_file=map.txt", "eval_episodes=2")
-SMALL_NET = ("agent.hidden=[32]", "agent.batch_size=32", "agent.target_update=100")
+SMALL_NET = ("agent.hidden=[32]", "agent.batch_size=32", "agent.target_update=100", "agent.tau=1.0")
 
 # One run per learner, each in a different mode; (overrides, total_steps, eval_every).
 LEARNER_RUNS = {

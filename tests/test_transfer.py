@@ -28,7 +28,7 @@ from safetensors.torch import load_file
 from torch import nn
 
 from dqn_transfer.checkpoint import CheckpointError
-from dqn_transfer.config import AgentConfig, Algorithm, EnvConfig, Exchange, Mode, TrainConfig, TransferConfig
+from dqn_transfer.config import ConfigError, AgentConfig, Algorithm, EnvConfig, Exchange, Mode, TrainConfig, TransferConfig
 from dqn_transfer.evaluation import compare_runs, jumpstart, learning_curve
 from dqn_transfer.train import Trainer
 from dqn_transfer.transfer_mapping import TransferError
@@ -42,7 +42,7 @@ TEAM_MAP = "0...T\n.....\n..X..\n.....\n1...T\n"
 SOLO_MAP = "0....\n.....\n..T..\n.....\n....X\n"
 
 DQN_AGENT = dict(algorithm=Algorithm.dqn, hidden=[32, 32], batch_size=32, buffer_size=5_000,
-                 learning_starts=50, target_update=100)
+                 learning_starts=50, target_update=100, tau=1.0)
 QL_AGENT = dict(algorithm=Algorithm.qlearning, lr=0.5)
 
 
@@ -283,7 +283,7 @@ def test_out_of_range_targets_and_freeze_are_clear_errors(work, dqn_source):
 
     with pytest.raises(TransferError, match=r"transfer.targets \[2\] out of range for 2 agents"):
         run("bad_targets", targets=[0, 2])
-    with pytest.raises(TransferError, match=r"transfer.freeze=\[3\].*3 layers"):
+    with pytest.raises(ConfigError, match=r"transfer.freeze=\[3\].*3 layers"):  # refused before any work
         run("bad_freeze", freeze=[3])
 
 
@@ -539,7 +539,7 @@ def test_reset_optimizer_false_carries_the_sources_adam_moments(work, dqn_source
     """Moments come from the source's resume state; layer 0's rows map like its weights."""
     source_state = load_file(str(dqn_source.parent / "training_state.safetensors"))
     config = make_config(TEAM_MAP, DQN_AGENT, transfer=TransferConfig(
-        enabled=True, source=str(dqn_source), reset_optimizer=False, targets=[1]))
+        enabled=True, source=str(dqn_source), reset_optimizer=False))
     trainer = Trainer(config, work / "carry_adam", launch_dir=work)
     trainer.run()
     state = trainer.learner.optimizer.state
@@ -547,12 +547,19 @@ def test_reset_optimizer_false_carries_the_sources_adam_moments(work, dqn_source
     for key in ("exp_avg", "exp_avg_sq"):
         source_moment = source_state[f"learner/optim.weight_0.{key}"][0]  # [25, 32]
         carried = state[weight_0][key]
-        torch.testing.assert_close(carried[1, :N * N], source_moment)
-        assert torch.count_nonzero(carried[1, N * N:]) == 0  # treasures rows: no history
-        assert torch.count_nonzero(carried[0]) == 0  # agent 0 was not a target
-        torch.testing.assert_close(state[trainer.learner.q_network.bias_1][key][1],
-                                   source_state[f"learner/optim.bias_1.{key}"][0])
+        for agent in (0, 1):
+            torch.testing.assert_close(carried[agent, :N * N], source_moment)
+            assert torch.count_nonzero(carried[agent, N * N:]) == 0  # treasures rows: no history
+            torch.testing.assert_close(state[trainer.learner.q_network.bias_1][key][agent],
+                                       source_state[f"learner/optim.bias_1.{key}"][0])
     assert float(state[weight_0]["step"]) == float(source_state["learner/optim.weight_0.step"].reshape(-1)[0])
+
+
+def test_reset_optimizer_false_refuses_partial_targets(work, dqn_source):
+    config = make_config(TEAM_MAP, DQN_AGENT, transfer=TransferConfig(
+        enabled=True, source=str(dqn_source), reset_optimizer=False, targets=[1]))
+    with pytest.raises(TransferError, match="needs every agent as a target"):
+        Trainer(config, work / "carry_adam_partial", launch_dir=work).run()
 
 
 def test_reset_optimizer_false_needs_the_sources_resume_state(work, dqn_source):

@@ -3,8 +3,9 @@
 The algorithm is CleanRL's ``dqn.py`` per agent (read ``DQNLearner.update`` top to bottom):
 store the transition; every ``train_freq`` env steps after ``learning_starts``, take
 ``gradient_steps`` steps of Huber loss between ``Q(s, a)`` and the bootstrapped target on a uniform
-replay batch (Adam, gradient-norm clip); sync the target network by a hard copy every
-``target_update`` env steps (``tau == 1``) or by Polyak averaging after every gradient step.
+replay batch (Adam, gradient-norm clip); every ``target_update`` env steps move the target network
+``tau`` of the way to the online one (``tau == 1``: a hard copy) — the same rule as SB3's
+``target_update_interval``/``tau`` and CleanRL's ``target_network_frequency``/``tau``.
 
 What is particular here: all K agents are one ``BatchedMLP`` (stacked weights), their replay is one
 ``[K, capacity, ...]`` storage, and one Adam step updates everyone. The loss is the *sum* of the
@@ -72,8 +73,8 @@ class DQNLearner:
         learning_starts: int = 1_000,  # env steps of pure collection before the first gradient step
         train_freq: int = 1,  # env steps between training rounds
         gradient_steps: int = 1,  # gradient steps per training round
-        target_update: int = 500,  # env steps between hard target copies (used when tau == 1)
-        tau: float = 1.0,  # 1.0: hard copy every target_update steps; < 1: Polyak after each gradient step
+        target_update: int = 500,  # env steps between target-network updates
+        tau: float = 1.0,  # each target update: target <- tau * online + (1 - tau) * target (1.0: hard copy)
         hidden: Sequence[int] = (64, 64),  # hidden layer sizes of the Q-network (ReLU)
         max_grad_norm: float = 10.0,  # per-agent gradient-norm clip
         share_parameters: bool = False,  # one network for all agents (parameter-sharing baseline)
@@ -177,8 +178,8 @@ class DQNLearner:
             td_loss = np.mean([losses for losses, _ in rounds], axis=0, dtype=np.float64)
             q_mean = np.mean([q for _, q in rounds], axis=0, dtype=np.float64)
 
-        if self.tau == 1.0 and step % self.target_update == 0:
-            self.target_network.update_from(self.q_network, tau=1.0)
+        if step % self.target_update == 0:
+            self.target_network.update_from(self.q_network, tau=self.tau)
         return {"td_loss": td_loss, "q_mean": q_mean}
 
     def _gradient_step(self) -> tuple[np.ndarray, np.ndarray]:
@@ -208,8 +209,6 @@ class DQNLearner:
         loss.backward()
         self.q_network.clip_grad_norm_(self.max_grad_norm)
         self.optimizer.step()
-        if self.tau < 1.0:
-            self.target_network.update_from(self.q_network, tau=self.tau)
         self.num_gradient_steps += 1
 
         stats = torch.stack([agent_losses.detach(), q_taken.detach().mean(dim=1)]).cpu().numpy()  # one transfer

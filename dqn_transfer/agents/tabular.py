@@ -19,6 +19,7 @@ action, so the update follows the policy actually played (on-policy).
 
 from __future__ import annotations
 
+import zlib
 from typing import Any
 
 import numpy as np
@@ -47,6 +48,17 @@ class _Fallback:
 
     def get(self, obs: np.ndarray) -> np.ndarray | None:
         return self.table.get(obs[self.projection].tobytes())
+
+
+def _evaluation_argmax(q: np.ndarray, obs: np.ndarray) -> int:
+    """Greedy action with ties broken by a hash of the observation, not by taking the first.
+
+    Unvisited states are all ties; always taking action 0 ("up") would walk every such state into
+    the top wall and bias evaluation curves. The hash picks a per-state direction deterministically,
+    so evaluations stay reproducible and consume no random numbers.
+    """
+    best = np.flatnonzero(q == q.max())
+    return int(best[zlib.crc32(obs.tobytes()) % best.size])
 
 
 class TabularLearner:
@@ -132,8 +144,9 @@ class TabularLearner:
     def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, greedy: bool = False) -> np.ndarray:
         """Epsilon-greedy per live agent; SARSA replays the action its last update chose for ``obs``.
 
-        ``greedy`` (evaluation) takes the first argmax, uses no cached action and draws no
-        randomness, so evaluating does not change the training run. Non-live agents get action 0.
+        ``greedy`` (evaluation) uses no cached action and draws no randomness, so evaluating does not
+        change the training run; ties between equal values go to an action fixed by the observation
+        (see ``_evaluation_argmax``). Non-live agents get action 0.
         """
         obs = np.asarray(obs, dtype=np.float32)
         actions = np.zeros(self.num_agents, dtype=np.int64)
@@ -141,7 +154,7 @@ class TabularLearner:
             self.epsilon = np.broadcast_to(np.asarray(epsilon, dtype=float), (self.num_agents,)).copy()
         for i in np.flatnonzero(live):
             if greedy:
-                actions[i] = int(np.argmax(self.q_values(i, obs[i])))
+                actions[i] = _evaluation_argmax(self.q_values(i, obs[i]), obs[i])
             elif self._cached(i, obs[i]):
                 actions[i] = self.next_action[i]
                 self.next_action[i] = _NO_ACTION
