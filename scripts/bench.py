@@ -796,8 +796,26 @@ def write_json(path: Path, data: dict[str, Any]) -> None:
     os.replace(tmp, path)
 
 
+def check_ready(out: Path) -> None:
+    """Fail in the first second, not after minutes of measuring: SB3 present, --out writable."""
+    import importlib.util
+
+    if importlib.util.find_spec("stable_baselines3") is None:
+        sys.exit("error: scripts/bench.py compares against Stable-Baselines3: pip install -e '.[dev]'")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        sys.exit(f"error: cannot create {out.parent}: {err.strerror}")
+    try:  # a real write: os.access says yes to root even where writing fails (e.g. /proc)
+        with tempfile.NamedTemporaryFile(dir=out.parent, prefix=f".{out.name}.", suffix=".probe"):
+            pass
+    except OSError as err:
+        sys.exit(f"error: cannot write into {out.parent}: {err.strerror}")
+
+
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
+    check_ready(Path(args.out))
     profile = "quick" if args.quick else "full"
     start = time.perf_counter()
     results = run_benchmark(profile, args.seed, args.repeats, args.threads, [args.threads])
