@@ -75,17 +75,13 @@ class RunLogger:
         if value is not None and not math.isnan(float(value)):
             self.writer.add_scalar(tag, float(value), step)
 
-    def agent_scalars(self, name: str, values, step: int, live=None) -> None:
-        """``agent_{i}/{name}`` for each agent (optionally only where ``live[i]``); NaNs are skipped."""
+    def agent_scalars(self, name: str, values, step: int) -> None:
+        """``agent_{i}/{name}`` for each agent; NaNs (no update yet) are skipped."""
         for i, value in enumerate(values):
-            if live is None or live[i]:
-                self.scalar(f"agent_{i}/{name}", value, step)
+            self.scalar(f"agent_{i}/{name}", value, step)
 
     def text(self, tag: str, text: str, step: int = 0) -> None:
         self.writer.add_text(tag, text, step)
-
-    def flush(self) -> None:
-        self.writer.flush()
 
     def close(self) -> None:
         self.writer.close()

@@ -334,9 +334,8 @@ class Trainer:
             self.run_evaluation(logger)  # step 0, or a resumed checkpoint's step whose eval was lost
 
         env_rng = np.random.default_rng([config.seed, 17])
-        if counters.env_rng_state:
+        if counters.env_rng_state:  # resumed: continue the episode-reset stream where it stopped
             env_rng.bit_generator.state = counters.env_rng_state
-        counters.env_rng_state = env_rng.bit_generator.state
         obs = game.reset(env_rng)
         stats = EpisodeStats(game.num_agents)
         window_td, window_q = [], []

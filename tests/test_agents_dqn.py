@@ -165,14 +165,6 @@ def test_freeze_keeps_layers_fixed_for_all_agents():
     assert learner.frozen_layers == [0, 2]
 
 
-def test_reset_optimizer_clears_adam_moments():
-    learner = dqn()
-    run(learner, random_steps(2, 3))
-    assert len(learner.optimizer.state) > 0
-    learner.reset_optimizer()
-    assert len(learner.optimizer.state) == 0
-
-
 def test_agent_tensor_names_and_shapes():
     tensors = dqn(hidden=[8, 6]).agent_tensors(1)
     expected = {}

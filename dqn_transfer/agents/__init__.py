@@ -1,7 +1,7 @@
 """Learners: tabular SARSA / Q-learning and batched DQN / Double DQN for a team of K agents.
 
 ``make_learner`` builds one from the ``agent`` config group. Every learner implements
-:class:`~dqn_transfer.agents.base.Learner`; the DQN family adds ``freeze``, ``reset_optimizer``,
+:class:`~dqn_transfer.agents.base.Learner`; the DQN family adds ``freeze``, ``set_member_optimizer_state``,
 ``get_member_weights`` / ``set_member_weights`` and its ``replay`` buffer, the tabular one
 ``set_fallback``.
 """

@@ -229,10 +229,6 @@ class DQNLearner:
                 parameter.requires_grad_(False)
         self.frozen_layers = sorted({*self.frozen_layers, *layers})
 
-    def reset_optimizer(self) -> None:
-        """Fresh Adam moments, e.g. after loading transferred weights learned on another task."""
-        self.optimizer = torch.optim.Adam(self.q_network.parameters(), lr=self.lr)
-
     def set_member_optimizer_state(self, i: int, moments: dict[str, dict[str, np.ndarray]], step: int) -> None:
         """Adam moments for agent i's slice of each stacked parameter, e.g. carried over by transfer.
 
