@@ -42,6 +42,7 @@ from dqn_transfer.config import (
 log = logging.getLogger("dqn_transfer.train")
 
 TRAINING_STATE = "training_state.safetensors"
+TRANSITION_FIELDS = ("obs", "actions", "rewards", "next_obs", "terminated", "truncated", "live")
 LOG_EVERY = 200  # env steps between td_loss / q_mean / epsilon / sps points in TensorBoard
 
 
@@ -91,7 +92,6 @@ class EpisodeStats:
         self.lengths = np.zeros(num_agents, dtype=np.int64)
         self.traps = 0
         self.recent_team_returns: deque[float] = deque(maxlen=20)
-        self.window_returns: list[np.ndarray] = []  # per-agent returns since the last exchange
 
     def add(self, rewards: np.ndarray, live_before: np.ndarray, traps: np.ndarray) -> None:
         self.returns += rewards
@@ -176,6 +176,9 @@ class Trainer:
         self.transfer_info: dict[str, Any] | None = None
         self.last_eval: dict[str, float] = {}
         self.last_eval_step: int | None = None  # step of the last line in metrics.jsonl
+        # Team knowledge exchange window (saved with checkpoints, so a resumed run exchanges the same):
+        self.window_returns: list[np.ndarray] = []  # per-agent episodic returns since the last exchange
+        self.shared_transitions: list[tuple] = []  # shared_replay: the window's transitions
 
     # ------------------------------------------------------------------ setup
     def prepare(self) -> None:
@@ -239,6 +242,9 @@ class Trainer:
             arrays.update({f"agent_{i}/{name}": t.numpy() for name, t in tensors.items()})
         learner_arrays, learner_meta = self.learner.training_state()
         arrays.update({f"learner/{name}": a for name, a in learner_arrays.items()})
+        arrays["exchange/returns"] = np.asarray(self.window_returns, dtype=np.float64).reshape(-1, self.game.num_agents)
+        for name, column in zip(TRANSITION_FIELDS, zip(*self.shared_transitions)):
+            arrays[f"exchange/{name}"] = np.stack(column)
         meta = {
             "counters": self.counters.__dict__,
             "learner": learner_meta,
@@ -273,6 +279,9 @@ class Trainer:
         self.learner.load_training_state({k[len("learner/"):]: v for k, v in arrays.items()
                                           if k.startswith("learner/")}, meta["learner"])
         self.counters = Counters(**meta["counters"])
+        self.window_returns = list(arrays.get("exchange/returns", []))
+        if "exchange/obs" in arrays:
+            self.shared_transitions = list(zip(*(arrays[f"exchange/{name}"] for name in TRANSITION_FIELDS)))
         self.last_eval = meta["last_eval"]
         self.transfer_info = meta["transfer"]
         self._truncate_metrics(self.counters.evaluations)
@@ -340,7 +349,6 @@ class Trainer:
         stats = EpisodeStats(game.num_agents)
         window_td, window_q = [], []
         exchange = config.transfer.exchange
-        shared_transitions: list[tuple] = []
         reward_mode = self.plain["env"]["reward_mode"]
         bar = tqdm(total=config.total_steps, initial=counters.step, disable=not config.progress,
                    unit="step", dynamic_ncols=True, file=sys.stderr)
@@ -356,7 +364,7 @@ class Trainer:
             update = learner.update(obs, actions, rewards, next_obs, terminated, truncated, live_before,
                                     counters.step)
             if exchange is Exchange.shared_replay:
-                shared_transitions.append((obs, actions, rewards, next_obs, terminated, truncated, live_before))
+                self.shared_transitions.append((obs, actions, rewards, next_obs, terminated, truncated, live_before))
             obs = next_obs
             stats.add(rewards, live_before, info["trap"])
             team_return += team_return_of(rewards[live_before], reward_mode)
@@ -367,11 +375,11 @@ class Trainer:
                 counters.episodes += 1
                 self._log_episode(logger, stats, team_return, counters.step)
                 stats.recent_team_returns.append(team_return)
-                stats.window_returns.append(stats.returns.copy())
+                self.window_returns.append(stats.returns.copy())
                 team_return = 0.0
                 stats.reset()
                 if exchange is not Exchange.none and counters.episodes % config.transfer.exchange_every == 0:
-                    self._exchange(stats, shared_transitions, logger)
+                    self._exchange(logger)
                 if counters.step >= counters.next_checkpoint:
                     counters.env_rng_state = env_rng.bit_generator.state
                     self.save_checkpoint()
@@ -419,17 +427,17 @@ class Trainer:
         logger.scalar("train/epsilon", float(epsilon.mean()), step)
         logger.scalar("train/sps", sps, step)
 
-    def _exchange(self, stats: EpisodeStats, shared_transitions: list[tuple], logger) -> None:
+    def _exchange(self, logger) -> None:
         """Team knowledge exchange (DESIGN §6), once every ``exchange_every`` episodes."""
         from dqn_transfer.transfer import exchange_best, exchange_replay
 
         if self.config.transfer.exchange is Exchange.best:
-            best = exchange_best(self.learner, np.asarray(stats.window_returns), self.config.transfer.exchange_tau)
+            best = exchange_best(self.learner, np.asarray(self.window_returns), self.config.transfer.exchange_tau)
             logger.scalar("team/exchange_best_agent", best, self.counters.step)
         else:
-            exchange_replay(self.learner, shared_transitions)
-            shared_transitions.clear()
-        stats.window_returns.clear()
+            exchange_replay(self.learner, self.shared_transitions)
+            self.shared_transitions.clear()
+        self.window_returns.clear()
 
 
 def train(config: TrainConfig, run_dir: Path, **kwargs) -> dict[str, Any]:

@@ -490,3 +490,39 @@ def test_resume_continues_with_the_runs_own_config(tmp_path):
     with safe_open(str(first.run_dir / "checkpoints" / "agent_0.safetensors"), framework="numpy") as f:
         meta = json.loads(f.metadata()["meta"])
     assert meta["algorithm"] == "sarsa" and meta["steps"] == 500
+
+
+@pytest.mark.filterwarnings("ignore:a layout fixes the map")
+@pytest.mark.parametrize("exchange", ["best", "shared_replay"])
+def test_kill_mid_exchange_window_resumes_exactly(tmp_path, monkeypatch, exchange):
+    """The exchange window in progress (returns, pending shared transitions) is checkpointed, so a run
+    killed between two exchanges and resumed matches the uninterrupted run."""
+    from dqn_transfer.config import AgentConfig, Algorithm, EnvConfig, Exchange, TrainConfig, TransferConfig
+    from dqn_transfer.train import Trainer
+
+    def config(resume: bool = False) -> TrainConfig:
+        return TrainConfig(
+            env=EnvConfig(layout=MAP), seed=0, total_steps=240, eval_every=40, eval_episodes=1,
+            checkpoint_every=30, progress=False, resume=resume,
+            agent=AgentConfig(algorithm=Algorithm.dqn, hidden=[16], batch_size=8, learning_starts=30),
+            transfer=TransferConfig(exchange=Exchange(exchange), exchange_every=5))
+
+    Trainer(config(), tmp_path / "reference").run()
+    original = Trainer.save_checkpoint
+
+    def save_then_die(self):
+        original(self)
+        if self.window_returns and self.counters.step < self.config.total_steps:  # mid-window
+            raise _Killed
+
+    monkeypatch.setattr(Trainer, "save_checkpoint", save_then_die)
+    with pytest.raises(_Killed):
+        Trainer(config(), tmp_path / "killed").run()
+    monkeypatch.setattr(Trainer, "save_checkpoint", original)
+    Trainer(config(resume=True), tmp_path / "killed").run()
+
+    resumed, reference = (without_timing(read_metrics(tmp_path / name)) for name in ("killed", "reference"))
+    assert resumed == reference
+    digests = [agent_meta(tmp_path / name / "checkpoints" / "agent_1.safetensors")["digest"]
+               for name in ("killed", "reference")]
+    assert digests[0] == digests[1]  # bit-identical weights
