@@ -8,7 +8,8 @@ One *step* is one joint environment step: every live agent acts once.  The loop:
 3. at an episode end: log per-agent and team statistics, reset the game;
 4. every ``eval_every`` steps: greedy evaluation on separately seeded episodes -> ``metrics.jsonl``;
 5. at the first episode end after every ``checkpoint_every`` steps: checkpoint.  Checkpoints sit on
-   episode boundaries so that a resumed run replays exactly what the uninterrupted run would have.
+   episode boundaries so that a resumed run replays exactly what the uninterrupted run would have
+   (the last one, at ``total_steps``, may not: extending a finished run starts a fresh episode).
 """
 
 from __future__ import annotations
@@ -29,7 +30,6 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
 from dqn_transfer.config import (
-    Algorithm,
     ConfigError,
     Device,
     Exchange,
@@ -466,8 +466,13 @@ def resume_config(state: Path, cfg: DictConfig, overrides: list[str]) -> TrainCo
 
     from dqn_transfer.checkpoint import load_training_state
 
+    from omegaconf.errors import OmegaConfBaseException
+
     _, meta = load_training_state(state)
-    saved = OmegaConf.merge(OmegaConf.structured(TrainConfig), meta["config"])
+    try:
+        saved = OmegaConf.merge(OmegaConf.structured(TrainConfig), meta["config"])
+    except (KeyError, OmegaConfBaseException) as err:
+        raise ConfigError(f"{state}: its saved config does not fit this version of dqn_transfer ({err})") from None
     # Hydra has just written the resume command's composition there; record the run's own instead.
     record = state.parent.parent / ".hydra" / "config.yaml"
     OmegaConf.save(saved, record)
