@@ -79,8 +79,13 @@ def pretrained_source(config: TrainConfig, plain: dict[str, Any], layout: str, l
     cache_root = launch_dir / Path(config.transfer.cache_dir or "outputs/pretrained").expanduser()
     run_dir = cache_root / source_hash(plain, layout)
     checkpoint = run_dir / "checkpoints" / "agent_0.safetensors"
-    run_dir.mkdir(parents=True, exist_ok=True)
-    with open(run_dir / ".lock", "w") as lock:
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        lock = open(run_dir / ".lock", "w")
+    except OSError as err:
+        raise TransferError(f"cannot use the pretraining cache {run_dir}: {err.strerror} "
+                            "(set transfer.cache_dir to a writable directory)") from None
+    with lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # parallel sweep jobs: the first pretrains, the others wait
         if _is_complete(checkpoint, config.transfer.pretrain_steps):
             log.info("transfer: reusing the pretrained source %s", checkpoint)
