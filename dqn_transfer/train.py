@@ -167,7 +167,7 @@ class Trainer:
         self.metrics_path = self.run_dir / "metrics.jsonl"
         self.device = resolve_device(config.device, config.threads)
         self.game = make_game(self.plain["env"], source_task)
-        self.eval_game = make_game(self.plain["env"], source_task)
+        self.eval_game = self.game.replica()
         from dqn_transfer.agents import make_learner
 
         self.learner = make_learner(self.plain["agent"], self.game.num_agents, self.game.obs_layout(),

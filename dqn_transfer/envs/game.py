@@ -254,20 +254,23 @@ class TreasureHuntGame:
         """Named observation segments, in order; the same for every agent."""
         return list(self._layout)
 
+    def _settings(self) -> dict:
+        """The constructor arguments of this game, besides its map."""
+        return dict(mode=self.mode, reward_mode=self.reward_mode, obs_encoding=self.obs_encoding,
+                    view_radius=self.view_radius, max_steps=self.max_steps,
+                    treasure_reward=self.treasure_reward, trap_reward=self.trap_reward,
+                    step_reward=self.step_reward, num_agents=self.num_agents,
+                    include_treasures=self.include_treasures)
+
+    def replica(self) -> TreasureHuntGame:
+        """An independent game with the same map and rules (e.g. for evaluation), built without
+        resolving the map again."""
+        return TreasureHuntGame(self.map, **self._settings())
+
     def single_agent_game(self) -> TreasureHuntGame:
         """The source task of transfer: agent 0 alone on this map, observing position [+ view]."""
-        return TreasureHuntGame(
-            self.map,
-            mode="competitive",
-            obs_encoding=self.obs_encoding,
-            view_radius=self.view_radius,
-            max_steps=self.max_steps,
-            treasure_reward=self.treasure_reward,
-            trap_reward=self.trap_reward,
-            step_reward=self.step_reward,
-            num_agents=1,
-            include_treasures=False,
-        )
+        return TreasureHuntGame(self.map, **{**self._settings(), "mode": "competitive", "reward_mode": "individual",
+                                             "num_agents": 1, "include_treasures": False})
 
     # ------------------------------------------------------------------ state
     @property
