@@ -95,6 +95,27 @@ def run_many(jobs: Sequence[tuple[Path, Sequence[str], Path | None]], check: boo
     return results
 
 
+def reference_mlp(tensors: dict, prefix: str = "q"):
+    """A plain ``nn.Sequential`` (Linear, ReLU, ..., Linear) from checkpoint tensors named
+    ``{prefix}.layers.{l}.weight`` ``[out, in]`` / ``.bias``: the reference the learners and the
+    transfer mapping are checked against, built without their code."""
+    import torch
+    from torch import nn
+
+    num_layers = sum(1 for key in tensors if key.startswith(f"{prefix}.layers.") and key.endswith(".weight"))
+    modules: list[nn.Module] = []
+    for l in range(num_layers):
+        weight = tensors[f"{prefix}.layers.{l}.weight"]
+        linear = nn.Linear(weight.shape[1], weight.shape[0])
+        with torch.no_grad():
+            linear.weight.copy_(weight)
+            linear.bias.copy_(tensors[f"{prefix}.layers.{l}.bias"])
+        modules.append(linear)
+        if l < num_layers - 1:
+            modules.append(nn.ReLU())
+    return nn.Sequential(*modules)
+
+
 @pytest.fixture(scope="session")
 def train_cli():
     """The helpers above, for tests that prefer a fixture to an import."""

@@ -436,6 +436,30 @@ class _Killed(Exception):
     """Stands in for SIGKILL at an exact point of the loop."""
 
 
+def kill_and_resume(tmp_path: Path, monkeypatch, config, dies) -> tuple[list[dict], list[dict]]:
+    """Run ``config(resume=False)`` uninterrupted into ``reference``; run it again into ``killed``,
+    dying right after the first checkpoint where ``dies(trainer)``, then resume it there.
+
+    Returns the (resumed, reference) evaluations without their timing field.
+    """
+    from dqn_transfer.train import Trainer
+
+    Trainer(config(), tmp_path / "reference").run()
+    original = Trainer.save_checkpoint
+
+    def save_then_die(self):
+        original(self)
+        if self.counters.step < self.config.total_steps and dies(self):
+            raise _Killed
+
+    monkeypatch.setattr(Trainer, "save_checkpoint", save_then_die)
+    with pytest.raises(_Killed):
+        Trainer(config(), tmp_path / "killed").run()
+    monkeypatch.setattr(Trainer, "save_checkpoint", original)
+    Trainer(config(resume=True), tmp_path / "killed").run()
+    return tuple(without_timing(read_metrics(tmp_path / name)) for name in ("killed", "reference"))
+
+
 @pytest.mark.filterwarnings("ignore:a layout fixes the map")
 def test_kill_between_a_checkpoint_and_its_evaluation_loses_nothing(tmp_path, monkeypatch):
     """In-process: die right after the first checkpoint, before the evaluation of the same step.
@@ -444,29 +468,13 @@ def test_kill_between_a_checkpoint_and_its_evaluation_loses_nothing(tmp_path, mo
     checkpoint first. The resumed run must redo that evaluation and match an uninterrupted run.
     """
     from dqn_transfer.config import AgentConfig, Algorithm, EnvConfig, TrainConfig
-    from dqn_transfer.train import Trainer
 
     def config(resume: bool = False) -> TrainConfig:
         return TrainConfig(env=EnvConfig(layout=MAP), agent=AgentConfig(algorithm=Algorithm.qlearning, lr=0.1),
                            seed=2, total_steps=90, eval_every=1, eval_episodes=1, checkpoint_every=40,
                            progress=False, resume=resume)
 
-    Trainer(config(), tmp_path / "reference").run()
-
-    original = Trainer.save_checkpoint
-
-    def save_then_die(self):
-        original(self)
-        if 0 < self.counters.step < self.config.total_steps:
-            raise _Killed
-
-    monkeypatch.setattr(Trainer, "save_checkpoint", save_then_die)
-    with pytest.raises(_Killed):
-        Trainer(config(), tmp_path / "killed").run()
-    monkeypatch.setattr(Trainer, "save_checkpoint", original)
-    Trainer(config(resume=True), tmp_path / "killed").run()
-
-    resumed, reference = (without_timing(read_metrics(tmp_path / name)) for name in ("killed", "reference"))
+    resumed, reference = kill_and_resume(tmp_path, monkeypatch, config, dies=lambda trainer: trainer.counters.step > 0)
     assert [m["step"] for m in resumed] == list(range(91))
     assert resumed == reference
 
@@ -485,10 +493,7 @@ def test_resume_continues_with_the_runs_own_config(tmp_path):
     assert "algorithm: sarsa" in record and "lr: 0.3" in record and "total_steps: 500" in record
     steps = [json.loads(line)["step"] for line in (first.run_dir / "metrics.jsonl").read_text().splitlines()]
     assert steps == [0, 100, 200, 300, 400, 500]
-    from safetensors import safe_open
-
-    with safe_open(str(first.run_dir / "checkpoints" / "agent_0.safetensors"), framework="numpy") as f:
-        meta = json.loads(f.metadata()["meta"])
+    meta = agent_meta(first.run_dir / "checkpoints" / "agent_0.safetensors")
     assert meta["algorithm"] == "sarsa" and meta["steps"] == 500
 
 
@@ -498,7 +503,6 @@ def test_kill_mid_exchange_window_resumes_exactly(tmp_path, monkeypatch, exchang
     """The exchange window in progress (returns, pending shared transitions) is checkpointed, so a run
     killed between two exchanges and resumed matches the uninterrupted run."""
     from dqn_transfer.config import AgentConfig, Algorithm, EnvConfig, Exchange, TrainConfig, TransferConfig
-    from dqn_transfer.train import Trainer
 
     def config(resume: bool = False) -> TrainConfig:
         return TrainConfig(
@@ -507,21 +511,8 @@ def test_kill_mid_exchange_window_resumes_exactly(tmp_path, monkeypatch, exchang
             agent=AgentConfig(algorithm=Algorithm.dqn, hidden=[16], batch_size=8, learning_starts=30),
             transfer=TransferConfig(exchange=Exchange(exchange), exchange_every=5))
 
-    Trainer(config(), tmp_path / "reference").run()
-    original = Trainer.save_checkpoint
-
-    def save_then_die(self):
-        original(self)
-        if self.window_returns and self.counters.step < self.config.total_steps:  # mid-window
-            raise _Killed
-
-    monkeypatch.setattr(Trainer, "save_checkpoint", save_then_die)
-    with pytest.raises(_Killed):
-        Trainer(config(), tmp_path / "killed").run()
-    monkeypatch.setattr(Trainer, "save_checkpoint", original)
-    Trainer(config(resume=True), tmp_path / "killed").run()
-
-    resumed, reference = (without_timing(read_metrics(tmp_path / name)) for name in ("killed", "reference"))
+    mid_window = lambda trainer: bool(trainer.window_returns)  # noqa: E731
+    resumed, reference = kill_and_resume(tmp_path, monkeypatch, config, dies=mid_window)
     assert resumed == reference
     digests = [agent_meta(tmp_path / name / "checkpoints" / "agent_1.safetensors")["digest"]
                for name in ("killed", "reference")]

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from conftest import run_many
+from conftest import reference_mlp, run_many
 from safetensors import safe_open
 from safetensors.torch import load_file
 from torch import nn
@@ -81,19 +81,9 @@ def header_meta(path: Path) -> dict:
         return json.loads(f.metadata()["meta"])
 
 
-def reference_mlp(path: Path) -> nn.Sequential:
+def source_mlp(path: Path) -> nn.Sequential:
     """The source's online Q-network as a plain nn.Sequential (nn.Linear layout ``[out, in]``)."""
-    tensors = load_file(str(path))
-    num_layers = sum(1 for key in tensors if key.startswith("q.layers.") and key.endswith(".weight"))
-    modules: list[nn.Module] = []
-    for l in range(num_layers):
-        weight = tensors[f"q.layers.{l}.weight"]
-        linear = nn.Linear(weight.shape[1], weight.shape[0])
-        with torch.no_grad():
-            linear.weight.copy_(weight)
-            linear.bias.copy_(tensors[f"q.layers.{l}.bias"])
-        modules += [linear, nn.ReLU()]
-    return nn.Sequential(*modules[:-1])
+    return reference_mlp(load_file(str(path)))
 
 
 def random_observations(mode: Mode, num_treasures: int, count: int, rng: np.random.Generator):
@@ -141,7 +131,7 @@ def test_dqn_transfer_preserves_the_source_q_function(work, dqn_source, mode):
 
     position, obs = random_observations(mode, 2, 200, np.random.default_rng(0))
     with torch.no_grad():
-        expected = reference_mlp(dqn_source)(torch.from_numpy(position))
+        expected = source_mlp(dqn_source)(torch.from_numpy(position))
         batch = torch.from_numpy(np.stack([obs, obs]))  # [K=2, B, D]
         got = trainer.learner.q_network(batch)
     assert got.shape == (2, 200, NUM_ACTIONS)

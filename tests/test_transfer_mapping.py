@@ -8,6 +8,7 @@ to say which column is which.
 import numpy as np
 import pytest
 import torch
+from conftest import reference_mlp as mlp
 from torch import nn
 
 from dqn_transfer.transfer_mapping import (
@@ -31,21 +32,6 @@ def random_dqn_tensors(in_dim: int, hidden: list[int], gen: torch.Generator) -> 
             tensors[f"{net}.layers.{l}.weight"] = torch.randn(fan_out, fan_in, generator=gen) / fan_in**0.5
             tensors[f"{net}.layers.{l}.bias"] = torch.randn(fan_out, generator=gen) / fan_in**0.5
     return tensors
-
-
-def mlp(tensors: dict[str, torch.Tensor], prefix: str = "q") -> nn.Sequential:
-    num_layers = sum(1 for key in tensors if key.startswith(f"{prefix}.layers.") and key.endswith(".weight"))
-    modules: list[nn.Module] = []
-    for l in range(num_layers):
-        weight = tensors[f"{prefix}.layers.{l}.weight"]
-        linear = nn.Linear(weight.shape[1], weight.shape[0])
-        with torch.no_grad():
-            linear.weight.copy_(weight)
-            linear.bias.copy_(tensors[f"{prefix}.layers.{l}.bias"])
-        modules.append(linear)
-        if l < num_layers - 1:
-            modules.append(nn.ReLU())
-    return nn.Sequential(*modules)
 
 
 def random_segments(layout, batch: int, gen: torch.Generator) -> dict[str, torch.Tensor]:
