@@ -19,20 +19,16 @@ Resume state (optimizer, replay, RNG, counters) uses the same container through
 Writes are atomic (temp file in the same directory, fsync, ``os.replace``), so a killed run never
 leaves a half-written file under the final name.
 
-Command line::
-
-    python -m dqn_transfer.checkpoint list|show|verify PATH   # a file, a run dir or a checkpoints dir
+Inspect files from the command line with ``dqn-transfer-ckpt list|show|verify PATH``
+(:mod:`dqn_transfer.cli.ckpt`).
 """
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import os
-import re
 import secrets
-import sys
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,6 +37,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import safetensors
 import safetensors.numpy
+
+from dqn_transfer.enums import Algorithm
+from dqn_transfer.run_dir import AGENT_FILE_GLOB, CHECKPOINTS_DIR, natural_key
 
 if TYPE_CHECKING:  # torch is only needed to save/load agent tensors, not to inspect files
     import torch
@@ -55,7 +54,6 @@ _PICKLE_SUFFIXES = {".pt", ".pth", ".pkl", ".pickle", ".ckpt"}
 _ZIP_MAGIC = b"PK\x03\x04"  # torch.save's default container: a zip holding a pickle
 _PICKLE_PROTO = 0x80  # first byte of a pickle written with protocol >= 2
 _HEADER_LEN_BYTES = 8  # safetensors: little-endian u64 header length, then the JSON header
-_ALGORITHM_FAMILY = {"sarsa": "tabular", "qlearning": "tabular", "dqn": "dqn", "double_dqn": "dqn"}
 
 
 class CheckpointError(Exception):
@@ -317,7 +315,10 @@ def check_compatible(meta: Mapping[str, Any], expected: Mapping[str, Any]) -> No
 
 
 def _family(algorithm: str) -> str:
-    return _ALGORITHM_FAMILY.get(str(algorithm), str(algorithm))
+    try:
+        return Algorithm(str(algorithm)).family
+    except ValueError:  # a stranger's algorithm: compared by its own name
+        return str(algorithm)
 
 
 def _layout_str(layout: Any) -> str:
@@ -344,77 +345,13 @@ def find_checkpoints(path: str | os.PathLike) -> list[Path]:
         raise CheckpointError(f"{path}: no such file or directory")
     if path.is_file():
         return [path]
-    directory = path / "checkpoints" if (path / "checkpoints").is_dir() else path
-    files = sorted(directory.glob("agent_*.safetensors"), key=_natural_key)
+    directory = path / CHECKPOINTS_DIR if (path / CHECKPOINTS_DIR).is_dir() else path
+    files = sorted(directory.glob(AGENT_FILE_GLOB), key=lambda file: natural_key(file.name))
     if not files:
-        raise CheckpointError(f"{directory}: no agent_*.safetensors checkpoints found")
+        raise CheckpointError(f"{directory}: no {AGENT_FILE_GLOB} checkpoints found")
     return files
 
 
-def _natural_key(path: Path) -> list[Any]:
-    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", path.name)]
-
-
-def _format_list_row(info: CheckpointInfo) -> str:
-    meta = info.meta
-    last_eval = meta.get("last_eval")
-    eval_return = last_eval.get("team_return") if isinstance(last_eval, Mapping) else None
-    eval_text = "-" if eval_return is None else f"{float(eval_return):.2f}"
-    return (f"{info.path.name}  algorithm={meta.get('algorithm', '-')}  steps={meta.get('steps', '-')}"
-            f"  episodes={meta.get('episodes', '-')}  eval_return={eval_text}"
-            f"  size={_human_size(info.size_bytes)}")
-
-
-def _format_show(info: CheckpointInfo) -> str:
-    lines = [f"# {info.path}", json.dumps(info.meta, indent=2), "tensors:"]
-    lines += [f"  {name}  {dtype}  {shape}" for name, (dtype, shape) in info.tensors.items()]
-    return "\n".join(lines)
-
-
-def _human_size(n_bytes: int) -> str:
-    if n_bytes < 1024:
-        return f"{n_bytes} B"
-    size = n_bytes / 1024
-    for unit in ("KiB", "MiB"):
-        if size < 1024:
-            return f"{size:.1f} {unit}"
-        size /= 1024
-    return f"{size:.1f} GiB"
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``list`` / ``show`` / ``verify`` checkpoints; exit 1 with one ``error:`` line per bad file."""
-    parser = argparse.ArgumentParser(prog="python -m dqn_transfer.checkpoint",
-                                     description="Inspect dqn_transfer safetensors checkpoints.")
-    parser.add_argument("command", choices=["list", "show", "verify"])
-    parser.add_argument("path", help="a checkpoint file, a run directory or a checkpoints directory")
-    args = parser.parse_args(argv)
-
-    try:
-        files = find_checkpoints(args.path)
-    except CheckpointError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 1
-    failed = False
-    for file in files:
-        try:
-            info = verify_checkpoint(file)
-        except CheckpointError as e:
-            print(f"error: {e}", file=sys.stderr)
-            failed = True
-            continue
-        if args.command == "list":
-            print(_format_list_row(info))
-        elif args.command == "show":
-            print(_format_show(info))
-        else:
-            print(f"OK {file}")
-    return 1 if failed else 0
-
-
-if __name__ == "__main__":
-    try:
-        sys.exit(main())
-    except BrokenPipeError:  # `... show FILE | head`: the reader left; not an error worth a traceback
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        sys.exit(0)
+if __name__ == "__main__":  # the command line moved to dqn_transfer.cli.ckpt; say so instead of doing nothing
+    raise SystemExit("error: dqn_transfer.checkpoint is a library module; inspect checkpoints with "
+                     "`dqn-transfer-ckpt list|show|verify PATH` (or `python -m dqn_transfer.cli.ckpt`)")

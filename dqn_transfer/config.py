@@ -3,83 +3,34 @@
 The YAML files under ``conf/`` are merged *into* these dataclasses, so a misspelt key
 (``agent.learning_rate``) or a wrong type (``agent.gamma=high``) is refused by Hydra before
 anything runs.  Enums give the closed vocabularies (modes, algorithms) the same protection.
-Range checks that a type cannot express live in :func:`validate`.
+Range checks that a type cannot express live in :func:`validate`. The ``env`` schema is the game's
+own :class:`~dqn_transfer.envs.settings.EnvConfig`; the learners are built from :class:`AgentConfig`:
+each default is written once, here or there.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import Enum
+from pathlib import Path
 from typing import Any, List, Optional
 
 from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
 
+from dqn_transfer.enums import Algorithm, Device, Exchange
+from dqn_transfer.envs.settings import EnvConfig
 
-class Mode(Enum):
-    competitive = "competitive"
-    cooperative = "cooperative"
-    deliberative = "deliberative"
-
-
-class RewardMode(Enum):
-    individual = "individual"
-    team = "team"
-
-
-class ObsEncoding(Enum):
-    onehot = "onehot"
-    coords = "coords"
-
-
-class Algorithm(Enum):
-    sarsa = "sarsa"
-    qlearning = "qlearning"
-    dqn = "dqn"
-    double_dqn = "double_dqn"
-
-
-class Exchange(Enum):
-    none = "none"
-    best = "best"
-    shared_replay = "shared_replay"
-
-
-class Device(Enum):
-    cpu = "cpu"
-    cuda = "cuda"
-    auto = "auto"
-
-
-TABULAR = (Algorithm.sarsa, Algorithm.qlearning)
-
-
-@dataclass
-class EnvConfig:
-    """The game (DESIGN §3). A ``layout``/``layout_file`` fixes size and counts."""
-
-    size: int = 6  # grid side n
-    num_treasures: int = 2  # chests k
-    num_traps: Optional[int] = None  # default k
-    num_agents: Optional[int] = None  # default k
-    complexity: float = 0.1  # Rc: round(Rc*n*n) obstacles
-    map_seed: int = 0  # the map is fixed for a run; episodes reset agents and chests only
-    layout: Optional[str] = None  # ASCII map (rows of . # T X 0-9)
-    layout_file: Optional[str] = None  # path to an ASCII map
-    max_steps: Optional[int] = None  # truncation horizon, default n*n
-    mode: Mode = Mode.competitive  # how s_env is kept: no communication / announcements / coordinator
-    reward_mode: RewardMode = RewardMode.individual
-    obs_encoding: ObsEncoding = ObsEncoding.onehot
-    view_radius: int = 0  # 0: no egocentric view segment
-    treasure_reward: float = 100.0
-    trap_reward: float = -100.0
-    step_reward: float = -1.0
-    render_mode: Optional[str] = None  # accepted for the env kwargs of DESIGN §8; training does not render
+# The config groups (conf/ beside the package: a checkout or an editable install).
+CONFIG_DIR = Path(__file__).resolve().parent.parent / "conf"
 
 
 @dataclass
 class AgentConfig:
-    """Learner hyperparameters, with Stable-Baselines3's names where one exists."""
+    """Learner hyperparameters, with Stable-Baselines3's names (and meaning) where one exists.
+
+    The DQN learners read all but the ``eps_*`` / ``exploration_fraction`` keys (the trainer's
+    exploration schedule); the tabular ones read ``algorithm``, ``lr`` and ``gamma``.
+    """
 
     algorithm: Algorithm = Algorithm.dqn
     lr: float = 1e-3  # Adam step size (DQN) or alpha (tabular)
@@ -101,7 +52,7 @@ class AgentConfig:
 
 @dataclass
 class TransferConfig:
-    """Warm start from a pretrained agent (DESIGN §6)."""
+    """Warm start from a pretrained agent, and knowledge exchange inside the team (docs/transfer.md)."""
 
     enabled: bool = False
     source: Optional[str] = None  # checkpoint file or run directory; None: pretrain on TreasureHunt-v0
@@ -123,10 +74,10 @@ class TrainConfig:
     agent: AgentConfig = field(default_factory=AgentConfig)
     transfer: TransferConfig = field(default_factory=TransferConfig)
     seed: int = 0  # seeds the learners, exploration and episode resets
-    total_steps: int = 30_000  # joint env steps (every live agent acts once)
-    eval_every: int = 2_000  # env steps between greedy evaluations
-    eval_episodes: int = 10
-    checkpoint_every: int = 10_000  # env steps between checkpoints (written at the next episode end)
+    total_steps: int = 20_000  # joint env steps (every live agent acts once)
+    eval_every: int = 1_000  # env steps between greedy evaluations
+    eval_episodes: int = 10  # greedy episodes per evaluation
+    checkpoint_every: int = 5_000  # env steps between checkpoints (written at the next episode end)
     progress: bool = True  # tqdm progress bar
     resume: bool = False  # continue the run in hydra.run.dir from its last checkpoint
     device: Device = Device.cpu
@@ -148,40 +99,43 @@ def _check(condition: bool, message: str) -> None:
         raise ConfigError(message)
 
 
+# Range rules per key (a dotted path into the config): the bounds a type cannot express.
+_AT_LEAST = {
+    "env.size": 2, "env.num_treasures": 1, "env.max_steps": 1, "env.view_radius": 0,
+    "agent.batch_size": 1, "agent.buffer_size": 1, "agent.learning_starts": 0, "agent.train_freq": 1,
+    "agent.gradient_steps": 1, "agent.target_update": 1,
+    "total_steps": 0, "eval_every": 1, "eval_episodes": 1, "checkpoint_every": 1, "threads": 1,
+    "transfer.pretrain_steps": 1, "transfer.exchange_every": 1,
+}
+_POSITIVE = ("agent.lr", "agent.max_grad_norm")
+_IN_UNIT_INTERVAL = ("agent.gamma", "agent.eps_start", "agent.eps_end", "agent.exploration_fraction",
+                     "transfer.epsilon_start")  # [0, 1]
+_IN_HALF_OPEN_UNIT = ("agent.tau", "transfer.exchange_tau")  # (0, 1]
+
+
+def _value(cfg: DictConfig | TrainConfig, key: str) -> Any:
+    value = cfg
+    for part in key.split("."):
+        value = getattr(value, part)
+    return value
+
+
 def validate(cfg: DictConfig | TrainConfig) -> None:
     """Range checks that types cannot express; raises ConfigError naming the key."""
     env, agent, transfer = cfg.env, cfg.agent, cfg.transfer
-    _check(env.size >= 2, f"env.size must be >= 2, got {env.size}")
-    _check(env.num_treasures >= 1, f"env.num_treasures must be >= 1, got {env.num_treasures}")
+    for key, low in _AT_LEAST.items():
+        value = _value(cfg, key)
+        _check(value is None or value >= low, f"{key} must be >= {low}, got {value}")  # None: not set (max_steps)
+    for key in _POSITIVE:
+        _check(_value(cfg, key) > 0, f"{key} must be > 0, got {_value(cfg, key)}")
+    for key in _IN_UNIT_INTERVAL:
+        _check(0.0 <= _value(cfg, key) <= 1.0, f"{key} must be in [0, 1], got {_value(cfg, key)}")
+    for key in _IN_HALF_OPEN_UNIT:
+        _check(0.0 < _value(cfg, key) <= 1.0, f"{key} must be in (0, 1], got {_value(cfg, key)}")
     _check(0.0 <= env.complexity < 1.0, f"env.complexity must be in [0, 1), got {env.complexity}")
-    _check(env.max_steps is None or env.max_steps >= 1, f"env.max_steps must be >= 1, got {env.max_steps}")
-    _check(env.view_radius >= 0, f"env.view_radius must be >= 0, got {env.view_radius}")
-    _check(0.0 <= agent.gamma <= 1.0, f"agent.gamma must be in [0, 1], got {agent.gamma}")
-    _check(agent.lr > 0, f"agent.lr must be > 0, got {agent.lr}")
-    _check(agent.batch_size >= 1, f"agent.batch_size must be >= 1, got {agent.batch_size}")
-    _check(agent.buffer_size >= 1, f"agent.buffer_size must be >= 1, got {agent.buffer_size}")
-    _check(agent.learning_starts >= 0, f"agent.learning_starts must be >= 0, got {agent.learning_starts}")
-    _check(agent.train_freq >= 1, f"agent.train_freq must be >= 1, got {agent.train_freq}")
-    _check(agent.gradient_steps >= 1, f"agent.gradient_steps must be >= 1, got {agent.gradient_steps}")
-    _check(agent.target_update >= 1, f"agent.target_update must be >= 1, got {agent.target_update}")
-    _check(0.0 < agent.tau <= 1.0, f"agent.tau must be in (0, 1], got {agent.tau}")
     _check(len(agent.hidden) >= 1 and all(h >= 1 for h in agent.hidden),
            f"agent.hidden must be a non-empty list of positive sizes, got {list(agent.hidden)}")
-    for key in ("eps_start", "eps_end", "exploration_fraction"):
-        value = getattr(agent, key)
-        _check(0.0 <= value <= 1.0, f"agent.{key} must be in [0, 1], got {value}")
-    _check(agent.max_grad_norm > 0, f"agent.max_grad_norm must be > 0, got {agent.max_grad_norm}")
-    _check(cfg.total_steps >= 0, f"total_steps must be >= 0, got {cfg.total_steps}")
-    _check(cfg.eval_every >= 1, f"eval_every must be >= 1, got {cfg.eval_every}")
-    _check(cfg.eval_episodes >= 1, f"eval_episodes must be >= 1, got {cfg.eval_episodes}")
-    _check(cfg.checkpoint_every >= 1, f"checkpoint_every must be >= 1, got {cfg.checkpoint_every}")
-    _check(cfg.threads >= 1, f"threads must be >= 1, got {cfg.threads}")
-    _check(transfer.pretrain_steps >= 1, f"transfer.pretrain_steps must be >= 1, got {transfer.pretrain_steps}")
-    _check(0.0 <= transfer.epsilon_start <= 1.0,
-           f"transfer.epsilon_start must be in [0, 1], got {transfer.epsilon_start}")
-    _check(transfer.exchange_every >= 1, f"transfer.exchange_every must be >= 1, got {transfer.exchange_every}")
-    _check(0.0 < transfer.exchange_tau <= 1.0, f"transfer.exchange_tau must be in (0, 1], got {transfer.exchange_tau}")
-    is_tabular = Algorithm(agent.algorithm) in TABULAR
+    is_tabular = Algorithm(agent.algorithm).is_tabular
     if is_tabular:
         _check(transfer.exchange == Exchange.none,
                f"transfer.exchange={Exchange(transfer.exchange).value} needs a DQN learner, not {Algorithm(agent.algorithm).value}")

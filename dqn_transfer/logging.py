@@ -1,4 +1,4 @@
-"""TensorBoard logging with the tag names other tools rely on (DESIGN §5).
+"""TensorBoard logging with the tag names other tools rely on.
 
 Per agent: ``agent_{i}/episodic_return``, ``agent_{i}/episodic_length``, ``agent_{i}/td_loss``,
 ``agent_{i}/q_mean``.  Team: ``team/return``, ``team/treasures_collected``, ``team/trap_rate``.

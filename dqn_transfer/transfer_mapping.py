@@ -22,7 +22,7 @@ optional fallback table (``fallback_keys`` ``[M, Ds]``, ``fallback_values`` ``[M
 ``x[fallback_projection]``.
 
 This module is pure tensor bookkeeping: the orchestration (finding or pretraining the source,
-caching) lives in :mod:`dqn_transfer.transfer`.
+caching) lives in :mod:`dqn_transfer.sources` and :mod:`dqn_transfer.warm_start`.
 """
 
 from __future__ import annotations

@@ -8,15 +8,24 @@ import torch
 from safetensors.numpy import load as load_numpy
 from safetensors.numpy import save as save_numpy
 
-from dqn_transfer.agents import DQNLearner, TabularLearner, linear_schedule, make_learner
+from dqn_transfer.agents import DQNLearner, TabularLearner, Transition, linear_schedule, make_learner
+from dqn_transfer.config import AgentConfig
+from dqn_transfer.enums import Algorithm
 
 LAYOUT = [("position", 3), ("treasures", 1)]
 D, A = 4, 2
 
 
-def dqn(num_agents: int = 2, **kwargs) -> DQNLearner:
-    defaults = dict(batch_size=4, buffer_size=32, learning_starts=0, train_freq=1, hidden=[8], seed=0)
-    return DQNLearner(num_agents, LAYOUT, A, **{**defaults, **kwargs})
+def dqn(num_agents: int = 2, seed: int = 0, double: bool = False, **kwargs) -> DQNLearner:
+    hp = {**dict(batch_size=4, buffer_size=32, learning_starts=0, train_freq=1, hidden=[8]), **kwargs}
+    algorithm = Algorithm.double_dqn if double else Algorithm.dqn
+    return DQNLearner(num_agents, LAYOUT, A, AgentConfig(algorithm=algorithm, **hp), seed=seed)
+
+
+def step_of(t: dict, actions: np.ndarray, live: np.ndarray | None = None) -> Transition:
+    """The joint transition of one ``random_steps`` entry with the actions taken."""
+    return Transition(t["obs"], actions, t["rewards"], t["next_obs"], t["terminated"], t["truncated"],
+                      t["live"] if live is None else live)
 
 
 def random_steps(num_agents: int, n: int, seed: int = 0) -> list[dict]:
@@ -39,8 +48,7 @@ def run(learner: DQNLearner, steps: list[dict], first_step: int = 1, epsilon: fl
     taken = []
     for step, t in enumerate(steps, start=first_step):
         actions = learner.act(t["obs"], t["live"], epsilon)
-        learner.update(t["obs"], actions, t["rewards"], t["next_obs"], t["terminated"], t["truncated"],
-                       t["live"], step)
+        learner.update(step_of(t, actions), step)
         taken.append(actions)
     return taken
 
@@ -57,8 +65,7 @@ def test_hard_target_copy_exactly_at_multiples_of_target_update():
     learner = dqn(target_update=3, tau=1.0)
     initial_target = weights(learner.target_network)
     for step, t in enumerate(random_steps(2, 7), start=1):
-        learner.update(t["obs"], np.zeros(2, np.int64), t["rewards"], t["next_obs"], t["terminated"],
-                       t["truncated"], np.ones(2, bool), step)
+        learner.update(step_of(t, np.zeros(2, np.int64), np.ones(2, bool)), step)
         synced = same(weights(learner.target_network), weights(learner.q_network))
         assert synced == (step % 3 == 0), step  # online changes every step; target catches up at 3, 6
         if step == 3:
@@ -82,9 +89,8 @@ def test_training_starts_after_learning_starts_every_train_freq_steps():
     learner = dqn(learning_starts=3, train_freq=2)
     trained = []
     for step, t in enumerate(random_steps(2, 8), start=1):
-        out = learner.update(t["obs"], np.zeros(2, np.int64), t["rewards"], t["next_obs"], t["terminated"],
-                             t["truncated"], np.ones(2, bool), step)
-        trained.append(bool(np.isfinite(out["td_loss"]).all()))
+        out = learner.update(step_of(t, np.zeros(2, np.int64), np.ones(2, bool)), step)
+        trained.append(bool(np.isfinite(out.td_loss).all()))
     # steps > 3 and even: 4, 6, 8
     assert trained == [False, False, False, True, False, True, False, True]
     assert learner.num_gradient_steps == 3
@@ -106,21 +112,20 @@ def constant_q_learner(c: float, **kwargs) -> DQNLearner:
 def test_truncated_transition_bootstraps_and_terminated_does_not(double):
     learner = constant_q_learner(1.0, double=double, gamma=0.5)
     obs = np.zeros((2, D), np.float32)
-    out = learner.update(obs, np.array([0, 1]), np.zeros(2, np.float32), obs,
-                         terminated=np.array([False, True]), truncated=np.array([True, False]),
-                         live=np.ones(2, bool), step=1)
+    out = learner.update(Transition(obs, np.array([0, 1]), np.zeros(2, np.float32), obs,
+                                    terminated=np.array([False, True]), truncated=np.array([True, False]),
+                                    live=np.ones(2, bool)), step=1)
     # agent 0, truncated:  y = 0 + 0.5 * 1 = 0.5, d = 1 - 0.5 = 0.5 -> Huber 0.5 * 0.5^2 = 0.125
     # agent 1, terminated: y = 0,                  d = 1 - 0 = 1    -> Huber 1 - 0.5     = 0.5
-    np.testing.assert_allclose(out["td_loss"], [0.125, 0.5])
-    np.testing.assert_allclose(out["q_mean"], [1.0, 1.0])
+    np.testing.assert_allclose(out.td_loss, [0.125, 0.5])
+    np.testing.assert_allclose(out.q_mean, [1.0, 1.0])
 
 
 def test_dead_agent_has_no_update_until_it_has_data():
     learner = dqn()
     t = random_steps(2, 1)[0]
-    out = learner.update(t["obs"], np.zeros(2, np.int64), t["rewards"], t["next_obs"], t["terminated"],
-                         t["truncated"], np.array([True, False]), step=1)
-    assert np.isfinite(out["td_loss"][0]) and np.isnan(out["td_loss"][1]) and np.isnan(out["q_mean"][1])
+    out = learner.update(step_of(t, np.zeros(2, np.int64), np.array([True, False])), step=1)
+    assert np.isfinite(out.td_loss[0]) and np.isnan(out.td_loss[1]) and np.isnan(out.q_mean[1])
     np.testing.assert_array_equal(learner.replay.size, [1, 0])
     # Agent 1's network did not move (zero gradient, zero Adam moments).
     fresh = dqn()
@@ -149,8 +154,8 @@ def test_member_weights_exchange_between_agents():
     learner = dqn(num_agents=2)
     learner.set_member_weights(1, learner.get_member_weights(0))
     obs = np.repeat(np.random.default_rng(0).random((1, D), dtype=np.float32), 2, axis=0)
-    q = learner._q_values(learner.q_network, torch.from_numpy(obs).unsqueeze(1))
-    assert torch.equal(q[0], q[1])
+    q = learner.q_values(obs)
+    assert q.shape == (2, A) and np.array_equal(q[0], q[1])
 
 
 def test_freeze_keeps_layers_fixed_for_all_agents():
@@ -208,19 +213,22 @@ def test_training_state_round_trip_continues_bit_identically(share_parameters):
     assert b.frozen_layers == [0] and a.num_gradient_steps == b.num_gradient_steps
 
 
-def test_make_learner_builds_each_algorithm_and_ignores_trainer_keys():
-    cfg = dict(lr=0.1, gamma=0.9, hidden=[16], eps_start=1.0, eps_end=0.05, exploration_fraction=0.5,
-               batch_size=8, buffer_size=100)
+def test_make_learner_builds_each_algorithm_from_its_config():
+    cfg = dict(lr=0.1, gamma=0.9, hidden=[16], batch_size=8, buffer_size=100)
     for algorithm, cls in [("sarsa", TabularLearner), ("qlearning", TabularLearner),
                            ("dqn", DQNLearner), ("double_dqn", DQNLearner)]:
-        learner = make_learner({"algorithm": algorithm, **cfg}, 2, LAYOUT, A, seed=0)
+        learner = make_learner(AgentConfig(algorithm=Algorithm(algorithm), **cfg), 2, LAYOUT, A, seed=0)
         assert isinstance(learner, cls) and learner.algorithm == algorithm
         assert learner.lr == 0.1 and learner.gamma == 0.9
-    assert make_learner({"algorithm": "double_dqn", **cfg}, 2, LAYOUT, A, seed=0).double
-    with pytest.raises(ValueError, match="unknown agent.algorithm"):
-        make_learner({"algorithm": "ppo"}, 2, LAYOUT, A, seed=0)
+    double = make_learner(AgentConfig(algorithm=Algorithm.double_dqn, **cfg), 2, LAYOUT, A, seed=0)
+    assert double.double and double.batch_size == 8 and double.replay.capacity == 100 and double.hidden == [16]
+    with pytest.raises(ValueError, match="'ppo' is not a valid Algorithm"):
+        make_learner(AgentConfig(algorithm="ppo"), 2, LAYOUT, A, seed=0)
+    with pytest.raises(ValueError, match="trains the DQN family, not sarsa"):
+        DQNLearner(2, LAYOUT, A, AgentConfig(algorithm=Algorithm.sarsa))
 
 
+@pytest.mark.slow
 def test_dqn_learns_a_corridor():
     """Corridor of 5 cells, start at 0, +1 for reaching cell 4 (terminal), 0 otherwise, 20-step limit.
 
@@ -228,8 +236,9 @@ def test_dqn_learns_a_corridor():
     Two agents learn their own corridor side by side in the batched network.
     """
     k, n, gamma, total = 2, 5, 0.9, 2000
-    learner = DQNLearner(k, [("position", n)], 2, lr=3e-3, gamma=gamma, batch_size=32, buffer_size=2000,
-                         learning_starts=100, train_freq=1, target_update=50, hidden=[32], seed=0)
+    hp = AgentConfig(algorithm=Algorithm.dqn, lr=3e-3, gamma=gamma, batch_size=32, buffer_size=2000,
+                     learning_starts=100, train_freq=1, target_update=50, tau=1.0, hidden=[32])
+    learner = DQNLearner(k, [("position", n)], 2, hp, seed=0)
     eye = np.eye(n, dtype=np.float32)
     pos, t_in_episode = np.zeros(k, int), np.zeros(k, int)
     for step in range(1, total + 1):
@@ -238,16 +247,15 @@ def test_dqn_learns_a_corridor():
         new_pos = np.clip(pos + np.where(actions == 1, 1, -1), 0, n - 1)
         t_in_episode += 1
         terminated, truncated = new_pos == n - 1, (t_in_episode >= 20) & (new_pos != n - 1)
-        learner.update(eye[pos], actions, terminated.astype(np.float32), eye[new_pos], terminated, truncated,
-                       np.ones(k, bool), step)
+        learner.update(Transition(eye[pos], actions, terminated.astype(np.float32), eye[new_pos], terminated,
+                                  truncated, np.ones(k, bool)), step)
         done = terminated | truncated
         pos, t_in_episode = np.where(done, 0, new_pos), np.where(done, 0, t_in_episode)
 
-    with torch.no_grad():
-        q = learner._q_values(learner.q_network, torch.from_numpy(np.stack([eye[:4]] * k)))  # [K, 4, 2]
+    q = np.stack([learner.q_values(np.stack([eye[s]] * k)) for s in range(4)], axis=1)  # [K, 4, 2]
     assert (q.argmax(-1) == 1).all(), q
-    expected = torch.tensor([gamma**3, gamma**2, gamma, 1.0])  # 0.729, 0.81, 0.9, 1
-    torch.testing.assert_close(q[..., 1], expected.expand(k, 4), atol=0.1, rtol=0.0)
+    expected = np.array([gamma**3, gamma**2, gamma, 1.0])  # 0.729, 0.81, 0.9, 1
+    np.testing.assert_allclose(q[..., 1], np.broadcast_to(expected, (k, 4)), atol=0.1, rtol=0.0)
 
 
 def test_loading_bad_tensors_names_the_tensor():

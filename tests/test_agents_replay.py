@@ -3,20 +3,21 @@
 import numpy as np
 import torch
 
-from dqn_transfer.agents import ReplayBuffer
+from dqn_transfer.agents import ReplayBuffer, Transition
 
 K, CAPACITY, OBS_DIM = 3, 4, 2
 
 
-def transition(step: int) -> dict[str, np.ndarray]:
+def transition(step: int, live: np.ndarray) -> Transition:
     """Every agent's transition of env step ``step``: obs = step, next_obs = step + 0.5, action = step."""
-    return dict(
+    return Transition(
         obs=np.full((K, OBS_DIM), step, dtype=np.float32),
         actions=np.full(K, step, dtype=np.int64),
         rewards=np.full(K, -step, dtype=np.float32),
         next_obs=np.full((K, OBS_DIM), step + 0.5, dtype=np.float32),
         terminated=np.full(K, step % 2 == 0),
         truncated=np.full(K, step % 3 == 0),
+        live=live,
     )
 
 
@@ -24,7 +25,7 @@ def filled_buffer(seed: int = 0) -> ReplayBuffer:
     """Steps 0..5: agent 0 lives throughout, agent 1 only in steps 0 and 1, agent 2 never."""
     buffer = ReplayBuffer(K, CAPACITY, OBS_DIM, np.random.default_rng(seed))
     for step in range(6):
-        buffer.add(**transition(step), mask=np.array([True, step < 2, False]))
+        buffer.add(transition(step, live=np.array([True, step < 2, False])))
     return buffer
 
 
@@ -41,17 +42,17 @@ def test_pointers_sizes_and_wraparound():
 
 def test_sampling_stays_in_each_agents_filled_range_and_keeps_transitions_whole():
     batch = filled_buffer().sample(200)
-    assert batch["obs"].shape == (K, 200, OBS_DIM) and batch["actions"].shape == (K, 200)
-    np.testing.assert_array_equal(batch["valid"].numpy(), [True, True, False])
-    assert set(batch["actions"][0].tolist()) == {2, 3, 4, 5}
-    assert set(batch["actions"][1].tolist()) == {0, 1}
+    assert batch.obs.shape == (K, 200, OBS_DIM) and batch.actions.shape == (K, 200)
+    assert set(batch.actions[0].tolist()) == {2, 3, 4, 5}
+    assert set(batch.actions[1].tolist()) == {0, 1}
     # Fields of one sample come from the same transition.
-    actions = batch["actions"].float()
-    torch.testing.assert_close(batch["obs"][:2, :, 0], actions[:2])
-    torch.testing.assert_close(batch["next_obs"][:2, :, 0], actions[:2] + 0.5)
-    torch.testing.assert_close(batch["rewards"][:2], -actions[:2])
-    assert torch.equal(batch["terminated"][:2], batch["actions"][:2] % 2 == 0)
-    assert torch.equal(batch["truncated"][:2], batch["actions"][:2] % 3 == 0)
+    actions = batch.actions.float()
+    torch.testing.assert_close(batch.obs[:2, :, 0], actions[:2])
+    torch.testing.assert_close(batch.next_obs[:2, :, 0], actions[:2] + 0.5)
+    torch.testing.assert_close(batch.rewards[:2], -actions[:2])
+    assert torch.equal(batch.terminated[:2], batch.actions[:2] % 2 == 0)
+    # Only what the TD target reads is stored: truncation is an ordinary step for it.
+    assert set(filled_buffer().storage) == {"obs", "actions", "rewards", "next_obs", "terminated"}
 
 
 def test_extend_appends_a_teammates_transitions_to_one_row():
@@ -64,7 +65,6 @@ def test_extend_appends_a_teammates_transitions_to_one_row():
         rewards=np.zeros(5, dtype=np.float32),
         next_obs=np.zeros((5, OBS_DIM), dtype=np.float32),
         terminated=np.zeros(5, dtype=bool),
-        truncated=np.zeros(5, dtype=bool),
     )
     np.testing.assert_array_equal(buffer.storage["actions"][2].numpy(), [11, 12, 13, 14])
     assert buffer.ptr[2] == 0 and buffer.size[2] == 4  # (0 + 4) % 4
@@ -81,5 +81,5 @@ def test_state_dict_round_trip_continues_identically():
     for name, tensor in a.storage.items():
         assert torch.equal(tensor, b.storage[name])
     batch_a, batch_b = a.sample(16), b.sample(16)
-    for name, tensor in batch_a.items():
-        assert torch.equal(tensor, batch_b[name])
+    for field_a, field_b in zip(batch_a, batch_b):
+        assert torch.equal(field_a, field_b)

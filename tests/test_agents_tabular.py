@@ -4,7 +4,9 @@ import numpy as np
 import pytest
 import torch
 
-from dqn_transfer.agents import TabularLearner
+from dqn_transfer.agents import TabularLearner, Transition
+from dqn_transfer.config import AgentConfig
+from dqn_transfer.enums import Algorithm
 
 LAYOUT = [("position", 2)]
 S0 = np.array([1.0, 0.0], dtype=np.float32)
@@ -12,9 +14,14 @@ S1 = np.array([0.0, 1.0], dtype=np.float32)
 ALL_LIVE = np.ones(3, dtype=bool)
 
 
+def tabular(algorithm: str, num_agents: int, layout=LAYOUT, actions: int = 2, lr: float = 0.5,
+            seed: int = 0) -> TabularLearner:
+    return TabularLearner(num_agents, layout, actions, AgentConfig(algorithm=Algorithm(algorithm), lr=lr, gamma=0.9),
+                          seed=seed)
+
+
 def learner(algorithm: str, num_agents: int = 3, seed: int = 0) -> TabularLearner:
-    rng = np.random.default_rng(seed)
-    agent = TabularLearner(algorithm, num_agents, LAYOUT, 2, lr=0.5, gamma=0.9, rng=rng)
+    agent = tabular(algorithm, num_agents, seed=seed)
     for i in range(num_agents):  # every agent starts knowing Q(S1) = [2, 4]; S0 unseen (0, 0)
         table = {"keys": torch.from_numpy(S1[None]), "values": torch.tensor([[2.0, 4.0]])}
         agent.load_agent_tensors(i, table)
@@ -31,20 +38,19 @@ def test_one_update_normal_terminated_truncated(algorithm):
     agent = learner(algorithm)
     agent.act(np.stack([S0, S0, S0]), ALL_LIVE, epsilon=0.0)  # SARSA's a' uses this epsilon: greedy
     terminated, truncated = flags("", "term", "trunc")
-    out = agent.update(
+    out = agent.update(Transition(
         obs=np.stack([S0, S0, S0]), actions=np.array([0, 1, 0]), rewards=np.array([1.0, 1.0, 0.0]),
-        next_obs=np.stack([S1, S1, S1]), terminated=terminated, truncated=truncated, live=ALL_LIVE, step=1,
-    )
+        next_obs=np.stack([S1, S1, S1]), terminated=terminated, truncated=truncated, live=ALL_LIVE), step=1)
     # agent 0: y = 1 + 0.9 * Q(S1, a'=argmax=1) = 1 + 0.9 * 4 = 4.6 ; Q(S0,0) = 0 + 0.5 * 4.6 = 2.3
     # agent 1: terminated, y = 1                               ; Q(S0,1) = 0 + 0.5 * 1   = 0.5
     # agent 2: truncated still bootstraps, y = 0 + 0.9 * 4 = 3.6 ; Q(S0,0) = 0 + 0.5 * 3.6 = 1.8
-    assert agent.q_values(0, S0).tolist() == pytest.approx([2.3, 0.0])
-    assert agent.q_values(1, S0).tolist() == pytest.approx([0.0, 0.5])
-    assert agent.q_values(2, S0).tolist() == pytest.approx([1.8, 0.0])
-    assert agent.q_values(0, S1).tolist() == [2.0, 4.0]  # next state untouched
-    np.testing.assert_allclose(out["q_mean"], [0.0, 0.0, 0.0])  # Q(s, a) before the update
+    assert agent.agent_q_values(0, S0).tolist() == pytest.approx([2.3, 0.0])
+    assert agent.agent_q_values(1, S0).tolist() == pytest.approx([0.0, 0.5])
+    assert agent.agent_q_values(2, S0).tolist() == pytest.approx([1.8, 0.0])
+    assert agent.agent_q_values(0, S1).tolist() == [2.0, 4.0]  # next state untouched
+    np.testing.assert_allclose(out.q_mean, [0.0, 0.0, 0.0])  # Q(s, a) before the update
     # Huber of the TD errors 4.6, 1.0, 3.6: |d| - 0.5 for |d| >= 1
-    np.testing.assert_allclose(out["td_loss"], [4.1, 0.5, 3.1], rtol=1e-6)
+    np.testing.assert_allclose(out.td_loss, [4.1, 0.5, 3.1], rtol=1e-6)
     # SARSA caches a' only where the episode goes on.
     if algorithm == "sarsa":
         np.testing.assert_array_equal(agent.next_action, [1, -1, -1])
@@ -53,9 +59,9 @@ def test_one_update_normal_terminated_truncated(algorithm):
 def test_qlearning_bootstraps_from_the_max_not_the_played_action():
     agent = learner("qlearning", num_agents=1)
     agent.act(S0[None], np.ones(1, bool), epsilon=1.0)  # fully random play
-    agent.update(S0[None], np.array([0]), np.array([1.0]), S1[None], *flags(""), np.ones(1, bool), step=1)
+    agent.update(Transition(S0[None], np.array([0]), np.array([1.0]), S1[None], *flags(""), np.ones(1, bool)), step=1)
     # y = 1 + 0.9 * max(2, 4) = 4.6 whatever is played next ; Q(S0,0) = 0.5 * 4.6
-    assert agent.q_values(0, S0)[0] == pytest.approx(2.3)
+    assert agent.agent_q_values(0, S0)[0] == pytest.approx(2.3)
 
 
 def test_sarsa_bootstraps_from_the_cached_next_action_and_plays_it():
@@ -63,13 +69,13 @@ def test_sarsa_bootstraps_from_the_cached_next_action_and_plays_it():
     agent = learner("sarsa", num_agents=k, seed=3)
     live = np.ones(k, bool)
     agent.act(np.stack([S0] * k), live, epsilon=1.0)  # random a': agents end up with different ones
-    agent.update(np.stack([S0] * k), np.zeros(k, np.int64), np.ones(k), np.stack([S1] * k),
-                 np.zeros(k, bool), np.zeros(k, bool), live, step=1)
+    agent.update(Transition(np.stack([S0] * k), np.zeros(k, np.int64), np.ones(k), np.stack([S1] * k),
+                            np.zeros(k, bool), np.zeros(k, bool), live), step=1)
     cached = agent.next_action.copy()
     assert set(cached.tolist()) == {0, 1}
     for i, a_next in enumerate(cached):
         # a' = 0: y = 1 + 0.9 * 2 = 2.8 -> Q = 1.4 ; a' = 1: y = 1 + 0.9 * 4 = 4.6 -> Q = 2.3
-        assert agent.q_values(i, S0)[0] == pytest.approx({0: 1.4, 1: 2.3}[int(a_next)])
+        assert agent.agent_q_values(i, S0)[0] == pytest.approx({0: 1.4, 1: 2.3}[int(a_next)])
     # The next act on S1 plays exactly the cached a' (even with epsilon = 1), then forgets it.
     np.testing.assert_array_equal(agent.act(np.stack([S1] * k), live, epsilon=1.0), cached)
     np.testing.assert_array_equal(agent.next_action, -1)
@@ -89,29 +95,29 @@ def test_sarsa_cache_is_ignored_for_another_observation_and_in_greedy_mode():
 def test_dead_agents_are_not_updated_and_get_nan():
     agent = learner("qlearning")
     live = np.array([True, False, True])
-    out = agent.update(np.stack([S0] * 3), np.zeros(3, np.int64), np.ones(3), np.stack([S1] * 3),
-                       *flags("term", "term", "term"), live, step=1)
-    assert np.isnan(out["td_loss"][1]) and np.isnan(out["q_mean"][1])
+    out = agent.update(Transition(np.stack([S0] * 3), np.zeros(3, np.int64), np.ones(3), np.stack([S1] * 3),
+                                  *flags("term", "term", "term"), live), step=1)
+    assert np.isnan(out.td_loss[1]) and np.isnan(out.q_mean[1])
     assert len(agent.agent_tensors(1)["keys"]) == 1 and len(agent.agent_tensors(0)["keys"]) == 2
 
 
 def test_fallback_initialises_unseen_entries_and_round_trips():
-    agent = TabularLearner("qlearning", 1, LAYOUT, 2, lr=0.5, gamma=0.9, rng=np.random.default_rng(0))
+    agent = tabular("qlearning", 1)
     # Source table keyed on the target's column 1 only: key [1] -> (5, 7).
     agent.set_fallback(np.array([[1.0]], np.float32), np.array([[5.0, 7.0]], np.float32), np.array([1]))
-    assert agent.q_values(0, S1).tolist() == [5.0, 7.0]  # S1[[1]] = [1] is in the fallback
-    assert agent.q_values(0, S0).tolist() == [0.0, 0.0]  # S0[[1]] = [0] is not: 0
-    agent.update(S1[None], np.array([0]), np.array([0.0]), S0[None], *flags("term"), np.ones(1, bool), step=1)
+    assert agent.agent_q_values(0, S1).tolist() == [5.0, 7.0]  # S1[[1]] = [1] is in the fallback
+    assert agent.agent_q_values(0, S0).tolist() == [0.0, 0.0]  # S0[[1]] = [0] is not: 0
+    agent.update(Transition(S1[None], np.array([0]), np.array([0.0]), S0[None], *flags("term"), np.ones(1, bool)), step=1)
     # Entry created from the fallback, then updated: y = 0 ; Q(S1,0) = 5 + 0.5 * (0 - 5) = 2.5
-    assert agent.q_values(0, S1).tolist() == [2.5, 7.0]
+    assert agent.agent_q_values(0, S1).tolist() == [2.5, 7.0]
 
     tensors = agent.agent_tensors(0)
     assert tensors["fallback_projection"].dtype == torch.int64
     assert tensors["keys"].dtype == tensors["values"].dtype == torch.float32
-    clone = TabularLearner("qlearning", 1, LAYOUT, 2, lr=0.5, gamma=0.9, rng=np.random.default_rng(1))
+    clone = tabular("qlearning", 1, seed=1)
     clone.load_agent_tensors(0, tensors)
     for obs in (S0, S1, np.array([1.0, 1.0], np.float32)):
-        assert clone.q_values(0, obs).tolist() == agent.q_values(0, obs).tolist()
+        assert clone.agent_q_values(0, obs).tolist() == agent.agent_q_values(0, obs).tolist()
 
 
 def test_training_state_round_trip_continues_identically():
@@ -124,11 +130,11 @@ def test_training_state_round_trip_continues_identically():
     def run(agent, steps):
         for s, s_next, r, done in steps:
             actions = agent.act(states[s], np.ones(2, bool), epsilon=0.3)
-            agent.update(states[s], actions, r, states[s_next], done, np.zeros(2, bool), np.ones(2, bool), 0)
+            agent.update(Transition(states[s], actions, r, states[s_next], done, np.zeros(2, bool), np.ones(2, bool)), 0)
 
-    a = TabularLearner("sarsa", 2, layout, 4, lr=0.1, gamma=0.9, rng=np.random.default_rng(0))
+    a = tabular("sarsa", 2, layout, 4, lr=0.1, seed=0)
     run(a, inputs[:30])
-    b = TabularLearner("sarsa", 2, layout, 4, lr=0.1, gamma=0.9, rng=np.random.default_rng(123))
+    b = tabular("sarsa", 2, layout, 4, lr=0.1, seed=123)
     for i in range(2):
         b.load_agent_tensors(i, a.agent_tensors(i))
     b.load_training_state(*a.training_state())
@@ -139,6 +145,14 @@ def test_training_state_round_trip_continues_identically():
             assert torch.equal(tensor, b.agent_tensors(i)[name])
 
 
-def test_unknown_tabular_algorithm():
-    with pytest.raises(ValueError, match="unknown tabular algorithm"):
-        TabularLearner("td_lambda", 1, LAYOUT, 2, rng=np.random.default_rng(0))
+def test_tabular_learner_refuses_a_dqn_config():
+    with pytest.raises(ValueError, match="trains sarsa or qlearning, not dqn"):
+        TabularLearner(1, LAYOUT, 2, AgentConfig(algorithm=Algorithm.dqn))
+
+
+def test_q_values_of_the_team_are_each_agents_own():
+    agent = learner("qlearning")
+    agent.update(Transition(np.stack([S0] * 3), np.array([0, 1, 0]), np.ones(3), np.stack([S1] * 3),
+                            *flags("term", "term", "term"), ALL_LIVE), step=1)
+    # Each agent: y = 1 (terminated), Q(S0, a) = 0.5 * 1 for its own a; S1 = [2, 4] everywhere.
+    np.testing.assert_allclose(agent.q_values(np.stack([S0, S0, S1])), [[0.5, 0.0], [0.0, 0.5], [2.0, 4.0]])

@@ -1,98 +1,255 @@
-"""scripts/bench.py: every measurement runs at tiny sizes and returns positive finite figures.
+"""The benchmark (``dqn_transfer.benchmark``, ``dqn-transfer-bench``) at tiny sizes.
 
-No timing assertions (the machine may be shared); only that the pieces run, report the expected keys,
-render the table and reject bad arguments.
+No timing assertions (the machine may be shared): the tests pin what each measurement counts and
+subtracts, that both contenders get the same hyperparameters and play the same episodes, how figures
+are summarised, what the table holds and how the command line refuses bad input.
 """
 
-import importlib.util
-import json
-import math
-from pathlib import Path
+from __future__ import annotations
 
+import dataclasses
+import functools
+import json
+
+import gymnasium
+import numpy as np
 import pytest
 import torch
+from torch import nn
 
-SCRIPT = Path(__file__).resolve().parent.parent / "scripts" / "bench.py"
+from dqn_transfer.agents import DQNLearner, make_learner
+from dqn_transfer.benchmark import suite
+from dqn_transfer.benchmark.config import (BENCH_AGENT, SB3_NAMES, SOURCE_MAP, plain_agent, replay_warmup, sb3_dqn,
+                                           sb3_kwargs)
+from dqn_transfer.benchmark.env_throughput import measure_env_throughput
+from dqn_transfer.benchmark.team_scaling import TeamRig
+from dqn_transfer.benchmark.training import greedy_check, measure_ours_training, measure_sb3_training
+from dqn_transfer.benchmark.update_cost import SB3UpdateRig, UpdateRig
+from dqn_transfer.cli import bench as cli
+from dqn_transfer.config import AgentConfig
+from dqn_transfer.enums import Algorithm
+from dqn_transfer.envs import make_game
+
+TINY = dataclasses.replace(BENCH_AGENT, batch_size=8, buffer_size=200, learning_starts=20, target_update=10,
+                           hidden=[8])
+TINY_MAP = {**SOURCE_MAP, "max_steps": 10}
+TINY_SIZES = suite.Sizes(env_steps=20, train_steps=30, team_steps=2, updates=2, eval_episodes=1, thread_cap_s=0.05)
+TRAIN_STEPS = 40
 
 
+# ----------------------------------------------------------------------------- matched hyperparameters
+def test_sb3_kwargs_give_sb3_our_values_under_its_names():
+    assert sb3_kwargs(BENCH_AGENT) == {
+        "learning_rate": 1e-3, "gamma": 0.99, "batch_size": 64, "buffer_size": 50_000, "learning_starts": 1_000,
+        "train_freq": 1, "gradient_steps": 1, "target_update_interval": 500, "tau": 1.0, "max_grad_norm": 10.0,
+        "exploration_initial_eps": 1.0, "exploration_final_eps": 0.05, "exploration_fraction": 0.5,
+        "policy_kwargs": {"net_arch": [64, 64]}, "device": "cpu",
+    }
+    # Every hyperparameter the DQN learner and the trainer read is matched (a new key must be added).
+    matched = {*SB3_NAMES, "hidden", "algorithm", "share_parameters"}  # hidden: net_arch; the others fixed
+    assert matched == {field.name for field in dataclasses.fields(AgentConfig)}
+    model = sb3_dqn(TINY, TINY_MAP, seed=0)  # and SB3 keeps them as given
+    assert (model.batch_size, model.buffer_size, model.learning_starts) == (8, 200, 20)
+    assert model.target_update_interval == 10
+    assert (model.tau, model.gamma, model.max_grad_norm) == (1.0, 0.99, 10.0)
+    hidden = [layer.out_features for layer in model.q_net.q_net if isinstance(layer, nn.Linear)][:-1]
+    assert hidden == [8]
+
+
+def test_bench_learner_differs_from_the_cli_learner_only_in_the_overridden_keys():
+    game = make_game(**SOURCE_MAP).single_agent_game()
+    cli_agent = AgentConfig(algorithm=Algorithm.dqn)
+    learners = {id(config): make_learner(config, 1, game.obs_layout(), game.num_actions, seed=0)
+                for config in (BENCH_AGENT, cli_agent)}
+    field_of = {"lr": "lr", "gamma": "gamma", "batch_size": "batch_size", "learning_starts": "learning_starts",
+                "train_freq": "train_freq", "gradient_steps": "gradient_steps", "target_update": "target_update",
+                "tau": "tau", "hidden": "hidden", "max_grad_norm": "max_grad_norm", "replay.capacity": "buffer_size"}
+    differing = set()
+    for attribute, field in field_of.items():
+        values = []
+        for config in (BENCH_AGENT, cli_agent):
+            value = functools.reduce(getattr, attribute.split("."), learners[id(config)])
+            assert value == getattr(config, field), (attribute, config)
+            values.append(value)
+        if values[0] != values[1]:
+            differing.add(field)
+    assert differing == {"target_update", "tau"}
+    for key in ("eps_start", "eps_end", "exploration_fraction"):  # the trainer's schedule, SB3's too
+        assert getattr(BENCH_AGENT, key) == getattr(cli_agent, key)
+
+
+# ----------------------------------------------------------------------------- summarising repeats
+def test_median_and_paired_ratio():
+    assert suite.median([3.0, 1.0, 2.0]) == 2.0
+    assert suite.median([4.0, 1.0]) == 2.5
+    ours, reference = [2.0, 9.0, 4.0], [1.0, 3.0, 1.0]  # per-repeat ratios 2, 3, 4
+    assert suite.paired_ratio(ours, reference) == 3.0
+    assert suite.median(ours) / suite.median(reference) == 4.0  # what a ratio of medians would say
+    assert suite.alternate(("ours", "sb3"), 0) == ("ours", "sb3")
+    assert suite.alternate(("ours", "sb3"), 1) == ("sb3", "ours")
+
+
+# ----------------------------------------------------------------------------- 1. environment
+def test_env_throughput_plays_the_same_episodes_through_both_paths():
+    result = measure_env_throughput(2, 300, seed=0)
+    assert result["steps"] == 300
+    assert result["pettingzoo_episodes"] == result["core_episodes"] >= 2  # 100-step episodes at most
+
+
+# ----------------------------------------------------------------------------- 2. training
 @pytest.fixture(scope="module")
-def bench():
-    """The script as a module; one torch thread meanwhile (tiny nets on a busy machine), then restored."""
-    spec = importlib.util.spec_from_file_location("bench", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield module
-    torch.set_num_threads(threads)
+def training_runs():
+    return {measure.__name__: measure(TRAIN_STEPS, 0, TINY, TINY_MAP, eval_episodes=2)
+            for measure in (measure_ours_training, measure_sb3_training)}
 
 
+def test_both_contenders_take_one_gradient_step_per_env_step_after_learning_starts(training_runs):
+    for result in training_runs.values():
+        assert result["steps"] == TRAIN_STEPS
+        assert result["gradient_steps"] == TRAIN_STEPS - TINY.learning_starts
+        assert result["greedy_success"] in (0.0, 0.5, 1.0)
+
+
+def test_our_training_time_excludes_the_trainers_evaluations_and_checkpoints(training_runs):
+    ours = training_runs["measure_ours_training"]
+    assert ours["excluded_seconds"] > 0
+    assert 0 < ours["seconds"] < ours["run_seconds"]
+    assert ours["seconds"] + ours["excluded_seconds"] == pytest.approx(ours["run_seconds"])
+    assert ours["steps_per_s"] == pytest.approx(TRAIN_STEPS / ours["seconds"])
+
+
+def test_greedy_check_plays_the_episodes_of_treasure_hunt_v0():
+    def walk(obs: np.ndarray) -> int:  # a deterministic policy that moves around the map
+        return int(np.argmax(obs)) % 4
+
+    env = gymnasium.make("TreasureHunt-v0", **SOURCE_MAP)
+    returns, found = [], []
+    for episode in range(2):
+        obs, _ = env.reset(seed=7 + episode)
+        done, total, got = False, 0.0, False
+        while not done:
+            obs, reward, terminated, truncated, info = env.step(walk(obs))
+            total, got, done = total + reward, got or info["treasures_collected"] > 0, terminated or truncated
+        returns.append(total)
+        found.append(got)
+    result = greedy_check(lambda obs, live: np.array([walk(obs[0])]), SOURCE_MAP, episodes=2, seed=7)
+    assert result == {"greedy_success": float(np.mean(found)), "greedy_return": float(np.mean(returns))}
+
+
+# ----------------------------------------------------------------------------- 3. team size
+def test_team_rigs_batched_is_one_learner_of_k_and_both_play_the_same_steps():
+    batched, separate = TeamRig(3, False, 0, TINY), TeamRig(3, True, 0, TINY)
+    assert len(batched.learners) == 1 and isinstance(batched.learners[0], DQNLearner)
+    assert batched.learners[0].num_agents == 3 and batched.learners[0].q_network.num_members == 3
+    assert [learner.num_agents for learner in separate.learners] == [1, 1, 1]
+    for rig in (batched, separate):
+        assert rig.step_count == TINY.learning_starts  # replay filled, untimed, without training
+        assert all(learner.num_gradient_steps == 0 for learner in rig.learners)
+        rig.run(4)
+        assert rig.step_count == TINY.learning_starts + 4
+        assert all(learner.num_gradient_steps == 4 for learner in rig.learners)  # every timed step trains
+
+
+# ----------------------------------------------------------------------------- 4. gradient update
+def test_update_rig_times_real_updates_on_real_replay():
+    rig = UpdateRig(0, TINY, TINY_MAP)
+    assert rig.learner.replay.size.tolist() == [replay_warmup(TINY)]
+    rig.time("ours", 3)
+    assert rig.learner.num_gradient_steps == 1 + 3  # one untimed warm-up call, then the timed ones
+    before = [p.detach().clone() for p in rig.q.parameters()]
+    rig.time("bare", 2)
+    assert all(not torch.equal(a, b) for a, b in zip(before, rig.q.parameters()))
+
+
+def test_bare_updates_of_nn_sequential_and_batched_mlp_are_the_same_update():
+    rig = UpdateRig(0, TINY, TINY_MAP)
+    linears = [layer for layer in rig.q if isinstance(layer, nn.Linear)]
+    state = {f"layers.{l}.{kind}": getattr(layer, kind).detach() for l, layer in enumerate(linears)
+             for kind in ("weight", "bias")}
+    for network in (rig.bq, rig.bq_target):
+        network.load_member_state(0, state)
+    rig.bare_update()
+    rig.bare_batched_update()
+    for name, tensor in rig.bq.member_state(0).items():
+        assert torch.allclose(tensor, state[name], atol=1e-6), name
+
+
+def test_sb3_update_rig_fills_replay_without_training_then_times_train():
+    rig = SB3UpdateRig(0, TINY, TINY_MAP)
+    assert rig.model._n_updates == 0 and rig.model.replay_buffer.size() == replay_warmup(TINY)
+    rig.time(2)
+    assert rig.model._n_updates == 1 + 2
+
+
+# ----------------------------------------------------------------------------- the document and its table
 @pytest.fixture(scope="module")
-def tiny_hp(bench):
-    return {**bench.HP, "batch_size": 8, "buffer_size": 200, "learning_starts": 20, "target_update": 10,
-            "hidden": [8]}
+def document():
+    return suite.run_benchmark("quick", 0, 1, 1, sizes=TINY_SIZES, agent=TINY, progress=lambda what: None)
 
 
-def positive_finite(value) -> bool:
-    return isinstance(value, (int, float)) and math.isfinite(value) and value > 0
+def table_rows(table: str, heading: str) -> list[str]:
+    """First cells of the data rows of the part under ``heading``."""
+    part = table.split(heading, 1)[1].split("\n## ", 1)[0]
+    return [line.split("|")[1].strip() for line in part.splitlines() if line.startswith("| ") and "---" not in line][1:]
 
 
-def test_env_throughput(bench):
-    result = bench.measure_env(2, 30, seed=0)
-    assert positive_finite(result["joint_steps_per_s"]) and positive_finite(result["core_steps_per_s"])
+def test_document_holds_every_section_and_is_json(document):
+    assert [row["num_agents"] for row in document["env"]] == list(suite.ENV_AGENTS)
+    assert [row["num_agents"] for row in document["team"]] == list(suite.TEAM_SIZES)
+    assert [row["torch_threads"] for row in document["training"]] == [1]
+    for who in ("ours", "sb3"):
+        assert [run["gradient_steps"] for run in document["training"][0]["raw"][who]] == [30 - TINY.learning_starts]
+    update = document["update"]
+    assert {f"{name}_us" for name in ("bare", "bare_batched", "ours", "sample", "sb3")} <= set(update)
+    assert update["bare_over_bare"] == 1.0
+    assert ("ours_default_threads_us" in update) == (suite.DEFAULT_THREADS != 1)
+    assert document["settings"]["hyperparameters"] == plain_agent(TINY)
+    assert document["machine"]["torch_threads_used"] == [1]
+    assert json.loads(json.dumps(document)) == document  # plain JSON types throughout
 
 
-def test_training_ours_and_sb3(bench, tiny_hp):
-    for measure in (bench.measure_ours_training, bench.measure_sb3_training):
-        result = measure(40, 0, tiny_hp, {**bench.SOURCE_MAP, "max_steps": 10}, eval_episodes=1)
-        assert positive_finite(result["steps_per_s"]) and positive_finite(result["seconds"])
-        assert result["gradient_steps"] == 40 - tiny_hp["learning_starts"]
-        assert 0.0 <= result["greedy_success"] <= 1.0 and math.isfinite(result["greedy_return"])
+def test_table_has_the_four_sections_and_a_row_per_agent_count(document):
+    table = suite.render_markdown(document)
+    headings = [line for line in table.splitlines() if line.startswith("## ")]
+    assert [h.split()[1] for h in headings] == ["1.", "2.", "3.", "4."]
+    assert table_rows(table, "## 1.") == ["1", "4", "8"]
+    assert table_rows(table, "## 2.") == ["1"]
+    assert table_rows(table, "## 3.") == ["1", "2", "4", "8"]
+    assert len(table_rows(table, "## 4.")) == 5 + 2 * ("ours_default_threads_us" in document["update"])
 
 
-@pytest.mark.parametrize("separate", [False, True])
-def test_team_step_cost(bench, tiny_hp, separate):
-    result = bench.measure_team_step_cost(2, 5, 0, separate=separate, hp=tiny_hp)
-    assert result["num_agents"] == 2 and result["separate"] is separate
-    assert positive_finite(result["ms_per_step"])
-    assert result["ms_per_agent_step"] == pytest.approx(result["ms_per_step"] / 2)
-
-
-def test_update_cost(bench, tiny_hp):
-    result = bench.measure_update_cost(3, 0, tiny_hp)
-    assert set(result) == {"bare", "bare_batched", "ours", "sample", "sb3"}
-    assert all(positive_finite(value) for value in result.values())
-
-
-def test_run_benchmark_table_and_json(bench, tiny_hp, tmp_path):
-    sizes = dict(env_steps=20, train_steps=30, team_steps=2, updates=2, eval_episodes=1, thread_cap_s=0.05)
-    results = bench.run_benchmark("quick", 0, 1, 1, [1], sizes=sizes, hp=tiny_hp)
-    for key in ("env", "training", "team", "update", "machine", "settings", "method"):
-        assert key in results
-    assert [row["num_agents"] for row in results["env"]] == list(bench.ENV_AGENTS)
-    assert [row["num_agents"] for row in results["team"]] == list(bench.TEAM_SIZES)
-    row = results["training"][0]
-    for key in ("ours_steps_per_s", "sb3_steps_per_s", "ours_over_sb3"):
-        assert positive_finite(row[key])
-    for key in ("bare_us", "ours_us", "sb3_us", "ours_over_bare"):
-        assert positive_finite(results["update"][key])
-    assert results["machine"]["cpu_count"] >= 1 and results["machine"]["torch_threads_used"] == [1]
-    table = bench.render_markdown(results)
-    for heading in ("## 1.", "## 2.", "## 3.", "## 4."):
-        assert heading in table
+# ----------------------------------------------------------------------------- the command line
+def test_cli_prints_the_table_and_writes_the_document(tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(suite.PROFILES, "quick", TINY_SIZES)
     out = tmp_path / "nested" / "bench.json"
-    bench.write_json(out, results)
-    assert json.loads(out.read_text())["training"][0]["torch_threads"] == 1
+    assert cli.main(["--quick", "--repeats", "1", "--only", "env", "--out", str(out)]) == 0
+    stdout, stderr = capsys.readouterr()
+    saved = json.loads(out.read_text())
+    assert saved["markdown"].strip() == stdout.strip()
+    assert "## 1." in stdout and "## 2." not in stdout and "env" in saved and "training" not in saved
+    assert saved["settings"]["env_steps"] == TINY_SIZES.env_steps
+    assert "env throughput" in stderr and f"wrote {out}" in stderr
 
 
-@pytest.mark.parametrize("argv", [["--repeats", "0"], ["--threads", "x"], ["--seed", "1.5"], ["--bogus"]])
-def test_bad_arguments_are_argparse_errors(bench, argv, capsys):
+@pytest.mark.parametrize("argv", [["--repeats", "0"], ["--threads", "x"], ["--seed", "1.5"], ["--bogus"],
+                                  ["--only", "everything"]])
+def test_bad_arguments_are_argparse_errors(argv, capsys):
     with pytest.raises(SystemExit) as excinfo:
-        bench.parse_args(argv)
+        cli.main(argv)
     assert excinfo.value.code == 2
-    assert "error" in capsys.readouterr().err
+    assert "error:" in capsys.readouterr().err
 
 
-def test_out_directory_is_refused(bench, tmp_path):
-    with pytest.raises(SystemExit):
-        bench.parse_args(["--out", str(tmp_path)])
+@pytest.mark.parametrize("out", ["DIR", "/proc/bench.json"])
+def test_unwritable_out_is_one_error_before_measuring(out, tmp_path, capsys):
+    out = str(tmp_path) if out == "DIR" else out
+    assert cli.main(["--out", out]) == 1
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.startswith("error: ") and captured.err.count("\n") == 1
+
+
+def test_missing_sb3_is_one_error_unless_no_section_needs_it(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(cli, "find_spec", lambda name: None)
+    assert cli.main(["--out", str(tmp_path / "bench.json")]) == 1
+    assert "pip install -e '.[dev]'" in capsys.readouterr().err
+    assert cli.check_ready(tmp_path / "bench.json", ["env", "team"]) is None

@@ -15,6 +15,7 @@ import safetensors.torch
 import torch
 
 from dqn_transfer import checkpoint
+from dqn_transfer.cli import ckpt as ckpt_cli
 from dqn_transfer.checkpoint import (
     FORMAT_VERSION,
     CheckpointError,
@@ -312,17 +313,17 @@ def test_find_checkpoints_from_file_run_dir_and_checkpoints_dir(tmp_path: Path):
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "dqn_transfer.checkpoint", *args], cwd=REPO,
+    return subprocess.run([sys.executable, "-m", "dqn_transfer.cli.ckpt", *args], cwd=REPO,
                           capture_output=True, text=True, timeout=60)
 
 
 def test_cli_list_show_verify_on_a_good_run(ckpt: Path, capsys):
     run_dir = ckpt.parent.parent
-    assert checkpoint.main(["list", str(run_dir)]) == 0
+    assert ckpt_cli.main(["list", str(run_dir)]) == 0
     out = capsys.readouterr().out
     assert out.startswith("agent_0.safetensors  algorithm=dqn  steps=1000  episodes=17  eval_return=-12.50")
 
-    assert checkpoint.main(["show", str(ckpt)]) == 0
+    assert ckpt_cli.main(["show", str(ckpt)]) == 0
     out = capsys.readouterr().out
     assert '"format_version": 1' in out and "q.layers.0.weight  F32  [64, 37]" in out
     assert "counts  I64  [5]" in out

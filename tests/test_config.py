@@ -8,7 +8,8 @@ from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
 from omegaconf.errors import ValidationError
 
-from dqn_transfer.config import Algorithm, ConfigError, Mode, TrainConfig, register_configs, validate
+from dqn_transfer.config import ConfigError, TrainConfig, register_configs, validate
+from dqn_transfer.enums import Algorithm, Mode
 
 CONF_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 register_configs()

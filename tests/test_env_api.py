@@ -67,12 +67,23 @@ def test_reset_seed_makes_everything_reproducible():
     assert len(seeds) > 1  # the tie's winner depends on the seed
 
 
-def test_aec_env_plays():
-    env = aec_env(**MAP)
-    env.reset(seed=3)
-    for agent in env.agent_iter(60):
-        *_, terminated, truncated, _ = env.last()
-        env.step(None if terminated or truncated else 1)
+def test_aec_env_plays_the_parallel_game_agent_by_agent():
+    """Agents take turns in index order, and a full turn of the AEC env is one joint step of the
+    parallel env: after the same moves (everyone right, then everyone down) the agents stand where the
+    parallel env puts them."""
+    moves = [3, 3, 1, 1]
+    aec, parallel = aec_env(**MAP), parallel_env(**MAP)
+    aec.reset(seed=3)
+    parallel.reset(seed=3)
+    order = []
+    for turn, agent in enumerate(aec.agent_iter(len(moves) * 3)):
+        *_, terminated, truncated, _ = aec.last()
+        order.append(agent)
+        aec.step(None if terminated or truncated else moves[turn // 3])
+    for move in moves:
+        parallel.step({agent: move for agent in parallel.agents})
+    assert order[:3] == ["agent_0", "agent_1", "agent_2"]
+    np.testing.assert_array_equal(aec.unwrapped.game.positions, parallel.game.positions)
 
 
 # ---------------------------------------------------------------- invalid parameters

@@ -1,4 +1,4 @@
-"""Hand-computed episodes of the treasure-hunt game (DESIGN section 3).
+"""Hand-computed episodes of the treasure-hunt game (rules: docs/game.md).
 
 Actions: 0 up, 1 down, 2 left, 3 right. Rows and cols count from 0; position index = row * n + col.
 Every expected value below is worked out from the rules, not read off the code.

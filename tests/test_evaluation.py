@@ -1,4 +1,5 @@
-"""Transfer metrics and bootstrap CIs on hand-made curves and run directories (values worked by hand)."""
+"""dqn_transfer.analysis: transfer metrics and bootstrap CIs on hand-made curves and run directories
+(values worked by hand), and the comparison command line."""
 
 from __future__ import annotations
 
@@ -11,21 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dqn_transfer import evaluation
-from dqn_transfer.evaluation import (
-    EvaluationError,
-    asymptotic_performance,
-    bootstrap_ci,
-    compare_runs,
-    format_table,
-    jumpstart,
-    learning_curve,
-    mean_curve,
-    read_metrics,
-    time_to_threshold,
-    total_reward,
-    transfer_ratio,
-)
+from dqn_transfer.analysis.compare import compare_runs, format_table
+from dqn_transfer.analysis.runs import EvaluationError, learning_curve, read_metrics
+from dqn_transfer.analysis.stats import Estimate, bootstrap_ci, curve_band, difference
+from dqn_transfer.analysis.transfer_metrics import asymptotic_performance, jumpstart, mean_curve
+from dqn_transfer.analysis.transfer_metrics import time_to_threshold, total_reward, transfer_ratio
+from dqn_transfer.cli import compare
+from dqn_transfer.run_dir import RunDir
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -38,10 +31,11 @@ def make_run(path: Path, returns: list[float], seed: int | None = None, step_eve
     path.mkdir(parents=True)
     lines = [json.dumps({"step": i * step_every, "team_return": r, "success_rate": 0.5})
              for i, r in enumerate(returns)]
-    (path / "metrics.jsonl").write_text("\n".join(lines) + "\n")
+    files = RunDir(path)
+    files.metrics.write_text("\n".join(lines) + "\n")
     if seed is not None:
-        (path / ".hydra").mkdir()
-        (path / ".hydra" / "config.yaml").write_text(f"seed: {seed}\ntotal_steps: 20\n")
+        files.hydra_dir.mkdir()
+        files.config.write_text(f"seed: {seed}\ntotal_steps: 20\n")
     return path
 
 
@@ -145,13 +139,38 @@ def test_bootstrap_ci_single_value_has_no_interval():
         bootstrap_ci([], np.random.default_rng(0))
 
 
+def test_difference_is_paired_by_seed_else_two_samples():
+    rng = np.random.default_rng(0)
+    a = {0: 10.0, 1: 20.0, 2: 30.0}
+    # same seeds: the seed's share cancels, every paired difference is 1, so the CI is [1, 1]
+    assert difference(a, {0: 9.0, 1: 19.0, 2: 29.0}, rng) == Estimate(1.0, 1.0, 1.0, 3)
+    # other seeds: two independent samples, the same mean difference but each sample's spread in the CI
+    unpaired = difference(a, {5: 9.0, 6: 19.0, 7: 29.0}, rng)
+    assert (unpaired.mean, unpaired.n) == (1.0, 3) and unpaired.low < -5.0 and unpaired.high > 7.0
+    single = difference(a, {5: 3.0}, rng)  # one value on a side: no interval
+    assert single.mean == 17.0 and not single.has_ci
+
+
+def test_curve_band_over_the_common_steps():
+    curves = [curve([0, 10, 20], [0, 2, 4]), curve([0, 10], [2, 6])]
+    steps, mean, low, high = curve_band(curves, np.random.default_rng(0))
+    np.testing.assert_array_equal(steps, [0.0, 10.0])
+    np.testing.assert_array_equal(mean, [1.0, 4.0])  # the same mean as mean_curve
+    assert np.all(low <= mean) and np.all(mean <= high) and low[0] >= 0.0 and high[0] <= 2.0
+    _, mean, low, high = curve_band(curves[:1], np.random.default_rng(0))  # one run: the band is the curve
+    np.testing.assert_array_equal(low, mean)
+    np.testing.assert_array_equal(high, mean)
+    with pytest.raises(ValueError, match="share no evaluation step"):
+        curve_band([curve([0], [1]), curve([5], [1])], np.random.default_rng(0))
+
+
 # ------------------------------------------------------------------ run directories
 
 
 def test_read_metrics_and_learning_curve(tmp_path: Path):
     run = tmp_path / "run"
     run.mkdir()
-    (run / "metrics.jsonl").write_text(
+    RunDir(run).metrics.write_text(
         '{"step": 20, "team_return": -4.0}\n'
         '{"step": 10, "team_return": -9.0}\n'
         '\n'
@@ -174,7 +193,7 @@ def test_read_metrics_errors(tmp_path: Path):
         read_metrics(tmp_path / "missing")
     with pytest.raises(EvaluationError, match="metrics.jsonl: missing"):
         read_metrics(tmp_path)
-    (tmp_path / "metrics.jsonl").write_text('{"step": 0}\nnot json\n{"step": 10}\n')
+    RunDir(tmp_path).metrics.write_text('{"step": 0}\nnot json\n{"step": 10}\n')
     with pytest.raises(EvaluationError, match="line 2 is not valid JSON"):
         read_metrics(tmp_path)
 
@@ -248,7 +267,7 @@ def test_format_table():
 def test_cli_prints_the_table(runs, capsys):
     transfer, baseline = runs
     args = ["--transfer", *map(str, transfer), "--baseline", *map(str, baseline), "--threshold", "-5"]
-    assert evaluation.main(args) == 0
+    assert compare.main(args) == 0
     out = capsys.readouterr().out
     assert out.startswith("| metric | mean | 95% CI | n |")
     assert "| jumpstart | 30 | [20, 40] | 2 |" in out
@@ -256,7 +275,7 @@ def test_cli_prints_the_table(runs, capsys):
 
 def test_cli_missing_dir_is_one_error_line(tmp_path: Path):
     result = subprocess.run(
-        [sys.executable, "-m", "dqn_transfer.evaluation", "--transfer", str(tmp_path / "nope"),
+        [sys.executable, "-m", "dqn_transfer.cli.compare", "--transfer", str(tmp_path / "nope"),
          "--baseline", str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert result.returncode == 1
     assert "Traceback" not in result.stderr

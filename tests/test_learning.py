@@ -20,8 +20,8 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from dqn_transfer.config import register_configs
-from dqn_transfer.evaluation import read_metrics
-from dqn_transfer.train import train
+from dqn_transfer.analysis.runs import read_metrics
+from dqn_transfer.trainer import train
 
 CONF_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 LAYOUT = "0....\n.#...\n...X.\n.....\n....T"
@@ -29,7 +29,7 @@ OPTIMAL_RETURN = 93.0
 register_configs()
 # The layouts override env=simple's generation keys, which the game reports in one warning (tested in
 # test_maps.py); here it is expected noise.
-pytestmark = pytest.mark.filterwarnings("ignore:a layout fixes the map")
+pytestmark = [pytest.mark.slow, pytest.mark.filterwarnings("ignore:a layout fixes the map")]
 
 
 def run(tmp_path: Path, *overrides: str) -> list[dict]:

@@ -1,4 +1,4 @@
-"""Map generation and layout validation (DESIGN section 3): every rule, checked independently."""
+"""Map generation and layout validation (rules: docs/game.md): every rule, checked independently."""
 
 from __future__ import annotations
 
@@ -185,7 +185,8 @@ def test_infeasible_generation_names_the_parameter_and_returns_fast(kwargs, matc
 def test_resolve_map_generates_from_map_seed():
     a = resolve_map(7, 2, None, None, 0.1, 3)
     assert a.layout == generate_layout(7, 2, None, None, 0.1, seed=3)
-    assert resolve_map().layout == generate_layout(10, 1, seed=0)  # documented defaults
+    # the documented defaults (EnvConfig): 6x6, 2 chests, 2 traps, 2 agents, 10% obstacles, map_seed 0
+    assert resolve_map().layout == generate_layout(6, 2, 2, 2, 0.1, seed=0)
 
 
 def test_layout_wins_with_one_warning_naming_differing_params():

@@ -1,4 +1,4 @@
-"""End-to-end tests of ``python train.py`` (DESIGN §5, §7, §8): the files a run leaves behind, the
+"""End-to-end tests of ``python train.py``: the files a run leaves behind, the
 TensorBoard tags, self-describing checkpoints, reproducibility, resume after SIGKILL, and the
 one-line refusal of bad input.
 
@@ -22,8 +22,10 @@ import pytest
 import yaml
 from conftest import REPO, run_many, run_train, start_train, train_env
 
+pytestmark = pytest.mark.slow  # every test here starts `python train.py` processes or trains for seconds
+
 # 5 x 5, two chests (row 0 col 4; row 4 col 3), one trap (row 3 col 0), two obstacles, two agents.
-# The trap is two cells away from any chest, so the map obeys DESIGN §3.
+# The trap is two cells away from any chest, so the map obeys the map rules (docs/game.md).
 MAP = "0...T\n.#...\n...#.\nX....\n1..T.\n"
 SIZE, NUM_AGENTS, NUM_TREASURES = 5, 2, 2
 
@@ -76,7 +78,7 @@ def agent_tensors(path: Path) -> dict[str, np.ndarray]:
 
 
 def checkpoint_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "dqn_transfer.checkpoint", *args], cwd=REPO,
+    return subprocess.run([sys.executable, "-m", "dqn_transfer.cli.ckpt", *args], cwd=REPO,
                           env=train_env(), capture_output=True, text=True, timeout=120)
 
 
@@ -442,7 +444,7 @@ def kill_and_resume(tmp_path: Path, monkeypatch, config, dies) -> tuple[list[dic
 
     Returns the (resumed, reference) evaluations without their timing field.
     """
-    from dqn_transfer.train import Trainer
+    from dqn_transfer.trainer import Trainer
 
     Trainer(config(), tmp_path / "reference").run()
     original = Trainer.save_checkpoint
@@ -467,7 +469,9 @@ def test_kill_between_a_checkpoint_and_its_evaluation_loses_nothing(tmp_path, mo
     With ``eval_every=1`` every checkpoint step is also an evaluation step, and the loop writes the
     checkpoint first. The resumed run must redo that evaluation and match an uninterrupted run.
     """
-    from dqn_transfer.config import AgentConfig, Algorithm, EnvConfig, TrainConfig
+    from dqn_transfer.config import AgentConfig, TrainConfig
+    from dqn_transfer.enums import Algorithm
+    from dqn_transfer.envs.settings import EnvConfig
 
     def config(resume: bool = False) -> TrainConfig:
         return TrainConfig(env=EnvConfig(layout=MAP), agent=AgentConfig(algorithm=Algorithm.qlearning, lr=0.1),
@@ -502,7 +506,9 @@ def test_resume_continues_with_the_runs_own_config(tmp_path):
 def test_kill_mid_exchange_window_resumes_exactly(tmp_path, monkeypatch, exchange):
     """The exchange window in progress (returns, pending shared transitions) is checkpointed, so a run
     killed between two exchanges and resumed matches the uninterrupted run."""
-    from dqn_transfer.config import AgentConfig, Algorithm, EnvConfig, Exchange, TrainConfig, TransferConfig
+    from dqn_transfer.config import AgentConfig, TrainConfig, TransferConfig
+    from dqn_transfer.enums import Algorithm, Exchange
+    from dqn_transfer.envs.settings import EnvConfig
 
     def config(resume: bool = False) -> TrainConfig:
         return TrainConfig(

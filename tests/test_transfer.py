@@ -1,10 +1,10 @@
-"""``transfer=on`` end to end (DESIGN §6): function preservation through the real Trainer path,
+"""``transfer=on`` end to end (docs/transfer.md): function preservation through the real Trainer path,
 refusal of incompatible or unsafe sources on the command line, the pretrained-source cache, a seeded
 jumpstart experiment, what a run records about its source, and targets / freeze / exchange.
 
 Independence from the code under test: source checkpoints are read back with ``safetensors`` alone,
 the reference Q-function is a plain ``nn.Sequential`` built from those tensors, and observations are
-assembled from DESIGN §3 (``position`` one-hot of ``row * n + col`` first, then ``treasures``, then
+assembled from the rules of docs/game.md (``position`` one-hot of ``row * n + col`` first, then ``treasures``, then
 ``assignment``), not from the mapping code.
 
 Cost: sources are trained once per module on 5 x 5 maps (tens to a few thousand steps); the CLI
@@ -28,9 +28,14 @@ from safetensors.torch import load_file
 from torch import nn
 
 from dqn_transfer.checkpoint import CheckpointError
-from dqn_transfer.config import ConfigError, AgentConfig, Algorithm, EnvConfig, Exchange, Mode, TrainConfig, TransferConfig
-from dqn_transfer.evaluation import compare_runs, jumpstart, learning_curve
-from dqn_transfer.train import Trainer
+from dqn_transfer.config import AgentConfig, ConfigError, TrainConfig, TransferConfig
+from dqn_transfer.enums import Algorithm, Exchange, Mode
+from dqn_transfer.envs.settings import EnvConfig
+from dqn_transfer.analysis.compare import compare_runs
+from dqn_transfer.analysis.runs import learning_curve
+from dqn_transfer.analysis.transfer_metrics import jumpstart
+from dqn_transfer.sources import transfer_source
+from dqn_transfer.trainer import Trainer
 from dqn_transfer.transfer_mapping import TransferError
 
 N = 5  # map side of every map below
@@ -69,10 +74,15 @@ def make_config(layout: str, agent: dict, *, mode: Mode = Mode.cooperative, seed
                        transfer=transfer or TransferConfig(), **top)
 
 
+def make_trainer(config: TrainConfig, run_dir: Path, launch_dir: Path) -> Trainer:
+    """What ``python train.py`` builds: the transfer source found (or pretrained) first, then the trainer."""
+    return Trainer(config, run_dir, source=transfer_source(config, launch_dir))
+
+
 def train_source(run_dir: Path, layout: str, agent: dict, total_steps: int, **top) -> Path:
     """Train on the source task (TreasureHunt-v0 of the map) and return agent 0's checkpoint."""
     config = make_config(layout, agent, total_steps=total_steps, **top)
-    Trainer(config, run_dir, source_task=True, launch_dir=run_dir.parent).run()
+    Trainer(config, run_dir, source_task=True).run()
     return run_dir / "checkpoints" / "agent_0.safetensors"
 
 
@@ -87,7 +97,7 @@ def source_mlp(path: Path) -> nn.Sequential:
 
 
 def random_observations(mode: Mode, num_treasures: int, count: int, rng: np.random.Generator):
-    """``(position one-hot [count, n*n], expanded obs [count, D])`` in DESIGN §3's segment order."""
+    """``(position one-hot [count, n*n], expanded obs [count, D])`` in the observation's documented segment order (docs/game.md)."""
     position = np.eye(N * N, dtype=np.float32)[rng.integers(N * N, size=count)]
     parts = [position, rng.integers(0, 2, size=(count, num_treasures)).astype(np.float32)]
     if mode is Mode.deliberative:
@@ -125,7 +135,7 @@ def test_dqn_transfer_preserves_the_source_q_function(work, dqn_source, mode):
     assert meta["obs_layout"] == [["position", N * N]] and meta["source_task"] and meta["steps"] == 300
     config = make_config(TEAM_MAP, DQN_AGENT, mode=mode, seed=1,
                          transfer=TransferConfig(enabled=True, source=str(dqn_source)))
-    trainer = Trainer(config, work / f"fp_dqn_{mode.value}", launch_dir=work)
+    trainer = make_trainer(config, work / f"fp_dqn_{mode.value}", work)
     assert trainer.game.obs_layout() == expected_layout(mode, 2)
     trainer.run()  # total_steps=0: transfer, write the initial checkpoints, stop
 
@@ -152,7 +162,7 @@ def test_tabular_transfer_preserves_the_source_table(work, tabular_source, mode)
     assert keys.shape[1] == N * N and len(visited) >= 10 and np.abs(values).max() > 1.0
     config = make_config(TEAM_MAP, QL_AGENT, mode=mode,
                          transfer=TransferConfig(enabled=True, source=str(tabular_source)))
-    trainer = Trainer(config, work / f"fp_ql_{mode.value}", launch_dir=work)
+    trainer = make_trainer(config, work / f"fp_ql_{mode.value}", work)
     trainer.run()
 
     rng = np.random.default_rng(1)
@@ -161,12 +171,12 @@ def test_tabular_transfer_preserves_the_source_table(work, tabular_source, mode)
             _, obs = random_observations(mode, 2, 1, rng)
             obs[0, : N * N] = np.eye(N * N, dtype=np.float32)[cell]
             for agent in range(2):
-                np.testing.assert_array_equal(trainer.learner.q_values(agent, obs[0]), values[row])
+                np.testing.assert_array_equal(trainer.learner.agent_q_values(agent, obs[0]), values[row])
     unvisited = sorted(set(range(N * N)) - set(visited.tolist()))
     if unvisited:  # a cell the source never saw is worth 0, as for a fresh table
         _, obs = random_observations(mode, 2, 1, rng)
         obs[0, : N * N] = np.eye(N * N, dtype=np.float32)[unvisited[0]]
-        assert not trainer.learner.q_values(0, obs[0]).any()
+        assert not trainer.learner.agent_q_values(0, obs[0]).any()
 
 
 # --------------------------------------------------------------------------- CLI refusal of sources
@@ -224,6 +234,7 @@ def cli_refusals(work, dqn_source, tabular_source):
     return {name: (result, words) for (name, (_, _, words)), result in zip(cases.items(), results)}, marker, planted
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ["pickle_disguised", "torch_save_pt", "truncated", "bit_flipped", "missing",
                                   "other_map_size", "tabular_for_dqn", "other_hidden"])
 def test_cli_refuses_bad_source_with_one_line(cli_refusals, case):
@@ -241,6 +252,7 @@ def test_cli_refuses_bad_source_with_one_line(cli_refusals, case):
     assert not (result.run_dir / "metrics.jsonl").exists() and not (result.run_dir / "tb").exists()
 
 
+@pytest.mark.slow
 def test_planted_pickle_never_runs(cli_refusals):
     _, marker, planted = cli_refusals
     assert not marker.exists()  # the CLI refused the file without unpickling it
@@ -257,8 +269,8 @@ def test_planted_pickle_of_any_protocol_is_refused_in_process(work, protocol):
     source = work / f"plant_{protocol}" / "agent_0.safetensors"
     source.parent.mkdir()
     source.write_bytes(pickle.dumps(_Plant(str(marker)), protocol=protocol))
-    trainer = Trainer(make_config(TEAM_MAP, DQN_AGENT, transfer=TransferConfig(enabled=True, source=str(source))),
-                      work / f"plant_run_{protocol}", launch_dir=work)
+    trainer = make_trainer(make_config(TEAM_MAP, DQN_AGENT, transfer=TransferConfig(enabled=True, source=str(source))),
+                      work / f"plant_run_{protocol}", work)
     with pytest.raises(CheckpointError, match="not a safetensors|pickle"):
         trainer.run()
     assert not marker.exists()
@@ -269,7 +281,7 @@ def test_out_of_range_targets_and_freeze_are_clear_errors(work, dqn_source):
     def run(name: str, **transfer) -> None:
         config = make_config(TEAM_MAP, DQN_AGENT,
                              transfer=TransferConfig(enabled=True, source=str(dqn_source), **transfer))
-        Trainer(config, work / name, launch_dir=work).run()
+        make_trainer(config, work / name, work).run()
 
     with pytest.raises(TransferError, match=r"transfer.targets \[2\] out of range for 2 agents"):
         run("bad_targets", targets=[0, 2])
@@ -285,8 +297,7 @@ def test_pretrained_source_is_cached_and_reused(work, caplog):
 
     def run(name: str, pretrain_steps: int) -> Trainer:
         transfer = TransferConfig(enabled=True, cache_dir=str(cache), pretrain_steps=pretrain_steps)
-        trainer = Trainer(make_config(TEAM_MAP, DQN_AGENT, total_steps=5, transfer=transfer), work / name,
-                          launch_dir=work)
+        trainer = make_trainer(make_config(TEAM_MAP, DQN_AGENT, total_steps=5, transfer=transfer), work / name, work)
         trainer.run()
         return trainer
 
@@ -322,7 +333,7 @@ def test_relative_cache_dir_is_under_the_launch_dir(work, monkeypatch):
     elsewhere.mkdir()
     monkeypatch.chdir(elsewhere)
     transfer = TransferConfig(enabled=True, cache_dir="rel_cache", pretrain_steps=20)
-    trainer = Trainer(make_config(TEAM_MAP, QL_AGENT, transfer=transfer), work / "rel_run", launch_dir=launch)
+    trainer = make_trainer(make_config(TEAM_MAP, QL_AGENT, transfer=transfer), work / "rel_run", launch)
     trainer.run()
     assert Path(trainer.transfer_info["source"]).is_relative_to(launch / "rel_cache")
     assert not (elsewhere / "rel_cache").exists()
@@ -339,7 +350,7 @@ def _jumpstart_runs(work: Path, name: str, agent: dict, transfer: TransferConfig
         for condition, dirs, t in (("on", on, transfer), ("off", off, TransferConfig())):
             run_dir = work / f"js_{name}_{condition}_{seed}"
             config = make_config(SOLO_MAP, agent, seed=seed, total_steps=1, transfer=t, eval_episodes=2)
-            Trainer(config, run_dir, launch_dir=work).run()
+            make_trainer(config, run_dir, work).run()
             dirs.append(run_dir)
     return on, off
 
@@ -365,6 +376,7 @@ def _check_jumpstart(on, off, label: str):
     return js
 
 
+@pytest.mark.slow
 def test_jumpstart_tabular_with_pretrained_sources(work):
     # The real `transfer=on` path: no source given, each seed pretrains (and caches) its own.
     transfer = TransferConfig(enabled=True, cache_dir=str(work / "js_cache"), pretrain_steps=1_500)
@@ -375,6 +387,7 @@ def test_jumpstart_tabular_with_pretrained_sources(work):
     _check_jumpstart(on, off, "qlearning")
 
 
+@pytest.mark.slow
 def test_jumpstart_dqn(work):
     source = train_source(work / "js_dqn_source", SOLO_MAP, {**DQN_AGENT, "learning_starts": 100}, 800,
                           eval_episodes=1)
@@ -391,7 +404,7 @@ def test_run_records_source_path_and_digest(work, dqn_source):
     run_dir = work / "records"
     config = make_config(TEAM_MAP, DQN_AGENT, total_steps=3,
                          transfer=TransferConfig(enabled=True, source=str(dqn_source)))
-    Trainer(config, run_dir, launch_dir=work).run()
+    make_trainer(config, run_dir, work).run()
     digest = header_meta(dqn_source)["digest"]
 
     first = json.loads((run_dir / "metrics.jsonl").read_text().splitlines()[0])
@@ -414,10 +427,10 @@ def test_run_records_source_path_and_digest(work, dqn_source):
 
 def test_targets_transfers_only_the_listed_agents(work, dqn_source):
     source = load_file(str(dqn_source))
-    on = Trainer(make_config(TEAM_MAP, DQN_AGENT, seed=7,
+    on = make_trainer(make_config(TEAM_MAP, DQN_AGENT, seed=7,
                              transfer=TransferConfig(enabled=True, source=str(dqn_source), targets=[0])),
-                 work / "targets_on", launch_dir=work)
-    off = Trainer(make_config(TEAM_MAP, DQN_AGENT, seed=7), work / "targets_off", launch_dir=work)
+                 work / "targets_on", work)
+    off = make_trainer(make_config(TEAM_MAP, DQN_AGENT, seed=7), work / "targets_off", work)
     on.run()
     off.run()
     assert on.transfer_info["targets"] == [0]
@@ -436,7 +449,7 @@ def test_freeze_keeps_layer_0_fixed_while_training(work, dqn_source):
     source = load_file(str(dqn_source))
     config = make_config(TEAM_MAP, DQN_AGENT, total_steps=150,
                          transfer=TransferConfig(enabled=True, source=str(dqn_source), freeze=[0]))
-    trainer = Trainer(config, work / "freeze", launch_dir=work)
+    trainer = make_trainer(config, work / "freeze", work)
     trainer.run()
     assert trainer.learner.num_gradient_steps >= 90
     for agent in range(2):
@@ -446,7 +459,7 @@ def test_freeze_keeps_layer_0_fixed_while_training(work, dqn_source):
         assert not tensors["q.layers.0.weight"][:, N * N:].any()
         torch.testing.assert_close(tensors["q.layers.0.bias"], source["q.layers.0.bias"], rtol=0, atol=0)
         assert not torch.equal(tensors["q.layers.1.weight"], source["q.layers.1.weight"])  # the rest learned
-    saved = load_file(str(trainer.checkpoint_dir / "agent_1.safetensors"))
+    saved = load_file(str(trainer.run_dir.agent_checkpoint(1)))
     torch.testing.assert_close(saved["q.layers.0.bias"], source["q.layers.0.bias"], rtol=0, atol=0)
 
 
@@ -455,9 +468,9 @@ def _flat(weights: dict[str, torch.Tensor]) -> torch.Tensor:
 
 
 def test_exchange_best_moves_others_towards_the_best(work, dqn_source, monkeypatch):
-    import dqn_transfer.transfer as transfer_module
+    import dqn_transfer.trainer as trainer_module
 
-    real = transfer_module.exchange_best
+    real = trainer_module.exchange_best
     calls = []
 
     def spy(learner, window_returns, tau):
@@ -467,12 +480,11 @@ def test_exchange_best_moves_others_towards_the_best(work, dqn_source, monkeypat
         calls.append((np.array(window_returns), tau, best, before, after))
         return best
 
-    monkeypatch.setattr(transfer_module, "exchange_best", spy)
+    monkeypatch.setattr(trainer_module, "exchange_best", spy)
     # Only agent 0 is transferred, so the two networks differ from the start.
     transfer = TransferConfig(enabled=True, source=str(dqn_source), targets=[0], exchange=Exchange.best,
                               exchange_every=3, exchange_tau=0.25)
-    trainer = Trainer(make_config(TEAM_MAP, DQN_AGENT, total_steps=300, transfer=transfer), work / "best",
-                      launch_dir=work)
+    trainer = make_trainer(make_config(TEAM_MAP, DQN_AGENT, total_steps=300, transfer=transfer), work / "best", work)
     trainer.run()
     assert len(calls) == trainer.counters.episodes // 3 >= 3
     for window_returns, tau, best, before, after in calls:
@@ -483,13 +495,12 @@ def test_exchange_best_moves_others_towards_the_best(work, dqn_source, monkeypat
         torch.testing.assert_close(after[other], 0.75 * before[other] + 0.25 * before[best])
         gap_before = (before[other] - before[best]).norm()
         assert (after[other] - before[best]).norm() < gap_before
-    assert {best for _, _, best, _, _ in calls} <= {0, 1}
 
 
 def test_shared_replay_gives_each_agent_its_teammates_transitions(work, dqn_source, monkeypatch):
-    import dqn_transfer.transfer as transfer_module
+    import dqn_transfer.trainer as trainer_module
 
-    real = transfer_module.exchange_replay
+    real = trainer_module.exchange_replay
     calls = []
 
     def spy(learner, transitions):
@@ -498,11 +509,10 @@ def test_shared_replay_gives_each_agent_its_teammates_transitions(work, dqn_sour
         calls.append((size_before, learner.replay.size.copy(), list(transitions),
                       learner.replay.ptr.copy(), learner.replay.storage["obs"].clone()))
 
-    monkeypatch.setattr(transfer_module, "exchange_replay", spy)
+    monkeypatch.setattr(trainer_module, "exchange_replay", spy)
     transfer = TransferConfig(enabled=True, source=str(dqn_source), exchange=Exchange.shared_replay,
                               exchange_every=2)
-    trainer = Trainer(make_config(TEAM_MAP, DQN_AGENT, total_steps=300, transfer=transfer), work / "shared",
-                      launch_dir=work)
+    trainer = make_trainer(make_config(TEAM_MAP, DQN_AGENT, total_steps=300, transfer=transfer), work / "shared", work)
     trainer.run()
     assert len(calls) == trainer.counters.episodes // 2 >= 3
     shared_total = np.zeros(2, dtype=np.int64)
@@ -530,7 +540,7 @@ def test_reset_optimizer_false_carries_the_sources_adam_moments(work, dqn_source
     source_state = load_file(str(dqn_source.parent / "training_state.safetensors"))
     config = make_config(TEAM_MAP, DQN_AGENT, transfer=TransferConfig(
         enabled=True, source=str(dqn_source), reset_optimizer=False))
-    trainer = Trainer(config, work / "carry_adam", launch_dir=work)
+    trainer = make_trainer(config, work / "carry_adam", work)
     trainer.run()
     state = trainer.learner.optimizer.state
     weight_0 = trainer.learner.q_network.weight_0  # [K, in, out]; rows 0..24 position, 25..26 treasures
@@ -549,7 +559,7 @@ def test_reset_optimizer_false_refuses_partial_targets(work, dqn_source):
     config = make_config(TEAM_MAP, DQN_AGENT, transfer=TransferConfig(
         enabled=True, source=str(dqn_source), reset_optimizer=False, targets=[1]))
     with pytest.raises(TransferError, match="needs every agent as a target"):
-        Trainer(config, work / "carry_adam_partial", launch_dir=work).run()
+        make_trainer(config, work / "carry_adam_partial", work).run()
 
 
 def test_reset_optimizer_false_needs_the_sources_resume_state(work, dqn_source):
@@ -559,4 +569,4 @@ def test_reset_optimizer_false_needs_the_sources_resume_state(work, dqn_source):
     config = make_config(TEAM_MAP, DQN_AGENT, transfer=TransferConfig(
         enabled=True, source=str(lone), reset_optimizer=False))
     with pytest.raises(TransferError, match="needs the source's optimizer state"):
-        Trainer(config, work / "carry_adam_lone", launch_dir=work).run()
+        make_trainer(config, work / "carry_adam_lone", work).run()

@@ -7,12 +7,33 @@ actions go out as ``int64 [K]``. It sees observation vectors and their segment l
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 import torch
 
+from dqn_transfer.enums import Algorithm
+
 ObsLayout = Sequence[tuple[str, int]]
+
+
+class Transition(NamedTuple):
+    """One joint env step of the K agents, each field ``[K, ...]``; ``live`` marks who acted in it."""
+
+    obs: np.ndarray  # float32 [K, D]
+    actions: np.ndarray  # int64 [K]
+    rewards: np.ndarray  # float32 [K]
+    next_obs: np.ndarray  # float32 [K, D]
+    terminated: np.ndarray  # bool [K]: a chest or a trap ended the agent (no bootstrap)
+    truncated: np.ndarray  # bool [K]: the time limit ended the episode (the agent still had a future)
+    live: np.ndarray  # bool [K]
+
+
+class UpdateStats(NamedTuple):
+    """Per-agent statistics of one ``update``, nan for the agents it did not train."""
+
+    td_loss: np.ndarray  # [K] Huber loss of the TD error
+    q_mean: np.ndarray  # [K] mean Q(s, a) of the transitions trained on
 
 
 class Learner(Protocol):
@@ -27,22 +48,12 @@ class Learner(Protocol):
         """Epsilon-greedy actions ``[K]`` (pure greedy, consuming no randomness, when ``greedy``)."""
         ...
 
-    def update(
-        self,
-        obs: np.ndarray,
-        actions: np.ndarray,
-        rewards: np.ndarray,
-        next_obs: np.ndarray,
-        terminated: np.ndarray,
-        truncated: np.ndarray,
-        live: np.ndarray,
-        step: int,
-    ) -> dict[str, np.ndarray]:
-        """Learn from one joint env step; ``live`` marks the agents that acted in it.
+    def update(self, transition: Transition, step: int) -> UpdateStats:
+        """Learn from one joint env step; ``step`` counts env steps including this one (1 for the first)."""
+        ...
 
-        ``step`` counts env steps including this one (1 for the first). Returns ``{"td_loss": [K],
-        "q_mean": [K]}``, nan for agents that were not updated.
-        """
+    def q_values(self, obs: np.ndarray) -> np.ndarray:
+        """Each agent's Q-values of its own observation: ``obs [K, D] -> [K, A]`` (a copy)."""
         ...
 
     def agent_tensors(self, i: int) -> dict[str, torch.Tensor]:
@@ -60,6 +71,18 @@ class Learner(Protocol):
         ...
 
     def load_training_state(self, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None: ...
+
+
+class TeamShape:
+    """What every learner records about its team: the algorithm, K agents, the observation's segments
+    (``obs_dim`` values in all) and A actions."""
+
+    def __init__(self, algorithm: Algorithm, num_agents: int, obs_layout: ObsLayout, num_actions: int) -> None:
+        self.algorithm = algorithm.value
+        self.num_agents = num_agents
+        self.obs_layout = normalize_layout(obs_layout)
+        self.obs_dim = sum(size for _, size in self.obs_layout)
+        self.num_actions = num_actions
 
 
 def normalize_layout(obs_layout: ObsLayout) -> list[tuple[str, int]]:

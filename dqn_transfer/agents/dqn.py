@@ -24,9 +24,11 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from dqn_transfer.agents.base import ObsLayout, epsilon_greedy, normalize_layout
+from dqn_transfer.agents.base import ObsLayout, TeamShape, Transition, UpdateStats, epsilon_greedy
 from dqn_transfer.agents.networks import BatchedMLP
 from dqn_transfer.agents.replay import ReplayBuffer
+from dqn_transfer.config import AgentConfig
+from dqn_transfer.enums import Algorithm
 
 
 def dqn_targets(
@@ -56,7 +58,7 @@ def double_dqn_targets(
     return rewards + gamma * next_q * (1.0 - terminated.float())
 
 
-class DQNLearner:
+class DQNLearner(TeamShape):
     """K DQN / Double DQN agents (see the module docstring). Implements ``Learner``."""
 
     def __init__(
@@ -64,40 +66,36 @@ class DQNLearner:
         num_agents: int,
         obs_layout: ObsLayout,
         num_actions: int,
+        hp: AgentConfig = AgentConfig(),
         *,
-        double: bool = False,  # Double DQN target instead of the DQN max target
-        lr: float = 1e-3,  # Adam learning rate
-        gamma: float = 0.99,  # discount factor
-        batch_size: int = 64,  # transitions sampled per agent per gradient step
-        buffer_size: int = 50_000,  # replay capacity per agent
-        learning_starts: int = 1_000,  # env steps of pure collection before the first gradient step
-        train_freq: int = 1,  # env steps between training rounds
-        gradient_steps: int = 1,  # gradient steps per training round
-        target_update: int = 500,  # env steps between target-network updates
-        tau: float = 1.0,  # each target update: target <- tau * online + (1 - tau) * target (1.0: hard copy)
-        hidden: Sequence[int] = (64, 64),  # hidden layer sizes of the Q-network (ReLU)
-        max_grad_norm: float = 10.0,  # per-agent gradient-norm clip
-        share_parameters: bool = False,  # one network for all agents (parameter-sharing baseline)
+        seed: int = 0,
         device: torch.device | str = "cpu",
-        seed: int = 0,  # fixes the initial weights, exploration and replay sampling
     ) -> None:
-        self.algorithm = "double_dqn" if double else "dqn"
-        self.num_agents = num_agents
-        self.obs_layout = normalize_layout(obs_layout)
-        self.obs_dim = sum(size for _, size in self.obs_layout)
-        self.num_actions = num_actions
-        self.double = double
-        self.lr = lr
-        self.gamma = gamma
-        self.batch_size = batch_size
-        self.learning_starts = learning_starts
-        self.train_freq = train_freq
-        self.gradient_steps = gradient_steps
-        self.target_update = target_update
-        self.tau = tau
-        self.hidden = [int(h) for h in hidden]
-        self.max_grad_norm = max_grad_norm
-        self.share_parameters = share_parameters
+        """
+        :param num_agents: K, the agents of the team (each its own network unless ``share_parameters``)
+        :param obs_layout: the observation's named segments ``[(name, size), ...]``
+        :param num_actions: A, the discrete actions
+        :param hp: the hyperparameters, documented on :class:`~dqn_transfer.config.AgentConfig` (their
+            one home, shared with the command line); ``hp.algorithm`` picks the DQN or Double DQN target
+        :param seed: fixes the initial weights, exploration and replay sampling
+        :param device: where the networks and the replay storage live
+        """
+        algorithm = Algorithm(hp.algorithm)
+        if algorithm.is_tabular:
+            raise ValueError(f"DQNLearner trains the DQN family, not {algorithm.value}")
+        super().__init__(algorithm, num_agents, obs_layout, num_actions)
+        self.double = algorithm is Algorithm.double_dqn
+        self.lr = hp.lr
+        self.gamma = hp.gamma
+        self.batch_size = hp.batch_size
+        self.learning_starts = hp.learning_starts
+        self.train_freq = hp.train_freq
+        self.gradient_steps = hp.gradient_steps
+        self.target_update = hp.target_update
+        self.tau = hp.tau
+        self.hidden = [int(h) for h in hp.hidden]
+        self.max_grad_norm = hp.max_grad_norm
+        self.share_parameters = hp.share_parameters
         self.device = torch.device(device)
 
         # Independent random streams: weights (torch, CPU so the seed gives the same weights on
@@ -106,16 +104,16 @@ class DQNLearner:
         explore_seed, replay_seed = np.random.SeedSequence(seed).spawn(2)
         self.rng = np.random.default_rng(explore_seed)
 
-        num_members = 1 if share_parameters else num_agents
+        num_members = 1 if self.share_parameters else num_agents
         self.q_network = BatchedMLP(num_members, self.obs_dim, self.hidden, num_actions, init_generator)
         self.q_network.to(self.device)
         self.target_network = BatchedMLP(num_members, self.obs_dim, self.hidden, num_actions).to(self.device)
         self.target_network.update_from(self.q_network, tau=1.0)
         self.target_network.requires_grad_(False)
         self.frozen_layers: list[int] = []
-        self.optimizer = torch.optim.Adam(self.q_network.parameters(), lr=lr)
+        self.optimizer = torch.optim.Adam(self.q_network.parameters(), lr=self.lr)
         self.replay = ReplayBuffer(
-            num_agents, buffer_size, self.obs_dim, np.random.default_rng(replay_seed), self.device
+            num_agents, hp.buffer_size, self.obs_dim, np.random.default_rng(replay_seed), self.device
         )
         self.num_gradient_steps = 0
 
@@ -145,6 +143,12 @@ class DQNLearner:
             np.copyto(actions, self._greedy_actions(obs), where=exploit)
         return actions
 
+    @torch.no_grad()
+    def q_values(self, obs: np.ndarray) -> np.ndarray:
+        """Each agent's online Q-values of its own observation: ``obs [K, D] -> [K, A]``."""
+        obs_t = torch.as_tensor(np.asarray(obs, dtype=np.float32), device=self.device)
+        return self._q_values(self.q_network, obs_t.unsqueeze(1)).squeeze(1).cpu().numpy()
+
     def _greedy_actions(self, obs: np.ndarray) -> np.ndarray:
         """``argmax_a Q(obs, a)`` per agent, ``obs`` float32 ``[K, D]``."""
         obs_t = torch.as_tensor(obs, device=self.device)
@@ -153,52 +157,40 @@ class DQNLearner:
 
     # ---------------------------------------------------------------------------------- learning
 
-    def update(
-        self,
-        obs: np.ndarray,
-        actions: np.ndarray,
-        rewards: np.ndarray,
-        next_obs: np.ndarray,
-        terminated: np.ndarray,
-        truncated: np.ndarray,
-        live: np.ndarray,
-        step: int,
-    ) -> dict[str, np.ndarray]:
+    def update(self, transition: Transition, step: int) -> UpdateStats:
         """Store the live agents' transitions, train on schedule, sync the target on schedule.
 
-        ``step`` counts env steps including this one. Returns per-agent ``td_loss`` and ``q_mean``
-        (mean ``Q(s, a)`` of the batch) averaged over this round's gradient steps, nan if no training.
+        ``step`` counts env steps including this one. The statistics are averaged over this
+        round's gradient steps (``q_mean``: mean ``Q(s, a)`` of the batch), nan if no training.
         """
-        self.replay.add(obs, actions, rewards, next_obs, terminated, truncated, mask=live)
+        self.replay.add(transition)
 
         td_loss = np.full(self.num_agents, np.nan)
         q_mean = np.full(self.num_agents, np.nan)
         if step > self.learning_starts and step % self.train_freq == 0:
-            rounds = [self._gradient_step() for _ in range(self.gradient_steps)]
-            td_loss = np.mean([losses for losses, _ in rounds], axis=0, dtype=np.float64)
-            q_mean = np.mean([q for _, q in rounds], axis=0, dtype=np.float64)
+            rounds = [self.gradient_step() for _ in range(self.gradient_steps)]
+            td_loss = np.mean([r.td_loss for r in rounds], axis=0, dtype=np.float64)
+            q_mean = np.mean([r.q_mean for r in rounds], axis=0, dtype=np.float64)
 
         if step % self.target_update == 0:
             self.target_network.update_from(self.q_network, tau=self.tau)
-        return {"td_loss": td_loss, "q_mean": q_mean}
+        return UpdateStats(td_loss, q_mean)
 
-    def _gradient_step(self) -> tuple[np.ndarray, np.ndarray]:
-        """One Adam step for all agents; per-agent loss and mean Q(s, a) (nan for empty agents)."""
+    def gradient_step(self) -> UpdateStats:
+        """One Adam step for all agents on a fresh replay batch (what ``update`` runs on schedule)."""
         batch = self.replay.sample(self.batch_size)
         with torch.no_grad():
-            next_q_target = self._q_values(self.target_network, batch["next_obs"])
+            next_q_target = self._q_values(self.target_network, batch.next_obs)
             if self.double:
-                next_q_online = self._q_values(self.q_network, batch["next_obs"])
-                targets = double_dqn_targets(
-                    batch["rewards"], next_q_online, next_q_target, batch["terminated"], self.gamma
-                )
+                next_q_online = self._q_values(self.q_network, batch.next_obs)
+                targets = double_dqn_targets(batch.rewards, next_q_online, next_q_target, batch.terminated, self.gamma)
             else:
-                targets = dqn_targets(batch["rewards"], next_q_target, batch["terminated"], self.gamma)
+                targets = dqn_targets(batch.rewards, next_q_target, batch.terminated, self.gamma)
 
-        q_values = self._q_values(self.q_network, batch["obs"])
-        q_taken = q_values.gather(-1, batch["actions"].unsqueeze(-1)).squeeze(-1)  # Q(s, a) [K, B]
+        q_values = self._q_values(self.q_network, batch.obs)
+        q_taken = q_values.gather(-1, batch.actions.unsqueeze(-1)).squeeze(-1)  # Q(s, a) [K, B]
         agent_losses = F.smooth_l1_loss(q_taken, targets, reduction="none").mean(dim=1)  # [K]
-        valid = self.replay.size > 0  # what batch["valid"] holds, without a device round trip
+        valid = self.replay.size > 0  # an empty agent's batch is placeholders: no loss
         if not valid.all():
             valid_t = torch.from_numpy(valid).to(self.device)
             agent_losses = torch.where(valid_t, agent_losses, torch.zeros_like(agent_losses))
@@ -212,7 +204,7 @@ class DQNLearner:
         self.num_gradient_steps += 1
 
         stats = torch.stack([agent_losses.detach(), q_taken.detach().mean(dim=1)]).cpu().numpy()  # one transfer
-        return np.where(valid, stats[0], np.nan), np.where(valid, stats[1], np.nan)
+        return UpdateStats(np.where(valid, stats[0], np.nan), np.where(valid, stats[1], np.nan))
 
     # ------------------------------------------------------------------ transfer and exchange
 
@@ -252,6 +244,11 @@ class DQNLearner:
         if not 0 <= i < self.num_agents:
             raise IndexError(f"agent index {i} out of range for {self.num_agents} agents")
         return 0 if self.share_parameters else i
+
+    def add_experience(self, i: int, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray,
+                       next_obs: np.ndarray, terminated: np.ndarray) -> None:
+        """Append ``[N, ...]`` transitions (e.g. a team-mate's) to agent i's replay row."""
+        self.replay.extend(i, obs, actions, rewards, next_obs, terminated)
 
     def get_member_weights(self, i: int) -> dict[str, torch.Tensor]:
         """Agent i's online network, ``layers.{l}.weight`` ``[out, in]`` / ``layers.{l}.bias``."""

@@ -7,30 +7,42 @@ own filled range only, in one gather, giving ``[K, B, ...]`` tensors for the bat
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import torch
 
-# Stored fields and their dtypes; the observation fields hold obs_dim values per transition.
-_FIELDS = {
-    "obs": torch.float32,
-    "actions": torch.int64,
-    "rewards": torch.float32,
-    "next_obs": torch.float32,
-    "terminated": torch.bool,
-    "truncated": torch.bool,
-}
+from dqn_transfer.agents.base import Transition
+
+
+class ReplayBatch(NamedTuple):
+    """``batch_size`` transitions per agent, each field ``[K, B, ...]``."""
+
+    obs: torch.Tensor  # float32 [K, B, D]
+    actions: torch.Tensor  # int64 [K, B]
+    rewards: torch.Tensor  # float32 [K, B]
+    next_obs: torch.Tensor  # float32 [K, B, D]
+    terminated: torch.Tensor  # bool [K, B]
+
+
+# Stored fields and their dtypes (what the TD target reads); the observation fields hold obs_dim
+# values per transition.
+_FIELDS = {name: dtype for name, dtype in zip(ReplayBatch._fields, (torch.float32, torch.int64, torch.float32,
+                                                                    torch.float32, torch.bool))}
 _OBS_FIELDS = ("obs", "next_obs")
 
 
 def _as_fields(*values: np.ndarray) -> dict[str, np.ndarray]:
-    """Name the six transition arrays in storage order."""
+    """Name the stored transition arrays in storage order."""
     return {name: np.asarray(value) for name, value in zip(_FIELDS, values)}
 
 
 class ReplayBuffer:
     """Per-agent ring buffers; ``ptr[k]`` is agent k's next write slot, ``size[k]`` its fill level.
 
-    Terminated and truncated are stored separately because only termination stops bootstrapping.
+    The timeout rule lives here: only ``terminated`` is stored. A step truncated by the time limit
+    is, for the TD target, an ordinary step whose next state still has a future (SB3's
+    ``handle_timeout_termination``), so nothing downstream needs to know it was the last one.
     """
 
     def __init__(
@@ -68,21 +80,13 @@ class ReplayBuffer:
             value = torch.as_tensor(np.asarray(data[name]), dtype=dtype, device=self.device)
             self.storage[name][rows_t, cols_t] = value
 
-    def add(
-        self,
-        obs: np.ndarray,
-        actions: np.ndarray,
-        rewards: np.ndarray,
-        next_obs: np.ndarray,
-        terminated: np.ndarray,
-        truncated: np.ndarray,
-        mask: np.ndarray,
-    ) -> None:
-        """Store row k of each ``[K, ...]`` array in agent k's buffer, for the agents in ``mask``."""
-        rows = np.flatnonzero(mask)
+    def add(self, transition: Transition) -> None:
+        """Store row k of the joint step in agent k's buffer, for the agents live in it."""
+        rows = np.flatnonzero(transition.live)
         if rows.size == 0:
             return
-        data = _as_fields(obs, actions, rewards, next_obs, terminated, truncated)
+        t = transition
+        data = _as_fields(t.obs, t.actions, t.rewards, t.next_obs, t.terminated)
         self._write(rows, self.ptr[rows], {name: value[rows] for name, value in data.items()})
         self.ptr[rows] = (self.ptr[rows] + 1) % self.capacity
         self.size[rows] = np.minimum(self.size[rows] + 1, self.capacity)
@@ -95,14 +99,13 @@ class ReplayBuffer:
         rewards: np.ndarray,
         next_obs: np.ndarray,
         terminated: np.ndarray,
-        truncated: np.ndarray,
     ) -> None:
         """Append N transitions (``[N, ...]`` arrays, oldest first) to one agent's buffer.
 
         This is how experience crosses agents (``transfer.exchange=shared_replay``): an agent's row
         can receive a teammate's transitions. Beyond ``capacity`` only the newest ones are kept.
         """
-        data = _as_fields(obs, actions, rewards, next_obs, terminated, truncated)
+        data = _as_fields(obs, actions, rewards, next_obs, terminated)
         data = {name: value[-self.capacity :] for name, value in data.items()}
         n = len(data["actions"])
         if n == 0:
@@ -112,11 +115,10 @@ class ReplayBuffer:
         self.ptr[agent] = (self.ptr[agent] + n) % self.capacity
         self.size[agent] = min(self.size[agent] + n, self.capacity)
 
-    def sample(self, batch_size: int) -> dict[str, torch.Tensor]:
+    def sample(self, batch_size: int) -> ReplayBatch:
         """``batch_size`` transitions per agent, uniformly (with replacement) from its filled range.
 
-        Returns ``[K, B, ...]`` tensors plus ``"valid"`` ``[K]`` (the agent has at least one
-        transition); an empty agent's rows are placeholders (slot 0) that its loss must ignore.
+        An empty agent (``size[k] == 0``) gets placeholder rows (slot 0) that its loss must ignore.
         """
         high = np.maximum(self.size, 1)[:, None]
         cols = self.rng.integers(0, high, size=(self.num_agents, batch_size))
@@ -125,12 +127,8 @@ class ReplayBuffer:
         flat = (np.arange(self.num_agents)[:, None] * self.capacity + cols).reshape(-1)
         flat_t = torch.from_numpy(flat).to(self.device)
         shape = (self.num_agents, batch_size)
-        batch = {
-            name: tensor.flatten(0, 1).index_select(0, flat_t).unflatten(0, shape)
-            for name, tensor in self.storage.items()
-        }
-        batch["valid"] = torch.from_numpy(self.size > 0).to(self.device)
-        return batch
+        return ReplayBatch(*(tensor.flatten(0, 1).index_select(0, flat_t).unflatten(0, shape)
+                             for tensor in self.storage.values()))
 
     def state_dict(self) -> dict[str, np.ndarray]:
         """Pointers and the filled part of the storage (up to the fullest row), as numpy arrays."""

@@ -25,9 +25,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from dqn_transfer.agents.base import ObsLayout, check_tensor_shape, epsilon_greedy, normalize_layout
+from dqn_transfer.agents.base import ObsLayout, TeamShape, Transition, UpdateStats, check_tensor_shape, epsilon_greedy
+from dqn_transfer.config import AgentConfig
+from dqn_transfer.enums import Algorithm
 
-ALGORITHMS = ("sarsa", "qlearning")
 _NO_ACTION = -1  # empty slot of the SARSA next-action cache
 
 
@@ -61,30 +62,33 @@ def _evaluation_argmax(q: np.ndarray, obs: np.ndarray) -> int:
     return int(best[zlib.crc32(obs.tobytes()) % best.size])
 
 
-class TabularLearner:
+class TabularLearner(TeamShape):
     """K independent Q-tables updated by SARSA or Q-learning (see the module docstring)."""
 
     def __init__(
         self,
-        algorithm: str,
         num_agents: int,
         obs_layout: ObsLayout,
         num_actions: int,
+        hp: AgentConfig,
         *,
-        lr: float = 0.1,  # alpha, the step size of the table update
-        gamma: float = 0.99,  # discount factor
-        rng: np.random.Generator,  # exploration and tie-breaking
+        seed: int = 0,
     ) -> None:
-        if algorithm not in ALGORITHMS:
-            raise ValueError(f"unknown tabular algorithm {algorithm!r}; expected one of {list(ALGORITHMS)}")
-        self.algorithm = algorithm
-        self.num_agents = num_agents
-        self.obs_layout = normalize_layout(obs_layout)
-        self.obs_dim = sum(size for _, size in self.obs_layout)
-        self.num_actions = num_actions
-        self.lr = lr
-        self.gamma = gamma
-        self.rng = rng
+        """
+        :param num_agents: K, the agents of the team (one table each)
+        :param obs_layout: the observation's named segments ``[(name, size), ...]``
+        :param num_actions: A, the discrete actions
+        :param hp: the hyperparameters, documented on :class:`~dqn_transfer.config.AgentConfig`:
+            ``algorithm`` (sarsa | qlearning), ``lr`` (alpha, the step size of the table update), ``gamma``
+        :param seed: fixes exploration and tie-breaking
+        """
+        algorithm = Algorithm(hp.algorithm)
+        if not algorithm.is_tabular:
+            raise ValueError(f"TabularLearner trains sarsa or qlearning, not {algorithm.value}")
+        super().__init__(algorithm, num_agents, obs_layout, num_actions)
+        self.lr = hp.lr
+        self.gamma = hp.gamma
+        self.rng = np.random.default_rng(seed)
         self.tables: list[dict[bytes, np.ndarray]] = [{} for _ in range(num_agents)]
         self.fallbacks: list[_Fallback | None] = [None] * num_agents
         # SARSA: the action chosen for next_obs at the last update, and that observation.
@@ -94,7 +98,12 @@ class TabularLearner:
 
     # ---------------------------------------------------------------------------------- tables
 
-    def q_values(self, i: int, obs: np.ndarray) -> np.ndarray:
+    def q_values(self, obs: np.ndarray) -> np.ndarray:
+        """Each agent's Q-values of its own observation: ``obs [K, D] -> [K, A]``."""
+        obs = np.asarray(obs, dtype=np.float32)
+        return np.stack([self.agent_q_values(i, obs[i]) for i in range(self.num_agents)])
+
+    def agent_q_values(self, i: int, obs: np.ndarray) -> np.ndarray:
         """Agent i's Q-values of one observation, without adding an entry (do not modify)."""
         row = self.tables[i].get(obs.tobytes())
         if row is None:
@@ -106,7 +115,7 @@ class TabularLearner:
         """Agent i's table row for ``obs``, created (from the fallback, else zeros) when unseen."""
         key = obs.tobytes()
         if key not in self.tables[i]:
-            self.tables[i][key] = self.q_values(i, obs).copy()
+            self.tables[i][key] = self.agent_q_values(i, obs).copy()
         return self.tables[i][key]
 
     def _greedy(self, q: np.ndarray) -> int:
@@ -154,12 +163,12 @@ class TabularLearner:
             self.epsilon = np.broadcast_to(np.asarray(epsilon, dtype=float), (self.num_agents,)).copy()
         for i in np.flatnonzero(live):
             if greedy:
-                actions[i] = _evaluation_argmax(self.q_values(i, obs[i]), obs[i])
+                actions[i] = _evaluation_argmax(self.agent_q_values(i, obs[i]), obs[i])
             elif self._cached(i, obs[i]):
                 actions[i] = self.next_action[i]
                 self.next_action[i] = _NO_ACTION
             else:
-                actions[i] = self._epsilon_greedy(self.q_values(i, obs[i]), self.epsilon[i])
+                actions[i] = self._epsilon_greedy(self.agent_q_values(i, obs[i]), self.epsilon[i])
         return actions
 
     def _cached(self, i: int, obs: np.ndarray) -> bool:
@@ -168,25 +177,16 @@ class TabularLearner:
 
     # -------------------------------------------------------------------------------- learning
 
-    def update(
-        self,
-        obs: np.ndarray,
-        actions: np.ndarray,
-        rewards: np.ndarray,
-        next_obs: np.ndarray,
-        terminated: np.ndarray,
-        truncated: np.ndarray,
-        live: np.ndarray,
-        step: int,
-    ) -> dict[str, np.ndarray]:
+    def update(self, transition: Transition, step: int) -> UpdateStats:
         """One table update per live agent. ``q_mean`` is ``Q(s, a)`` before the update, ``td_loss``
         the Huber loss of the TD error. ``step`` is unused (tabular learning has no schedule)."""
-        obs = np.asarray(obs, dtype=np.float32)
-        next_obs = np.asarray(next_obs, dtype=np.float32)
-        rewards = np.asarray(rewards, dtype=np.float32)
+        obs = np.asarray(transition.obs, dtype=np.float32)
+        next_obs = np.asarray(transition.next_obs, dtype=np.float32)
+        rewards = np.asarray(transition.rewards, dtype=np.float32)
+        actions, terminated, truncated = transition.actions, transition.terminated, transition.truncated
         td_loss = np.full(self.num_agents, np.nan)
         q_mean = np.full(self.num_agents, np.nan)
-        for i in np.flatnonzero(live):
+        for i in np.flatnonzero(transition.live):
             self.next_action[i] = _NO_ACTION
             row, a = self._entry(i, obs[i]), int(actions[i])
             target = rewards[i]
@@ -196,7 +196,7 @@ class TabularLearner:
             td_error = target - row[a]
             q_mean[i], td_loss[i] = row[a], huber(float(td_error))
             row[a] += np.float32(self.lr) * td_error
-        return {"td_loss": td_loss, "q_mean": q_mean}
+        return UpdateStats(td_loss, q_mean)
 
     def _bootstrap(self, i: int, next_obs: np.ndarray, cache: bool) -> np.float32:
         """The value of ``next_obs`` the target uses: Q(s', a') for SARSA, max Q(s', .) for Q-learning.
@@ -204,8 +204,8 @@ class TabularLearner:
         SARSA caches a' to be played next, unless the episode ends here (truncation): then the next
         act() starts a new episode and a' is used only in this target.
         """
-        q_next = self.q_values(i, next_obs)
-        if self.algorithm == "qlearning":
+        q_next = self.agent_q_values(i, next_obs)
+        if self.algorithm == Algorithm.qlearning.value:
             return q_next.max()
         next_action = self._epsilon_greedy(q_next, self.epsilon[i])
         if cache:

@@ -1,4 +1,4 @@
-"""The treasure-hunt game: a pure numpy core stepping K agents at once (DESIGN section 3).
+"""The treasure-hunt game: a pure numpy core stepping K agents at once (rules: docs/game.md).
 
 The trainer drives :class:`TreasureHuntGame` directly (arrays in, arrays out); the PettingZoo and
 Gymnasium faces are thin wrappers around it. Everything that does not change during a run is
@@ -28,15 +28,16 @@ Choices the specification leaves open, made here:
 from __future__ import annotations
 
 import math
+from dataclasses import fields
+from enum import Enum
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from dqn_transfer.enums import Mode, ObsEncoding, RewardMode, values
 from dqn_transfer.envs.maps import GridMap, resolve_map
+from dqn_transfer.envs.settings import DEFAULTS, MAP_KEYS, EnvConfig
 
-MODES = ("competitive", "cooperative", "deliberative")
-REWARD_MODES = ("individual", "team")
-OBS_ENCODINGS = ("onehot", "coords")
 RENDER_MODES = ("ansi", "rgb_array")
 ACTION_MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))  # 0 up, 1 down, 2 left, 3 right
 
@@ -62,6 +63,13 @@ def check_choice(name: str, value: object, choices: tuple[str, ...]) -> str:
     if value not in choices:
         raise ValueError(f"{name} must be one of {', '.join(choices)}; got {value!r}")
     return value  # type: ignore[return-value]
+
+
+def check_enum(name: str, value: object, enum: type[Enum]) -> Enum:
+    """``value`` as a member of ``enum``: a member, or its spelling (the faces take strings)."""
+    if isinstance(value, enum):
+        return value
+    return enum(check_choice(name, value, values(enum)))
 
 
 def check_render_mode(render_mode: str | None) -> str | None:
@@ -141,21 +149,21 @@ class TreasureHuntGame:
         self,
         grid_map: GridMap,
         *,
-        mode: str = "competitive",
-        reward_mode: str = "individual",
-        obs_encoding: str = "onehot",
-        view_radius: int = 0,
-        max_steps: int | None = None,
-        treasure_reward: float = 100.0,
-        trap_reward: float = -100.0,
-        step_reward: float = -1.0,
+        mode: Mode | str = DEFAULTS.mode,
+        reward_mode: RewardMode | str = DEFAULTS.reward_mode,
+        obs_encoding: ObsEncoding | str = DEFAULTS.obs_encoding,
+        view_radius: int = DEFAULTS.view_radius,
+        max_steps: int | None = DEFAULTS.max_steps,
+        treasure_reward: float = DEFAULTS.treasure_reward,
+        trap_reward: float = DEFAULTS.trap_reward,
+        step_reward: float = DEFAULTS.step_reward,
         num_agents: int | None = None,
         include_treasures: bool = True,
     ) -> None:
         self.map = grid_map
-        self.mode = check_choice("mode", mode, MODES)
-        self.reward_mode = check_choice("reward_mode", reward_mode, REWARD_MODES)
-        self.obs_encoding = check_choice("obs_encoding", obs_encoding, OBS_ENCODINGS)
+        self.mode = check_enum("mode", mode, Mode)
+        self.reward_mode = check_enum("reward_mode", reward_mode, RewardMode)
+        self.obs_encoding = check_enum("obs_encoding", obs_encoding, ObsEncoding)
         self.view_radius = _check_int("view_radius", view_radius, 0)
         n = grid_map.size
         self.size = n
@@ -214,7 +222,7 @@ class TreasureHuntGame:
         # Per agent, because bumping into an obstacle sends an agent to its own start.
         self._next = np.where(obstacle[moves][None], self._starts[:, None, None], moves[None])
 
-        if self.mode == "deliberative":
+        if self.mode is Mode.deliberative:
             unreachable = self.num_agents * cells  # worse than any assignment of reachable pairs
             dist = np.stack([gm.distances_from(c).reshape(-1) for c in gm.chests])
             self._chest_dist = np.where(dist < 0, unreachable, dist)
@@ -235,10 +243,10 @@ class TreasureHuntGame:
 
     def _build_obs_layout(self) -> None:
         k = self.num_treasures
-        layout = [("position", self.size**2 if self.obs_encoding == "onehot" else 2)]
+        layout = [("position", self.size**2 if self.obs_encoding is ObsEncoding.onehot else 2)]
         if self.include_treasures:
             layout.append(("treasures", k))
-        if self.mode == "deliberative":
+        if self.mode is Mode.deliberative:
             layout.append(("assignment", k))
         if self.view_radius > 0:
             layout.append(("view", 3 * (2 * self.view_radius + 1) ** 2))
@@ -269,7 +277,7 @@ class TreasureHuntGame:
 
     def single_agent_game(self) -> TreasureHuntGame:
         """The source task of transfer: agent 0 alone on this map, observing position [+ view]."""
-        return TreasureHuntGame(self.map, **{**self._settings(), "mode": "competitive", "reward_mode": "individual",
+        return TreasureHuntGame(self.map, **{**self._settings(), "mode": Mode.competitive, "reward_mode": RewardMode.individual,
                                              "num_agents": 1, "include_treasures": False})
 
     # ------------------------------------------------------------------ state
@@ -311,7 +319,7 @@ class TreasureHuntGame:
         self._t = 0
         self.treasures_collected = 0
         self._assigned[:] = -1
-        if self.mode == "deliberative":
+        if self.mode is Mode.deliberative:
             self._assign()
         self._obs[:] = 0.0
         self._write_obs(self._live_idx, self._pos, None, env_changed=True)
@@ -348,10 +356,10 @@ class TreasureHuntGame:
         if ended.any():  # a chest is only ever emptied by an agent that thereby ends
             self._live &= ~ended
             self._live_idx = np.flatnonzero(self._live)
-            if self.mode == "deliberative" and self._live_idx.size:
+            if self.mode is Mode.deliberative and self._live_idx.size:
                 self._assign()
         self._write_obs(idx, new, old, env_changed=events)
-        if self.reward_mode == "team":
+        if self.reward_mode is RewardMode.team:
             rewards[idx] = rewards[idx].sum()
         info = {"treasures_collected": collected, "trap": trap, "live": self._live.copy()}
         return self._obs.copy(), rewards, terminated, truncated, info
@@ -382,7 +390,7 @@ class TreasureHuntGame:
                 rewards[winner] = self.treasure_reward
                 terminated[winner] = True
                 collected += 1
-                if self.mode != "competitive":  # announced: everybody knows the truth
+                if self.mode is not Mode.competitive:  # announced: everybody knows the truth
                     self._belief[:, chest] = 0.0
             self._belief[group, chest] = 0.0  # whoever entered saw it empty (or emptied it)
         self.treasures_collected += collected
@@ -403,7 +411,7 @@ class TreasureHuntGame:
     ) -> None:
         """Refresh the observation rows of the agents that just moved (others keep their last)."""
         obs = self._obs
-        if self.obs_encoding == "onehot":
+        if self.obs_encoding is ObsEncoding.onehot:
             if old is not None:
                 obs[rows, old] = 0.0
             obs[rows, new] = 1.0
@@ -414,7 +422,7 @@ class TreasureHuntGame:
             if self.include_treasures:
                 lo, hi = self._offsets["treasures"]
                 obs[rows, lo:hi] = self._belief[rows, :k]
-            if self.mode == "deliberative":
+            if self.mode is Mode.deliberative:
                 lo, hi = self._offsets["assignment"]
                 obs[rows, lo:hi] = 0.0
                 chosen = self._assigned[rows]
@@ -472,43 +480,28 @@ class TreasureHuntGame:
         return img
 
 
-def make_game(
-    *,
-    size: int | None = None,
-    num_treasures: int | None = None,
-    num_traps: int | None = None,
-    num_agents: int | None = None,
-    complexity: float | None = None,
-    map_seed: int | None = None,
-    layout: str | None = None,
-    layout_file: str | None = None,
-    max_steps: int | None = None,
-    mode: str = "competitive",
-    reward_mode: str = "individual",
-    obs_encoding: str = "onehot",
-    view_radius: int = 0,
-    treasure_reward: float = 100.0,
-    trap_reward: float = -100.0,
-    step_reward: float = -1.0,
-    render_mode: str | None = None,
-) -> TreasureHuntGame:
-    """The game for the env keyword arguments of DESIGN section 8 (the ``env`` config group).
+def make_game(**settings) -> TreasureHuntGame:
+    """The game for the ``env`` keys of :class:`~dqn_transfer.envs.settings.EnvConfig` (the trainer's
+    ``env`` config group), each defaulting to its value there.
 
     ``render_mode`` is only validated here (rendering belongs to the faces), so a whole env config
-    can be passed as it is. Map parameters left ``None`` take :func:`resolve_map`'s defaults.
+    can be passed as it is. A map key left out is "not given": with a layout, only the given ones
+    that disagree with it are warned about.
     """
-    check_render_mode(render_mode)
-    grid_map = resolve_map(
-        size, num_treasures, num_traps, num_agents, complexity, map_seed, layout, layout_file
-    )
+    unknown = sorted(set(settings) - {f.name for f in fields(EnvConfig)})
+    if unknown:
+        raise TypeError(f"unknown env setting(s) {', '.join(unknown)}")
+    config = EnvConfig(**settings)
+    check_render_mode(config.render_mode)
+    grid_map = resolve_map(**{key: settings.get(key) for key in MAP_KEYS})
     return TreasureHuntGame(
         grid_map,
-        mode=mode,
-        reward_mode=reward_mode,
-        obs_encoding=obs_encoding,
-        view_radius=view_radius,
-        max_steps=max_steps,
-        treasure_reward=treasure_reward,
-        trap_reward=trap_reward,
-        step_reward=step_reward,
+        mode=config.mode,
+        reward_mode=config.reward_mode,
+        obs_encoding=config.obs_encoding,
+        view_radius=config.view_radius,
+        max_steps=config.max_steps,
+        treasure_reward=config.treasure_reward,
+        trap_reward=config.trap_reward,
+        step_reward=config.step_reward,
     )

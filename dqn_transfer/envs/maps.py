@@ -1,4 +1,4 @@
-"""Treasure-hunt maps: generation, parsing and validation (DESIGN section 3).
+"""Treasure-hunt maps: generation, parsing and validation.
 
 A map is an ``n x n`` ASCII grid, one row per line, with the legend
 
@@ -25,13 +25,13 @@ from pathlib import Path
 
 import numpy as np
 
+from dqn_transfer.envs.settings import DEFAULTS
+
 Cell = tuple[int, int]
 
 FREE, OBSTACLE, CHEST, TRAP = ".", "#", "T", "X"
 LEGEND = frozenset(FREE + OBSTACLE + CHEST + TRAP + "0123456789")
 MAX_AGENTS = 10  # one start digit per agent
-DEFAULT_SIZE = 10
-DEFAULT_TREASURES = 1
 
 # Bounded retries of generate_layout: at least this many obstacle layouts, and object placements
 # per layout; small maps (cheap attempts, tight fits) get more, about _WORK_BUDGET / cells.
@@ -330,7 +330,7 @@ def generate_layout(
     if not 0.0 <= complexity < 1.0:
         raise ValueError(f"complexity must be in [0, 1), got {complexity}")
     cells = size * size
-    num_obstacles = round(complexity * size * size)  # DESIGN: round(Rc * n*n)
+    num_obstacles = round(complexity * size * size)  # round(Rc * n * n)
     num_objects = num_treasures + num_traps + num_agents
     if num_objects > cells:
         raise ValueError(
@@ -387,8 +387,8 @@ def resolve_map(
 ) -> GridMap:
     """The run's map: the given layout (string or file) if any, else a generated one.
 
-    ``None`` means "not given": a generated map then uses ``DEFAULT_SIZE``, ``DEFAULT_TREASURES``,
-    no obstacles and ``map_seed`` 0, so the map of a run is fixed unless asked otherwise.
+    ``None`` means "not given": a generated map then takes the default of
+    :class:`~dqn_transfer.envs.settings.EnvConfig`, so the map of a run is fixed unless asked otherwise.
     A layout fixes the size and the counts, so the generation parameters are ignored; one warning
     names those given that differ from the layout (``map_seed`` has no counterpart in a layout and
     is named when given and not 0).
@@ -404,12 +404,12 @@ def resolve_map(
     if layout is None:
         return parse_layout(
             generate_layout(
-                DEFAULT_SIZE if size is None else size,
-                DEFAULT_TREASURES if num_treasures is None else num_treasures,
-                num_traps,
-                num_agents,
-                0.0 if complexity is None else complexity,
-                seed=0 if map_seed is None else map_seed,
+                DEFAULTS.size if size is None else size,
+                DEFAULTS.num_treasures if num_treasures is None else num_treasures,
+                DEFAULTS.num_traps if num_traps is None else num_traps,
+                DEFAULTS.num_agents if num_agents is None else num_agents,
+                DEFAULTS.complexity if complexity is None else complexity,
+                seed=DEFAULTS.map_seed if map_seed is None else map_seed,
             )
         )
     grid_map = parse_layout(layout)

@@ -17,7 +17,7 @@ from dqn_transfer.envs.game import make_game
 
 
 class TreasureHuntParallelEnv(ParallelEnv):
-    """All live agents act at once. Keyword arguments: the env kwargs of DESIGN section 8."""
+    """All live agents act at once. Keyword arguments: the keys of :class:`~dqn_transfer.envs.settings.EnvConfig`."""
 
     metadata = {
         "name": "treasure_hunt_v0",

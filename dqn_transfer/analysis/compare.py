@@ -1,0 +1,103 @@
+"""Transfer runs against baseline runs: every transfer metric with a bootstrap CI over seeds.
+
+The per-run metrics are those of :mod:`dqn_transfer.analysis.transfer_metrics`; the intervals are
+:func:`dqn_transfer.analysis.stats.estimate`'s.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from dqn_transfer.analysis.runs import EvaluationError, learning_curve, run_seed
+from dqn_transfer.analysis.stats import estimate
+from dqn_transfer.analysis.transfer_metrics import (
+    Curve,
+    asymptotic_performance,
+    jumpstart,
+    mean_curve,
+    time_to_threshold,
+    total_reward,
+    transfer_ratio,
+)
+
+
+def _seed_order(run_dirs: Sequence[Path]) -> list[int]:
+    """Indices of the runs sorted by seed; the given order if some run does not record its seed."""
+    seeds = [run_seed(d) for d in run_dirs]
+    if None in seeds:
+        return list(range(len(run_dirs)))
+    return sorted(range(len(run_dirs)), key=lambda i: seeds[i])
+
+
+def _pair_by_seed(transfer_dirs: Sequence[Path], baseline_dirs: Sequence[Path]) -> list[tuple[int, int]]:
+    """Index pairs (transfer, baseline): the k-th transfer run by seed with the k-th baseline run.
+
+    With the same seeds in both conditions (the usual sweep), runs of equal seed are paired, so
+    the difference of a per-run metric cancels what a seed shares between them (map, initial
+    weights, exploration noise). Unequal counts pair up to the shorter list, with a warning.
+    """
+    if len(transfer_dirs) != len(baseline_dirs):
+        warnings.warn(f"{len(transfer_dirs)} transfer vs {len(baseline_dirs)} baseline runs: "
+                      f"differences use the first {min(len(transfer_dirs), len(baseline_dirs))} "
+                      "pairs in seed order", stacklevel=3)
+    return list(zip(_seed_order(transfer_dirs), _seed_order(baseline_dirs)))
+
+
+def compare_runs(transfer_dirs: Sequence[str | os.PathLike], baseline_dirs: Sequence[str | os.PathLike],
+                 metric: str = "team_return", threshold: float | None = None,
+                 seed: int = 0) -> dict[str, dict[str, float]]:
+    """Each transfer metric as ``{"mean", "low", "high", "n"}`` with a 95% bootstrap CI over seeds.
+
+    - ``jumpstart`` and ``transfer_ratio``: each transfer run against the *mean* baseline curve
+      (a per-run baseline would add the baseline's seed noise to every value);
+    - ``asymptotic_performance``, ``total_reward`` and (given ``threshold``) ``time_to_threshold``:
+      per condition (``/transfer``, ``/baseline``) and as paired differences transfer - baseline
+      (``/difference``, see :func:`_pair_by_seed`); a negative time difference means transfer
+      reached the threshold sooner.
+    Non-finite per-run values (a run that never reaches the threshold, an infinite ratio) are left
+    out of the statistics, so ``n`` says how many runs each row rests on.
+    """
+    t_dirs, b_dirs = [Path(d) for d in transfer_dirs], [Path(d) for d in baseline_dirs]
+    if not t_dirs or not b_dirs:
+        raise EvaluationError("need at least one transfer and one baseline run directory")
+    t_curves = [learning_curve(d, metric) for d in t_dirs]
+    b_curves = [learning_curve(d, metric) for d in b_dirs]
+    b_mean = mean_curve(b_curves)
+    pairs = _pair_by_seed(t_dirs, b_dirs)
+
+    per_run: dict[str, list[float]] = {
+        "jumpstart": [jumpstart(c, b_mean) for c in t_curves],
+        "transfer_ratio": [transfer_ratio(c, b_mean) for c in t_curves],
+    }
+    per_curve_metrics: dict[str, Callable[[Curve], float]] = {
+        "asymptotic_performance": asymptotic_performance, "total_reward": total_reward}
+    if threshold is not None:
+        per_curve_metrics["time_to_threshold"] = lambda c: time_to_threshold(c, threshold)
+    for name, fn in per_curve_metrics.items():
+        t_values, b_values = [fn(c) for c in t_curves], [fn(c) for c in b_curves]
+        per_run[f"{name}/transfer"] = t_values
+        per_run[f"{name}/baseline"] = b_values
+        per_run[f"{name}/difference"] = [t_values[i] - b_values[j] for i, j in pairs]
+
+    rng = np.random.default_rng(seed)
+    return {name: asdict(estimate(values, rng)) for name, values in per_run.items()}
+
+
+def format_table(results: dict[str, dict[str, float]]) -> str:
+    """Markdown table of :func:`compare_runs` results (``n/a`` where a value is undefined)."""
+    def fmt(x: float) -> str:
+        return "n/a" if not math.isfinite(x) else f"{x:.4g}"
+
+    lines = ["| metric | mean | 95% CI | n |", "|---|---:|---:|---:|"]
+    for name, r in results.items():
+        ci = "n/a" if not (math.isfinite(r["low"]) and math.isfinite(r["high"])) \
+            else f"[{fmt(r['low'])}, {fmt(r['high'])}]"
+        lines.append(f"| {name} | {fmt(r['mean'])} | {ci} | {r['n']} |")
+    return "\n".join(lines)

@@ -1,0 +1,164 @@
+"""Learning-curve figures of run directories (matplotlib, written to files).
+
+A group of runs (one condition, several seeds) is drawn as its mean curve over seeds with a 95%
+percentile-bootstrap band (:func:`dqn_transfer.analysis.stats.curve_band`); a group of one run is
+one line. :func:`group_runs` finds the groups of a set of runs by what differs between their configs,
+ignoring the seed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only: works on clusters and in CI without a display
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from dqn_transfer.analysis.runs import learning_curve, load_config  # noqa: E402
+from dqn_transfer.analysis.stats import Estimate, curve_band  # noqa: E402
+from dqn_transfer.analysis.transfer_metrics import Curve  # noqa: E402
+
+# Keys that differ between runs of one condition without making it another condition.
+IGNORED_KEYS = ("seed", "progress", "resume", "device", "checkpoint_every", "transfer.cache_dir")
+# Keys that name a condition, preferred as labels over what they imply (agent=sarsa implies agent.lr).
+PRIMARY_KEYS = ("agent.algorithm", "env.mode", "transfer.enabled", "env.num_agents", "env.layout_file", "env.layout")
+LINESTYLES = ("-", "--", ":", "-.")  # besides colours: identical curves stay visible
+ColorOf = Callable[[str], "str | None"]
+
+
+# ------------------------------------------------------------------------------------ groups
+
+
+def flatten(tree: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``{"env": {"mode": "x"}}`` -> ``{"env.mode": "x"}``; lists become tuples (hashable)."""
+    flat: dict[str, Any] = {}
+    for key, value in tree.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            flat.update(flatten(value, name + "."))
+        else:
+            flat[name] = tuple(value) if isinstance(value, list) else value
+    return flat
+
+
+def _short(key: str, value: Any) -> str:
+    if key.endswith("layout_file") and isinstance(value, str):
+        value = Path(value).name
+    if key == "transfer.enabled":
+        return "transfer=" + ("on" if value else "off")
+    return f"{key.split('.')[-1] if key.startswith(('env.', 'agent.')) else key}={value}"
+
+
+def group_runs(run_dirs: Sequence[Path]) -> dict[str, list[Path]]:
+    """Runs grouped by the config keys that differ between them (the seed excluded), labelled by them.
+
+    Runs without a readable config get a group (and a line) each.
+    """
+    configs = [load_config(d) for d in run_dirs]
+    if any(c is None for c in configs):
+        return {Path(d).name if Path(d).name not in ("", ".") else str(d): [Path(d)] for d in run_dirs}
+    flats = [flatten(c) for c in configs]  # type: ignore[arg-type]
+    keys = sorted({k for f in flats for k in f})
+    varying = [k for k in keys if k not in IGNORED_KEYS and len({repr(f.get(k)) for f in flats}) > 1]
+    # Keep only keys that split the runs further: agent=sarsa also changes agent.lr, which says nothing new.
+    varying.sort(key=lambda k: (k not in PRIMARY_KEYS, PRIMARY_KEYS.index(k) if k in PRIMARY_KEYS else 0, k))
+    chosen: list[str] = []
+    for key in varying:
+        before = len({tuple(repr(f.get(c)) for c in chosen) for f in flats})
+        if len({tuple(repr(f.get(c)) for c in chosen + [key]) for f in flats}) > before:
+            chosen.append(key)
+    groups: dict[str, list[Path]] = {}
+    for run, flat in zip(run_dirs, flats):
+        label = ", ".join(_short(k, flat.get(k)) for k in chosen) or "all runs"
+        groups.setdefault(label, []).append(Path(run))
+    return dict(sorted(groups.items()))  # sorted labels: transfer=off beside transfer=on
+
+
+# ------------------------------------------------------------------------------------ figures
+
+
+def plot_band(ax, curves: Sequence[Curve], label: str, rng: np.random.Generator, color=None,
+              linestyle: str = "-") -> None:
+    """Mean curve with its 95% CI band; the legend says how many runs it rests on."""
+    steps, mean, low, high = curve_band(curves, rng)
+    n = len(curves)
+    line, = ax.plot(steps, mean, label=f"{label} (n={n})", color=color, lw=1.8, ls=linestyle)
+    if n > 1:
+        ax.fill_between(steps, low, high, color=line.get_color(), alpha=0.2, lw=0)
+
+
+def _band_panel(ax, metric: str, groups: dict[str, list[Curve]], rng: np.random.Generator,
+                color_of: ColorOf | None, xlabel: str, legend_loc: str) -> None:
+    """One axes: every group's mean curve and band, in the groups' order (so the rng draws are too)."""
+    for index, (label, curves) in enumerate(groups.items()):
+        plot_band(ax, curves, label, rng, color=color_of(label) if color_of else None,
+                  linestyle=LINESTYLES[index % len(LINESTYLES)])
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(f"eval {metric}")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize="small", loc=legend_loc)
+
+
+def _save(fig, path: Path, dpi: int) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path
+
+
+def plot_groups(groups: dict[str, list[Path]], metric: str, out: Path, title: str | None = None,
+                seed: int = 0) -> Path:
+    """One figure: every group's mean curve and band for ``metric``."""
+    rng = np.random.default_rng(seed)
+    fig, ax = plt.subplots(figsize=(7.5, 4.5), constrained_layout=True)
+    curves = {label: [learning_curve(d, metric) for d in dirs] for label, dirs in groups.items()}
+    _band_panel(ax, metric, curves, rng, None, "environment steps", "best")
+    ax.set_title(title or f"eval {metric}: mean and 95% bootstrap CI over seeds")
+    return _save(fig, out, dpi=120)
+
+
+def curves_figure(path: Path, panels: list[tuple[str, dict[str, list[Curve]]]], title: str,
+                  rng: np.random.Generator, color_of: ColorOf | None = None, note: str | None = None) -> Path:
+    """Panels side by side of learning curves (mean and 95% band per group), one per ``(metric, groups)``."""
+    fig, axes = plt.subplots(1, len(panels), figsize=(6.2 * len(panels), 4.3), constrained_layout=True,
+                             squeeze=False)
+    for ax, (metric, groups) in zip(axes[0], panels):
+        _band_panel(ax, metric, groups, rng, color_of, "environment steps" + (f"\n{note}" if note else ""),
+                    "lower right")
+    fig.suptitle(title + " — mean, 95% bootstrap CI over seeds")
+    return _save(fig, path, dpi=110)
+
+
+def errorbar_figure(path: Path, panels: list[tuple[str, dict[str, dict[int, Estimate]]]], xlabel: str,
+                    title: str, color_of: ColorOf | None = None) -> Path:
+    """Panels side by side of estimates against an integer x, one per ``(ylabel, {series: {x: estimate}})``.
+
+    Each series is a line with its 95% CIs as error bars, shifted sideways by its position so the
+    bars of equal x stay apart; an empty series keeps its position (and line style) but is not drawn.
+    """
+    fig, axes = plt.subplots(1, len(panels), figsize=(17 / 3 * len(panels), 4.5), constrained_layout=True,
+                             squeeze=False)
+    for ax, (ylabel, series) in zip(axes[0], panels):
+        for index, (label, points) in enumerate(series.items()):
+            if not points:
+                continue
+            xs, est = list(points), list(points.values())
+            means = np.array([e.mean for e in est])
+            lows = np.array([e.low if e.has_ci else e.mean for e in est])
+            highs = np.array([e.high if e.has_ci else e.mean for e in est])
+            n = "/".join(sorted({str(e.n) for e in est}))
+            offset = 0.08 * (index - (len(series) - 1) / 2)
+            ax.errorbar(np.array(xs) + offset, means, yerr=[means - lows, highs - means], marker="o", capsize=4,
+                        ls=LINESTYLES[index % len(LINESTYLES)], label=f"{label} (n={n})",
+                        color=color_of(label) if color_of else None)
+        ax.set_xticks(sorted({x for points in series.values() for x in points}))
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel, fontsize="small")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize="small")
+    fig.suptitle(title)
+    return _save(fig, path, dpi=110)

@@ -1,0 +1,71 @@
+"""What the measurements share: the matched hyperparameters, the two maps, and SB3's side of the match.
+
+Stable-Baselines3 is optional (the ``dev`` extra), so it is imported only inside :func:`sb3_dqn`, which
+only the SB3 measurements call.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import gymnasium
+
+from dqn_transfer.config import AgentConfig
+from dqn_transfer.enums import Algorithm
+
+# The hyperparameters of every measurement, ours and SB3's (SB3 is given these values, not its own
+# defaults: see sb3_kwargs). All but the target update are the CLI's defaults (AgentConfig). SB3's DQN
+# updates its target by a hard copy (tau = 1.0) where our default is a soft update every step, so both
+# use the hard copy; every 500 steps rather than SB3's default 10,000, so that runs of 2,000-10,000
+# steps update the target several times.
+BENCH_AGENT = AgentConfig(algorithm=Algorithm.dqn, target_update=500, tau=1.0)
+
+# Sections 1 and 3: a 10 x 10, complexity 0.1 map with 4 chests and 4 traps, generated for K starts.
+BENCH_MAP: dict[str, Any] = dict(size=10, num_treasures=4, num_traps=4, complexity=0.1, map_seed=0)
+# Sections 2 and 4, the single-agent task: the same map family with one chest 6 moves from the start,
+# so an episode is a real navigation problem (on BENCH_MAP agent 0 starts next to a chest: every
+# episode would last one step).
+SOURCE_MAP: dict[str, Any] = dict(size=10, num_treasures=1, num_traps=1, complexity=0.1, map_seed=2)
+
+
+def replay_warmup(agent: AgentConfig) -> int:
+    """Transitions in replay before an update is timed: ``learning_starts``, and enough for two batches."""
+    return max(agent.learning_starts, 2 * agent.batch_size)
+
+
+# Our AgentConfig key -> SB3 DQN's keyword for the same quantity ("hidden" becomes policy_kwargs.net_arch).
+SB3_NAMES = {
+    "lr": "learning_rate",
+    "gamma": "gamma",
+    "batch_size": "batch_size",
+    "buffer_size": "buffer_size",
+    "learning_starts": "learning_starts",
+    "train_freq": "train_freq",
+    "gradient_steps": "gradient_steps",
+    "target_update": "target_update_interval",
+    "tau": "tau",
+    "max_grad_norm": "max_grad_norm",
+    "eps_start": "exploration_initial_eps",
+    "eps_end": "exploration_final_eps",
+    "exploration_fraction": "exploration_fraction",
+}
+
+
+def sb3_kwargs(agent: AgentConfig) -> dict[str, Any]:
+    """SB3 ``DQN`` keywords matching ``agent`` (its exploration keys are the trainer's schedule)."""
+    return {**{sb3: getattr(agent, ours) for ours, sb3 in SB3_NAMES.items()},
+            "policy_kwargs": dict(net_arch=list(agent.hidden)), "device": "cpu"}
+
+
+def sb3_dqn(agent: AgentConfig, env_kwargs: dict[str, Any], seed: int):
+    """``stable_baselines3.DQN("MlpPolicy", gymnasium.make("TreasureHunt-v0", **env_kwargs), ...)``."""
+    from stable_baselines3 import DQN  # optional dependency: only the SB3 measurements need it
+
+    env = gymnasium.make("TreasureHunt-v0", **env_kwargs)
+    return DQN("MlpPolicy", env, seed=seed, verbose=0, **sb3_kwargs(agent))
+
+
+def plain_agent(agent: AgentConfig) -> dict[str, Any]:
+    """``agent`` as JSON data (the algorithm by its name)."""
+    return {**dataclasses.asdict(agent), "algorithm": Algorithm(agent.algorithm).value}

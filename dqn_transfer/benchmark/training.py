@@ -1,0 +1,91 @@
+"""Section 2, DQN training steps/s on ``TreasureHunt-v0``: our trainer against Stable-Baselines3.
+
+Ours is ``Trainer(config, run_dir, source_task=True).run()``, what ``python train.py`` does on the
+source task: the loop with its TensorBoard logging, progress bar off. Its greedy evaluations and
+checkpoint writes (``summary["overhead"]``) are subtracted, since SB3's ``learn`` does neither. SB3 is
+``DQN("MlpPolicy", gymnasium.make("TreasureHunt-v0"), ...).learn(steps)``. Both get the hyperparameters
+of one :class:`~dqn_transfer.config.AgentConfig` (``BENCH_AGENT``).
+
+After training, both play the same greedy episodes through :func:`dqn_transfer.rollout.play_episode`
+on the numpy game ``TreasureHunt-v0`` wraps, so their success figures are comparable.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from dqn_transfer.benchmark.config import BENCH_AGENT, SOURCE_MAP, sb3_dqn
+from dqn_transfer.config import AgentConfig, EnvConfig, TrainConfig
+from dqn_transfer.envs import make_game
+from dqn_transfer.rollout import Policy, greedy_policy, play_episode
+from dqn_transfer.timing import Stopwatch
+from dqn_transfer.trainer import Trainer
+
+# The greedy episodes are seeded apart from training's (the start is fixed, so a deterministic
+# policy plays the same episode each time: a few suffice).
+GREEDY_SEED_OFFSET = 10_000
+
+
+def greedy_check(policy: Policy, env_kwargs: dict[str, Any], episodes: int, seed: int) -> dict[str, float]:
+    """Greedy episodes on the single-agent game of ``env_kwargs``: the fraction that reach a full chest,
+    and the mean return."""
+    game = make_game(**env_kwargs).single_agent_game()
+    results = [play_episode(game, policy, np.random.default_rng(seed + episode)) for episode in range(episodes)]
+    return {"greedy_success": float(np.mean([r.treasures_collected > 0 for r in results])),
+            "greedy_return": float(np.mean([r.team_return for r in results]))}
+
+
+def _figures(steps: int, wall: float, cpu: float, gradient_steps: int) -> dict[str, Any]:
+    return {"steps": steps, "seconds": wall, "cpu_seconds": cpu, "steps_per_s": steps / wall,
+            "steps_per_cpu_s": steps / cpu, "gradient_steps": gradient_steps}
+
+
+def measure_ours_training(steps: int, seed: int, agent: AgentConfig = BENCH_AGENT,
+                          env_kwargs: dict[str, Any] = SOURCE_MAP, eval_episodes: int = 3) -> dict[str, Any]:
+    """Env steps/s of our trainer on the source task, its evaluations and checkpoints subtracted."""
+    config = TrainConfig(
+        env=EnvConfig(**env_kwargs),
+        agent=agent,
+        seed=seed,
+        total_steps=steps,
+        eval_every=steps,  # at step 0 and at the end, one episode each: as little as the trainer allows
+        eval_episodes=1,
+        checkpoint_every=steps,
+        progress=False,
+        threads=torch.get_num_threads(),  # the trainer sets torch's (global) thread count from this
+    )
+    with tempfile.TemporaryDirectory(prefix="dqn_transfer_bench_") as tmp:
+        trainer = Trainer(config, Path(tmp) / "run", source_task=True)
+        with Stopwatch() as run:
+            summary = trainer.run()
+    overhead = summary["overhead"]
+    return {
+        **_figures(steps, run.wall - overhead["wall"], run.cpu - overhead["cpu"],
+                   int(trainer.learner.num_gradient_steps)),
+        "run_seconds": run.wall,
+        "excluded_seconds": overhead["wall"],
+        "excluded_cpu_seconds": overhead["cpu"],
+        **greedy_check(greedy_policy(trainer.learner), env_kwargs, eval_episodes, seed + GREEDY_SEED_OFFSET),
+    }
+
+
+def measure_sb3_training(steps: int, seed: int, agent: AgentConfig = BENCH_AGENT,
+                         env_kwargs: dict[str, Any] = SOURCE_MAP, eval_episodes: int = 3) -> dict[str, Any]:
+    """Env steps/s of SB3's ``DQN.learn(steps)`` with the same hyperparameters."""
+    model = sb3_dqn(agent, env_kwargs, seed)
+    with Stopwatch() as run:
+        model.learn(total_timesteps=steps, progress_bar=False)
+    model.get_env().close()
+
+    def policy(obs: np.ndarray, live: np.ndarray) -> np.ndarray:
+        return np.array([int(model.predict(obs[0], deterministic=True)[0])])
+
+    return {
+        **_figures(steps, run.wall, run.cpu, int(model._n_updates)),  # SB3 keeps its gradient-step count only here
+        **greedy_check(policy, env_kwargs, eval_episodes, seed + GREEDY_SEED_OFFSET),
+    }

@@ -1,0 +1,96 @@
+"""``dqn-transfer-bench`` / ``python -m dqn_transfer.cli.bench``: the benchmark table, and its JSON document.
+
+    dqn-transfer-bench [--quick] [--out outputs/bench.json] [--seed 0] [--repeats 3] [--threads 1] [--only SECTION]
+
+Measures our environment, trainer and learner against PettingZoo's API, Stable-Baselines3 and bare
+PyTorch (:mod:`dqn_transfer.benchmark`, whose suite module explains the method). The table goes to
+stdout, progress to stderr, and everything (the raw per-repeat figures and the machine) to ``--out``,
+written atomically. What would fail after minutes of measuring (SB3 missing, ``--out`` not writable)
+is checked first: one ``error:`` line and exit code 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from importlib.util import find_spec
+from pathlib import Path
+
+from dqn_transfer.benchmark.suite import NEEDS_SB3, SECTIONS, render_markdown, run_benchmark
+from dqn_transfer.checkpoint import CheckpointError, atomic_write
+
+
+def positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="dqn-transfer-bench",
+        description="Benchmark table: env throughput, DQN training vs SB3, team size, gradient-update overhead.")
+    parser.add_argument("--quick", action="store_true", help="small sizes: a smoke run (a few minutes)")
+    parser.add_argument("--out", type=Path, default=Path("outputs/bench.json"),
+                        help="JSON output path (default outputs/bench.json)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--repeats", type=positive_int, default=3,
+                        help="interleaved repeats per measurement; the median is reported (default 3)")
+    parser.add_argument("--threads", type=positive_int, default=1,
+                        help="torch threads for every measurement (default 1, fastest for these tiny "
+                             "networks); section 4 also times torch's default thread count")
+    parser.add_argument("--only", choices=SECTIONS, action="append",
+                        help="measure only this section (repeatable; default: all four)")
+    return parser
+
+
+def check_ready(out: Path, sections: list[str]) -> str | None:
+    """What would make the run fail at its end, as a message (None: ready): SB3 absent, --out unwritable."""
+    if any(section in NEEDS_SB3 for section in sections) and find_spec("stable_baselines3") is None:
+        return "the benchmark compares against Stable-Baselines3: pip install -e '.[dev]'"
+    if out.is_dir():
+        return f"--out {out} is a directory; give a file path such as {out / 'bench.json'}"
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        return f"cannot create {out.parent}: {err.strerror}"
+    try:  # a real write: os.access says yes to root even where writing fails (e.g. /proc)
+        with tempfile.NamedTemporaryFile(dir=out.parent, prefix=f".{out.name}.", suffix=".probe"):
+            pass
+    except OSError as err:
+        return f"cannot write into {out.parent}: {err.strerror}"
+    return None
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    sections = [s for s in SECTIONS if s in args.only] if args.only else list(SECTIONS)
+    problem = check_ready(args.out, sections)
+    if problem is not None:
+        print(f"error: {problem}", file=sys.stderr)
+        return 1
+    profile = "quick" if args.quick else "full"
+    start = time.perf_counter()
+    results = run_benchmark(profile, args.seed, args.repeats, args.threads, sections=sections)
+    results["total_seconds"] = time.perf_counter() - start
+    table = render_markdown(results)
+    results["markdown"] = table
+    print(table)
+    try:
+        atomic_write(args.out, (json.dumps(results, indent=2) + "\n").encode())
+    except CheckpointError as err:  # atomic_write words its failure for checkpoints
+        print(f"error: could not save the results (the table is above): {err}", file=sys.stderr)
+        return 1
+    print(f"wrote {args.out} ({results['total_seconds']:.0f} s)", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,85 @@
+"""``dqn-transfer-ckpt list|show|verify PATH``: inspect checkpoints (a file, a run dir or a checkpoints dir).
+
+Every file is verified (format, meta, digest) before anything is shown; a bad file is one ``error:``
+line and exit code 1, never a traceback, and nothing is ever unpickled.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from collections.abc import Mapping
+
+from dqn_transfer.checkpoint import CheckpointError, CheckpointInfo, find_checkpoints, verify_checkpoint
+
+
+def _format_list_row(info: CheckpointInfo) -> str:
+    meta = info.meta
+    last_eval = meta.get("last_eval")
+    eval_return = last_eval.get("team_return") if isinstance(last_eval, Mapping) else None
+    eval_text = "-" if eval_return is None else f"{float(eval_return):.2f}"
+    return (f"{info.path.name}  algorithm={meta.get('algorithm', '-')}  steps={meta.get('steps', '-')}"
+            f"  episodes={meta.get('episodes', '-')}  eval_return={eval_text}"
+            f"  size={_human_size(info.size_bytes)}")
+
+
+def _format_show(info: CheckpointInfo) -> str:
+    lines = [f"# {info.path}", json.dumps(info.meta, indent=2), "tensors:"]
+    lines += [f"  {name}  {dtype}  {shape}" for name, (dtype, shape) in info.tensors.items()]
+    return "\n".join(lines)
+
+
+def _human_size(n_bytes: int) -> str:
+    if n_bytes < 1024:
+        return f"{n_bytes} B"
+    size = n_bytes / 1024
+    for unit in ("KiB", "MiB"):
+        if size < 1024:
+            return f"{size:.1f} {unit}"
+        size /= 1024
+    return f"{size:.1f} GiB"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``list`` / ``show`` / ``verify`` checkpoints; exit 1 with one ``error:`` line per bad file."""
+    parser = argparse.ArgumentParser(prog="dqn-transfer-ckpt",
+                                     description="Inspect dqn_transfer safetensors checkpoints.")
+    parser.add_argument("command", choices=["list", "show", "verify"])
+    parser.add_argument("path", help="a checkpoint file, a run directory or a checkpoints directory")
+    args = parser.parse_args(argv)
+
+    try:
+        files = find_checkpoints(args.path)
+    except CheckpointError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    failed = False
+    for file in files:
+        try:
+            info = verify_checkpoint(file)
+        except CheckpointError as e:
+            print(f"error: {e}", file=sys.stderr)
+            failed = True
+            continue
+        if args.command == "list":
+            print(_format_list_row(info))
+        elif args.command == "show":
+            print(_format_show(info))
+        else:
+            print(f"OK {file}")
+    return 1 if failed else 0
+
+
+def run() -> None:
+    """Console-script entry: ``main`` with a quiet exit when the reader of stdout goes away."""
+    try:
+        sys.exit(main())
+    except BrokenPipeError:  # `... show FILE | head`: the reader left; not an error worth a traceback
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        sys.exit(0)
+
+
+if __name__ == "__main__":
+    run()

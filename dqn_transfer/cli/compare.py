@@ -1,0 +1,37 @@
+"""Transfer metrics (Taylor & Stone 2009) of transfer runs against baseline runs, with bootstrap 95% CIs over seeds.
+
+    python -m dqn_transfer.cli.compare --transfer outputs/tr/* --baseline outputs/base/* [--threshold X]
+
+(the shell expands the globs). Prints a Markdown table; see
+:func:`dqn_transfer.analysis.compare.compare_runs` for what each row means.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from dqn_transfer.analysis.compare import compare_runs, format_table
+from dqn_transfer.analysis.runs import EvaluationError
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Print the transfer-vs-baseline Markdown table; exit 1 with one ``error:`` line on bad input."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--transfer", nargs="+", required=True, metavar="DIR", help="transfer run dirs")
+    parser.add_argument("--baseline", nargs="+", required=True, metavar="DIR", help="baseline run dirs")
+    parser.add_argument("--metric", default="team_return", help="metrics.jsonl key (default: team_return)")
+    parser.add_argument("--threshold", type=float, default=None, help="value for time_to_threshold")
+    parser.add_argument("--seed", type=int, default=0, help="bootstrap RNG seed")
+    args = parser.parse_args(argv)
+    try:
+        results = compare_runs(args.transfer, args.baseline, args.metric, args.threshold, args.seed)
+    except (EvaluationError, ValueError, OSError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    print(format_table(results))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

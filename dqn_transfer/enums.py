@@ -1,0 +1,68 @@
+"""The closed vocabularies of the project, each spelled once.
+
+The game, the learners, the config schemas, the checkpoint files and the analysis all name modes,
+algorithms and exchange kinds by these enums' values; nothing else in the package spells them. The
+module imports nothing, so every layer (down to the game) may use it.
+"""
+
+from __future__ import annotations
+
+from enum import Enum
+
+
+class Mode(Enum):
+    """How the ``treasures`` belief is kept: no communication, announcements, a coordinator."""
+
+    competitive = "competitive"
+    cooperative = "cooperative"
+    deliberative = "deliberative"
+
+
+class RewardMode(Enum):
+    """``individual``: each agent its own reward; ``team``: every live agent the step's sum."""
+
+    individual = "individual"
+    team = "team"
+
+
+class ObsEncoding(Enum):
+    """The ``position`` segment: one-hot of the cell, or its two normalised coordinates."""
+
+    onehot = "onehot"
+    coords = "coords"
+
+
+class Algorithm(Enum):
+    sarsa = "sarsa"
+    qlearning = "qlearning"
+    dqn = "dqn"
+    double_dqn = "double_dqn"
+
+    @property
+    def is_tabular(self) -> bool:
+        return self in (Algorithm.sarsa, Algorithm.qlearning)
+
+    @property
+    def family(self) -> str:
+        """``tabular`` or ``dqn``: a checkpoint transfers within its family (a DQN network may
+        continue as Double DQN, a SARSA table as Q-learning)."""
+        return "tabular" if self.is_tabular else "dqn"
+
+
+class Exchange(Enum):
+    """Team knowledge exchange during training."""
+
+    none = "none"
+    best = "best"  # the others soft-copy the best agent's weights
+    shared_replay = "shared_replay"  # team-mates' transitions go into each agent's replay
+
+
+class Device(Enum):
+    cpu = "cpu"
+    cuda = "cuda"
+    auto = "auto"
+
+
+def values(enum: type[Enum]) -> tuple[str, ...]:
+    """The accepted spellings of an enum, in declaration order (for checks and messages)."""
+    return tuple(member.value for member in enum)

@@ -1,0 +1,216 @@
+"""Running the study's experiments: one Hydra multirun per experiment, into ``OUT/<name>/``.
+
+Each experiment is ``python -m dqn_transfer.cli.train -m experiment=<name>`` (``conf/experiment/``)
+in a subprocess, with the profile's overrides; ``--launcher joblib`` runs ``--n-jobs`` jobs at a
+time, ``submitit_slurm`` one SLURM job per run. The ``full`` profile uses the experiment files' own
+step counts; ``quick`` shrinks them and the seeds.
+
+A sweep directory already complete for the same settings is reused (so a failed report or a second
+``--only`` does not rerun it); one holding other or unfinished runs is an error, never overwritten.
+A failed sweep says which runs failed, with the tail of their logs.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shlex
+import subprocess
+import sys
+import time
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+from hydra import compose, initialize_config_dir
+from hydra.core.override_parser.overrides_parser import OverridesParser
+
+from dqn_transfer.analysis.runs import EvaluationError, load_config, read_metrics
+from dqn_transfer.config import CONFIG_DIR, register_configs
+from dqn_transfer.enums import Algorithm, Mode, values
+from dqn_transfer.experiments.team_maps import write_team_maps
+from dqn_transfer.run_dir import RunDir
+
+EXPERIMENTS = ("fig1", "fig2", "transfer")
+TRANSFER_LEARNERS = (Algorithm.double_dqn, Algorithm.sarsa)  # a deep learner and the study's tabular one
+STAMP_FILE = "reproduce.json"  # in OUT/<name>/: the settings the sweep ran with, and its wall time
+
+
+class ReproduceError(Exception):
+    """A failed sweep or unusable results; the message is for the user, the CLI exits 1."""
+
+
+@dataclass(frozen=True)
+class Profile:
+    """Seeds per experiment, and overrides of the experiment file's settings (none: the file's own)."""
+
+    seeds: dict[str, int]
+    overrides: dict[str, list[str]] = field(default_factory=dict)
+    description: str = ""
+
+
+PROFILES = {
+    "quick": Profile(
+        seeds={"fig1": 3, "fig2": 2, "transfer": 3},
+        overrides={
+            "fig1": ["total_steps=2000", "eval_every=100"],
+            "fig2": ["total_steps=30000", "eval_every=2000", "eval_episodes=5"],
+            "transfer": ["total_steps=2000", "eval_every=100", "transfer.pretrain_steps=2000",
+                         "agent.learning_starts=200"],
+        },
+        description="SMOKE RUN: 2-3 seeds and a few thousand steps per run; it checks that the pipeline "
+                    "works end to end and is NOT evidence for or against any claim."),
+    "full": Profile(
+        seeds={"fig1": 20, "fig2": 10, "transfer": 10},
+        description="the evidence: >= 10 seeds per condition, step counts of conf/experiment/*.yaml."),
+}
+
+
+def _quote(value: str | Path) -> str:
+    """A path as a Hydra override value (quoted: spaces, '=' and ',' are grammar)."""
+    text = str(value)
+    if "'" in text:
+        raise ReproduceError(f"{text}: paths with a single quote cannot be passed to Hydra; choose another --out")
+    return f"'{text}'"
+
+
+def sweep_overrides(name: str, profile: str, out: Path) -> list[str]:
+    """The command-line overrides of one experiment's multirun (they replace the file's sweep keys)."""
+    prof = PROFILES[profile]
+    seeds = [f"seed=range(0,{prof.seeds[name]})"]
+    if name == "fig1":
+        sweep = [f"mode={Mode.competitive.value},{Mode.cooperative.value}"]
+    elif name == "fig2":
+        maps = write_team_maps(out / "maps")
+        sweep = ["mode=" + ",".join(values(Mode)), "env.num_agents=null",
+                 "env.layout_file=" + ",".join(_quote(p) for p in maps)]
+    elif name == "transfer":
+        sweep = ["transfer=off,on", "agent=" + ",".join(a.value for a in TRANSFER_LEARNERS),
+                 f"transfer.cache_dir={_quote(out / 'pretrained')}"]
+    else:
+        raise ReproduceError(f"unknown experiment {name!r} (choose from {', '.join(EXPERIMENTS)})")
+    return sweep + seeds + prof.overrides.get(name, [])
+
+
+def count_jobs(name: str, overrides: Sequence[str]) -> int:
+    """How many jobs the multirun launches: the experiment file's sweep with ``overrides`` applied."""
+    register_configs()
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=[f"experiment={name}"], return_hydra_config=True)
+    params = {key: str(value) for key, value in (cfg.hydra.sweeper.params or {}).items()}
+    parser = OverridesParser.create()
+    for text, override in zip(overrides, parser.parse_overrides(list(overrides))):
+        params[override.get_key_element()] = text.split("=", 1)[1]  # the command line replaces a file's key
+    total = 1
+    for override in parser.parse_overrides([f"{k}={v}" for k, v in params.items()]):
+        if override.is_sweep_override():
+            total *= len(list(override.sweep_string_iterator()))
+    return total
+
+
+def launcher_overrides(launcher: str, n_jobs: int) -> list[str]:
+    if launcher == "basic":
+        return []
+    if launcher == "joblib":
+        return ["hydra/launcher=joblib", f"hydra.launcher.n_jobs={n_jobs}"]
+    return [f"hydra/launcher={launcher}"]  # e.g. submitit_slurm / submitit_local, with --extra settings
+
+
+def run_is_complete(run_dir: Path) -> bool:
+    """The run evaluated at its last step (the trainer's final act before its last checkpoint)."""
+    config = load_config(run_dir)
+    if config is None or not RunDir(run_dir).has_metrics():
+        return False
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            records = read_metrics(run_dir)
+    except EvaluationError:
+        return False
+    return bool(records) and max(int(r.get("step", -1)) for r in records) >= int(config.get("total_steps", 0))
+
+
+def job_dirs(sweep_dir: Path) -> list[Path]:
+    """Hydra's numbered job directories of a multirun."""
+    if not sweep_dir.is_dir():
+        return []
+    return sorted((p for p in sweep_dir.iterdir() if p.is_dir() and p.name.isdigit()), key=lambda p: int(p.name))
+
+
+def _tail(path: Path, lines: int = 15) -> str:
+    try:
+        text = path.read_text(errors="replace").rstrip().splitlines()
+    except OSError:
+        return f"    ({path} is unreadable)"
+    return "\n".join("    " + line for line in text[-lines:]) or "    (empty)"
+
+
+def failure_message(name: str, sweep_dir: Path, log_path: Path, expected: int, returncode: int) -> str:
+    """Which runs failed, with the tail of each one's log, or of the sweep log if no run explains it."""
+    runs = job_dirs(sweep_dir)
+    bad = [d for d in runs if not run_is_complete(d)]
+    parts = [f"experiment {name} failed (exit code {returncode}): {len(runs) - len(bad)}/{expected} runs "
+             f"complete in {sweep_dir}"]
+    for run in bad[:5]:
+        files = RunDir(run)
+        what = " ".join(yaml.safe_load(files.overrides.read_text()) or []) if files.overrides.exists() else "?"
+        parts.append(f"  run {run} ({what}) is incomplete; tail of {files.log}:\n{_tail(files.log)}")
+    if len(bad) > 5:
+        parts.append(f"  ... and {len(bad) - 5} more incomplete runs")
+    if len(runs) < expected:
+        parts.append(f"  {expected - len(runs)} jobs never started")
+    parts.append(f"  tail of the sweep log {log_path}:\n{_tail(log_path, 25)}")
+    return "\n".join(parts)
+
+
+def run_experiment(name: str, profile: str, out: Path, launcher: str, n_jobs: int,
+                   extra: Sequence[str] = (), poll_seconds: float = 2.0) -> float:
+    """One Hydra multirun into ``OUT/<name>``; returns its wall time (0 when reused)."""
+    sweep_dir = out / name
+    overrides = sweep_overrides(name, profile, out)
+    expected = count_jobs(name, overrides)
+    stamp_path = sweep_dir / STAMP_FILE
+    stamp = {"experiment": name, "profile": profile, "overrides": overrides, "jobs": expected}
+    if sweep_dir.exists() and any(sweep_dir.iterdir()):
+        previous = json.loads(stamp_path.read_text()) if stamp_path.exists() else None
+        same = previous is not None and {k: previous.get(k) for k in stamp} == stamp
+        if same and len(job_dirs(sweep_dir)) == expected and all(run_is_complete(d) for d in job_dirs(sweep_dir)):
+            print(f"[{name}] reusing the {expected} complete runs in {sweep_dir}", flush=True)
+            return 0.0
+        what = "runs of other settings" if previous is not None and not same else "unfinished runs"
+        raise ReproduceError(f"{sweep_dir} already holds {what}; delete it or choose another --out "
+                             "(--report-only analyses what is there)")
+    command = [sys.executable, "-m", "dqn_transfer.cli.train", "-m", f"experiment={name}", *overrides,
+               f"hydra.sweep.dir={_quote(sweep_dir)}", "progress=false",
+               *launcher_overrides(launcher, n_jobs), *extra]
+    log_path = out / "logs" / f"{name}.log"
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    env = dict(os.environ)
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        env.setdefault(var, "1")  # parallel jobs of small MLPs: more torch threads only contend
+    how = f"{launcher}" + (f", {n_jobs} at a time" if launcher == "joblib" else "")
+    print(f"[{name}] {expected} jobs ({how}) -> {sweep_dir}\n[{name}] log: {log_path}", flush=True)
+    start = time.perf_counter()
+    with log_path.open("w") as log:
+        log.write("$ " + shlex.join(command) + "\n\n")
+        log.flush()
+        process = subprocess.Popen(command, cwd=out, stdout=log, stderr=subprocess.STDOUT, env=env)
+        done, printed = -1, -math.inf
+        while process.poll() is None:
+            time.sleep(poll_seconds)
+            now = sum(run_is_complete(d) for d in job_dirs(sweep_dir))
+            elapsed = time.perf_counter() - start
+            if now != done and (elapsed - printed >= 10 or now == expected):  # a line per change, at most every 10 s
+                done, printed = now, elapsed
+                print(f"[{name}] {done}/{expected} runs done ({elapsed:.0f} s)", flush=True)
+    elapsed = time.perf_counter() - start
+    runs = job_dirs(sweep_dir)
+    if process.returncode != 0 or len(runs) != expected or not all(run_is_complete(d) for d in runs):
+        raise ReproduceError(failure_message(name, sweep_dir, log_path, expected, process.returncode))
+    stamp["wall_seconds"] = round(elapsed, 1)
+    stamp_path.write_text(json.dumps(stamp, indent=2) + "\n")
+    print(f"[{name}] {expected}/{expected} runs done in {elapsed:.0f} s", flush=True)
+    return elapsed

@@ -1,0 +1,73 @@
+"""One episode loop: a policy plays a game until every agent is done.
+
+Training-time evaluation, the benchmark's greedy checks and watching a trained team all play
+episodes through :func:`play_episode`; only the training loop itself steps the game on its own,
+since it runs across episode boundaries on a step budget.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import NamedTuple
+
+import numpy as np
+
+from dqn_transfer.agents.base import Learner, Transition
+from dqn_transfer.enums import RewardMode
+from dqn_transfer.envs.game import TreasureHuntGame
+
+# (obs [K, D], live [K]) -> actions [K]; actions of agents that are not live are ignored.
+Policy = Callable[[np.ndarray, np.ndarray], np.ndarray]
+# Called after every step with the joint transition and the game's info dict.
+StepCallback = Callable[[Transition, dict], None]
+
+
+class EpisodeResult(NamedTuple):
+    team_return: float
+    length: int  # joint steps
+    treasures_collected: int
+    success_rate: float  # treasures collected / chests on the map
+    trap_rate: float  # agents that ended in a trap / agents
+
+
+def team_return_of(rewards: np.ndarray, reward_mode: RewardMode) -> float:
+    """Team return of one step from the live agents' rewards: their sum (in team mode every agent
+    already receives the sum, so it is counted once, not K times)."""
+    return float(rewards.max() if reward_mode is RewardMode.team and rewards.size else rewards.sum())
+
+
+def greedy_policy(learner: Learner) -> Policy:
+    """The learner's greedy actions; consumes none of its random numbers."""
+    return lambda obs, live: learner.act(obs, live, epsilon=0.0, greedy=True)
+
+
+def play_episode(game: TreasureHuntGame, policy: Policy, rng: np.random.Generator,
+                 on_step: StepCallback | None = None) -> EpisodeResult:
+    """Reset ``game`` with ``rng`` (it draws the winners of chest ties) and play one episode."""
+    obs = game.reset(rng)
+    team_return, length, trapped = 0.0, 0, 0
+    while not game.done:
+        live = game.live
+        actions = policy(obs, live)
+        next_obs, rewards, terminated, truncated, info = game.step(actions)
+        if on_step is not None:
+            on_step(Transition(obs, actions, rewards, next_obs, terminated, truncated, live), info)
+        obs = next_obs
+        team_return += team_return_of(rewards[live], game.reward_mode)
+        trapped += int(np.sum(info["trap"]))
+        length += 1
+    return EpisodeResult(team_return, length, game.treasures_collected,
+                         game.treasures_collected / game.num_treasures, trapped / game.num_agents)
+
+
+def evaluate(learner: Learner, game: TreasureHuntGame, episodes: int, seed: int, evaluation: int) -> dict[str, float]:
+    """Greedy episodes, each seeded from (seed, evaluation, episode): independent of training history."""
+    policy = greedy_policy(learner)
+    results = [play_episode(game, policy, np.random.default_rng([seed, 1_000_003, evaluation, episode]))
+               for episode in range(episodes)]
+    return {
+        "team_return": float(np.mean([r.team_return for r in results])),
+        "success_rate": float(np.mean([r.success_rate for r in results])),
+        "trap_rate": float(np.mean([r.trap_rate for r in results])),
+        "episode_length": float(np.mean([r.length for r in results])),
+    }
