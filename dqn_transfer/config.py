@@ -135,6 +135,8 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
     _check(0.0 <= env.complexity < 1.0, f"env.complexity must be in [0, 1), got {env.complexity}")
     _check(len(agent.hidden) >= 1 and all(h >= 1 for h in agent.hidden),
            f"agent.hidden must be a non-empty list of positive sizes, got {list(agent.hidden)}")
+    _check(transfer.enabled or not transfer.freeze,
+           f"transfer.freeze={list(transfer.freeze)} keeps transferred layers fixed: it needs transfer=on")
     is_tabular = Algorithm(agent.algorithm).is_tabular
     if is_tabular:
         _check(transfer.exchange == Exchange.none,

@@ -66,6 +66,10 @@ def test_bad_overrides_are_refused(override):
     ("env.complexity=1.2", "env.complexity must be in \\[0, 1\\)"),
     ("agent.hidden=[]", "agent.hidden must be a non-empty list"),
     ("agent.tau=0", "agent.tau must be in \\(0, 1\\]"),
+    ("env.max_steps=0", "env.max_steps must be >= 1"),
+    ("transfer.exchange_tau=1.5", "transfer.exchange_tau must be in \\(0, 1\\]"),
+    ("agent.lr=0", "agent.lr must be > 0"),
+    ("transfer.freeze=[0]", "transfer.freeze=\\[0\\] .* needs transfer=on"),
 ])
 def test_out_of_range_values_name_the_key(override, message):
     config = compose_config(override)
