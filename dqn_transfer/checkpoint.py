@@ -74,24 +74,33 @@ class CheckpointInfo:
 # Writing
 
 
-def save_agent_checkpoint(path: str | os.PathLike, tensors: Mapping[str, torch.Tensor],
-                          meta: Mapping[str, Any]) -> None:
-    """Atomically write one agent's tensors and meta (the caller's ``meta`` is not modified)."""
-    import safetensors.torch
+def encode_agent_checkpoint(tensors: Mapping[str, torch.Tensor], meta: Mapping[str, Any]) -> bytes:
+    """One agent's tensors and meta as the bytes of its safetensors file (``meta`` is not modified)."""
+    import safetensors.torch  # torch only where agent tensors are handled: inspecting files needs none
 
     tensors = {name: t.detach().cpu().contiguous() for name, t in tensors.items()}
-    _save(Path(path), tensors, meta, AGENT_KIND, safetensors.torch.save)
+    return _encode(tensors, meta, AGENT_KIND, safetensors.torch.save)
+
+
+def encode_training_state(arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> bytes:
+    """Resume state, numpy arrays plus JSON meta (no pickle), as the bytes of its file."""
+    arrays = {name: np.ascontiguousarray(a) for name, a in arrays.items()}
+    return _encode(arrays, meta, TRAINING_STATE_KIND, safetensors.numpy.save)
+
+
+def save_agent_checkpoint(path: str | os.PathLike, tensors: Mapping[str, torch.Tensor],
+                          meta: Mapping[str, Any]) -> None:
+    """Atomically write one agent's checkpoint file."""
+    atomic_write(Path(path), encode_agent_checkpoint(tensors, meta))
 
 
 def save_training_state(path: str | os.PathLike, arrays: Mapping[str, np.ndarray],
                         meta: Mapping[str, Any]) -> None:
-    """Atomically write resume state: numpy arrays plus JSON meta, no pickle."""
-    arrays = {name: np.ascontiguousarray(a) for name, a in arrays.items()}
-    _save(Path(path), arrays, meta, TRAINING_STATE_KIND, safetensors.numpy.save)
+    """Atomically write a resume-state file."""
+    atomic_write(Path(path), encode_training_state(arrays, meta))
 
 
-def _save(path: Path, tensors: dict[str, Any], meta: Mapping[str, Any], kind: str,
-          serialize: Callable[..., bytes]) -> None:
+def _encode(tensors: dict[str, Any], meta: Mapping[str, Any], kind: str, serialize: Callable[..., bytes]) -> bytes:
     # The digest is computed from the serialized tensors (name, dtype, shape, bytes as stored), so
     # the reader checks exactly what is on disk, whatever framework wrote it. Serializing twice
     # costs little next to the training that produced the tensors.
@@ -100,8 +109,8 @@ def _save(path: Path, tensors: dict[str, Any], meta: Mapping[str, Any], kind: st
     try:
         meta_json = json.dumps(full_meta, default=_json_default)
     except (TypeError, ValueError) as e:
-        raise CheckpointError(f"{path}: meta is not JSON-serialisable ({e})") from None
-    atomic_write(path, serialize(tensors, metadata={META_KEY: meta_json}))
+        raise CheckpointError(f"{kind} meta is not JSON-serialisable ({e})") from None
+    return serialize(tensors, metadata={META_KEY: meta_json})
 
 
 def _json_default(value: Any) -> Any:
@@ -113,29 +122,44 @@ def _json_default(value: Any) -> Any:
 
 def atomic_write(path: Path, data: bytes) -> None:
     """Write ``data`` so that ``path`` holds either the old file or the complete new one."""
-    tmp_name = None
+    atomic_write_all({Path(path): data})
+
+
+def atomic_write_all(files: Mapping[Path, bytes]) -> None:
+    """Replace several files so that a failed write (disk full, a killed writer) changes none of them.
+
+    Every new file is first written and fsync'ed under a temporary name beside its target; only when
+    all of them are on disk are they renamed over the old ones, in the given order (so the file
+    named last, e.g. the resume state, is replaced last). A failure in the first phase removes the
+    temporary files and leaves every old file as it was.
+    """
+    staged: dict[Path, Path] = {}
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        # Not tempfile.mkstemp: its 0600 mode would make shared checkpoints unreadable to others.
-        tmp_name = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
-        fd = os.open(tmp_name, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp_name, path)
-        tmp_name = None
-        if os.name == "posix":  # make the rename itself durable
-            dir_fd = os.open(path.parent, os.O_RDONLY)
+        for path, data in files.items():
+            path.parent.mkdir(parents=True, exist_ok=True)
+            # Not tempfile.mkstemp: its 0600 mode would make shared checkpoints unreadable to others.
+            tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+            staged[path] = tmp
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+        for path, tmp in staged.items():
+            os.replace(tmp, path)
+        for directory in {path.parent for path in staged}:  # make the renames themselves durable
+            dir_fd = os.open(directory, os.O_RDONLY)
             try:
                 os.fsync(dir_fd)
             finally:
                 os.close(dir_fd)
     except OSError as e:
-        raise CheckpointError(f"{path}: cannot write checkpoint ({e})") from None
+        failed = e.filename or next(iter(files), "")
+        raise CheckpointError(f"{failed}: cannot write ({e.strerror or e}); the previous files are kept") from None
     finally:
-        if tmp_name is not None and os.path.exists(tmp_name):
-            os.unlink(tmp_name)
+        for tmp in staged.values():
+            if os.path.exists(tmp):
+                os.unlink(tmp)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -50,6 +50,25 @@ class AgentConfig:
     share_parameters: bool = False  # one network for all agents (parameter-sharing baseline)
 
 
+# Each AgentConfig key -> Stable-Baselines3 DQN's keyword for the same quantity ("hidden" becomes policy_kwargs.net_arch).
+SB3_NAMES = {
+    "lr": "learning_rate",
+    "gamma": "gamma",
+    "batch_size": "batch_size",
+    "buffer_size": "buffer_size",
+    "learning_starts": "learning_starts",
+    "train_freq": "train_freq",
+    "gradient_steps": "gradient_steps",
+    "target_update": "target_update_interval",
+    "tau": "tau",
+    "max_grad_norm": "max_grad_norm",
+    "eps_start": "exploration_initial_eps",
+    "eps_end": "exploration_final_eps",
+    "exploration_fraction": "exploration_fraction",
+}
+
+
+
 @dataclass
 class TransferConfig:
     """Warm start from a pretrained agent, and knowledge exchange inside the team (docs/transfer.md)."""

@@ -12,13 +12,15 @@
       checkpoints/training_state.safetensors  what resume needs besides the agents
 
 The module imports nothing of the package, so the checkpoint files, the trainer and the analysis
-can all use it.
+can all use it. :class:`RunClaim` is how a run takes a directory for itself (and gives it back).
 """
 
 from __future__ import annotations
 
+import fcntl
 import os
 import re
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -96,3 +98,84 @@ class RunDir:
 
     def has_metrics(self) -> bool:
         return self.metrics.is_file()
+
+    def run_files(self) -> list[str]:
+        """The names of the run's own files and folders that exist (its log and config included)."""
+        return [p.name for p in (self.hydra_dir, self.metrics, self.tensorboard, self.checkpoints, self.log)
+                if p.exists()]
+
+    def holds_run(self) -> bool:
+        """Whether anything of a run is here: a new run must not mix its files with it."""
+        return bool(self.run_files())
+
+
+class RunDirError(Exception):
+    """A run directory cannot be used for this run; the message is one user-facing line."""
+
+
+class RunClaim:
+    """This process's exclusive hold on a run directory, and what it added there.
+
+    ``acquire`` locks the directory itself (``flock`` on its descriptor: no lock file to leave
+    behind), so a second process pointed at a directory in use is refused; a new run is refused in a
+    directory that already holds a run. ``undo`` removes what this process added, so a refused run
+    leaves the file system as it found it.
+    """
+
+    def __init__(self, run: RunDir) -> None:
+        self.run = run
+        self._fd: int | None = None
+        self._created: Path | None = None  # the first directory of the path this process created
+        self._entries_before: set[str] = set()
+
+    def acquire(self, *, resume: bool, fresh: bool = False) -> None:
+        """Lock the directory, creating it if needed; ``fresh``: it was just created for this run
+        (a multirun job's directory), so ``undo`` removes it whole."""
+        path = self.run.path.absolute()
+        for ancestor in (path, *path.parents):
+            if ancestor.exists() and not ancestor.is_dir():
+                raise RunDirError(f"cannot use {path} as a run directory: {ancestor} is a file "
+                                  "(choose another hydra.run.dir)")
+        missing = [p for p in (path, *path.parents) if not p.exists()]
+        self._created = path if fresh else (missing[-1] if missing else None)
+        self._entries_before = set() if fresh or not path.exists() else set(os.listdir(path))
+        try:
+            path.mkdir(parents=True, exist_ok=True)
+            self._fd = os.open(path, os.O_RDONLY)
+        except OSError as err:
+            raise RunDirError(f"cannot create the run directory {path}: {err.strerror}") from None
+        try:
+            fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            self.release()
+            raise RunDirError(f"{path} is in use by another running process; wait for it or choose another "
+                              "hydra.run.dir") from None
+        if not fresh and not resume and self.run.holds_run():
+            self.release()
+            raise RunDirError(existing_run_message(self.run))
+
+    def release(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)  # closing the descriptor drops the lock
+            self._fd = None
+
+    def undo(self) -> None:
+        """Release, and remove what this process added: the directory if it created it, else the
+        entries that were not there before."""
+        self.release()
+        if self._created is not None:
+            shutil.rmtree(self._created, ignore_errors=True)
+            return
+        path = self.run.path
+        for name in set(os.listdir(path)) - self._entries_before if path.is_dir() else ():
+            entry = path / name
+            shutil.rmtree(entry, ignore_errors=True) if entry.is_dir() else entry.unlink(missing_ok=True)
+
+
+def existing_run_message(run: RunDir) -> str:
+    """Why a new run may not start in ``run``, and what to do instead."""
+    if run.has_run():
+        return (f"{run} already holds a run; pass resume=true to continue it, or choose another "
+                "hydra.run.dir for a new one")
+    return (f"{run} already holds files of a run ({', '.join(sorted(run.run_files()))}) but no checkpoint "
+            "to resume from; choose another hydra.run.dir (or delete it)")

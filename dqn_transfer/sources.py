@@ -4,20 +4,26 @@
 - unset, a source agent is pretrained on the source task — ``TreasureHunt-v0``, the single-agent MDP
   of the same map — for ``transfer.pretrain_steps`` and cached under
   ``outputs/pretrained/<hash of the source config>/``, so the next run with the same source config
-  reuses it. A file lock makes parallel sweep jobs pretrain it once.
+  reuses it. The entry appears whole or not at all, and a file lock makes parallel sweep jobs
+  pretrain it once (:func:`pretrained_source`).
 
 Either way the result is a path, which the trainer's warm start (:mod:`dqn_transfer.warm_start`) loads.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import fcntl
 import hashlib
 import json
 import logging
+import os
+import secrets
+import shutil
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from dqn_transfer.checkpoint import CheckpointError, find_checkpoints, load_agent_checkpoint
 from dqn_transfer.config import TrainConfig, TransferConfig, to_plain, validate
@@ -28,6 +34,7 @@ from dqn_transfer.transfer_mapping import TransferError
 from dqn_transfer.warm_start import transfer_targets
 
 log = logging.getLogger("dqn_transfer.transfer")
+T = TypeVar("T")
 
 # The env keys a lone agent's task does not depend on: nobody to talk to or share rewards with, and
 # rendering changes nothing learned. Every other env key (a new one included) enters the cache key.
@@ -59,35 +66,83 @@ def source_hash(plain: dict[str, Any], layout: str) -> str:
 
 def pretrained_source(config: TrainConfig, layout: str, launch_dir: Path) -> Path:
     """Pretrain on TreasureHunt-v0 (of the map ``layout``) once per source config; later runs reuse
-    the cached checkpoint."""
+    the cached checkpoint.
+
+    The cache entry ``<cache_root>/<hash>/`` appears whole or not at all: the pretraining runs in a
+    temporary sibling ``.<hash>.tmp-<pid>-<random>/``, renamed into place once complete, and removed
+    if the pretraining fails or is interrupted. ``<cache_root>/.<hash>.lock`` (outside the entry, so
+    it never moves or disappears under a waiting job) makes parallel jobs pretrain the same source once.
+    """
     # Relative to the launch dir, like transfer.source: the process cwd may be a run dir (chdir, SLURM).
     cache_root = launch_dir / Path(config.transfer.cache_dir or "outputs/pretrained").expanduser()
-    run = RunDir(cache_root / source_hash(to_plain(config), layout))
-    checkpoint = run.agent_checkpoint(0)
-    try:
-        run.path.mkdir(parents=True, exist_ok=True)
-        lock = open(run.path / ".lock", "w")
-    except OSError as err:
-        raise TransferError(f"cannot use the pretraining cache {run}: {err.strerror} "
-                            "(set transfer.cache_dir to a writable directory)") from None
-    with lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)  # parallel sweep jobs: the first pretrains, the others wait
-        if _is_complete(checkpoint, config.transfer.pretrain_steps):
-            log.info("transfer: reusing the pretrained source %s", checkpoint)
+    key = source_hash(to_plain(config), layout)
+    entry = RunDir(cache_root / key)
+    checkpoint, steps = entry.agent_checkpoint(0), config.transfer.pretrain_steps
+    if _reuse(checkpoint, steps):  # an entry is complete once it exists: reading needs no lock
+        return checkpoint
+    with _cache_lock(cache_root, key, entry):
+        if _reuse(checkpoint, steps):  # another job pretrained it while this one waited
             return checkpoint
-        pretrain = source_config(config)
-        resume = run.has_run()  # a pretraining that was killed
-        log.info("transfer: pretraining a source agent on TreasureHunt-v0 for %d steps into %s%s",
-                 pretrain.total_steps, run, " (resuming)" if resume else "")
-        train(dataclasses.replace(pretrain, resume=resume), run.path, source_task=True)
+        # Under the lock nobody else pretrains this hash: what is there was left by a killed pretraining
+        # (a temp dir), or is an unfinished entry of the older in-place layout.
+        for leftover in [*cache_root.glob(f".{key}.tmp-*"), entry.path]:
+            _remove(leftover, key)
+        temp = cache_root / f".{key}.tmp-{os.getpid()}-{secrets.token_hex(4)}"
+        log.info("transfer: pretraining a source agent on TreasureHunt-v0 for %d steps into %s", steps, entry)
+        try:
+            train(source_config(config), temp, source_task=True)
+            _cache_call(os.rename, temp, entry.path, where=entry)
+        except BaseException:  # an error, Interrupted, KeyboardInterrupt: leave nothing half-made
+            _remove(temp, key)
+            raise
+    log.info("transfer: the pretrained source is cached in %s", entry)  # the trainer named the temp dir
     return checkpoint
 
 
-def _is_complete(checkpoint: Path, steps: int) -> bool:
-    if not checkpoint.exists():
+@contextlib.contextmanager
+def _cache_lock(cache_root: Path, key: str, entry: RunDir) -> Iterator[None]:
+    """Hold ``<cache_root>/.<key>.lock`` exclusively. The file is kept: unlinking a lock file lets a
+    job that opened it before the unlink lock a file nobody else will ever see."""
+    _cache_call(cache_root.mkdir, parents=True, exist_ok=True, where=cache_root)
+    with _cache_call(open, cache_root / f".{key}.lock", "a", where=cache_root) as lock:
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            log.info("transfer: waiting for another job pretraining %s", entry)
+            fcntl.flock(lock, fcntl.LOCK_EX)
+        yield  # closing the file releases the lock
+
+
+def _cache_call(fn: Callable[..., T], *args: Any, where: Path | RunDir, **kwargs: Any) -> T:
+    """``fn(*args, **kwargs)``, with an OSError turned into the cache's one-line TransferError."""
+    try:
+        return fn(*args, **kwargs)
+    except OSError as err:
+        raise TransferError(f"cannot use the pretraining cache {where}: {err.strerror} "
+                            "(set transfer.cache_dir to a writable directory)") from None
+
+
+def _remove(path: Path, key: str) -> None:
+    """Delete a leftover directory tree of the cache entry ``key``, quietly (it runs while an error or
+    an interrupt is on its way up). It is first renamed out of the way: an interrupted pretraining's
+    TensorBoard writer appends to its event file by name and could recreate it while rmtree runs; and
+    the new name is a temp name, so a removal cut short is cleaned by the next pretraining of ``key``."""
+    if not path.exists():
+        return
+    doomed = path.with_name(f".{key}.tmp-removing-{secrets.token_hex(4)}")
+    try:
+        path.rename(doomed)
+    except OSError:
+        doomed = path
+    shutil.rmtree(doomed, ignore_errors=True)
+
+
+def _reuse(checkpoint: Path, steps: int) -> bool:
+    """Whether the cache entry of ``checkpoint`` is complete (pretrained for ``steps``), logged if so."""
+    if not checkpoint.exists() or load_agent_checkpoint(checkpoint)[1].get("steps") != steps:
         return False
-    _, meta = load_agent_checkpoint(checkpoint)
-    return meta.get("steps") == steps
+    log.info("transfer: reusing the pretrained source %s", checkpoint)
+    return True
 
 
 def resolve_source(transfer: TransferConfig, launch_dir: Path) -> Path:

@@ -21,7 +21,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import signal
 import sys
+import threading
 import time
 import warnings
 from collections import deque
@@ -32,14 +34,16 @@ from typing import Any
 import numpy as np
 import torch
 from tqdm import tqdm
+from tqdm.contrib.logging import logging_redirect_tqdm
 
 from dqn_transfer.agents import Transition, UpdateStats, linear_schedule, make_learner
 from dqn_transfer.checkpoint import (
     CheckpointError,
     atomic_write,
+    atomic_write_all,
+    encode_agent_checkpoint,
+    encode_training_state,
     load_training_state,
-    save_agent_checkpoint,
-    save_training_state,
 )
 from dqn_transfer.config import ConfigError, TrainConfig, to_plain, validate
 from dqn_transfer.enums import Algorithm, Device, Exchange
@@ -47,13 +51,55 @@ from dqn_transfer.envs import TreasureHuntGame, make_game
 from dqn_transfer.exchange import exchange_best, exchange_replay
 from dqn_transfer.logging import RunLogger
 from dqn_transfer.rollout import evaluate, team_return_of
-from dqn_transfer.run_dir import RunDir
+from dqn_transfer.run_dir import RunDir, existing_run_message
 from dqn_transfer.timing import Stopwatch
 from dqn_transfer.warm_start import apply_transfer
 
 log = logging.getLogger("dqn_transfer.train")
 
 LOG_EVERY = 200  # env steps between td_loss / q_mean / epsilon / sps points in TensorBoard
+
+
+class Interrupted(Exception):
+    """SIGINT or SIGTERM stopped the run at an episode end, after it wrote its checkpoint there."""
+
+    def __init__(self, signum: int, step: int, run_dir: Path) -> None:
+        super().__init__(f"interrupted at step {step}")
+        self.signum, self.step, self.run_dir = signum, step, Path(run_dir)
+
+    @property
+    def exit_code(self) -> int:
+        """The shell's convention for a process ended by a signal: 130 for SIGINT, 143 for SIGTERM."""
+        return 128 + self.signum
+
+
+class StopRequest:
+    """Turns SIGINT (Ctrl-C) and SIGTERM (what SLURM sends before it kills a job) into a request the
+    loop honours at the next episode end, where a checkpoint resumes exactly. A second Ctrl-C stops at
+    once (``KeyboardInterrupt``). Signal handlers exist only in the main thread; elsewhere this is inert.
+    """
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+        self._previous: dict[int, Any] = {}
+
+    def __enter__(self) -> "StopRequest":
+        if threading.current_thread() is threading.main_thread():
+            self._previous = {signum: signal.signal(signum, self._handle) for signum in self.SIGNALS}
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for signum, handler in self._previous.items():
+            signal.signal(signum, handler)
+
+    def _handle(self, signum: int, frame) -> None:
+        if self.signum is not None and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        self.signum = signum
+        log.warning("%s received: stopping at the next episode end, after a checkpoint%s",
+                    signal.Signals(signum).name, " (Ctrl-C again to stop at once)" if signum == signal.SIGINT else "")
 
 
 def build_game(config: TrainConfig, source_task: bool = False) -> TreasureHuntGame:
@@ -72,10 +118,6 @@ def resolve_device(device: Device, threads: int) -> str:
     if device is Device.cuda and not torch.cuda.is_available():
         raise ConfigError("device=cuda but no CUDA device is available here (use device=cpu or device=auto)")
     return device.value
-
-
-def existing_run_message(run_dir: Path) -> str:
-    return f"{run_dir} already holds a run; pass resume=true to continue it or choose another hydra.run.dir"
 
 
 def exploration_steps(config: TrainConfig) -> int:
@@ -171,7 +213,7 @@ class Trainer:
             self._load_state()
             return
         if has_state:
-            raise ConfigError(existing_run_message(self.run_dir.path))
+            raise ConfigError(existing_run_message(self.run_dir))
         if self.config.transfer.enabled and not self.source_task:
             if self.source is None:
                 raise ConfigError("transfer.enabled: the trainer needs the source checkpoint "
@@ -188,17 +230,27 @@ class Trainer:
 
     # --------------------------------------------------------------------- loop
     def run(self) -> dict[str, Any]:
-        """Train to ``total_steps`` (or continue a resumed run); returns a short summary."""
-        self.prepare()
+        """Train to ``total_steps`` (or continue a resumed run); returns a short summary.
+
+        Raises :class:`Interrupted` when SIGINT or SIGTERM stopped it (at the next episode end, after
+        a checkpoint there).
+        """
+        with StopRequest() as stop, logging_redirect_tqdm():  # log lines print above the bar, never glued to it
+            self.prepare()
+            self.run_dir.path.mkdir(parents=True, exist_ok=True)
+            logger = RunLogger(self.run_dir.tensorboard, self.game.num_agents, to_plain(self.config),
+                               purge_step=self.counters.step if self.config.resume else None)
+            try:
+                return self._train(logger, stop)
+            finally:
+                logger.close()
+
+    def _train(self, logger: RunLogger, stop: StopRequest) -> dict[str, Any]:
         config, game, learner, counters = self.config, self.game, self.learner, self.counters
-        self.run_dir.path.mkdir(parents=True, exist_ok=True)
-        logger = RunLogger(self.run_dir.tensorboard, game.num_agents, to_plain(config),
-                           purge_step=counters.step if config.resume else None)
         if self.transfer_info is not None and not config.resume:
             logger.text("transfer/source", json.dumps(self.transfer_info, indent=2))
         if config.total_steps == 0:
             self.save_checkpoint()
-            logger.close()
             log.info("total_steps=0: wrote the initial checkpoints to %s", self.run_dir.checkpoints)
             return self._summary()
         if counters.step % config.eval_every == 0 and self.last_eval_step != counters.step:
@@ -228,9 +280,12 @@ class Trainer:
                 self.shared_transitions.append(transition)
             episode.add(transition, info["trap"], game.reward_mode)
             obs = next_obs
-            # 3. episode end
+            # 3. episode end (and a signal's safe point: the checkpoint there resumes exactly)
             if game.done:
-                self._end_episode(logger, episode, env_rng)
+                self._end_episode(logger, episode, env_rng, checkpoint_now=stop.signum is not None)
+                if stop.signum is not None:
+                    bar.close()
+                    raise Interrupted(stop.signum, counters.step, self.run_dir.path)
                 obs = game.reset(env_rng)
             # 4. evaluation
             if counters.step % config.eval_every == 0:
@@ -251,14 +306,14 @@ class Trainer:
             self.run_evaluation(logger)
         counters.env_rng_state = env_rng.bit_generator.state
         self.save_checkpoint()
-        logger.close()
         log.info("done: %d steps, %d episodes; last eval %s; checkpoints in %s; watch with "
                  "`tensorboard --logdir %s`", counters.step, counters.episodes, self.last_eval,
                  self.run_dir.checkpoints, self.run_dir.tensorboard)
         return self._summary()
 
-    def _end_episode(self, logger: RunLogger, episode: EpisodeStats, env_rng: np.random.Generator) -> None:
-        """Log the finished episode, exchange knowledge and checkpoint when due (before the reset)."""
+    def _end_episode(self, logger: RunLogger, episode: EpisodeStats, env_rng: np.random.Generator,
+                     checkpoint_now: bool = False) -> None:
+        """Log the finished episode, exchange knowledge and checkpoint when due or asked (before the reset)."""
         counters, config = self.counters, self.config
         counters.episodes += 1
         self._log_episode(logger, episode, counters.step)
@@ -266,7 +321,7 @@ class Trainer:
         episode.reset()
         if config.transfer.exchange is not Exchange.none and counters.episodes % config.transfer.exchange_every == 0:
             self._exchange(logger)
-        if counters.step >= counters.next_checkpoint:
+        if counters.step >= counters.next_checkpoint or checkpoint_now:
             counters.env_rng_state = env_rng.bit_generator.state
             self.save_checkpoint()
             while counters.next_checkpoint <= counters.step:
@@ -355,14 +410,18 @@ class Trainer:
         }
 
     def save_checkpoint(self) -> None:
-        """Agent files first (for sharing), then the resume state, which alone is read on resume."""
+        """The agent files (for sharing) and the resume state, which alone is read on resume.
+
+        All files are written before any replaces its predecessor, the resume state last: a failed
+        write leaves the previous checkpoint whole.
+        """
         with self.checkpoint_time:
             plain = to_plain(self.config)
-            self.run_dir.checkpoints.mkdir(parents=True, exist_ok=True)
+            files: dict[Path, bytes] = {}
             arrays: dict[str, np.ndarray] = {}
             for i in range(self.game.num_agents):
                 tensors = self.learner.agent_tensors(i)
-                save_agent_checkpoint(self.run_dir.agent_checkpoint(i), tensors, self.agent_meta(i, plain))
+                files[self.run_dir.agent_checkpoint(i)] = encode_agent_checkpoint(tensors, self.agent_meta(i, plain))
                 arrays.update({f"agent_{i}/{name}": t.numpy() for name, t in tensors.items()})
             learner_arrays, learner_meta = self.learner.training_state()
             arrays.update({f"learner/{name}": a for name, a in learner_arrays.items()})
@@ -379,7 +438,8 @@ class Trainer:
                 "config": plain,  # what resume=true continues with
                 "layout": self.game.map.layout,  # the map itself: a layout file may have changed since
             }
-            save_training_state(self.run_dir.training_state, arrays, meta)
+            files[self.run_dir.training_state] = encode_training_state(arrays, meta)
+            atomic_write_all(files)
 
     def _load_state(self) -> None:
         arrays, meta = load_training_state(self.run_dir.training_state)

@@ -135,7 +135,7 @@ def broken_replace(src, dst):
 def test_failed_write_leaves_nothing_under_the_final_name(tmp_path: Path, monkeypatch):
     monkeypatch.setattr(os, "replace", broken_replace)
     new = tmp_path / "agent_0.safetensors"
-    with pytest.raises(CheckpointError, match="cannot write checkpoint"):
+    with pytest.raises(CheckpointError, match="cannot write .*No space left"):
         save_agent_checkpoint(new, make_tensors(), make_meta())
     assert os.listdir(tmp_path) == []  # no final file, no temp file
 
@@ -348,3 +348,38 @@ def test_cli_verify_reports_bad_files_in_one_line_without_traceback(ckpt: Path, 
         lines = result.stderr.splitlines()
         assert len(lines) == 1 and lines[0].startswith("error: ") and fragment in lines[0]
     assert not marker.exists()
+
+
+def test_a_disk_full_during_a_run_keeps_the_previous_checkpoint_whole(tmp_path: Path, monkeypatch):
+    """The trainer's checkpoint is several files; the disk fills while the second checkpoint's second
+    file is written. Every file on disk must still be the first checkpoint's, verified, and nothing
+    half-written may be left (the run ends with the one-line CheckpointError)."""
+    from dqn_transfer.config import AgentConfig, TrainConfig
+    from dqn_transfer.enums import Algorithm
+    from dqn_transfer.envs.settings import EnvConfig
+    from dqn_transfer.run_dir import RunDir
+    from dqn_transfer.trainer import Trainer
+
+    layout = "0..T\n....\n....\n1..T"  # two agents, two chests three moves away: episodes of 3 steps
+    config = TrainConfig(env=EnvConfig(layout=layout, size=4, num_treasures=2, num_traps=0, num_agents=2,
+                                       complexity=0.0), agent=AgentConfig(algorithm=Algorithm.qlearning, lr=0.5),
+                         total_steps=400, eval_every=400, eval_episodes=1, checkpoint_every=100, progress=False)
+    run = RunDir(tmp_path / "run")
+    temp_files_opened = []
+    real_open = os.open
+
+    def filling_disk(path, flags, *args):
+        if str(path).endswith(".tmp"):
+            temp_files_opened.append(path)
+            if len(temp_files_opened) == 5:  # checkpoint 1 wrote 3 files; this is checkpoint 2's 2nd
+                raise OSError(28, "No space left on device", str(path))
+        return real_open(path, flags, *args)
+
+    monkeypatch.setattr(checkpoint.os, "open", filling_disk)
+    with pytest.raises(CheckpointError, match="No space left on device.*previous files are kept"):
+        Trainer(config, run.path).run()
+    files = sorted(p.name for p in run.checkpoints.iterdir())
+    assert files == ["agent_0.safetensors", "agent_1.safetensors", "training_state.safetensors"]  # no temp files
+    steps = {load_agent_checkpoint(run.agent_checkpoint(i))[1]["steps"] for i in (0, 1)}
+    _, state = load_training_state(run.training_state)
+    assert steps == {state["counters"]["step"]} and 100 <= state["counters"]["step"] < 200

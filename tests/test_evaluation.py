@@ -279,4 +279,42 @@ def test_cli_missing_dir_is_one_error_line(tmp_path: Path):
          "--baseline", str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert result.returncode == 1
     assert "Traceback" not in result.stderr
-    assert result.stderr.splitlines() == [f"error: {tmp_path / 'nope'}: no such run directory"]
+    assert result.stderr.splitlines() == [f"error: {tmp_path / 'nope'}: no such directory"]
+
+
+def _not_yet_evaluated(path: Path) -> Path:
+    """A run directory whose run has started but not evaluated: its config, no evaluation."""
+    files = RunDir(path)
+    files.hydra_dir.mkdir(parents=True)
+    files.config.write_text("seed: 7\ntotal_steps: 20\n")
+    return path
+
+
+def test_cli_skips_what_is_not_a_run_and_says_why(runs, tmp_path: Path, capsys):
+    transfer, baseline = runs
+    started = _not_yet_evaluated(tmp_path / "started")  # a job still before its first evaluation
+    empty = _not_yet_evaluated(tmp_path / "empty")
+    RunDir(empty).metrics.write_text("")
+    args = ["--transfer", *map(str, transfer), str(started), "--baseline", *map(str, baseline), str(empty),
+            "--threshold", "-5"]
+    assert compare.main(args) == 0
+    captured = capsys.readouterr()
+    # The same numbers as without the two directories (test_compare_runs_by_hand): nothing mixed in.
+    assert "| jumpstart | 30 | [20, 40] | 2 |" in captured.out
+    assert "| total_reward/difference | 475 |" in captured.out
+    assert captured.err.splitlines() == [
+        f"skipped {started}: no metrics.jsonl (the run has not evaluated)",
+        f"skipped {empty}: metrics.jsonl holds no evaluations yet",
+    ]
+
+
+def test_cli_with_no_usable_run_on_one_side_is_an_error(runs, tmp_path: Path, capsys):
+    _, baseline = runs
+    started, empty = _not_yet_evaluated(tmp_path / "started"), _not_yet_evaluated(tmp_path / "empty")
+    RunDir(empty).metrics.write_text("")
+    assert compare.main(["--transfer", str(started), str(empty), "--baseline", *map(str, baseline)]) == 1
+    assert capsys.readouterr().err.splitlines() == [
+        f"skipped {started}: no metrics.jsonl (the run has not evaluated)",
+        f"skipped {empty}: metrics.jsonl holds no evaluations yet",
+        "error: no usable transfer run directory among the 2 given (2 skipped)",
+    ]

@@ -15,12 +15,21 @@ from omegaconf import OmegaConf
 from dqn_transfer.analysis.plots import group_runs
 from dqn_transfer.analysis.runs import find_run_dirs
 from dqn_transfer.cli import plot, report
+from dqn_transfer.experiments import sweeps
 from dqn_transfer.config import CONFIG_DIR, register_configs, validate
 from dqn_transfer.enums import Algorithm, Mode
 from dqn_transfer.enums import values as enum_values
 from dqn_transfer.experiments.claims import team_size
 from dqn_transfer.experiments.report import write_report
-from dqn_transfer.experiments.sweeps import PROFILES, ReproduceError, count_jobs, sweep_overrides
+from dqn_transfer.experiments.sweeps import (
+    EXPERIMENTS,
+    PROFILES,
+    ReproduceError,
+    count_jobs,
+    installed_launchers,
+    launcher_overrides,
+    sweep_overrides,
+)
 from dqn_transfer.experiments.team_maps import write_team_maps
 from dqn_transfer.run_dir import RunDir
 
@@ -155,6 +164,123 @@ def test_plot_groups_runs_by_their_config_differences(tmp_path, capsys):
     assert out.read_bytes()[:8] == PNG_MAGIC
     assert plot.main([str(tmp_path / "nowhere"), "--out", str(out)]) == 1
     assert capsys.readouterr().err.splitlines() == [f"error: {tmp_path / 'nowhere'}: no such directory"]
+
+
+REFUSED = "error: unknown config key 'agent.lrr' in 'agent.lrr=0.1' (did you mean agent.lr?)"
+
+
+def _write_stub(run_dir: Path) -> Path:
+    """What a refused run leaves: Hydra's .hydra/ record and a train.log ending with its error line."""
+    files = RunDir(run_dir)
+    files.hydra_dir.mkdir(parents=True)
+    files.config.write_text(yaml.safe_dump({"seed": 0, "total_steps": 1000}))
+    files.overrides.write_text("- agent.lrr=0.1\n")
+    files.log.write_text(f"[2026-11-22 10:00:00,000][dqn_transfer.train][ERROR] - {REFUSED}\n")
+    return run_dir
+
+
+def _stub_line(run_dir: Path) -> str:
+    return f"skipped {run_dir}: no metrics.jsonl (train.log: {REFUSED})"
+
+
+def test_plot_skips_what_is_not_a_run_and_says_why(tmp_path, capsys):
+    day = tmp_path / "runs" / "2026-11-22"  # the README's `scripts/plot.py outputs/runs/<date>/*/`
+    for seed in (0, 1):
+        _write_run(day / f"10-0{seed}-00", STEPS * 0.01 + seed, seed=seed)
+    stub = _write_stub(day / "10-02-00")
+    not_evaluated = day / "10-03-00"
+    not_evaluated.mkdir()
+    RunDir(not_evaluated).metrics.write_text("")  # created, then killed before its first evaluation
+    sweep = tmp_path / "multirun"  # a sweep directory: searched, its stub job named
+    _write_run(sweep / "0", STEPS * 0.01 + 2, seed=2)
+    sweep_stub = _write_stub(sweep / "1")
+    (sweep / "multirun.yaml").write_text("hydra: {}\n")
+    out = tmp_path / "curves.png"
+    given = [*sorted(day.iterdir()), sweep, sweep / "multirun.yaml"]
+    assert plot.main([*map(str, given), "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert captured.out == f"wrote {out}: 3 runs in 1 group(s): all runs (3)\n"
+    assert captured.err.splitlines() == [
+        _stub_line(stub),
+        f"skipped {not_evaluated}: metrics.jsonl holds no evaluations yet",
+        _stub_line(sweep_stub),
+        f"skipped {sweep / 'multirun.yaml'}: not a directory",
+    ]
+    assert out.read_bytes()[:8] == PNG_MAGIC
+
+
+def test_plot_of_nothing_usable_is_an_error(tmp_path, capsys):
+    stubs = [_write_stub(tmp_path / name) for name in ("a", "b")]
+    out = tmp_path / "curves.png"
+    assert plot.main([*map(str, stubs), "--out", str(out)]) == 1
+    assert capsys.readouterr().err.splitlines() == [
+        *map(_stub_line, stubs), "error: no usable run directory among the 2 given (2 skipped)"]
+    assert plot.main([str(stubs[0]), "--out", str(out)]) == 1  # one directory: its reason is the error
+    assert capsys.readouterr().err.splitlines() == [f"error: {stubs[0]}: no metrics.jsonl (train.log: {REFUSED})"]
+    assert not out.exists()
+
+
+def test_report_skips_unusable_runs_and_keeps_its_verdicts(tmp_path, capsys):
+    _make_results(tmp_path, coop_bonus=0.0, delib_bonus=15.0)  # the data of the first report test
+    stub = _write_stub(tmp_path / "fig1" / "10")
+    no_config = tmp_path / "fig2" / "45"  # evaluations, but which condition is it?
+    no_config.mkdir()
+    RunDir(no_config).metrics.write_text('{"step": 0, "team_return": 1000.0}\n')
+    assert report.main(["--out", str(tmp_path), "--report-only"]) == 0
+    assert capsys.readouterr().err.splitlines() == [
+        _stub_line(stub), f"skipped {no_config}: no readable .hydra/config.yaml (cannot tell its condition)"]
+    verdicts = _claim_rows((tmp_path / "REPORT.md").read_text())
+    assert verdicts == {"1": "**SUPPORTED**", "2": "**NOT SUPPORTED**", "3": "**PARTLY SUPPORTED**"}
+    assert "5 seeds per mode" in (tmp_path / "REPORT.md").read_text()
+
+
+# ------------------------------------------------------------------------------------ the launcher
+
+@pytest.fixture
+def no_sweeps(monkeypatch, tmp_path):
+    """report.main with the sweeps and the report replaced by recorders: [(experiment, launcher)]."""
+    calls = []
+    monkeypatch.setattr(report, "run_experiment", lambda name, profile, out, launcher, *rest: calls.append(
+        (name, launcher)))
+    (tmp_path / "REPORT.md").write_text("# report\n")
+    monkeypatch.setattr(report, "write_report", lambda out, profile: tmp_path / "REPORT.md")
+    return calls
+
+
+def test_without_the_sweep_extra_the_sweeps_run_one_at_a_time(monkeypatch, tmp_path, capsys, no_sweeps):
+    monkeypatch.setattr(sweeps, "installed_launchers", lambda: ["basic"])  # the dev extra only
+    assert report.main(["--out", str(tmp_path)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == ("the joblib launcher is not installed: running one job at a time with Hydra's basic "
+                        'launcher (for --n-jobs at a time: pip install -e ".[sweep]")')
+    assert no_sweeps == [(name, "basic") for name in EXPERIMENTS]
+    assert launcher_overrides("basic", 2) == []  # no hydra/launcher override: Hydra's own launcher
+
+
+def test_with_the_sweep_extra_the_default_is_joblib(monkeypatch, tmp_path, capsys, no_sweeps):
+    monkeypatch.setattr(sweeps, "installed_launchers", lambda: ["basic", "joblib"])
+    assert report.main(["--out", str(tmp_path), "--n-jobs", "3"]) == 0
+    assert "not installed" not in capsys.readouterr().out
+    assert no_sweeps == [(name, "joblib") for name in EXPERIMENTS]
+    assert launcher_overrides("joblib", 3) == ["hydra/launcher=joblib", "hydra.launcher.n_jobs=3"]
+
+
+@pytest.mark.parametrize("launcher, message", [
+    ("submitit_slurm", 'its Hydra plugin is not installed (pip install -e ".[slurm]")'),
+    ("joblib", 'its Hydra plugin is not installed (pip install -e ".[sweep]")'),
+    ("slurm", "no such Hydra launcher (installed: basic)"),
+])
+def test_a_launcher_not_installed_is_one_error_before_anything_runs(monkeypatch, tmp_path, capsys, no_sweeps,
+                                                                    launcher, message):
+    monkeypatch.setattr(sweeps, "installed_launchers", lambda: ["basic"])
+    assert report.main(["--out", str(tmp_path / "out"), "--launcher", launcher]) == 1
+    captured = capsys.readouterr()
+    assert captured.err.splitlines() == [f"error: --launcher {launcher}: {message}"]
+    assert captured.out == "" and no_sweeps == [] and not (tmp_path / "out").exists()
+
+
+def test_hydras_basic_launcher_is_always_installed():
+    assert "basic" in installed_launchers()
 
 
 def _compose(*overrides: str, hydra: bool = False):

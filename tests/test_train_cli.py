@@ -363,7 +363,7 @@ def test_resuming_a_finished_run_adds_no_evaluation(runs, tmp_path):
 BAD_INPUTS = {
     "gamma_out_of_range": (("agent.gamma=1.5",), ("agent.gamma", "1.5")),
     "misspelt_key": (("agent.learning_rate=0.1",), ("learning_rate",)),
-    "unknown_agent": (("agent=ppo",), ("agent/ppo",)),
+    "unknown_agent": (("agent=ppo",), ("agent=ppo", "no such option")),
     "missing_layout_file": (("env.layout_file=/nonexistent.txt",), ("/nonexistent.txt",)),
     "trap_beside_treasure": (("env.layout_file=trap_map.txt",), ("trap", "beside", "treasure")),
     "resume_empty_dir": (("resume=true",), ("resume",)),
@@ -399,7 +399,8 @@ def test_bad_input_ends_in_one_clear_message(bad_runs, case):
 
 def test_messages_name_the_problem_precisely(bad_runs):
     assert "error: agent.gamma must be in [0, 1], got 1.5" in bad_runs["gamma_out_of_range"].output
-    assert "Key 'learning_rate' not in 'AgentConfig'" in bad_runs["misspelt_key"].output
+    assert "unknown config key 'agent.learning_rate'" in bad_runs["misspelt_key"].output
+    assert "(did you mean agent.lr?)" in bad_runs["misspelt_key"].output
     assert "row 0, col 3" in bad_runs["trap_beside_treasure"].output
     assert "training_state" in bad_runs["resume_empty_dir"].output
 

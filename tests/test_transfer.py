@@ -302,7 +302,7 @@ def test_pretrained_source_is_cached_and_reused(work, caplog):
         return trainer
 
     first = run("cache_1", 120)
-    entries = list(cache.iterdir())
+    entries = [e for e in cache.iterdir() if not e.name.startswith(".")]  # the lock files are hidden
     assert len(entries) == 1
     checkpoint = entries[0] / "checkpoints" / "agent_0.safetensors"
     assert "pretraining a source agent" in caplog.text and "reusing" not in caplog.text
@@ -320,7 +320,7 @@ def test_pretrained_source_is_cached_and_reused(work, caplog):
     caplog.clear()
     third = run("cache_3", 140)  # another source config: another cache entry, the first untouched
     assert "pretraining a source agent" in caplog.text
-    assert len(list(cache.iterdir())) == 2
+    assert len([e for e in cache.iterdir() if not e.name.startswith(".")]) == 2
     assert checkpoint.stat().st_mtime_ns == stamp
     assert third.transfer_info["digest"] != digest and header_meta(Path(third.transfer_info["source"]))["steps"] == 140
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dqn_transfer.analysis.runs import EvaluationError, learning_curve, run_seed
+from dqn_transfer.analysis.runs import find_run_dirs, learning_curve, run_seed
 from dqn_transfer.analysis.stats import estimate
 from dqn_transfer.analysis.transfer_metrics import (
     Curve,
@@ -62,11 +62,11 @@ def compare_runs(transfer_dirs: Sequence[str | os.PathLike], baseline_dirs: Sequ
       (``/difference``, see :func:`_pair_by_seed`); a negative time difference means transfer
       reached the threshold sooner.
     Non-finite per-run values (a run that never reaches the threshold, an infinite ratio) are left
-    out of the statistics, so ``n`` says how many runs each row rests on.
+    out of the statistics, so ``n`` says how many runs each row rests on. The directories are those of
+    :func:`~dqn_transfer.analysis.runs.find_run_dirs`: unusable ones are skipped with a warning.
     """
-    t_dirs, b_dirs = [Path(d) for d in transfer_dirs], [Path(d) for d in baseline_dirs]
-    if not t_dirs or not b_dirs:
-        raise EvaluationError("need at least one transfer and one baseline run directory")
+    t_dirs = find_run_dirs(transfer_dirs, kind="transfer run")
+    b_dirs = find_run_dirs(baseline_dirs, kind="baseline run")
     t_curves = [learning_curve(d, metric) for d in t_dirs]
     b_curves = [learning_curve(d, metric) for d in b_dirs]
     b_mean = mean_curve(b_curves)

@@ -3,14 +3,21 @@
 A run directory is laid out as :mod:`dqn_transfer.run_dir` says. Evaluations are read from the file,
 never from live objects, so runs from any machine or SLURM job can be analysed; a run that is still
 writing, or was killed mid-write, is read up to its last complete line.
+
+Readers are given directories by the shell (``outputs/runs/<date>/*/``), and some of those are not
+usable runs: a stub left by a refused run (``train.log`` and ``.hydra/`` only), a run that has not
+evaluated yet. :func:`find_run_dirs` and :func:`load_runs` skip each with a :class:`SkippedRun`
+warning that names it and says why, and only an empty result is an error.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import sys
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -19,13 +26,21 @@ import numpy as np
 import yaml
 
 from dqn_transfer.analysis.transfer_metrics import Curve
-from dqn_transfer.run_dir import CONFIG_FILE, HYDRA_DIR, METRICS_FILE, RunDir, natural_key
+from dqn_transfer.run_dir import CONFIG_FILE, HYDRA_DIR, LOG_FILE, METRICS_FILE, RunDir, natural_key
 
 K = TypeVar("K")
 
 
 class EvaluationError(Exception):
     """A run directory or its metrics cannot be used; the message is one user-facing line."""
+
+
+class IncompleteLastLine(UserWarning):
+    """A ``metrics.jsonl`` whose last line was cut short (a run still writing, or killed mid-write)."""
+
+
+class SkippedRun(UserWarning):
+    """A directory given to a reader that is not a usable run; the message is ``skipped DIR: REASON``."""
 
 
 def read_metrics(run_dir: str | os.PathLike) -> list[dict[str, Any]]:
@@ -53,7 +68,7 @@ def read_metrics(run_dir: str | os.PathLike) -> list[dict[str, Any]]:
             record = json.loads(line)
         except json.JSONDecodeError:
             if number == len(lines):  # no trailing newline: interrupted append
-                warnings.warn(f"{path}: skipping incomplete last line {number}", stacklevel=2)
+                warnings.warn(f"{path}: skipping incomplete last line {number}", IncompleteLastLine, stacklevel=2)
                 continue
             raise EvaluationError(f"{path}: line {number} is not valid JSON") from None
         if not isinstance(record, dict):
@@ -82,21 +97,109 @@ def learning_curve(run_dir: str | os.PathLike, metric: str = "team_return") -> C
     return steps, np.array([by_step[int(s)] for s in steps], dtype=np.float64)
 
 
-def find_run_dirs(paths: Sequence[str | os.PathLike]) -> list[Path]:
-    """The run directories at or below ``paths`` (those holding ``metrics.jsonl``), naturally sorted."""
+def _is_hidden_below(path: Path, root: Path) -> bool:
+    """A directory below ``root`` whose name starts with a dot: not a run even if it holds one, e.g. a
+    source still pretraining in the cache (``.<hash>.tmp-*``)."""
+    return any(part.startswith(".") for part in path.relative_to(root).parts)
+
+
+def _candidates(path: Path) -> list[Path]:
+    """The run directories ``path`` stands for: itself if it holds ``metrics.jsonl`` or is a Hydra job
+    directory (``.hydra/``); else every such directory below it, naturally sorted (a sweep directory)."""
+    if RunDir(path).has_metrics() or RunDir(path).hydra_dir.is_dir():
+        return [path]
+    found = {p.parent for name in (METRICS_FILE, HYDRA_DIR) for p in path.rglob(name)}
+    return sorted((d for d in found if not _is_hidden_below(d, path)), key=natural_key)
+
+
+def _last_error(log_path: Path) -> str | None:
+    """The last ``error: ...`` line of a run's log: why a refused run never evaluated."""
+    try:
+        lines = log_path.read_text(errors="replace").splitlines()
+    except OSError:
+        return None
+    errors = [line[line.index("error: "):] for line in lines if "error: " in line]
+    return errors[-1] if errors else None
+
+
+def _unusable_reason(run_dir: Path, need_config: bool = False) -> str | None:
+    """Why ``run_dir`` is not a usable run (None if it is): it has no evaluations, or (``need_config``)
+    no readable config."""
+    files = RunDir(run_dir)
+    if not files.has_metrics():
+        error = _last_error(files.log)
+        return f"no {METRICS_FILE} ({f'{LOG_FILE}: {error}' if error else 'the run has not evaluated'})"
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", IncompleteLastLine)  # the reader warns when it reads the curve
+            records = read_metrics(run_dir)
+    except EvaluationError as err:
+        return str(err)
+    if not records:
+        return f"{METRICS_FILE} holds no evaluations yet"
+    if need_config and load_config(run_dir) is None:
+        return f"no readable {HYDRA_DIR}/{CONFIG_FILE} (cannot tell its condition)"
+    return None
+
+
+def scan_run_dirs(paths: Sequence[str | os.PathLike],
+                  need_config: bool = False) -> tuple[list[Path], list[tuple[Path, str]]]:
+    """``(usable runs, [(skipped directory, why)])`` at or below ``paths``: a run directory given is
+    taken in the given order, a directory above runs (a sweep) contributes the runs below it."""
     runs: list[Path] = []
+    skipped: list[tuple[Path, str]] = []
     for given in paths:
         path = Path(given)
+        candidates = _candidates(path) if path.is_dir() else []
         if not path.exists():
-            raise EvaluationError(f"{path}: no such directory")
-        if RunDir(path).has_metrics():
-            runs.append(path)
-            continue
-        found = sorted((p.parent for p in path.rglob(METRICS_FILE)), key=natural_key)
-        if not found:
-            raise EvaluationError(f"{path}: holds no run directory (no {METRICS_FILE} at or below it)")
-        runs.extend(found)
-    return list(dict.fromkeys(p.resolve() for p in runs))
+            skipped.append((path, "no such directory"))
+        elif not path.is_dir():
+            skipped.append((path, "not a directory"))
+        elif not candidates:
+            skipped.append((path, f"no {METRICS_FILE} at or below it"))
+        for candidate in candidates:
+            reason = _unusable_reason(candidate, need_config)
+            if reason is None:
+                runs.append(candidate)
+            else:
+                skipped.append((candidate, reason))
+    return list(dict.fromkeys(p.resolve() for p in runs)), skipped
+
+
+def _warn_skipped(skipped: Sequence[tuple[Path, str]]) -> None:
+    for path, reason in skipped:
+        warnings.warn(SkippedRun(f"skipped {path}: {reason}"), stacklevel=3)
+
+
+def find_run_dirs(paths: Sequence[str | os.PathLike], kind: str = "run") -> list[Path]:
+    """The usable run directories at or below ``paths`` (see :func:`scan_run_dirs`); each directory
+    skipped is a :class:`SkippedRun` warning. Only finding none is an error, whose message is the one
+    reason when a single directory was skipped."""
+    runs, skipped = scan_run_dirs(paths)
+    if not runs and len(skipped) == 1:
+        path, reason = skipped[0]
+        raise EvaluationError(f"{path}: {reason}")
+    _warn_skipped(skipped)
+    if not paths:
+        raise EvaluationError(f"no {kind} directory given")
+    if not runs:
+        raise EvaluationError(f"no usable {kind} directory among the {len(paths)} given ({len(skipped)} skipped)")
+    return runs
+
+
+@contextlib.contextmanager
+def skipped_runs_on_stderr() -> Iterator[None]:
+    """For the command lines: every :class:`SkippedRun` as its own ``skipped DIR: REASON`` line on stderr,
+    any other user warning as one ``warning: ...`` line; incomplete last lines of runs still writing are
+    expected and not shown."""
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        print(("" if issubclass(category, SkippedRun) else "warning: ") + str(message), file=sys.stderr)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", UserWarning)  # every skipped directory, not the first of each kind
+        warnings.simplefilter("ignore", IncompleteLastLine)
+        warnings.showwarning = show
+        yield
 
 
 def load_config(run_dir: str | os.PathLike) -> dict[str, Any] | None:
@@ -130,22 +233,16 @@ class Run:
 
 
 def load_runs(directory: Path) -> list[Run]:
-    """Every run below ``directory`` with its config; [] if there is none (or no such directory).
+    """Every usable run below ``directory`` with its config; [] if there is none (or no such directory).
 
-    Incomplete last lines of runs still writing are skipped silently. A run without a readable
-    config is an error: its condition cannot be told.
+    A directory below it that is not a usable run, or has no readable config (its condition cannot be
+    told), is skipped with a :class:`SkippedRun` warning.
     """
-    if not directory.is_dir() or not any(directory.rglob(METRICS_FILE)):
+    if not directory.is_dir():
         return []
-    runs = []
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        for run_dir in find_run_dirs([directory]):
-            config = load_config(run_dir)
-            if config is None:
-                raise EvaluationError(f"{run_dir}: no readable {HYDRA_DIR}/{CONFIG_FILE}; cannot tell its condition")
-            runs.append(Run(Path(run_dir), config))
-    return runs
+    run_dirs, skipped = scan_run_dirs([directory], need_config=True)
+    _warn_skipped(skipped)
+    return [Run(run_dir, load_config(run_dir)) for run_dir in run_dirs]  # type: ignore[arg-type]
 
 
 def group(runs: Sequence[Run], key: Callable[[Run], K]) -> dict[K, list[Run]]:

@@ -11,7 +11,7 @@ from typing import Any
 
 import gymnasium
 
-from dqn_transfer.config import AgentConfig
+from dqn_transfer.config import SB3_NAMES, AgentConfig
 from dqn_transfer.enums import Algorithm
 
 # The hyperparameters of every measurement, ours and SB3's (SB3 is given these values, not its own
@@ -32,24 +32,6 @@ SOURCE_MAP: dict[str, Any] = dict(size=10, num_treasures=1, num_traps=1, complex
 def replay_warmup(agent: AgentConfig) -> int:
     """Transitions in replay before an update is timed: ``learning_starts``, and enough for two batches."""
     return max(agent.learning_starts, 2 * agent.batch_size)
-
-
-# Our AgentConfig key -> SB3 DQN's keyword for the same quantity ("hidden" becomes policy_kwargs.net_arch).
-SB3_NAMES = {
-    "lr": "learning_rate",
-    "gamma": "gamma",
-    "batch_size": "batch_size",
-    "buffer_size": "buffer_size",
-    "learning_starts": "learning_starts",
-    "train_freq": "train_freq",
-    "gradient_steps": "gradient_steps",
-    "target_update": "target_update_interval",
-    "tau": "tau",
-    "max_grad_norm": "max_grad_norm",
-    "eps_start": "exploration_initial_eps",
-    "eps_end": "exploration_final_eps",
-    "exploration_fraction": "exploration_fraction",
-}
 
 
 def sb3_kwargs(agent: AgentConfig) -> dict[str, Any]:

@@ -2,8 +2,9 @@
 
     python -m dqn_transfer.cli.compare --transfer outputs/tr/* --baseline outputs/base/* [--threshold X]
 
-(the shell expands the globs). Prints a Markdown table; see
-:func:`dqn_transfer.analysis.compare.compare_runs` for what each row means.
+(the shell expands the globs; a sweep directory stands for every run below it). Prints a Markdown
+table; see :func:`dqn_transfer.analysis.compare.compare_runs` for what each row means. A directory that
+is not a usable run is skipped with a ``skipped DIR: REASON`` line on stderr.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import argparse
 import sys
 
 from dqn_transfer.analysis.compare import compare_runs, format_table
-from dqn_transfer.analysis.runs import EvaluationError
+from dqn_transfer.analysis.runs import EvaluationError, skipped_runs_on_stderr
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -25,7 +26,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0, help="bootstrap RNG seed")
     args = parser.parse_args(argv)
     try:
-        results = compare_runs(args.transfer, args.baseline, args.metric, args.threshold, args.seed)
+        with skipped_runs_on_stderr():
+            results = compare_runs(args.transfer, args.baseline, args.metric, args.threshold, args.seed)
     except (EvaluationError, ValueError, OSError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 1

@@ -6,18 +6,19 @@ A RUN_DIR is a Hydra run directory (it holds ``metrics.jsonl``) or any directory
 multirun sweep directory: every run below it is used. Runs are grouped by what differs between their
 configs (``.hydra/config.yaml``), ignoring the seed: each group is drawn as its mean over seeds with a
 95% percentile-bootstrap band (one line when the group has one run). Runs without a readable config
-get one line each. The reproduction report draws its figures with the same helpers.
+get one line each. A directory that is not a usable run (no ``metrics.jsonl``, no evaluations yet: a
+refused run's stub) is skipped with a ``skipped DIR: REASON`` line on stderr; only when none is left
+is it an error. The reproduction report draws its figures with the same helpers.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-import warnings
 from pathlib import Path
 
 from dqn_transfer.analysis.plots import group_runs, plot_groups
-from dqn_transfer.analysis.runs import EvaluationError, find_run_dirs
+from dqn_transfer.analysis.runs import EvaluationError, find_run_dirs, skipped_runs_on_stderr
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -31,8 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--title", default=None)
     args = parser.parse_args(argv)
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)  # incomplete last lines of running jobs
+        with skipped_runs_on_stderr():
             run_dirs = find_run_dirs(args.runs)
             groups = group_runs(run_dirs)
             path = plot_groups(groups, args.metric, args.out, args.title)

@@ -9,7 +9,8 @@
 
 (``python -m dqn_transfer.cli.report`` takes the same arguments.) Each experiment is one Hydra
 multirun of ``python -m dqn_transfer.cli.train -m experiment=<name>`` (``conf/experiment/``) into
-``OUT/<name>/`` (a subprocess; ``--launcher joblib`` runs ``--n-jobs`` jobs at a time). The ``full``
+``OUT/<name>/`` (a subprocess; ``--launcher joblib``, the default, runs ``--n-jobs`` jobs at a time;
+without the ``sweep`` extra the default is Hydra's basic launcher, one job at a time). The ``full``
 profile uses the experiment files' own step counts; ``quick`` shrinks them and the seeds. Then the
 run directories are read back (``.hydra/config.yaml`` + ``metrics.jsonl``, never live objects) and
 the report says, for each claim, whether the data support it, by a rule fixed in advance:
@@ -33,8 +34,9 @@ import sys
 import time
 from pathlib import Path
 
+from dqn_transfer.analysis.runs import skipped_runs_on_stderr
 from dqn_transfer.experiments.report import write_report
-from dqn_transfer.experiments.sweeps import EXPERIMENTS, PROFILES, ReproduceError, run_experiment
+from dqn_transfer.experiments.sweeps import EXPERIMENTS, PROFILES, ReproduceError, choose_launcher, run_experiment
 from dqn_transfer.experiments.team_maps import write_team_maps
 
 
@@ -47,8 +49,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, help="output directory (sweeps, figures, REPORT.md)")
     parser.add_argument("--only", default=",".join(EXPERIMENTS),
                         help=f"comma-separated subset of {','.join(EXPERIMENTS)} (default: all)")
-    parser.add_argument("--launcher", default="joblib",
-                        help="Hydra launcher: joblib (default), basic (one job at a time), submitit_slurm, ...")
+    parser.add_argument("--launcher", default=None,
+                        help="Hydra launcher: joblib (default; the sweep extra, else basic), basic (one job at "
+                             "a time), submitit_slurm (the slurm extra), ...")
     parser.add_argument("--n-jobs", type=int, default=2, help="parallel jobs with --launcher joblib (default 2)")
     parser.add_argument("--extra", action="append", default=[], metavar="OVERRIDE",
                         help="extra Hydra override for every sweep, e.g. hydra.launcher.partition=PART (repeatable)")
@@ -69,14 +72,16 @@ def main(argv: list[str] | None = None) -> int:
             raise ReproduceError(f"--only: unknown experiment(s) {', '.join(unknown)} (choose from {', '.join(EXPERIMENTS)})")
         if args.n_jobs < 1:
             raise ReproduceError(f"--n-jobs must be >= 1, got {args.n_jobs}")
+        launcher = None if args.report_only else choose_launcher(args.launcher)  # refused before anything runs
         out = args.out.expanduser().resolve()
         out.mkdir(parents=True, exist_ok=True)
         start = time.perf_counter()
         if not args.report_only:
             print(f"profile {args.profile}: {PROFILES[args.profile].description}", flush=True)
             for name in only:
-                run_experiment(name, args.profile, out, args.launcher, args.n_jobs, args.extra)
-        report = write_report(out, None if args.report_only else args.profile)
+                run_experiment(name, args.profile, out, launcher, args.n_jobs, args.extra)
+        with skipped_runs_on_stderr():
+            report = write_report(out, None if args.report_only else args.profile)
     except ReproduceError as err:
         print(f"error: {err}", file=sys.stderr)
         return 1

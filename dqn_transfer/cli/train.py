@@ -1,38 +1,140 @@
 """``python train.py`` / ``dqn-transfer-train``: the Hydra app around the trainer.
 
-It composes the config (``conf/`` + the schema), takes the run's own saved config on ``resume=true``,
-finds or pretrains the transfer source, and trains. A user's mistake ends in one ``error:`` line (on
-stderr and in the run's log) and exit code 1, never a traceback.
+It refuses keys outside the schema before Hydra composes anything, claims the run directory (an
+exclusive lock; never a directory that holds another run), takes the run's own saved config on
+``resume=true``, finds or pretrains the transfer source, and trains. A user's mistake ends in one
+``error:`` line and exit code 1, never a traceback, and leaves nothing behind that was not there
+before. SIGINT / SIGTERM stop the run at the next episode end with a checkpoint (exit 130 / 143).
 """
 
 from __future__ import annotations
 
+import difflib
 import logging
 import math
 import sys
 import warnings
+from dataclasses import fields, is_dataclass
 from pathlib import Path
 from typing import Any
 
 import hydra
+from hydra._internal.utils import get_args_parser
 from hydra.core.hydra_config import HydraConfig
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.errors import HydraException
 from hydra.experimental.callback import Callback
+from hydra.types import RunMode
 from hydra.utils import get_original_cwd
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from dqn_transfer.checkpoint import CheckpointError, load_training_state
-from dqn_transfer.config import CONFIG_DIR, ConfigError, TrainConfig, register_configs
-from dqn_transfer.run_dir import RunDir
+from dqn_transfer.config import CONFIG_DIR, SB3_NAMES, ConfigError, TrainConfig, register_configs
+from dqn_transfer.run_dir import RunClaim, RunDir, RunDirError
 from dqn_transfer.sources import transfer_source
-from dqn_transfer.trainer import existing_run_message, train
+from dqn_transfer.trainer import Interrupted, train
 from dqn_transfer.transfer_mapping import TransferError
 
 log = logging.getLogger("dqn_transfer.train")
 
-USER_ERRORS = (ConfigError, CheckpointError, TransferError)
+USER_ERRORS = (ConfigError, CheckpointError, TransferError, RunDirError)
 # What a resumed run may change; everything else is the run's own saved config.
 RESUMABLE_KEYS = ("total_steps", "progress", "checkpoint_every", "device", "threads")
+CONFIG_GROUPS = tuple(sorted(p.name for p in CONFIG_DIR.iterdir() if p.is_dir()))
+# Other libraries' names for our agent keys (SB3's, and CleanRL's dqn.py where they differ), so a user
+# who types the name they know is pointed at ours.
+AGENT_ALIASES = {**{sb3: ours for ours, sb3 in SB3_NAMES.items()}, "net_arch": "hidden",
+                 "target_network_frequency": "target_update", "train_frequency": "train_freq",
+                 "start_e": "eps_start", "end_e": "eps_end"}
+
+
+# ------------------------------------------------------------------------------------ the command line
+
+def schema_keys(schema: type = TrainConfig, prefix: str = "") -> list[str]:
+    """Every dotted key of the config schema (``agent.lr``, ``env.size``, ``seed``, ...)."""
+    keys = []
+    for f in fields(schema):
+        default = f.default_factory() if callable(f.default_factory) else f.default  # type: ignore[misc]
+        if is_dataclass(default):
+            keys += schema_keys(type(default), f"{prefix}{f.name}.")
+        else:
+            keys.append(prefix + f.name)
+    return keys
+
+
+def check_overrides(argv: list[str]) -> None:
+    """Refuse a key outside the schema (``+`` appends included) or an option no group has, naming the
+    nearest valid one, before Hydra turns it into a multi-line error or silently stores it."""
+    try:
+        args = get_args_parser().parse_args(argv)
+        overrides = OverridesParser.create().parse_overrides(args.overrides)
+    except (SystemExit, HydraException):
+        return  # malformed: Hydra's own parser says what is wrong
+    keys = schema_keys()
+    for override in overrides:
+        key = override.key_or_group
+        if key.startswith("hydra") or key in CONFIG_GROUPS:
+            if key in CONFIG_GROUPS:
+                check_group_option(key, override)
+            continue
+        if key not in keys:
+            alias = AGENT_ALIASES.get(key.rsplit(".", 1)[-1])
+            nearest = [f"agent.{alias}"] if alias else difflib.get_close_matches(key, keys, n=1)
+            hint = f" (did you mean {nearest[0]}?)" if nearest else f"; the keys are listed by `{Path(sys.argv[0]).name} --cfg job`"
+            raise ConfigError(f"unknown config key '{key}' in '{override.input_line}'{hint}")
+
+
+def check_group_option(group: str, override) -> None:
+    options = sorted(p.stem for p in (CONFIG_DIR / group).glob("*.yaml"))
+    chosen = list(override.sweep_string_iterator()) if override.is_sweep_override() else [
+        override.get_value_element_as_str()]
+    for option in chosen:
+        if option not in options and option != "null":
+            nearest = difflib.get_close_matches(option, options, n=1)
+            hint = f"did you mean {group}={nearest[0]}? " if nearest else ""
+            raise ConfigError(f"{group}={option}: no such option ({hint}choose from {', '.join(options)})")
+
+
+# ------------------------------------------------------------------------------------ the run directory
+
+class ClaimRunDir(Callback):
+    """Hydra callback: claim the run directory *before* Hydra writes its ``.hydra/`` record there —
+    refuse a directory in use by another process, or holding another run (unless resuming it), or
+    under a regular file. The claim is kept for the app (``ClaimRunDir.claim``), which undoes it when
+    the run is refused."""
+
+    claim: RunClaim | None = None
+
+    def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
+        self._take(RunDir(config.hydra.run.dir), resume=config.resume, fresh=False)
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        sweep = Path(config.hydra.sweep.dir)
+        used = sorted(d.name for d in sweep.iterdir() if d.is_dir() and RunDir(d).holds_run()) if sweep.is_dir() else []
+        if used:
+            _exit_with(RunDirError(f"{sweep} already holds the runs of a sweep ({', '.join(used[:5])}"
+                                   f"{', ...' if len(used) > 5 else ''}); choose another hydra.sweep.dir"))
+
+    def on_job_start(self, config: DictConfig, **kwargs: Any) -> None:
+        if config.hydra.mode == RunMode.MULTIRUN:  # Hydra has just made this job's directory
+            self._take(RunDir(config.hydra.runtime.output_dir), resume=config.resume, fresh=True)
+
+    @classmethod
+    def _take(cls, run: RunDir, resume: bool, fresh: bool) -> None:
+        if cls.claim is not None:  # the previous job of a sequential sweep is over
+            cls.claim.release()
+        claim = RunClaim(run)
+        try:
+            claim.acquire(resume=resume, fresh=fresh)
+        except RunDirError as err:
+            _exit_with(err)
+        cls.claim = claim
+
+
+def _exit_with(err: Exception, code: int = 1) -> None:
+    print(f"error: {err}", file=sys.stderr)
+    sys.exit(code)
 
 
 def resume_config(run: RunDir, cfg: DictConfig, overrides: list[str]) -> TrainConfig:
@@ -47,8 +149,6 @@ def resume_config(run: RunDir, cfg: DictConfig, overrides: list[str]) -> TrainCo
     except (KeyError, OmegaConfBaseException) as err:
         raise ConfigError(f"{run.training_state}: its saved config does not fit this version of dqn_transfer "
                           f"({err})") from None
-    # Hydra has just written the resume command's composition there; record the run's own instead.
-    OmegaConf.save(saved, run.config)
     for override in overrides:
         key = override.split("=", 1)[0].lstrip("+~")
         if key == "resume" or key.startswith("hydra"):
@@ -61,25 +161,30 @@ def resume_config(run: RunDir, cfg: DictConfig, overrides: list[str]) -> TrainCo
             raise ConfigError(f"resume=true: '{override}' differs from the run's own setting{shown}; a resumed "
                               f"run may change only {', '.join(RESUMABLE_KEYS)}")
     saved.resume = True
+    # Hydra has just written the resume command's composition there; record the run's own instead.
     OmegaConf.save(saved, run.config)
     return OmegaConf.to_object(saved)  # type: ignore[return-value]
 
 
-class RefuseExistingRun(Callback):
-    """Hydra callback: refuse a new run in a run directory that holds one *before* Hydra rewrites
-    its ``.hydra/`` record (the trainer's own check comes after that)."""
-
-    def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
-        run = RunDir(config.hydra.run.dir)
-        if not config.resume and run.has_run():
-            print(f"error: {existing_run_message(run.path)}", file=sys.stderr)
-            sys.exit(1)
-
+# ------------------------------------------------------------------------------------ logging
 
 def log_warning(message, category, filename, lineno, file=None, line=None) -> None:
     """Warnings (e.g. "a layout fixes the map; ignoring ...") as one line of the run's log, not a
     Python warning with a file name and a source line."""
     log.warning("%s", message)
+
+
+class JobTag(logging.Filter):
+    """``[job N]`` before every line of a multirun job, so parallel jobs' lines can be told apart."""
+
+    def __init__(self, num: int) -> None:
+        super().__init__()
+        self.tag = f"[job {num}] "
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if not str(record.msg).startswith(self.tag):
+            record.msg = self.tag + str(record.msg)
+        return True
 
 
 def report_user_error(err: Exception) -> None:
@@ -92,26 +197,73 @@ def report_user_error(err: Exception) -> None:
             handler.handle(record)
 
 
+def close_file_logs() -> None:
+    """Close the run's log file (before its directory is removed)."""
+    root = logging.getLogger()
+    for handler in list(root.handlers):
+        if isinstance(handler, logging.FileHandler):
+            handler.close()
+            root.removeHandler(handler)
+
+
+# ------------------------------------------------------------------------------------ the app
+
 register_configs()
 
 
 @hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="config")
-def main(cfg: DictConfig) -> float:
+def app(cfg: DictConfig) -> float:
     """Train one run (or one job of a ``-m`` sweep); returns the last evaluation's team return, the
     objective a Hydra sweeper (e.g. Optuna) would optimise."""
     warnings.showwarning = log_warning
-    run = RunDir(HydraConfig.get().runtime.output_dir)
+    hydra_config = HydraConfig.get()
+    if hydra_config.mode == RunMode.MULTIRUN:
+        for handler in logging.getLogger().handlers:
+            handler.addFilter(JobTag(hydra_config.job.num))
+    run = RunDir(hydra_config.runtime.output_dir)
+    claim = ClaimRunDir.claim
+    log.info("run directory: %s", run)
     try:
         if cfg.resume and run.has_run():
-            config = resume_config(run, cfg, HydraConfig.get().overrides.task)
+            config = resume_config(run, cfg, hydra_config.overrides.task)
         else:
             config = OmegaConf.to_object(cfg)
         source = transfer_source(config, Path(get_original_cwd()))
         summary = train(config, run.path, source=source)
     except USER_ERRORS as err:
         report_user_error(err)
+        if claim is not None:
+            close_file_logs()
+            claim.undo()  # a refused run leaves nothing behind
         sys.exit(1)
+    except Interrupted as stop:
+        if stop.run_dir.resolve() == run.path.resolve():
+            log.warning("interrupted at step %d; resume with: python train.py resume=true hydra.run.dir=%s",
+                        stop.step, run)
+        else:  # the source's pretraining was interrupted; it keeps nothing, and this run never started
+            log.warning("interrupted while pretraining the transfer source (nothing kept); run the command again")
+            if claim is not None:
+                close_file_logs()
+                claim.undo()
+        sys.exit(stop.exit_code)
+    except KeyboardInterrupt:
+        resumable = run.has_run()
+        log.warning("stopped at once%s", f"; resume from the last checkpoint with: python train.py resume=true "
+                                         f"hydra.run.dir={run}" if resumable else " before any checkpoint")
+        if not resumable and not run.has_metrics() and claim is not None:
+            close_file_logs()
+            claim.undo()  # nothing worth keeping: leave no stub behind
+        sys.exit(130)
     return float(summary["last_eval"].get("team_return", math.nan))
+
+
+def main() -> None:
+    """The command line: unknown keys refused first, then the Hydra app."""
+    try:
+        check_overrides(sys.argv[1:])
+    except ConfigError as err:
+        _exit_with(err)
+    app()
 
 
 if __name__ == "__main__":

@@ -1,9 +1,11 @@
 """``OUT/REPORT.md``: the study's reproduction report, from the sweeps under ``OUT``.
 
 The runs of ``OUT/{fig1,fig2,transfer}`` (whichever exist) are read back from their run
-directories, never live objects; each experiment becomes a section of
-:mod:`dqn_transfer.experiments.claims` with its verdict, figures beside the report. A summary table
-comes first; a ``quick`` profile's report says in its first lines that it is not evidence.
+directories, never live objects; a directory that is not a usable run (a job that never evaluated,
+one without a readable config) is skipped with a :class:`~dqn_transfer.analysis.runs.SkippedRun`
+warning. Each experiment becomes a section of :mod:`dqn_transfer.experiments.claims` with its
+verdict, figures beside the report. A summary table comes first; a ``quick`` profile's report says in
+its first lines that it is not evidence.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dqn_transfer.analysis.runs import EvaluationError, Run, load_runs
+from dqn_transfer.analysis.runs import EvaluationError, load_runs
 from dqn_transfer.experiments.claims import SECTIONS, Section
 from dqn_transfer.experiments.sweeps import EXPERIMENTS, PROFILES, STAMP_FILE, ReproduceError
 
@@ -33,13 +35,6 @@ def _git_describe() -> str:
     return commit + (" (with uncommitted changes)" if dirty else "")
 
 
-def _load_runs(sweep_dir: Path) -> list[Run]:
-    try:
-        return load_runs(sweep_dir)
-    except EvaluationError as err:
-        raise ReproduceError(str(err)) from err
-
-
 def write_report(out: Path, profile: str | None = None, seed: int = 0) -> Path:
     """Analyse ``OUT/{fig1,fig2,transfer}`` (whichever exist) into ``OUT/REPORT.md`` and PNG figures."""
     out = Path(out)
@@ -47,7 +42,7 @@ def write_report(out: Path, profile: str | None = None, seed: int = 0) -> Path:
     sections: dict[str, Section] = {}
     stamps, run_counts = {}, {}
     for name in EXPERIMENTS:
-        runs = _load_runs(out / name)
+        runs = load_runs(out / name)  # unusable runs are skipped, each with a warning
         if not runs:
             continue
         run_counts[name] = len(runs)

@@ -1,9 +1,10 @@
 """Running the study's experiments: one Hydra multirun per experiment, into ``OUT/<name>/``.
 
 Each experiment is ``python -m dqn_transfer.cli.train -m experiment=<name>`` (``conf/experiment/``)
-in a subprocess, with the profile's overrides; ``--launcher joblib`` runs ``--n-jobs`` jobs at a
-time, ``submitit_slurm`` one SLURM job per run. The ``full`` profile uses the experiment files' own
-step counts; ``quick`` shrinks them and the seeds.
+in a subprocess, with the profile's overrides; ``--launcher joblib`` (the default, from the ``sweep``
+extra; without it, Hydra's basic launcher) runs ``--n-jobs`` jobs at a time, ``submitit_slurm`` one
+SLURM job per run. The ``full`` profile uses the experiment files' own step counts; ``quick`` shrinks
+them and the seeds.
 
 A sweep directory already complete for the same settings is reused (so a failed report or a second
 ``--only`` does not rerun it); one holding other or unfinished runs is an error, never overwritten.
@@ -26,6 +27,7 @@ from pathlib import Path
 
 import yaml
 from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
 from hydra.core.override_parser.overrides_parser import OverridesParser
 
 from dqn_transfer.analysis.runs import EvaluationError, load_config, read_metrics
@@ -37,6 +39,9 @@ from dqn_transfer.run_dir import RunDir
 EXPERIMENTS = ("fig1", "fig2", "transfer")
 TRANSFER_LEARNERS = (Algorithm.double_dqn, Algorithm.sarsa)  # a deep learner and the study's tabular one
 STAMP_FILE = "reproduce.json"  # in OUT/<name>/: the settings the sweep ran with, and its wall time
+DEFAULT_LAUNCHER = "joblib"
+# The pyproject extra that installs each launcher plugin (basic is Hydra's own).
+LAUNCHER_EXTRAS = {"joblib": "sweep", "submitit_slurm": "slurm", "submitit_local": "slurm"}
 
 
 class ReproduceError(Exception):
@@ -109,6 +114,35 @@ def count_jobs(name: str, overrides: Sequence[str]) -> int:
         if override.is_sweep_override():
             total *= len(list(override.sweep_string_iterator()))
     return total
+
+
+def installed_launchers() -> list[str]:
+    """The Hydra launchers this Python has: ``basic`` always, the others if their plugin imports."""
+    register_configs()
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        return GlobalHydra.instance().config_loader().get_group_options("hydra/launcher")
+
+
+def choose_launcher(requested: str | None) -> str:
+    """The launcher the sweeps run with: ``requested``, refused if it is not installed; by default
+    joblib, or Hydra's basic launcher (one job at a time) with one line saying so when joblib's plugin
+    is missing, which is the case with only the ``dev`` extra installed."""
+    installed = installed_launchers()
+    if requested is None:
+        if DEFAULT_LAUNCHER in installed:
+            return DEFAULT_LAUNCHER
+        print(f"the {DEFAULT_LAUNCHER} launcher is not installed: running one job at a time with Hydra's basic "
+              f"launcher (for --n-jobs at a time: {_pip_install(DEFAULT_LAUNCHER)})", flush=True)
+        return "basic"
+    if requested in installed:
+        return requested
+    if requested in LAUNCHER_EXTRAS:
+        raise ReproduceError(f"--launcher {requested}: its Hydra plugin is not installed ({_pip_install(requested)})")
+    raise ReproduceError(f"--launcher {requested}: no such Hydra launcher (installed: {', '.join(installed)})")
+
+
+def _pip_install(launcher: str) -> str:
+    return f'pip install -e ".[{LAUNCHER_EXTRAS[launcher]}]"'
 
 
 def launcher_overrides(launcher: str, n_jobs: int) -> list[str]:

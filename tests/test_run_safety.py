@@ -1,0 +1,228 @@
+"""Runs are never lost or mixed, tried with real ``python train.py`` processes: SIGINT / SIGTERM stop at
+a checkpoint and resume exactly, two runs never share a directory, bad input leaves nothing behind,
+unknown keys are refused with the nearest valid one, log lines never glue onto the progress bar."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from concurrent.futures import ThreadPoolExecutor
+
+from conftest import TRAIN_PY, TRAIN_TIMEOUT, run_train, start_train, train_env
+
+from dqn_transfer.checkpoint import load_agent_checkpoint, load_training_state
+
+pytestmark = pytest.mark.slow
+
+MAP = "0...T\n.#...\n...#.\nX....\n1..T.\n"  # 5 x 5, two chests, one trap, two agents
+BASE = ("env.layout_file=map.txt", "env.size=5", "env.num_treasures=2", "env.num_traps=1", "env.num_agents=2",
+        "env.complexity=0.08", "env.map_seed=0", "eval_episodes=2")
+LONG_RUN = (*BASE, "agent=dqn", "mode=cooperative", "agent.learning_starts=100", "agent.hidden=[32]",
+            "agent.batch_size=32", "total_steps=2500", "checkpoint_every=100000", "eval_every=100", "seed=5")
+
+
+@pytest.fixture(scope="module")
+def launch(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("safety")
+    (path / "map.txt").write_text(MAP)
+    return path
+
+
+def metrics(run_dir: Path) -> list[dict]:
+    """Complete evaluation lines, without their wall-clock stamps."""
+    path = run_dir / "metrics.jsonl"
+    lines = path.read_text().split("\n")[:-1] if path.exists() else []
+    return [{k: v for k, v in json.loads(line).items() if k != "wall_time"} for line in lines]
+
+
+def agent_digests(run_dir: Path) -> list[str]:
+    return [load_agent_checkpoint(run_dir / "checkpoints" / f"agent_{i}.safetensors")[1]["digest"] for i in (0, 1)]
+
+
+def wait_for_evaluations(run_dir: Path, count: int, proc: subprocess.Popen, timeout: float = 120) -> None:
+    deadline = time.monotonic() + timeout
+    while len(metrics(run_dir)) < count:
+        assert proc.poll() is None, f"the run ended before {count} evaluations"
+        assert time.monotonic() < deadline, "the run is too slow to reach its evaluations"
+        time.sleep(0.05)
+
+
+@pytest.fixture(scope="module")
+def signalled(launch):
+    """The same run uninterrupted, stopped by SIGINT and by SIGTERM, each resumed to the end."""
+    reference = start_train(launch, *LONG_RUN, run_dir=launch / "reference")
+    outcomes = {}
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        run_dir = launch / signal.Signals(signum).name
+        proc = start_train(launch, *LONG_RUN, run_dir=run_dir)
+        wait_for_evaluations(run_dir, 4, proc)
+        sent = time.monotonic()
+        proc.send_signal(signum)
+        code = proc.wait(timeout=60)
+        stopped_within = time.monotonic() - sent
+        output = run_dir.with_suffix(".out").read_text()
+        stopped_at = load_training_state(run_dir / "checkpoints" / "training_state.safetensors")[1]["counters"]["step"]
+        resumed = run_train(launch, "resume=true", run_dir=run_dir)
+        outcomes[signum] = dict(code=code, output=output, within=stopped_within, step=stopped_at,
+                                resumed=resumed, run_dir=run_dir)
+    assert reference.wait(timeout=TRAIN_TIMEOUT) == 0
+    return launch / "reference", outcomes
+
+
+@pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_signal_checkpoints_says_how_to_resume_and_exits_with_its_code(signalled, signum, code):
+    _, outcomes = signalled
+    out = outcomes[signum]
+    assert out["code"] == code
+    assert out["within"] < 10  # the next episode end is at most max_steps = 25 steps away
+    assert "Traceback" not in out["output"]
+    line = f"interrupted at step {out['step']}; resume with: python train.py resume=true hydra.run.dir={out['run_dir']}"
+    assert line in out["output"]
+    assert f"run directory: {out['run_dir']}" in out["output"].splitlines()[0]  # said first, not only at the end
+    assert 0 < out["step"] < 2500
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_resuming_after_a_signal_gives_the_uninterrupted_run(signalled, signum):
+    reference, outcomes = signalled
+    run_dir = outcomes[signum]["run_dir"]
+    assert metrics(run_dir) == metrics(reference)
+    assert agent_digests(run_dir) == agent_digests(reference)
+
+
+def test_two_runs_started_in_the_same_second_get_their_own_directories(tmp_path):
+    (tmp_path / "map.txt").write_text(MAP)
+    command = [sys.executable, str(TRAIN_PY), *BASE, "agent=sarsa", "total_steps=50", "eval_every=25",
+               "progress=false"]
+    procs = [subprocess.Popen(command, cwd=tmp_path, env=train_env(), stdout=subprocess.PIPE,
+                              stderr=subprocess.STDOUT, text=True) for _ in range(2)]
+    outputs = [p.communicate(timeout=TRAIN_TIMEOUT)[0] for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], outputs
+    runs = sorted((tmp_path / "outputs" / "runs").glob("*/*"))
+    assert len(runs) == 2
+    for run in runs:  # each run's files are its own: one event file, evaluations at 0, 25, 50 once
+        assert [m["step"] for m in metrics(run)] == [0, 25, 50]
+        assert len(list((run / "tb").glob("events.*"))) == 1
+
+
+def test_a_second_process_on_a_directory_in_use_is_refused_and_changes_nothing(launch):
+    run_dir = launch / "busy"
+    first = start_train(launch, *LONG_RUN, "total_steps=1000000", run_dir=run_dir)  # busy until stopped
+    wait_for_evaluations(run_dir, 1, first)
+    config_before = (run_dir / ".hydra" / "config.yaml").read_bytes()
+    for extra in ((), ("resume=true",)):
+        second = run_train(launch, *LONG_RUN, *extra, run_dir=run_dir, check=False)
+        assert second.returncode == 1
+        assert f"error: {run_dir} is in use by another running process" in second.stderr
+        assert "Traceback" not in second.output
+    assert (run_dir / ".hydra" / "config.yaml").read_bytes() == config_before
+    first.send_signal(signal.SIGTERM)
+    assert first.wait(timeout=60) == 143
+
+
+def _tree(path: Path) -> list[str]:
+    return sorted(str(p.relative_to(path)) for p in path.rglob("*"))
+
+
+BAD = {
+    "out_of_range": ("agent.gamma=1.5",),
+    "typo": ("agent.learning_rate=0.5",),
+    "appended_typo": ("+agent.learning_rate=0.5",),
+    "no_such_option": ("agent=ppo",),
+    "missing_source": ("transfer=on", "transfer.source=nowhere.safetensors"),
+    "resume_nothing": ("resume=true",),
+}
+
+
+@pytest.fixture(scope="module")
+def refusals(tmp_path_factory):
+    """Each bad command twice: into a fresh default directory and into an empty existing one."""
+    root = tmp_path_factory.mktemp("refusals")
+    jobs = []
+    for name, overrides in BAD.items():
+        for where in ("default", "existing"):
+            cwd = root / f"{name}_{where}"
+            cwd.mkdir()
+            (cwd / "map.txt").write_text(MAP)
+            if where == "existing":
+                (cwd / "empty_run").mkdir()
+            jobs.append((cwd, (*BASE, "total_steps=10", *overrides), cwd / "empty_run" if where == "existing" else None))
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        outputs = list(pool.map(lambda job: run_in(*job), jobs))
+    return {cwd.name: (result, _tree(cwd)) for (cwd, _, _), result in zip(jobs, outputs)}
+
+
+def run_in(cwd: Path, overrides: tuple[str, ...], run_dir: Path | None) -> subprocess.CompletedProcess:
+    """``python train.py OVERRIDES`` in ``cwd``; no ``run_dir`` means Hydra's default directory."""
+    command = [sys.executable, str(TRAIN_PY), *overrides, "progress=false"]
+    if run_dir is not None:
+        command.append(f"hydra.run.dir={run_dir}")
+    return subprocess.run(command, cwd=cwd, env=train_env(), capture_output=True, text=True, timeout=TRAIN_TIMEOUT)
+
+
+@pytest.mark.parametrize("name", list(BAD))
+def test_a_refused_run_leaves_nothing_behind(refusals, name):
+    for where, expected in (("default", ["map.txt"]), ("existing", ["empty_run", "map.txt"])):
+        result, tree = refusals[f"{name}_{where}"]
+        assert result.returncode == 1, result.stderr
+        errors = [line for line in result.stderr.splitlines() if line.startswith("error:")]
+        assert len(errors) == 1 and "Traceback" not in result.stderr, result.stderr
+        assert tree == expected, (where, tree)
+
+
+def test_unknown_keys_name_the_nearest_valid_one(refusals):
+    assert "error: unknown config key 'agent.learning_rate' in 'agent.learning_rate=0.5' (did you mean agent.lr?)" \
+        in refusals["typo_default"][0].stderr
+    assert "in '+agent.learning_rate=0.5' (did you mean agent.lr?)" in refusals["appended_typo_default"][0].stderr
+    assert "error: agent=ppo: no such option (choose from double_dqn, dqn, qlearning, sarsa)" \
+        in refusals["no_such_option_default"][0].stderr
+
+
+def test_a_run_directory_beneath_a_file_is_one_line(tmp_path):
+    (tmp_path / "map.txt").write_text(MAP)
+    (tmp_path / "a_file").write_text("x")
+    result = run_train(tmp_path, *BASE, "total_steps=10", run_dir=tmp_path / "a_file" / "run", check=False)
+    assert result.returncode == 1 and "Traceback" not in result.output
+    assert f"error: cannot use {tmp_path / 'a_file' / 'run'} as a run directory: {tmp_path / 'a_file'} is a file" \
+        in result.stderr
+
+
+def test_log_lines_never_glue_onto_the_progress_bar(tmp_path):
+    (tmp_path / "map.txt").write_text(MAP)
+    command = [sys.executable, str(TRAIN_PY), *BASE, "agent=sarsa", "total_steps=3000", "eval_every=500",
+               "progress=true", f"hydra.run.dir={tmp_path / 'run'}"]
+    # One stream, as on a terminal: the bar (stderr) and the log lines (stdout) interleave.
+    result = subprocess.run(command, cwd=tmp_path, env=train_env(), stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, timeout=TRAIN_TIMEOUT)
+    assert result.returncode == 0, result.stdout
+    # The bar redraws with carriage returns; every log line must start a line of its own.
+    pieces = result.stdout.replace("\r", "\n").splitlines()
+    evals = [p for p in pieces if "eval step" in p]
+    assert len(evals) == 7 and all(p.startswith("[") for p in evals), evals
+
+
+def test_parallel_jobs_tag_their_lines(tmp_path):
+    (tmp_path / "map.txt").write_text(MAP)
+    command = [sys.executable, str(TRAIN_PY), "-m", *BASE, "agent=sarsa", "total_steps=20", "eval_every=10",
+               "progress=false", "seed=0,1", f"hydra.sweep.dir={tmp_path / 'sweep'}"]
+    result = subprocess.run(command, cwd=tmp_path, env=train_env(), capture_output=True, text=True,
+                            timeout=TRAIN_TIMEOUT)
+    assert result.returncode == 0, result.stderr
+    for job in (0, 1):
+        log = (tmp_path / "sweep" / str(job) / "train.log").read_text()
+        evals = [line for line in log.splitlines() if "eval step" in line]
+        assert len(evals) == 3 and all(f"- [job {job}] eval step" in line for line in evals), evals
+    # The same sweep again into the same folder: refused before any job's record is rewritten.
+    record = (tmp_path / "sweep" / "0" / ".hydra" / "config.yaml").read_bytes()
+    again = subprocess.run(command, cwd=tmp_path, env=train_env(), capture_output=True, text=True,
+                           timeout=TRAIN_TIMEOUT)
+    assert again.returncode == 1 and "Traceback" not in again.stderr + again.stdout
+    assert f"error: {tmp_path / 'sweep'} already holds the runs of a sweep (0, 1)" in again.stderr
+    assert (tmp_path / "sweep" / "0" / ".hydra" / "config.yaml").read_bytes() == record
