@@ -25,7 +25,7 @@ MAP = "0...T\n.#...\n...#.\nX....\n1..T.\n"  # 5 x 5, two chests, one trap, two 
 BASE = ("env.layout_file=map.txt", "env.size=5", "env.num_treasures=2", "env.num_traps=1", "env.num_agents=2",
         "env.complexity=0.08", "env.map_seed=0", "eval_episodes=2")
 LONG_RUN = (*BASE, "agent=dqn", "mode=cooperative", "agent.learning_starts=100", "agent.hidden=[32]",
-            "agent.batch_size=32", "total_steps=2500", "checkpoint_every=100000", "eval_every=100", "seed=5")
+            "agent.batch_size=32", "total_steps=1500", "checkpoint_every=100000", "eval_every=100", "seed=5")
 
 
 @pytest.fixture(scope="module")
@@ -58,20 +58,21 @@ def wait_for_evaluations(run_dir: Path, count: int, proc: subprocess.Popen, time
 def signalled(launch):
     """The same run uninterrupted, stopped by SIGINT and by SIGTERM, each resumed to the end."""
     reference = start_train(launch, *LONG_RUN, run_dir=launch / "reference")
+    procs = {signum: start_train(launch, *LONG_RUN, run_dir=launch / signal.Signals(signum).name)
+             for signum in (signal.SIGINT, signal.SIGTERM)}
     outcomes = {}
-    for signum in (signal.SIGINT, signal.SIGTERM):
+    for signum, proc in procs.items():
         run_dir = launch / signal.Signals(signum).name
-        proc = start_train(launch, *LONG_RUN, run_dir=run_dir)
         wait_for_evaluations(run_dir, 4, proc)
         sent = time.monotonic()
         proc.send_signal(signum)
         code = proc.wait(timeout=60)
-        stopped_within = time.monotonic() - sent
-        output = run_dir.with_suffix(".out").read_text()
-        stopped_at = load_training_state(run_dir / "checkpoints" / "training_state.safetensors")[1]["counters"]["step"]
-        resumed = run_train(launch, "resume=true", run_dir=run_dir)
-        outcomes[signum] = dict(code=code, output=output, within=stopped_within, step=stopped_at,
-                                resumed=resumed, run_dir=run_dir)
+        outcomes[signum] = dict(code=code, within=time.monotonic() - sent, run_dir=run_dir,
+                                output=run_dir.with_suffix(".out").read_text(),
+                                step=load_training_state(run_dir / "checkpoints" / "training_state.safetensors")
+                                [1]["counters"]["step"])
+    for signum, outcome in outcomes.items():
+        outcome["resumed"] = run_train(launch, "resume=true", run_dir=outcome["run_dir"])
     assert reference.wait(timeout=TRAIN_TIMEOUT) == 0
     return launch / "reference", outcomes
 
@@ -86,7 +87,7 @@ def test_a_signal_checkpoints_says_how_to_resume_and_exits_with_its_code(signall
     line = f"interrupted at step {out['step']}; resume with: python train.py resume=true hydra.run.dir={out['run_dir']}"
     assert line in out["output"]
     assert f"run directory: {out['run_dir']}" in out["output"].splitlines()[0]  # said first, not only at the end
-    assert 0 < out["step"] < 2500
+    assert 0 < out["step"] < 1500
 
 
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
@@ -141,13 +142,18 @@ BAD = {
 }
 
 
+# Refused before Hydra runs (a typo) and after it made the run directory (a bad value): also tried in an
+# existing, empty directory, which must stay as it was.
+EXISTING_TOO = ("typo", "out_of_range")
+
+
 @pytest.fixture(scope="module")
 def refusals(tmp_path_factory):
-    """Each bad command twice: into a fresh default directory and into an empty existing one."""
+    """Each bad command into a fresh default directory (some also into an empty existing one)."""
     root = tmp_path_factory.mktemp("refusals")
     jobs = []
     for name, overrides in BAD.items():
-        for where in ("default", "existing"):
+        for where in ("default", "existing") if name in EXISTING_TOO else ("default",):
             cwd = root / f"{name}_{where}"
             cwd.mkdir()
             (cwd / "map.txt").write_text(MAP)
@@ -170,6 +176,8 @@ def run_in(cwd: Path, overrides: tuple[str, ...], run_dir: Path | None) -> subpr
 @pytest.mark.parametrize("name", list(BAD))
 def test_a_refused_run_leaves_nothing_behind(refusals, name):
     for where, expected in (("default", ["map.txt"]), ("existing", ["empty_run", "map.txt"])):
+        if f"{name}_{where}" not in refusals:
+            continue
         result, tree = refusals[f"{name}_{where}"]
         assert result.returncode == 1, result.stderr
         errors = [line for line in result.stderr.splitlines() if line.startswith("error:")]
