@@ -30,7 +30,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from dqn_transfer.checkpoint import CheckpointError, load_training_state
-from dqn_transfer.config import CONFIG_DIR, SB3_NAMES, ConfigError, TrainConfig, register_configs
+from dqn_transfer.config import CONFIG_DIR, SB3_NAMES, ConfigError, TrainConfig, register_configs, validate
 from dqn_transfer.run_dir import RunClaim, RunDir, RunDirError
 from dqn_transfer.sources import transfer_source
 from dqn_transfer.trainer import Interrupted, train
@@ -222,12 +222,13 @@ def app(cfg: DictConfig) -> float:
             handler.addFilter(JobTag(hydra_config.job.num))
     run = RunDir(hydra_config.runtime.output_dir)
     claim = ClaimRunDir.claim
-    log.info("run directory: %s", run)
     try:
         if cfg.resume and run.has_run():
             config = resume_config(run, cfg, hydra_config.overrides.task)
         else:
             config = OmegaConf.to_object(cfg)
+        validate(config)
+        log.info("run directory: %s", run)  # before a transfer source's pretraining, which can take minutes
         source = transfer_source(config, Path(get_original_cwd()))
         summary = train(config, run.path, source=source)
     except USER_ERRORS as err:
