@@ -27,6 +27,11 @@ from dqn_transfer.checkpoint import (
     save_training_state,
     verify_checkpoint,
 )
+from dqn_transfer.config import AgentConfig, TrainConfig
+from dqn_transfer.enums import Algorithm
+from dqn_transfer.envs.settings import EnvConfig
+from dqn_transfer.run_dir import RunDir
+from dqn_transfer.trainer import Trainer
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -354,12 +359,6 @@ def test_a_disk_full_during_a_run_keeps_the_previous_checkpoint_whole(tmp_path: 
     """The trainer's checkpoint is several files; the disk fills while the second checkpoint's second
     file is written. Every file on disk must still be the first checkpoint's, verified, and nothing
     half-written may be left (the run ends with the one-line CheckpointError)."""
-    from dqn_transfer.config import AgentConfig, TrainConfig
-    from dqn_transfer.enums import Algorithm
-    from dqn_transfer.envs.settings import EnvConfig
-    from dqn_transfer.run_dir import RunDir
-    from dqn_transfer.trainer import Trainer
-
     layout = "0..T\n....\n....\n1..T"  # two agents, two chests three moves away: episodes of 3 steps
     config = TrainConfig(env=EnvConfig(layout=layout, size=4, num_treasures=2, num_traps=0, num_agents=2,
                                        complexity=0.0), agent=AgentConfig(algorithm=Algorithm.qlearning, lr=0.5),

@@ -8,7 +8,8 @@ from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
 from omegaconf.errors import ValidationError
 
-from dqn_transfer.config import ConfigError, TrainConfig, register_configs, validate
+from dqn_transfer.agents import make_learner
+from dqn_transfer.config import AgentConfig, ConfigError, TrainConfig, register_configs, validate
 from dqn_transfer.enums import Algorithm, Mode
 
 CONF_DIR = str(Path(__file__).resolve().parent.parent / "conf")
@@ -81,3 +82,18 @@ def test_tabular_learners_refuse_network_only_options():
     config = compose_config("agent=sarsa", "transfer=on", "transfer.exchange=best")
     with pytest.raises(ConfigError, match="needs a DQN learner"):
         validate(config)
+
+
+@pytest.mark.parametrize("option, algorithm", [("dqn", Algorithm.dqn), ("double_dqn", Algorithm.double_dqn),
+                                               ("sarsa", Algorithm.sarsa), ("qlearning", Algorithm.qlearning)])
+def test_the_command_line_and_the_python_api_build_the_same_learner(option, algorithm):
+    """`agent=<option>` on the command line is the schema's defaults plus what the option says it
+    changes (tabular: lr 0.1, alpha): the learner built from it is the one the Python API builds."""
+    composed = compose_config(f"agent={option}").agent
+    api = AgentConfig(algorithm=algorithm, **({"lr": 0.1} if algorithm.is_tabular else {}))
+    assert composed == api
+    layout, actions = [("position", 9)], 4
+    a, b = (make_learner(hp, 2, layout, actions, seed=0) for hp in (composed, api))
+    for name in ("algorithm", "lr", "gamma", "batch_size", "learning_starts", "train_freq", "gradient_steps",
+                 "target_update", "tau", "hidden", "max_grad_norm", "share_parameters"):
+        assert getattr(a, name, None) == getattr(b, name, None), name
