@@ -173,8 +173,9 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
                                                     "there is only one network to exchange")
 
 
-def to_plain(cfg: DictConfig | TrainConfig) -> dict[str, Any]:
-    """The config as plain JSON-able data (enums as their names), for meta, logs and hashes."""
+def to_plain(cfg: DictConfig | TrainConfig | AgentConfig | TransferConfig | EnvConfig) -> dict[str, Any]:
+    """A config (or one of its groups) as plain JSON-able data (enums as their names), for meta, logs
+    and hashes."""
     node = cfg if isinstance(cfg, DictConfig) else OmegaConf.structured(cfg)
     return OmegaConf.to_container(node, resolve=True, enum_to_str=True)  # type: ignore[return-value]
 

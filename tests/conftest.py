@@ -7,6 +7,7 @@ so tests reuse runs (module-scoped fixtures) and start independent runs side by 
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -16,6 +17,7 @@ from pathlib import Path
 from typing import Iterable, Sequence
 
 import pytest
+from safetensors import safe_open
 
 REPO = Path(__file__).resolve().parent.parent
 TRAIN_PY = REPO / "train.py"
@@ -93,6 +95,24 @@ def run_many(jobs: Sequence[tuple[Path, Sequence[str], Path | None]], check: boo
         for result in results:
             result.check()
     return results
+
+
+def read_metrics(run_dir: Path) -> list[dict]:
+    """The fully written lines of a run's ``metrics.jsonl`` (a live run's last line may be half-written)."""
+    path = Path(run_dir) / "metrics.jsonl"
+    text = path.read_text() if path.exists() else ""
+    return [json.loads(line) for line in text.split("\n")[:-1] if line.strip()]
+
+
+def without_timing(records: list[dict]) -> list[dict]:
+    """Evaluation records without their wall-clock stamps: what same-seed runs must share."""
+    return [{k: v for k, v in r.items() if k != "wall_time"} for r in records]
+
+
+def agent_meta(path: Path) -> dict:
+    """A checkpoint's meta, read with safetensors alone (no torch, no dqn_transfer)."""
+    with safe_open(str(path), framework="numpy") as f:
+        return json.loads(f.metadata()["meta"])
 
 
 def reference_mlp(tensors: dict, prefix: str = "q"):

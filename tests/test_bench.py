@@ -19,7 +19,7 @@ from torch import nn
 
 from dqn_transfer.agents import DQNLearner, make_learner
 from dqn_transfer.benchmark import suite
-from dqn_transfer.benchmark.config import (BENCH_AGENT, SB3_NAMES, SOURCE_MAP, plain_agent, replay_warmup, sb3_dqn,
+from dqn_transfer.benchmark.config import (BENCH_AGENT, SB3_NAMES, SOURCE_MAP, replay_warmup, sb3_dqn,
                                            sb3_kwargs)
 from dqn_transfer.benchmark.env_throughput import measure_env_throughput
 from dqn_transfer.benchmark.team_scaling import TeamRig
@@ -203,7 +203,7 @@ def test_document_holds_every_section_and_is_json(document):
     assert {f"{name}_us" for name in ("bare", "bare_batched", "ours", "sample", "sb3")} <= set(update)
     assert update["bare_over_bare"] == 1.0
     assert ("ours_default_threads_us" in update) == (suite.DEFAULT_THREADS != 1)
-    assert document["settings"]["hyperparameters"] == plain_agent(TINY)
+    assert document["settings"]["hyperparameters"] == {**dataclasses.asdict(TINY), "algorithm": "dqn"}
     assert document["machine"]["torch_threads_used"] == [1]
     assert json.loads(json.dumps(document)) == document  # plain JSON types throughout
 

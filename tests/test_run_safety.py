@@ -4,8 +4,6 @@ unknown keys are refused with the nearest valid one, log lines never glue onto t
 
 from __future__ import annotations
 
-import json
-import os
 import signal
 import subprocess
 import sys
@@ -15,9 +13,9 @@ from pathlib import Path
 import pytest
 from concurrent.futures import ThreadPoolExecutor
 
-from conftest import TRAIN_PY, TRAIN_TIMEOUT, run_train, start_train, train_env
+from conftest import TRAIN_PY, TRAIN_TIMEOUT, agent_meta, read_metrics, run_train, start_train, train_env, without_timing
 
-from dqn_transfer.checkpoint import load_agent_checkpoint, load_training_state
+from dqn_transfer.checkpoint import load_training_state
 
 pytestmark = pytest.mark.slow
 
@@ -36,14 +34,11 @@ def launch(tmp_path_factory) -> Path:
 
 
 def metrics(run_dir: Path) -> list[dict]:
-    """Complete evaluation lines, without their wall-clock stamps."""
-    path = run_dir / "metrics.jsonl"
-    lines = path.read_text().split("\n")[:-1] if path.exists() else []
-    return [{k: v for k, v in json.loads(line).items() if k != "wall_time"} for line in lines]
+    return without_timing(read_metrics(run_dir))
 
 
 def agent_digests(run_dir: Path) -> list[str]:
-    return [load_agent_checkpoint(run_dir / "checkpoints" / f"agent_{i}.safetensors")[1]["digest"] for i in (0, 1)]
+    return [agent_meta(run_dir / "checkpoints" / f"agent_{i}.safetensors")["digest"] for i in (0, 1)]
 
 
 def wait_for_evaluations(run_dir: Path, count: int, proc: subprocess.Popen, timeout: float = 120) -> None:

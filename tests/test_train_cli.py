@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from conftest import REPO, run_many, run_train, start_train, train_env
+from conftest import REPO, agent_meta, read_metrics, run_many, run_train, start_train, train_env, without_timing
 
 pytestmark = pytest.mark.slow  # every test here starts `python train.py` processes or trains for seconds
 
@@ -49,25 +49,6 @@ TB_TAGS = [f"agent_{i}/{name}" for i in range(NUM_AGENTS)
 def learner_overrides(name: str) -> tuple[str, ...]:
     overrides, total, every = LEARNER_RUNS[name]
     return (*BASE, *overrides, f"total_steps={total}", f"eval_every={every}", "checkpoint_every=100")
-
-
-def read_metrics(run_dir: Path) -> list[dict]:
-    path = run_dir / "metrics.jsonl"
-    if not path.exists():
-        return []
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-
-
-def without_timing(records: list[dict]) -> list[dict]:
-    return [{k: v for k, v in r.items() if k != "wall_time"} for r in records]
-
-
-def agent_meta(path: Path) -> dict:
-    """The checkpoint's meta, read with safetensors alone (no torch, no dqn_transfer)."""
-    from safetensors import safe_open
-
-    with safe_open(str(path), framework="numpy") as f:
-        return json.loads(f.metadata()["meta"])
 
 
 def agent_tensors(path: Path) -> dict[str, np.ndarray]:
@@ -271,10 +252,7 @@ def _state_step(path: Path) -> int:
 
 
 def _complete_metric_steps(run_dir: Path) -> list[int]:
-    """Steps of the fully written lines of a live run's metrics.jsonl (the last may be half-written)."""
-    path = run_dir / "metrics.jsonl"
-    text = path.read_text() if path.exists() else ""
-    return [json.loads(line)["step"] for line in text.split("\n")[:-1] if line.strip()]
+    return [record["step"] for record in read_metrics(run_dir)]
 
 
 def _kill_after_an_uncheckpointed_eval(proc: subprocess.Popen, run_dir: Path, timeout: float = 240) -> int:

@@ -17,7 +17,7 @@ agent, loss the *mean* over agents.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np

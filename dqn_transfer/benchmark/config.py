@@ -6,7 +6,6 @@ only the SB3 measurements call.
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import gymnasium
@@ -46,8 +45,3 @@ def sb3_dqn(agent: AgentConfig, env_kwargs: dict[str, Any], seed: int):
 
     env = gymnasium.make("TreasureHunt-v0", **env_kwargs)
     return DQN("MlpPolicy", env, seed=seed, verbose=0, **sb3_kwargs(agent))
-
-
-def plain_agent(agent: AgentConfig) -> dict[str, Any]:
-    """``agent`` as JSON data (the algorithm by its name)."""
-    return {**dataclasses.asdict(agent), "algorithm": Algorithm(agent.algorithm).value}

@@ -31,12 +31,12 @@ from typing import Any
 import numpy as np
 import torch
 
-from dqn_transfer.benchmark.config import BENCH_AGENT, BENCH_MAP, SOURCE_MAP, plain_agent
+from dqn_transfer.benchmark.config import BENCH_AGENT, BENCH_MAP, SOURCE_MAP
 from dqn_transfer.benchmark.env_throughput import measure_env_throughput
 from dqn_transfer.benchmark.team_scaling import TeamRig
 from dqn_transfer.benchmark.training import measure_ours_training, measure_sb3_training
 from dqn_transfer.benchmark.update_cost import THREAD_NAMES, UPDATE_NAMES, SB3UpdateRig, UpdateRig
-from dqn_transfer.config import AgentConfig
+from dqn_transfer.config import AgentConfig, to_plain
 
 SECTIONS = ("env", "training", "team", "update")
 NEEDS_SB3 = ("training", "update")
@@ -314,7 +314,7 @@ def run_benchmark(profile: str, seed: int, repeats: int, threads: int, train_thr
                           "loadavg_start": loadavg_start, "loadavg_end": _loadavg()}
     results["settings"] = {
         "profile": profile, "seed": seed, "repeats": repeats, "threads": threads, "train_threads": train_threads,
-        "sections": list(sections), **dataclasses.asdict(sizes), "hyperparameters": plain_agent(agent),
+        "sections": list(sections), **dataclasses.asdict(sizes), "hyperparameters": to_plain(agent),
         "team_learning_starts": team_agent.learning_starts, "env_map": BENCH_MAP, "source_map": SOURCE_MAP,
     }
     results["method"] = METHOD

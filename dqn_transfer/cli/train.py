@@ -74,11 +74,9 @@ def check_overrides(argv: list[str]) -> None:
     keys = schema_keys()
     for override in overrides:
         key = override.key_or_group
-        if key.startswith("hydra") or key in CONFIG_GROUPS:
-            if key in CONFIG_GROUPS:
-                check_group_option(key, override)
-            continue
-        if key not in keys:
+        if key in CONFIG_GROUPS:
+            check_group_option(key, override)
+        elif not key.startswith("hydra") and key not in keys:
             alias = AGENT_ALIASES.get(key.rsplit(".", 1)[-1])
             nearest = [f"agent.{alias}"] if alias else difflib.get_close_matches(key, keys, n=1)
             hint = f" (did you mean {nearest[0]}?)" if nearest else f"; the keys are listed by `{Path(sys.argv[0]).name} --cfg job`"
@@ -197,13 +195,16 @@ def report_user_error(err: Exception) -> None:
             handler.handle(record)
 
 
-def close_file_logs() -> None:
-    """Close the run's log file (before its directory is removed)."""
+def leave_nothing_behind(claim: RunClaim | None) -> None:
+    """Close the run's log file and remove what this run added to its directory."""
+    if claim is None:
+        return
     root = logging.getLogger()
     for handler in list(root.handlers):
         if isinstance(handler, logging.FileHandler):
             handler.close()
             root.removeHandler(handler)
+    claim.undo()
 
 
 # ------------------------------------------------------------------------------------ the app
@@ -233,9 +234,7 @@ def app(cfg: DictConfig) -> float:
         summary = train(config, run.path, source=source)
     except USER_ERRORS as err:
         report_user_error(err)
-        if claim is not None:
-            close_file_logs()
-            claim.undo()  # a refused run leaves nothing behind
+        leave_nothing_behind(claim)  # a refused run
         sys.exit(1)
     except Interrupted as stop:
         if stop.run_dir.resolve() == run.path.resolve():
@@ -243,17 +242,14 @@ def app(cfg: DictConfig) -> float:
                         stop.step, run)
         else:  # the source's pretraining was interrupted; it keeps nothing, and this run never started
             log.warning("interrupted while pretraining the transfer source (nothing kept); run the command again")
-            if claim is not None:
-                close_file_logs()
-                claim.undo()
+            leave_nothing_behind(claim)
         sys.exit(stop.exit_code)
     except KeyboardInterrupt:
         resumable = run.has_run()
         log.warning("stopped at once%s", f"; resume from the last checkpoint with: python train.py resume=true "
                                          f"hydra.run.dir={run}" if resumable else " before any checkpoint")
-        if not resumable and not run.has_metrics() and claim is not None:
-            close_file_logs()
-            claim.undo()  # nothing worth keeping: leave no stub behind
+        if not resumable and not run.has_metrics():
+            leave_nothing_behind(claim)  # nothing worth keeping: no stub
         sys.exit(130)
     return float(summary["last_eval"].get("team_return", math.nan))
 
