@@ -10,6 +10,8 @@ each default is written once, here or there.
 
 from __future__ import annotations
 
+import dataclasses
+
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, List, Optional
@@ -88,15 +90,25 @@ class TransferConfig:
 
 
 @dataclass
+class ReplicasConfig:
+    """Independent runs batched in one process (docs/sweeps.md): ``seeds`` x ``maps`` replicas, seeds
+    ``seed .. seed + seeds - 1`` crossed with map seeds ``env.map_seed .. env.map_seed + maps - 1``."""
+
+    seeds: int = 1  # replicas with consecutive seeds
+    maps: int = 1  # replicas with consecutive map seeds (a generated map only)
+
+
+@dataclass
 class TrainConfig:
     env: EnvConfig = field(default_factory=EnvConfig)
     agent: AgentConfig = field(default_factory=AgentConfig)
     transfer: TransferConfig = field(default_factory=TransferConfig)
+    replicas: ReplicasConfig = field(default_factory=ReplicasConfig)
     seed: int = 0  # seeds the learners, exploration and episode resets
     total_steps: int = 20_000  # joint env steps (every live agent acts once)
     eval_every: int = 1_000  # env steps between greedy evaluations
     eval_episodes: int = 10  # greedy episodes per evaluation
-    checkpoint_every: int = 5_000  # env steps between checkpoints (written at the next episode end)
+    checkpoint_every: int = 5_000  # env steps between checkpoints
     progress: bool = True  # tqdm progress bar
     resume: bool = False  # continue the run in hydra.run.dir from its last checkpoint
     device: Device = Device.cpu
@@ -124,7 +136,7 @@ _AT_LEAST = {
     "agent.batch_size": 1, "agent.buffer_size": 1, "agent.learning_starts": 0, "agent.train_freq": 1,
     "agent.gradient_steps": 1, "agent.target_update": 1,
     "total_steps": 0, "eval_every": 1, "eval_episodes": 1, "checkpoint_every": 1, "threads": 1,
-    "transfer.pretrain_steps": 1, "transfer.exchange_every": 1,
+    "transfer.pretrain_steps": 1, "transfer.exchange_every": 1, "replicas.seeds": 1, "replicas.maps": 1,
 }
 _POSITIVE = ("agent.lr", "agent.max_grad_norm")
 _IN_UNIT_INTERVAL = ("agent.gamma", "agent.eps_start", "agent.eps_end", "agent.exploration_fraction",
@@ -166,11 +178,21 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
         layers = len(agent.hidden) + 1
         _check(all(-layers <= i < layers for i in transfer.freeze),
                f"transfer.freeze={list(transfer.freeze)}: the network has {layers} layers (0..{layers - 1})")
+    _check(cfg.replicas.maps == 1 or (env.layout is None and env.layout_file is None),
+           f"replicas.maps={cfg.replicas.maps} needs a generated map; a layout fixes the map (use replicas.seeds)")
     if agent.share_parameters:
         _check(transfer.targets is None, "transfer.targets: with agent.share_parameters=true all agents share one "
                                          "network, so all of them are transferred (leave targets unset)")
         _check(transfer.exchange != Exchange.best, "transfer.exchange=best: with agent.share_parameters=true "
                                                     "there is only one network to exchange")
+
+
+def replica_configs(cfg: TrainConfig) -> list[TrainConfig]:
+    """The lone-run config of every replica, map-major: ``(map_seed, seed)`` for map seeds
+    ``env.map_seed ..`` and seeds ``seed ..`` (one config, itself with ``replicas`` 1 x 1, if no replicas)."""
+    return [dataclasses.replace(cfg, seed=cfg.seed + s, replicas=ReplicasConfig(),
+                                env=dataclasses.replace(cfg.env, map_seed=cfg.env.map_seed + m))
+            for m in range(cfg.replicas.maps) for s in range(cfg.replicas.seeds)]
 
 
 def to_plain(cfg: DictConfig | TrainConfig | AgentConfig | TransferConfig | EnvConfig) -> dict[str, Any]:

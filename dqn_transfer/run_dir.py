@@ -11,6 +11,9 @@
       checkpoints/agent_{i}.safetensors     one file per agent, shareable on its own
       checkpoints/training_state.safetensors  what resume needs besides the agents
 
+A run of replicas (``replicas.seeds`` x ``replicas.maps``) holds, besides ``.hydra/`` and its log,
+``replicas.json`` (the names of its replicas) and one such run directory per replica.
+
 The module imports nothing of the package, so the checkpoint files, the trainer and the analysis
 can all use it. :class:`RunClaim` is how a run takes a directory for itself (and gives it back).
 """
@@ -18,6 +21,7 @@ can all use it. :class:`RunClaim` is how a run takes a directory for itself (and
 from __future__ import annotations
 
 import fcntl
+import json
 import os
 import re
 import shutil
@@ -34,6 +38,7 @@ TENSORBOARD_DIR = "tb"
 CHECKPOINTS_DIR = "checkpoints"
 TRAINING_STATE_FILE = "training_state.safetensors"
 AGENT_FILE_GLOB = "agent_*.safetensors"
+REPLICAS_FILE = "replicas.json"
 
 
 def agent_file_name(index: int) -> str:
@@ -92,17 +97,29 @@ class RunDir:
     def agent_checkpoint(self, index: int) -> Path:
         return self.checkpoints / agent_file_name(index)
 
+    @property
+    def replicas_index(self) -> Path:
+        return self.path / REPLICAS_FILE
+
+    def replica_dirs(self) -> list[Path]:
+        """The replicas' run directories, if this is a run of replicas (else none)."""
+        try:
+            names = json.loads(self.replicas_index.read_text())["replicas"]
+        except (OSError, ValueError, KeyError, TypeError):
+            return []
+        return [self.path / str(name) for name in names]
+
     def has_run(self) -> bool:
         """Whether a run has checkpointed here (what resume continues and a new run must not overwrite)."""
-        return self.training_state.exists()
+        return self.training_state.exists() or any(RunDir(d).has_run() for d in self.replica_dirs())
 
     def has_metrics(self) -> bool:
         return self.metrics.is_file()
 
     def run_files(self) -> list[str]:
         """The names of the run's own files and folders that exist (its log and config included)."""
-        return [p.name for p in (self.hydra_dir, self.metrics, self.tensorboard, self.checkpoints, self.log)
-                if p.exists()]
+        return [p.name for p in (self.hydra_dir, self.metrics, self.tensorboard, self.checkpoints, self.log,
+                                 self.replicas_index) if p.exists()]
 
     def holds_run(self) -> bool:
         """Whether anything of a run is here: a new run must not mix its files with it."""

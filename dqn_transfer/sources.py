@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from dqn_transfer.checkpoint import CheckpointError, find_checkpoints, load_agent_checkpoint
-from dqn_transfer.config import TrainConfig, TransferConfig, to_plain, validate
+from dqn_transfer.config import TrainConfig, TransferConfig, replica_configs, to_plain, validate
 from dqn_transfer.envs.settings import ENV_KEYS
 from dqn_transfer.run_dir import RunDir, agent_file_name
 from dqn_transfer.trainer import build_game, train
@@ -161,14 +161,16 @@ def resolve_source(transfer: TransferConfig, launch_dir: Path) -> Path:
                           f"found {', '.join(f.name for f in files)})")
 
 
-def transfer_source(config: TrainConfig, launch_dir: Path) -> Path | None:
-    """The checkpoint a run warm-starts from: None without transfer (or when resuming, which has its
-    agents already), ``transfer.source`` resolved against ``launch_dir``, else a pretrained source."""
+def transfer_sources(config: TrainConfig, launch_dir: Path) -> list[Path] | None:
+    """The checkpoint each replica warm-starts from (one for a lone run): None without transfer (or
+    when resuming, which has its agents already), ``transfer.source`` resolved against
+    ``launch_dir`` for every replica, else a source pretrained on each replica's own map and seed."""
     if not config.transfer.enabled or config.resume:
         return None
     validate(config)
-    game = build_game(config)
-    transfer_targets(config, game.num_agents)  # refuse bad targets before minutes of pretraining
+    replicas = replica_configs(config)
+    games = [build_game(c) for c in replicas]
+    transfer_targets(config, games[0].num_agents)  # refuse bad targets before minutes of pretraining
     if config.transfer.source is not None:
-        return resolve_source(config.transfer, launch_dir)
-    return pretrained_source(config, game.map.layout, launch_dir)
+        return [resolve_source(config.transfer, launch_dir)] * len(replicas)
+    return [pretrained_source(c, game.map.layout, launch_dir) for c, game in zip(replicas, games)]

@@ -1,19 +1,20 @@
-"""The training loop: config -> game + learners -> loop -> logs, evaluations, checkpoints.
+"""The training loop: config -> games + learners -> loop -> logs, evaluations, checkpoints.
 
 This is the only module that knows the game, the learners, the checkpoint files and the logger.
-One *step* is one joint environment step: every live agent acts once. :meth:`Trainer.run` reads top
-to bottom:
+One *step* is one joint environment step: every live agent acts once. A run may batch R independent
+*replicas* (``replicas.seeds`` x ``replicas.maps``): R games stepped in lockstep and one batched
+learner, each replica otherwise a complete run of its own (:class:`Replica`, its own run directory).
+:meth:`Trainer.run` reads top to bottom:
 
-1. act epsilon-greedily for every live agent (one batched forward for all K agents);
-2. step the game, hand the joint transition to the learner (which stores it and trains);
-3. at an episode end: log per-agent and team statistics, exchange knowledge if due, checkpoint if
-   due, reset the game;
+1. act epsilon-greedily for every live agent (one batched forward for all agents of all replicas);
+2. step the games, hand the joint transition to the learner (which stores it and trains);
+3. at a replica's episode end: log per-agent and team statistics, exchange knowledge if due, reset;
 4. every ``eval_every`` steps: greedy evaluation on separately seeded episodes -> ``metrics.jsonl``;
-5. every ``LOG_EVERY`` steps: losses, Q means, epsilon and speed to TensorBoard and the progress bar.
+5. every ``LOG_EVERY`` steps: losses, Q means, epsilon and speed to TensorBoard and the progress bar;
+6. every ``checkpoint_every`` steps, and when a signal asks to stop: a checkpoint of every replica.
 
-Checkpoints sit on episode boundaries (the first after every ``checkpoint_every`` steps), so a
-resumed run replays exactly what the uninterrupted run would have (the last one, at ``total_steps``,
-may not: extending a finished run starts a fresh episode).
+A checkpoint holds the episode in progress (the game's state, the episode's running sums), so a
+resumed run replays exactly what the uninterrupted run would have, from any step.
 """
 
 from __future__ import annotations
@@ -27,16 +28,18 @@ import threading
 import time
 import warnings
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
+from omegaconf import OmegaConf
 from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
-from dqn_transfer.agents import Transition, UpdateStats, linear_schedule, make_learner
+from dqn_transfer.agents import Learner, Transition, UpdateStats, linear_schedule, make_replicas
 from dqn_transfer.checkpoint import (
     CheckpointError,
     atomic_write,
@@ -45,7 +48,7 @@ from dqn_transfer.checkpoint import (
     encode_training_state,
     load_training_state,
 )
-from dqn_transfer.config import ConfigError, TrainConfig, to_plain, validate
+from dqn_transfer.config import ConfigError, TrainConfig, replica_configs, to_plain, validate
 from dqn_transfer.enums import Algorithm, Device, Exchange
 from dqn_transfer.envs import TreasureHuntGame, make_game
 from dqn_transfer.exchange import exchange_best, exchange_replay
@@ -61,7 +64,7 @@ LOG_EVERY = 200  # env steps between td_loss / q_mean / epsilon / sps points in 
 
 
 class Interrupted(Exception):
-    """SIGINT or SIGTERM stopped the run at an episode end, after it wrote its checkpoint there."""
+    """SIGINT or SIGTERM stopped the run between two steps, after it wrote its checkpoint there."""
 
     def __init__(self, signum: int, step: int, run_dir: Path) -> None:
         super().__init__(f"interrupted at step {step}")
@@ -75,8 +78,9 @@ class Interrupted(Exception):
 
 class StopRequest:
     """Turns SIGINT (Ctrl-C) and SIGTERM (what SLURM sends before it kills a job) into a request the
-    loop honours at the next episode end, where a checkpoint resumes exactly. A second Ctrl-C stops at
-    once (``KeyboardInterrupt``). Signal handlers exist only in the main thread; elsewhere this is inert.
+    loop honours at the end of the step in progress, with a checkpoint that resumes exactly. A second
+    Ctrl-C stops at once (``KeyboardInterrupt``). Signal handlers exist only in the main thread;
+    elsewhere this is inert.
     """
 
     SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -98,7 +102,7 @@ class StopRequest:
         if self.signum is not None and signum == signal.SIGINT:
             raise KeyboardInterrupt
         self.signum = signum
-        log.warning("%s received: stopping at the next episode end, after a checkpoint%s",
+        log.warning("%s received: stopping after this step, with a checkpoint%s",
                     signal.Signals(signum).name, " (Ctrl-C again to stop at once)" if signum == signal.SIGINT else "")
 
 
@@ -169,28 +173,28 @@ class EpisodeStats:
         self.traps = 0
         self.team_return = 0.0
 
+    def state_dict(self) -> dict[str, Any]:
+        return {"returns": self.returns.tolist(), "lengths": self.lengths.tolist(), "traps": self.traps,
+                "team_return": self.team_return, "recent_team_returns": list(self.recent_team_returns)}
 
-class Trainer:
-    """Owns one run directory: builds everything, runs the loop, writes every artefact.
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.returns[:] = state["returns"]
+        self.lengths[:] = state["lengths"]
+        self.traps, self.team_return = int(state["traps"]), float(state["team_return"])
+        self.recent_team_returns.extend(state["recent_team_returns"])
 
-    ``source`` is the checkpoint a ``transfer.enabled`` run starts its target agents from (found or
-    pretrained by :func:`dqn_transfer.sources.transfer_source`); ``source_task`` trains the
-    single-agent source task of the map instead of the team.
-    """
 
-    def __init__(self, config: TrainConfig, run_dir: Path, *, source: Path | None = None,
-                 source_task: bool = False):
-        validate(config)
-        self.config = config
-        self.run_dir = RunDir(run_dir)
-        self.source = source
-        self.source_task = source_task
-        self.algorithm = Algorithm(config.agent.algorithm)
-        self.device = resolve_device(config.device, config.threads)
-        self.game = build_game(config, source_task)
-        self.eval_game = self.game.replica()
-        self.learner = make_learner(config.agent, self.game.num_agents, self.game.obs_layout(),
-                                    self.game.num_actions, seed=config.seed, device=self.device)
+class Replica:
+    """One independent run of the batch: its config (own seed and map), run directory, games,
+    counters, episode in progress, exchange window and logs. ``learner`` is its team's view of the
+    batched learner. With no replicas the trainer has one, in the run directory itself."""
+
+    def __init__(self, index: int, config: TrainConfig, run_dir: Path, game: TreasureHuntGame, learner: Learner,
+                 source: Path | None) -> None:
+        self.index, self.config, self.run_dir = index, config, RunDir(run_dir)
+        self.game, self.eval_game, self.learner, self.source = game, game.replica(), learner, source
+        k = game.num_agents
+        self.rows = slice(index * k, (index + 1) * k)
         self.counters = Counters(next_checkpoint=config.checkpoint_every, exploration_steps=exploration_steps(config))
         self.transfer_info: dict[str, Any] | None = None
         self.last_eval: dict[str, float] = {}
@@ -198,27 +202,12 @@ class Trainer:
         # Team knowledge exchange window (saved with checkpoints, so a resumed run exchanges the same):
         self.window_returns: list[np.ndarray] = []  # per-agent episodic returns since the last exchange
         self.shared_transitions: list[Transition] = []  # shared_replay: the window's transitions
-        # Time spent outside the loop proper (what a benchmark subtracts to compare with bare loops).
-        self.evaluation_time, self.checkpoint_time = Stopwatch(), Stopwatch()
-
-    # ------------------------------------------------------------------ setup
-    def prepare(self) -> None:
-        """Resume, or start fresh (with transfer if asked); refuses to overwrite another run."""
-        has_state = self.run_dir.has_run()
-        if self.config.resume:
-            if not has_state:
-                raise ConfigError(
-                    f"resume=true but {self.run_dir} holds no {self.run_dir.training_state.name}: pass the run directory "
-                    "to resume with hydra.run.dir=PATH")
-            self._load_state()
-            return
-        if has_state:
-            raise ConfigError(existing_run_message(self.run_dir))
-        if self.config.transfer.enabled and not self.source_task:
-            if self.source is None:
-                raise ConfigError("transfer.enabled: the trainer needs the source checkpoint "
-                                  "(dqn_transfer.sources.transfer_source finds or pretrains it)")
-            self.transfer_info = apply_transfer(self.config, self.learner, self.game, self.source)
+        self.episode = EpisodeStats(k)
+        self.window: list[UpdateStats] = []  # update statistics since the last training-curve point
+        self.env_rng = np.random.default_rng([config.seed, 17])
+        self.obs: np.ndarray | None = None
+        self.episode_state: dict[str, Any] | None = None  # a mid-episode checkpoint's game, until the loop starts
+        self.logger: RunLogger | None = None
 
     @property
     def transferred(self) -> np.ndarray:
@@ -228,173 +217,282 @@ class Trainer:
             flags[self.transfer_info["targets"]] = True
         return flags
 
+    def epsilon(self, step: int) -> np.ndarray:
+        return epsilons_at(self.config, step, self.transferred, self.counters.exploration_steps)
+
+    def start_episodes(self) -> None:
+        """The episode the loop continues: a checkpoint's, or a fresh one."""
+        if self.counters.env_rng_state:  # resumed: continue the episode-reset stream where it stopped
+            self.env_rng.bit_generator.state = self.counters.env_rng_state
+        if self.episode_state is not None:
+            self.obs = self.game.load_state_dict(self.episode_state["game"], self.env_rng)
+            self.episode.load_state_dict(self.episode_state["stats"])
+        else:
+            self.obs = self.game.reset(self.env_rng)
+
+
+class Trainer:
+    """Owns one run directory: builds everything, runs the loop, writes every artefact.
+
+    With ``replicas.seeds`` x ``replicas.maps`` > 1, the run directory holds one complete run
+    directory per replica (``seed_<s>`` or ``seed_<s>-map_<m>``), and one batched learner trains
+    them all in lockstep. ``sources`` are the checkpoints a ``transfer.enabled`` run starts its target
+    agents from, one per replica (found or pretrained by :func:`dqn_transfer.sources.transfer_sources`);
+    ``source_task`` trains the single-agent source task of the map instead of the team.
+    """
+
+    def __init__(self, config: TrainConfig, run_dir: Path, *, sources: Sequence[Path] | None = None,
+                 source_task: bool = False):
+        validate(config)
+        self.config = config
+        self.run_dir = RunDir(run_dir)
+        self.source_task = source_task
+        self.algorithm = Algorithm(config.agent.algorithm)
+        self.device = resolve_device(config.device, config.threads)
+        configs = replica_configs(config)
+        games = [build_game(c, source_task) for c in configs]
+        first = games[0]
+        self.learner = make_replicas(config.agent, first.num_agents, first.obs_layout(), first.num_actions,
+                                     seeds=[c.seed for c in configs], device=self.device)
+        sources = list(sources) if sources is not None else [None] * len(configs)
+        self.replicas = [
+            Replica(r, c, self.run_dir.path if len(configs) == 1 else self.run_dir.path / replica_name(c, config),
+                    game, self.learner.replica(r), source)
+            for r, (c, game, source) in enumerate(zip(configs, games, sources))]
+        # Time spent outside the loop proper (what a benchmark subtracts to compare with bare loops).
+        self.evaluation_time, self.checkpoint_time = Stopwatch(), Stopwatch()
+
+    @property
+    def step(self) -> int:
+        return self.replicas[0].counters.step  # the replicas run in lockstep
+
+    # ------------------------------------------------------------------ setup
+    def prepare(self) -> None:
+        """Resume, or start fresh (with transfer if asked); refuses to overwrite another run."""
+        held = [rep.run_dir for rep in self.replicas if rep.run_dir.has_run()]
+        if self.config.resume:
+            missing = [str(rep.run_dir) for rep in self.replicas if not rep.run_dir.has_run()]
+            if missing:
+                raise ConfigError(
+                    f"resume=true but {missing[0]} holds no {self.run_dir.training_state.name}: pass the run "
+                    "directory to resume with hydra.run.dir=PATH")
+            for rep in self.replicas:
+                self._load_state(rep)
+            steps = sorted({rep.counters.step for rep in self.replicas})
+            if len(steps) > 1:
+                raise CheckpointError(f"{self.run_dir}: the replicas' checkpoints are at different steps {steps} "
+                                      "(a checkpoint write was cut short); resume each replica on its own")
+            return
+        if held:
+            raise ConfigError(existing_run_message(held[0]))
+        if self.config.transfer.enabled and not self.source_task:
+            for rep in self.replicas:
+                if rep.source is None:
+                    raise ConfigError("transfer.enabled: the trainer needs the source checkpoint "
+                                      "(dqn_transfer.sources.transfer_sources finds or pretrains it)")
+                rep.transfer_info = apply_transfer(rep.config, rep.learner, rep.game, rep.source)
+
+    def _write_replica_configs(self) -> None:
+        """Each replica's own composed config, where the readers of a run directory look for it."""
+        if len(self.replicas) == 1:
+            return
+        for rep in self.replicas:
+            rep.run_dir.hydra_dir.mkdir(parents=True, exist_ok=True)
+            atomic_write(rep.run_dir.config, OmegaConf.to_yaml(OmegaConf.structured(rep.config)).encode())
+        index = {"replicas": [rep.run_dir.path.name for rep in self.replicas]}
+        atomic_write(self.run_dir.replicas_index, (json.dumps(index, indent=2) + "\n").encode())
+
     # --------------------------------------------------------------------- loop
     def run(self) -> dict[str, Any]:
         """Train to ``total_steps`` (or continue a resumed run); returns a short summary.
 
-        Raises :class:`Interrupted` when SIGINT or SIGTERM stopped it (at the next episode end, after
-        a checkpoint there).
+        Raises :class:`Interrupted` when SIGINT or SIGTERM stopped it (at the end of the step in
+        progress, after a checkpoint there).
         """
         with StopRequest() as stop, logging_redirect_tqdm():  # log lines print above the bar, never glued to it
             self.prepare()
             self.run_dir.path.mkdir(parents=True, exist_ok=True)
-            logger = RunLogger(self.run_dir.tensorboard, self.game.num_agents, to_plain(self.config),
-                               purge_step=self.counters.step if self.config.resume else None)
+            self._write_replica_configs()
             try:
-                return self._train(logger, stop)
+                for rep in self.replicas:
+                    # Everything logged at the checkpoint's step came before it: purge only what came after.
+                    rep.logger = RunLogger(rep.run_dir.tensorboard, rep.game.num_agents, to_plain(rep.config),
+                                           purge_step=rep.counters.step + 1 if self.config.resume else None)
+                return self._train(stop)
             finally:
-                logger.close()
+                for rep in self.replicas:
+                    if rep.logger is not None:
+                        rep.logger.close()
 
-    def _train(self, logger: RunLogger, stop: StopRequest) -> dict[str, Any]:
-        config, game, learner, counters = self.config, self.game, self.learner, self.counters
-        if self.transfer_info is not None and not config.resume:
-            logger.text("transfer/source", json.dumps(self.transfer_info, indent=2))
+    def _train(self, stop: StopRequest) -> dict[str, Any]:
+        config, learner, replicas = self.config, self.learner, self.replicas
+        for rep in replicas:
+            if rep.transfer_info is not None and not config.resume:
+                rep.logger.text("transfer/source", json.dumps(rep.transfer_info, indent=2))
         if config.total_steps == 0:
             self.save_checkpoint()
-            log.info("total_steps=0: wrote the initial checkpoints to %s", self.run_dir.checkpoints)
+            log.info("total_steps=0: wrote the initial checkpoints to %s", self.run_dir)
             return self._summary()
-        if counters.step % config.eval_every == 0 and self.last_eval_step != counters.step:
-            self.run_evaluation(logger)  # step 0, or a resumed checkpoint's step whose eval was lost
-
-        env_rng = np.random.default_rng([config.seed, 17])
-        if counters.env_rng_state:  # resumed: continue the episode-reset stream where it stopped
-            env_rng.bit_generator.state = counters.env_rng_state
-        obs = game.reset(env_rng)
-        episode = EpisodeStats(game.num_agents)
-        window: list[UpdateStats] = []
-        transferred = self.transferred
-        bar = tqdm(total=config.total_steps, initial=counters.step, disable=not config.progress,
+        for rep in replicas:
+            if rep.counters.step % config.eval_every == 0 and rep.last_eval_step != rep.counters.step:
+                self.run_evaluation(rep)  # step 0, or a resumed checkpoint's step whose eval was lost
+            rep.start_episodes()
+        shared_replay = config.transfer.exchange is Exchange.shared_replay
+        bar = tqdm(total=config.total_steps, initial=self.step, disable=not config.progress,
                    unit="step", dynamic_ncols=True, file=sys.stderr)
-        sps_clock, sps_step = time.perf_counter(), counters.step
-        while counters.step < config.total_steps:
-            # 1. act
-            epsilon = epsilons_at(config, counters.step, transferred, counters.exploration_steps)
-            live = game.live
+        sps_clock, sps_step = time.perf_counter(), self.step
+        while self.step < config.total_steps:
+            # 1. act: one batched forward for every agent of every replica
+            step = self.step
+            epsilon = np.concatenate([rep.epsilon(step) for rep in replicas])
+            live = np.concatenate([rep.game.live for rep in replicas])
+            obs = np.concatenate([rep.obs for rep in replicas])
             actions = learner.act(obs, live, epsilon=epsilon)
-            # 2. step the game and learn
-            next_obs, rewards, terminated, truncated, info = game.step(actions)
-            counters.step += 1
+            # 2. step the games and learn
+            outcomes = [rep.game.step(actions[rep.rows]) for rep in replicas]
+            step += 1
+            next_obs, rewards, terminated, truncated = (np.concatenate([o[i] for o in outcomes]) for i in range(4))
             transition = Transition(obs, actions, rewards, next_obs, terminated, truncated, live)
-            window.append(learner.update(transition, counters.step))
-            if config.transfer.exchange is Exchange.shared_replay:
-                self.shared_transitions.append(transition)
-            episode.add(transition, info["trap"], game.reward_mode)
-            obs = next_obs
-            # 3. episode end (and a signal's safe point: the checkpoint there resumes exactly)
-            if game.done:
-                self._end_episode(logger, episode, env_rng, checkpoint_now=stop.signum is not None)
-                if stop.signum is not None:
-                    bar.close()
-                    raise Interrupted(stop.signum, counters.step, self.run_dir.path)
-                obs = game.reset(env_rng)
+            stats = learner.update(transition, step)
+            for rep, outcome in zip(replicas, outcomes):
+                rep.counters.step = step
+                own = Transition(*(column[rep.rows] for column in transition))
+                rep.window.append(UpdateStats(*(column[rep.rows] for column in stats)))
+                if shared_replay:
+                    rep.shared_transitions.append(own)
+                rep.episode.add(own, outcome[4]["trap"], rep.game.reward_mode)
+                rep.obs = own.next_obs
+                # 3. episode end: log, exchange knowledge, start the next episode
+                if rep.game.done:
+                    self._end_episode(rep)
+                    rep.obs = rep.game.reset(rep.env_rng)
             # 4. evaluation
-            if counters.step % config.eval_every == 0:
-                self.run_evaluation(logger)
+            if step % config.eval_every == 0:
+                for rep in replicas:
+                    self.run_evaluation(rep)
             # 5. training curves and the progress bar
-            if counters.step % LOG_EVERY == 0 or counters.step == config.total_steps:
+            if step % LOG_EVERY == 0 or step == config.total_steps:
                 now = time.perf_counter()
-                sps = (counters.step - sps_step) / max(now - sps_clock, 1e-9)
-                sps_clock, sps_step = now, counters.step
-                self._log_training(logger, window, epsilon, sps, counters.step)
-                window = []
-                recent = episode.recent_team_returns
+                sps = (step - sps_step) / max(now - sps_clock, 1e-9)
+                sps_clock, sps_step = now, step
+                for rep in replicas:
+                    self._log_training(rep, sps)
+                recent = [r for rep in replicas for r in rep.episode.recent_team_returns]
                 bar.set_postfix(team_return=f"{np.mean(recent):.1f}" if recent else "-",
                                 eps=f"{epsilon.mean():.2f}", sps=f"{sps:.0f}", refresh=False)
-                bar.update(counters.step - bar.n)
+                bar.update(step - bar.n)
+            # 6. checkpoint when due, and at a signal (a checkpoint between two steps resumes exactly)
+            if step >= replicas[0].counters.next_checkpoint or stop.signum is not None:
+                self.save_checkpoint()
+                for rep in replicas:
+                    while rep.counters.next_checkpoint <= step:
+                        rep.counters.next_checkpoint += config.checkpoint_every
+                if stop.signum is not None:
+                    bar.close()
+                    raise Interrupted(stop.signum, step, self.run_dir.path)
         bar.close()
-        if self.last_eval_step != counters.step:  # not twice when resuming a finished run
-            self.run_evaluation(logger)
-        counters.env_rng_state = env_rng.bit_generator.state
+        for rep in replicas:
+            if rep.last_eval_step != self.step:  # not twice when resuming a finished run
+                self.run_evaluation(rep)
         self.save_checkpoint()
-        log.info("done: %d steps, %d episodes; last eval %s; checkpoints in %s; watch with "
-                 "`tensorboard --logdir %s`", counters.step, counters.episodes, self.last_eval,
-                 self.run_dir.checkpoints, self.run_dir.tensorboard)
+        rep = replicas[0]
+        log.info("done: %d steps, %s episodes; last eval %s; checkpoints in %s; watch with "
+                 "`tensorboard --logdir %s`", self.step, "/".join(str(r.counters.episodes) for r in replicas),
+                 rep.last_eval if len(replicas) == 1 else f"(mean of {len(replicas)} replicas) {self._mean_last_eval()}",
+                 rep.run_dir.checkpoints if len(replicas) == 1 else f"{self.run_dir}/*/checkpoints",
+                 rep.run_dir.tensorboard if len(replicas) == 1 else self.run_dir)
         return self._summary()
 
-    def _end_episode(self, logger: RunLogger, episode: EpisodeStats, env_rng: np.random.Generator,
-                     checkpoint_now: bool = False) -> None:
-        """Log the finished episode, exchange knowledge and checkpoint when due or asked (before the reset)."""
-        counters, config = self.counters, self.config
+    def _end_episode(self, rep: Replica) -> None:
+        """Log the finished episode and exchange knowledge when due (before the reset)."""
+        counters, config = rep.counters, rep.config
         counters.episodes += 1
-        self._log_episode(logger, episode, counters.step)
-        self.window_returns.append(episode.returns.copy())
-        episode.reset()
+        self._log_episode(rep)
+        rep.window_returns.append(rep.episode.returns.copy())
+        rep.episode.reset()
         if config.transfer.exchange is not Exchange.none and counters.episodes % config.transfer.exchange_every == 0:
-            self._exchange(logger)
-        if counters.step >= counters.next_checkpoint or checkpoint_now:
-            counters.env_rng_state = env_rng.bit_generator.state
-            self.save_checkpoint()
-            while counters.next_checkpoint <= counters.step:
-                counters.next_checkpoint += config.checkpoint_every
+            self._exchange(rep)
+
+    def _mean_last_eval(self) -> dict[str, float]:
+        return {key: float(np.mean([rep.last_eval[key] for rep in self.replicas])) for key in self.replicas[0].last_eval}
 
     def _summary(self) -> dict[str, Any]:
+        lone = self.replicas[0]
         return {
-            "step": self.counters.step,
-            "episodes": self.counters.episodes,
-            "last_eval": self.last_eval,
+            "step": self.step,
+            "episodes": lone.counters.episodes,
+            # A lone run's last evaluation; with replicas the mean over them, each replica's in "replicas".
+            "last_eval": lone.last_eval if len(self.replicas) == 1 else self._mean_last_eval(),
+            "replicas": [{"run_dir": str(rep.run_dir), "seed": rep.config.seed, "map_seed": rep.config.env.map_seed,
+                          "episodes": rep.counters.episodes, "last_eval": rep.last_eval} for rep in self.replicas],
             # Seconds spent evaluating and checkpointing (wall, CPU): not part of the loop proper.
             "overhead": {"wall": self.evaluation_time.wall + self.checkpoint_time.wall,
                          "cpu": self.evaluation_time.cpu + self.checkpoint_time.cpu},
         }
 
-    def _log_episode(self, logger: RunLogger, episode: EpisodeStats, step: int) -> None:
+    @staticmethod
+    def _log_episode(rep: Replica) -> None:
+        logger, episode, step, game = rep.logger, rep.episode, rep.counters.step, rep.game
         logger.agent_scalars("episodic_return", episode.returns, step)
         logger.agent_scalars("episodic_length", episode.lengths, step)
         logger.scalar("team/return", episode.team_return, step)
-        logger.scalar("team/treasures_collected", self.game.treasures_collected, step)
-        logger.scalar("team/trap_rate", episode.traps / self.game.num_agents, step)
+        logger.scalar("team/treasures_collected", game.treasures_collected, step)
+        logger.scalar("team/trap_rate", episode.traps / game.num_agents, step)
 
     @staticmethod
-    def _log_training(logger: RunLogger, window: list[UpdateStats], epsilon: np.ndarray, sps: float,
-                      step: int) -> None:
+    def _log_training(rep: Replica, sps: float) -> None:
+        logger, window, step = rep.logger, rep.window, rep.counters.step
         with warnings.catch_warnings():  # all-NaN columns (no update yet) are expected and skipped
             warnings.simplefilter("ignore", RuntimeWarning)
             if window:
                 logger.agent_scalars("td_loss", np.nanmean(np.asarray([s.td_loss for s in window], dtype=float), axis=0), step)
                 logger.agent_scalars("q_mean", np.nanmean(np.asarray([s.q_mean for s in window], dtype=float), axis=0), step)
-        logger.scalar("train/epsilon", float(epsilon.mean()), step)
+        logger.scalar("train/epsilon", float(rep.epsilon(step).mean()), step)
         logger.scalar("train/sps", sps, step)
+        rep.window = []
 
-    def _exchange(self, logger: RunLogger) -> None:
-        if self.config.transfer.exchange is Exchange.best:
-            best = exchange_best(self.learner, np.asarray(self.window_returns), self.config.transfer.exchange_tau)
-            logger.scalar("team/exchange_best_agent", best, self.counters.step)
+    @staticmethod
+    def _exchange(rep: Replica) -> None:
+        transfer = rep.config.transfer
+        if transfer.exchange is Exchange.best:
+            best = exchange_best(rep.learner, np.asarray(rep.window_returns), transfer.exchange_tau)
+            rep.logger.scalar("team/exchange_best_agent", best, rep.counters.step)
         else:
-            exchange_replay(self.learner, self.shared_transitions)
-            self.shared_transitions.clear()
-        self.window_returns.clear()
+            exchange_replay(rep.learner, rep.shared_transitions)
+            rep.shared_transitions.clear()
+        rep.window_returns.clear()
 
     # --------------------------------------------------------------- evaluation
-    def run_evaluation(self, logger: RunLogger) -> None:
+    def run_evaluation(self, rep: Replica) -> None:
         with self.evaluation_time:
-            step = self.counters.step
-            result = evaluate(self.learner, self.eval_game, self.config.eval_episodes, self.config.seed,
-                              self.counters.evaluations)
-            self.counters.evaluations += 1
-            self.last_eval = result
-            self.last_eval_step = step
-            epsilon = epsilons_at(self.config, step, self.transferred, self.counters.exploration_steps)
-            record: dict[str, Any] = {"step": step, **result, "episodes": self.counters.episodes,
-                                      "epsilon": float(epsilon.mean()), "wall_time": time.time()}
-            if step == 0 and self.transfer_info is not None:
-                record["transfer_source"] = self.transfer_info
-            with self.run_dir.metrics.open("a") as stream:
+            step = rep.counters.step
+            result = evaluate(rep.learner, rep.eval_game, rep.config.eval_episodes, rep.config.seed,
+                              rep.counters.evaluations)
+            rep.counters.evaluations += 1
+            rep.last_eval = result
+            rep.last_eval_step = step
+            record: dict[str, Any] = {"step": step, **result, "episodes": rep.counters.episodes,
+                                      "epsilon": float(rep.epsilon(step).mean()), "wall_time": time.time()}
+            if step == 0 and rep.transfer_info is not None:
+                record["transfer_source"] = rep.transfer_info
+            with rep.run_dir.metrics.open("a") as stream:
                 stream.write(json.dumps(record) + "\n")
-            logger.scalar("eval/team_return", result["team_return"], step)
-            logger.scalar("eval/success_rate", result["success_rate"], step)
-        log.info("eval step %d: team_return %.1f success_rate %.2f trap_rate %.2f", step,
+            rep.logger.scalar("eval/team_return", result["team_return"], step)
+            rep.logger.scalar("eval/success_rate", result["success_rate"], step)
+        log.info("eval step %d%s: team_return %.1f success_rate %.2f trap_rate %.2f", step,
+                 f" {rep.run_dir.path.name}" if len(self.replicas) > 1 else "",
                  result["team_return"], result["success_rate"], result["trap_rate"])
 
     # ------------------------------------------------------------- checkpoints
-    def agent_meta(self, index: int, plain: dict[str, Any]) -> dict[str, Any]:
+    def agent_meta(self, rep: Replica, index: int, plain: dict[str, Any]) -> dict[str, Any]:
         """What ``agent_{index}.safetensors`` says about itself (``plain``: the config as JSON data)."""
-        game = self.game
+        game = rep.game
         return {
             "algorithm": self.algorithm.value,
             "agent_index": index,
             "obs_layout": [[name, size] for name, size in game.obs_layout()],
             "num_actions": game.num_actions,
-            "network": self.learner.network_meta(),
+            "network": rep.learner.network_meta(),
             # The map as played: ``make_game(**meta["env"])`` rebuilds it from the layout alone.
             "env": {**plain["env"], "layout": game.map.layout, "layout_file": None,
                     "size": game.size, "num_treasures": game.num_treasures, "num_traps": game.map.num_traps,
@@ -402,84 +500,98 @@ class Trainer:
             "mode": plain["env"]["mode"],
             "source_task": self.source_task,
             "agent": plain["agent"],
-            "seed": self.config.seed,
-            "steps": self.counters.step,
-            "episodes": self.counters.episodes,
-            "last_eval": self.last_eval,
-            "transfer": self.transfer_info,
+            "seed": rep.config.seed,
+            "steps": rep.counters.step,
+            "episodes": rep.counters.episodes,
+            "last_eval": rep.last_eval,
+            "transfer": rep.transfer_info,
         }
 
     def save_checkpoint(self) -> None:
-        """The agent files (for sharing) and the resume state, which alone is read on resume.
+        """Every replica's agent files (for sharing) and resume state, which alone is read on resume.
 
-        All files are written before any replaces its predecessor, the resume state last: a failed
-        write leaves the previous checkpoint whole.
+        All files are written before any replaces its predecessor, the resume states last: a failed
+        write leaves the previous checkpoints whole.
         """
         with self.checkpoint_time:
-            plain = to_plain(self.config)
-            files: dict[Path, bytes] = {}
-            arrays: dict[str, np.ndarray] = {}
-            for i in range(self.game.num_agents):
-                tensors = self.learner.agent_tensors(i)
-                files[self.run_dir.agent_checkpoint(i)] = encode_agent_checkpoint(tensors, self.agent_meta(i, plain))
-                arrays.update({f"agent_{i}/{name}": t.numpy() for name, t in tensors.items()})
-            learner_arrays, learner_meta = self.learner.training_state()
-            arrays.update({f"learner/{name}": a for name, a in learner_arrays.items()})
-            arrays["exchange/returns"] = np.asarray(self.window_returns, dtype=np.float64).reshape(-1, self.game.num_agents)
-            for name, column in zip(Transition._fields, zip(*self.shared_transitions)):
-                arrays[f"exchange/{name}"] = np.stack(column)
-            meta = {
-                "counters": self.counters.__dict__,
-                "learner": learner_meta,
-                "last_eval": self.last_eval,
-                "transfer": self.transfer_info,
-                "obs_layout": [[name, size] for name, size in self.game.obs_layout()],
-                "algorithm": self.algorithm.value,
-                "config": plain,  # what resume=true continues with
-                "layout": self.game.map.layout,  # the map itself: a layout file may have changed since
-            }
-            files[self.run_dir.training_state] = encode_training_state(arrays, meta)
-            atomic_write_all(files)
+            agent_files: dict[Path, bytes] = {}
+            state_files: dict[Path, bytes] = {}
+            for rep in self.replicas:
+                rep.counters.env_rng_state = rep.env_rng.bit_generator.state
+                plain = to_plain(rep.config)
+                arrays: dict[str, np.ndarray] = {}
+                for i in range(rep.game.num_agents):
+                    tensors = rep.learner.agent_tensors(i)
+                    agent_files[rep.run_dir.agent_checkpoint(i)] = encode_agent_checkpoint(tensors, self.agent_meta(rep, i, plain))
+                    arrays.update({f"agent_{i}/{name}": t.numpy() for name, t in tensors.items()})
+                learner_arrays, learner_meta = rep.learner.training_state()
+                arrays.update({f"learner/{name}": a for name, a in learner_arrays.items()})
+                arrays["exchange/returns"] = np.asarray(rep.window_returns, dtype=np.float64).reshape(-1, rep.game.num_agents)
+                for name, column in zip(Transition._fields, zip(*rep.shared_transitions)):
+                    arrays[f"exchange/{name}"] = np.stack(column)
+                meta = {
+                    "counters": rep.counters.__dict__,
+                    "learner": learner_meta,
+                    "last_eval": rep.last_eval,
+                    "transfer": rep.transfer_info,
+                    "obs_layout": [[name, size] for name, size in rep.game.obs_layout()],
+                    "algorithm": self.algorithm.value,
+                    "config": plain,  # what resume=true continues with
+                    "layout": rep.game.map.layout,  # the map itself: a layout file may have changed since
+                    # The episode in progress (None before the loop starts or after it ends).
+                    "episode": None if rep.obs is None or rep.game.done else
+                    {"game": rep.game.state_dict(), "stats": rep.episode.state_dict()},
+                }
+                state_files[rep.run_dir.training_state] = encode_training_state(arrays, meta)
+            atomic_write_all({**agent_files, **state_files})
 
-    def _load_state(self) -> None:
-        arrays, meta = load_training_state(self.run_dir.training_state)
-        expected_layout = [[name, size] for name, size in self.game.obs_layout()]
+    def _load_state(self, rep: Replica) -> None:
+        arrays, meta = load_training_state(rep.run_dir.training_state)
+        expected_layout = [[name, size] for name, size in rep.game.obs_layout()]
         if meta.get("obs_layout") != expected_layout or meta.get("algorithm") != self.algorithm.value:
             raise CheckpointError(
-                f"{self.run_dir.checkpoints}: the run was made with algorithm {meta.get('algorithm')} and obs layout "
+                f"{rep.run_dir.checkpoints}: the run was made with algorithm {meta.get('algorithm')} and obs layout "
                 f"{meta.get('obs_layout')}; this config gives {self.algorithm.value} and {expected_layout}")
-        if meta.get("layout") != self.game.map.layout:
-            raise CheckpointError(f"{self.run_dir.checkpoints}: the run was trained on another map:\n"
-                                  f"{meta.get('layout')}\nthis config gives\n{self.game.map.layout}")
-        for i in range(self.game.num_agents):
+        if meta.get("layout") != rep.game.map.layout:
+            raise CheckpointError(f"{rep.run_dir.checkpoints}: the run was trained on another map:\n"
+                                  f"{meta.get('layout')}\nthis config gives\n{rep.game.map.layout}")
+        for i in range(rep.game.num_agents):
             prefix = f"agent_{i}/"
-            self.learner.load_agent_tensors(i, {k[len(prefix):]: torch.from_numpy(v.copy())
-                                                for k, v in arrays.items() if k.startswith(prefix)})
-        self.learner.load_training_state({k[len("learner/"):]: v for k, v in arrays.items()
-                                          if k.startswith("learner/")}, meta["learner"])
-        self.counters = Counters(**meta["counters"])
-        self.window_returns = list(arrays.get("exchange/returns", []))
+            rep.learner.load_agent_tensors(i, {k[len(prefix):]: torch.from_numpy(v.copy())
+                                               for k, v in arrays.items() if k.startswith(prefix)})
+        rep.learner.load_training_state({k[len("learner/"):]: v for k, v in arrays.items()
+                                         if k.startswith("learner/")}, meta["learner"])
+        rep.counters = Counters(**meta["counters"])
+        rep.window_returns = list(arrays.get("exchange/returns", []))
         if "exchange/obs" in arrays:
-            self.shared_transitions = [Transition(*fields) for fields in
-                                       zip(*(arrays[f"exchange/{name}"] for name in Transition._fields))]
-        self.last_eval = meta["last_eval"]
-        self.transfer_info = meta["transfer"]
-        self._truncate_metrics(self.counters.evaluations)
-        log.info("resumed %s at step %d (episode %d)", self.run_dir, self.counters.step, self.counters.episodes)
+            rep.shared_transitions = [Transition(*fields) for fields in
+                                      zip(*(arrays[f"exchange/{name}"] for name in Transition._fields))]
+        rep.last_eval = meta["last_eval"]
+        rep.transfer_info = meta["transfer"]
+        rep.episode_state = meta.get("episode")  # None at an episode end (and in older checkpoints)
+        self._truncate_metrics(rep, rep.counters.evaluations)
+        log.info("resumed %s at step %d (episode %d)", rep.run_dir, rep.counters.step, rep.counters.episodes)
 
-    def _truncate_metrics(self, evaluations: int) -> None:
+    @staticmethod
+    def _truncate_metrics(rep: Replica, evaluations: int) -> None:
         """Keep the evaluations the checkpoint counted; the killed run's later ones will be redone.
 
-        By count, not by step: the loop checkpoints *before* evaluating the same step, so a line at
-        the checkpoint's step may be one the checkpoint does not know about.
+        By count, not by step: a line at the checkpoint's step may be one the checkpoint does not
+        know about (written after it, by a run killed before its next checkpoint).
         """
-        if not self.run_dir.metrics.exists():
+        if not rep.run_dir.metrics.exists():
             return
-        lines = [line for line in self.run_dir.metrics.read_text().splitlines() if line.strip()][:evaluations]
-        atomic_write(self.run_dir.metrics, "".join(line + "\n" for line in lines).encode())
-        self.last_eval_step = json.loads(lines[-1])["step"] if lines else None
+        lines = [line for line in rep.run_dir.metrics.read_text().splitlines() if line.strip()][:evaluations]
+        atomic_write(rep.run_dir.metrics, "".join(line + "\n" for line in lines).encode())
+        rep.last_eval_step = json.loads(lines[-1])["step"] if lines else None
 
 
-def train(config: TrainConfig, run_dir: Path, *, source: Path | None = None, source_task: bool = False) -> dict[str, Any]:
-    """Run (or resume) one training run into ``run_dir``; returns a short summary."""
-    return Trainer(config, run_dir, source=source, source_task=source_task).run()
+def replica_name(replica: TrainConfig, config: TrainConfig) -> str:
+    """``seed_<s>``, and ``-map_<m>`` when the batch varies the map too."""
+    return f"seed_{replica.seed}" + (f"-map_{replica.env.map_seed}" if config.replicas.maps > 1 else "")
+
+
+def train(config: TrainConfig, run_dir: Path, *, sources: Sequence[Path] | None = None,
+          source_task: bool = False) -> dict[str, Any]:
+    """Run (or resume) one training run (or batch of replicas) into ``run_dir``; returns a short summary."""
+    return Trainer(config, run_dir, sources=sources, source_task=source_task).run()

@@ -54,7 +54,7 @@ def run(learner: DQNLearner, steps: list[dict], first_step: int = 1, epsilon: fl
 
 
 def weights(network) -> list[torch.Tensor]:
-    return [p.detach().clone() for p in network.parameters()]
+    return [t.clone() for t in network.tensors]
 
 
 def same(a: list[torch.Tensor], b: list[torch.Tensor]) -> bool:
@@ -129,7 +129,7 @@ def test_dead_agent_has_no_update_until_it_has_data():
     np.testing.assert_array_equal(learner.replay.size, [1, 0])
     # Agent 1's network did not move (zero gradient, zero Adam moments).
     fresh = dqn()
-    assert same([p[1] for p in learner.q_network.parameters()], [p[1] for p in fresh.q_network.parameters()])
+    assert same([t[1] for t in learner.q_network.tensors], [t[1] for t in fresh.q_network.tensors])
 
 
 def test_share_parameters_one_network_for_all_agents():
@@ -163,8 +163,8 @@ def test_freeze_keeps_layers_fixed_for_all_agents():
     learner.freeze([0, -1])  # input and output layers
     before = weights(learner.q_network)
     run(learner, random_steps(2, 10))
-    after = dict(learner.q_network.named_parameters())
-    for name, old in zip(dict(learner.q_network.named_parameters()), before):
+    after = learner.q_network.named_tensors()
+    for name, old in zip(learner.q_network.tensor_names, before):
         changed = not torch.equal(after[name], old)
         assert changed == (name in ("weight_1", "bias_1")), name
     assert learner.frozen_layers == [0, 2]
@@ -208,7 +208,7 @@ def test_training_state_round_trip_continues_bit_identically(share_parameters):
     actions_a, actions_b = run(a, steps[30:], first_step=31), run(b, steps[30:], first_step=31)
     assert all(np.array_equal(x, y) for x, y in zip(actions_a, actions_b))
     for net_a, net_b in ((a.q_network, b.q_network), (a.target_network, b.target_network)):
-        for (name, p), q in zip(net_a.named_parameters(), net_b.parameters()):
+        for (name, p), q in zip(net_a.named_tensors().items(), net_b.tensors):
             assert torch.equal(p, q), name
     assert b.frozen_layers == [0] and a.num_gradient_steps == b.num_gradient_steps
 

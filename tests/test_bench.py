@@ -161,17 +161,19 @@ def test_update_rig_times_real_updates_on_real_replay():
     assert all(not torch.equal(a, b) for a, b in zip(before, rig.q.parameters()))
 
 
-def test_bare_updates_of_nn_sequential_and_batched_mlp_are_the_same_update():
+def test_the_bare_update_and_ours_are_the_same_update():
     rig = UpdateRig(0, TINY, TINY_MAP)
     linears = [layer for layer in rig.q if isinstance(layer, nn.Linear)]
-    state = {f"layers.{l}.{kind}": getattr(layer, kind).detach() for l, layer in enumerate(linears)
+    state = {f"layers.{l}.{kind}": getattr(layer, kind).detach().clone() for l, layer in enumerate(linears)
              for kind in ("weight", "bias")}
-    for network in (rig.bq, rig.bq_target):
-        network.load_member_state(0, state)
+    rig.learner.load_agent_tensors(0, {f"q.{name}": t for name, t in state.items()})
     rig.bare_update()
-    rig.bare_batched_update()
-    for name, tensor in rig.bq.member_state(0).items():
-        assert torch.allclose(tensor, state[name], atol=1e-6), name
+    rig.learner.train_on(rig.batch)
+    updated = {f"layers.{l}.{kind}": getattr(layer, kind).detach() for l, layer in enumerate(linears)
+               for kind in ("weight", "bias")}
+    for name, tensor in rig.learner.get_member_weights(0).items():
+        assert not torch.equal(tensor, state[name]), name  # it moved
+        assert torch.allclose(tensor, updated[name], atol=1e-6), name
 
 
 def test_sb3_update_rig_fills_replay_without_training_then_times_train():
@@ -200,7 +202,7 @@ def test_document_holds_every_section_and_is_json(document):
     for who in ("ours", "sb3"):
         assert [run["gradient_steps"] for run in document["training"][0]["raw"][who]] == [30 - TINY.learning_starts]
     update = document["update"]
-    assert {f"{name}_us" for name in ("bare", "bare_batched", "ours", "sample", "sb3")} <= set(update)
+    assert {f"{name}_us" for name in ("bare", "in_memory", "ours", "sample", "sb3")} <= set(update)
     assert update["bare_over_bare"] == 1.0
     assert ("ours_default_threads_us" in update) == (suite.DEFAULT_THREADS != 1)
     assert document["settings"]["hyperparameters"] == {**dataclasses.asdict(TINY), "algorithm": "dqn"}

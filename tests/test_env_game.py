@@ -7,6 +7,7 @@ Every expected value below is worked out from the rules, not read off the code.
 from __future__ import annotations
 
 import itertools
+import json
 
 import numpy as np
 import pytest
@@ -307,3 +308,183 @@ def test_assign_agents_matches_brute_force_on_tie_heavy_matrices():
     for _ in range(400):
         cost = rng.integers(0, 3, size=(rng.integers(1, 5), rng.integers(1, 5)))
         assert assign_agents(cost).tolist() == _brute_force_assignment(cost), cost
+
+
+# ---------------------------------------------------------------- saving and restoring an episode
+# 4 agents, 3 chests, 2 traps, 2 obstacles; agents 0/1 and 2/3 flank a chest each, so ties (drawn
+# by the generator) are frequent under random actions.
+SAVE_MAP = """
+0T1.X.
+..#...
+2T3...
+......
+.#...X
+...T..
+"""
+
+
+def _rollout(game: TreasureHuntGame, rng: np.random.Generator, actions: np.ndarray) -> list:
+    """Step through ``actions``, resetting with ``rng`` whenever the episode is over."""
+    out = []
+    for joint in actions:
+        if game.done:
+            out.append(("reset", game.reset(rng)))
+        obs, reward, terminated, truncated, info = game.step(joint)
+        out.append((obs, reward, terminated, truncated, game.live,
+                    info["treasures_collected"], info["trap"], info["live"]))
+    return out
+
+
+def _assert_same(got: list, expected: list) -> None:
+    assert len(got) == len(expected)
+    for step, (a, b) in enumerate(zip(got, expected)):
+        assert len(a) == len(b), step
+        for x, y in zip(a, b):
+            if isinstance(x, np.ndarray):
+                assert x.dtype == y.dtype and np.array_equal(x, y), step
+                assert x.tobytes() == y.tobytes(), step  # bit-exact, not just equal values
+            else:
+                assert x == y, step
+
+
+@pytest.mark.parametrize(
+    "mode, obs_encoding, view_radius, max_steps",
+    [
+        ("competitive", "onehot", 0, None),
+        ("competitive", "coords", 1, 8),
+        ("cooperative", "coords", 0, 8),
+        ("cooperative", "onehot", 0, None),
+        ("deliberative", "onehot", 0, 8),
+        ("deliberative", "coords", 2, None),
+    ],
+)
+def test_state_dict_round_trip_mid_episode_replays_identically(
+    mode, obs_encoding, view_radius, max_steps
+):
+    settings = dict(mode=mode, obs_encoding=obs_encoding, view_radius=view_radius,
+                    max_steps=max_steps)
+    actions = np.random.default_rng(1).integers(0, 4, size=(400, 4))
+    game = TreasureHuntGame(parse_layout(SAVE_MAP), **settings)
+    rng = np.random.default_rng(7)
+    obs = game.reset(rng)
+    # Warm up until mid-episode: some agent done, some still live, a step or more in.
+    for step, joint in enumerate(actions[:100]):
+        if game.steps >= 2 and 0 < game.live.sum() < 4:
+            break
+        if game.done:
+            obs = game.reset(rng)
+        obs = game.step(joint)[0]
+    else:
+        pytest.fail("no mid-episode save point in the warm-up")
+    saved_text = json.dumps(game.state_dict())  # as a checkpoint would store it
+    saved_rng = rng.bit_generator.state
+    at_save = (obs, game.positions, game.live, game.chest_full, game.assignment, game.steps,
+               game.treasures_collected)
+    expected = _rollout(game, rng, actions[step:])
+    assert sum(isinstance(out[0], str) for out in expected) >= 3  # several episodes follow
+    assert rng.bit_generator.state != saved_rng  # chest ties were drawn after the save
+
+    fresh = TreasureHuntGame(parse_layout(SAVE_MAP), **settings)  # never reset
+    restored_rng = np.random.default_rng()
+    restored_rng.bit_generator.state = saved_rng
+    obs = fresh.load_state_dict(json.loads(saved_text), restored_rng)
+    restored = (obs, fresh.positions, fresh.live, fresh.chest_full, fresh.assignment,
+                fresh.steps, fresh.treasures_collected)
+    _assert_same([restored], [at_save])
+    _assert_same(_rollout(fresh, restored_rng, actions[step:]), expected)
+    assert restored_rng.bit_generator.state == rng.bit_generator.state
+
+
+def _plain(value) -> bool:
+    """Only the JSON types: lists, ints, floats, bools (no numpy scalars)."""
+    if isinstance(value, list):
+        return all(_plain(v) for v in value)
+    return type(value) in (int, float, bool)
+
+
+def test_state_dict_hand_values_survive_json():
+    game, _ = make(TWO_AGENTS)
+    game.step(np.array([RIGHT, DOWN]))  # A takes the chest at (0,1) = 1; B to (1,2) = 5
+    state = game.state_dict()
+    assert state == {
+        "pos": [1, 5],
+        "live": [False, True],
+        "chest_full": [False],
+        "belief": [[0.0], [1.0]],  # competitive: B still believes the chest full
+        "assigned": [-1, -1],
+        "obs": [[0, 1, 0, 0, 0, 0, 0, 0, 0, 0], [0, 0, 0, 0, 0, 1, 0, 0, 0, 1]],
+        "t": 1,
+        "treasures_collected": 1,
+    }
+    assert all(_plain(v) for v in state.values())
+    assert json.loads(json.dumps(state)) == state
+
+    # coords on a 4 x 4 map divide by 3: float32(1/3) is not the double 1/3, yet comes back exactly
+    game, obs = make(VIEW_MAP, obs_encoding="coords", view_radius=1)
+    third = float(np.float32(1 / 3))
+    assert third != 1 / 3
+    state = json.loads(json.dumps(game.state_dict()))
+    assert state["obs"][0][:2] == [0.0, third] and state["obs"][1][:2] == [third, 0.0]
+    fresh = TreasureHuntGame(parse_layout(VIEW_MAP), obs_encoding="coords", view_radius=1)
+    restored = fresh.load_state_dict(state, np.random.default_rng(0))
+    assert restored.dtype == np.float32 and restored.tobytes() == obs.tobytes()
+
+
+# chest (0,1) between the agents, an obstacle at (1,1) = cell 4, a trap at (2,2)
+GUARDED = "0T1\n.#.\n..X"
+
+
+def test_load_state_dict_rejects_another_games_state_and_changes_nothing():
+    def state_of(layout=GUARDED, actions=None, **settings):
+        game = TreasureHuntGame(parse_layout(layout), **settings)
+        game.reset(np.random.default_rng(0))
+        if actions is not None:
+            game.step(np.array(actions))
+        return game.state_dict()
+
+    moved = state_of(actions=[DOWN, DOWN])  # a valid state of this game: agents at cells 3 and 5
+    bad = [  # onehot obs_dim here: 9 cells + 1 chest = 10
+        (state_of(num_agents=1), r"'pos' has shape \(1,\), expected \(2,\).*2 agents"),
+        (state_of("0T1\n.#.\nT.X"), r"'chest_full' has shape \(2,\), expected \(1,\).*1 chests"),
+        (state_of(obs_encoding="coords"), r"'obs' has shape \(2, 3\), expected \(2, 10\)"),
+        (state_of(view_radius=1), r"'obs' has shape \(2, 37\), expected \(2, 10\)"),  # 10 + 27
+        ({**moved, "pos": [9, 5]}, r"agent 0 at cell 9, outside the 3 x 3 grid"),
+        ({**moved, "pos": [3, 4]}, r"agent 1 on an obstacle"),
+        ({**moved, "obs": moved["obs"][:1]}, r"'obs' has shape \(1, 10\)"),  # checked last
+        ({**moved, "t": 10}, r"'t' must be an integer in 0..9"),
+        ({k: v for k, v in moved.items() if k != "t"}, r"missing \['t'\]"),
+    ]
+    winners = set()
+    for seed in range(12):
+        game, _ = make(GUARDED, seed=seed)
+        twin, _ = make(GUARDED, seed=seed)
+        before = game.state_dict()
+        for state, message in bad:
+            with pytest.raises(ValueError, match=message):
+                game.load_state_dict(state, np.random.default_rng(999))
+            assert game.state_dict() == before
+        # both enter the chest: the tie is still drawn by the game's own generator, not seed 999's
+        got, expected = play(game, [RIGHT, LEFT]), play(twin, [RIGHT, LEFT])
+        _assert_same([got[0][:4]], [expected[0][:4]])
+        winners.add(int(np.flatnonzero(got[0][2])[0]))
+    assert winners == {0, 1}
+
+
+def test_load_state_dict_draws_later_ties_with_the_given_generator():
+    winners = set()
+    for seed in range(12):
+        game = TreasureHuntGame(parse_layout(GUARDED))
+        rng = np.random.default_rng(seed)
+        game.reset(rng)
+        play(game, [DOWN, DOWN], [UP, UP])  # mid-episode (t = 2), both back beside the chest
+        saved, saved_rng = game.state_dict(), rng.bit_generator.state
+        expected = play(game, [RIGHT, LEFT])  # both enter the full chest: a tie
+        fresh = TreasureHuntGame(parse_layout(GUARDED))
+        restored_rng = np.random.default_rng()
+        restored_rng.bit_generator.state = saved_rng
+        fresh.load_state_dict(saved, restored_rng)
+        got = play(fresh, [RIGHT, LEFT])
+        _assert_same([got[0][:4]], [expected[0][:4]])
+        assert restored_rng.bit_generator.state == rng.bit_generator.state
+        winners.add(int(np.flatnonzero(got[0][2])[0]))
+    assert winners == {0, 1}  # so a generator other than the given one would be caught

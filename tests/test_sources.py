@@ -29,7 +29,7 @@ import dqn_transfer.sources
 from dqn_transfer.config import AgentConfig, TrainConfig, TransferConfig
 from dqn_transfer.enums import Algorithm
 from dqn_transfer.envs.settings import EnvConfig
-from dqn_transfer.sources import transfer_source
+from dqn_transfer.sources import transfer_sources
 from dqn_transfer.transfer_mapping import TransferError
 
 # Two agents, two chests (row 0 col 4, row 4 col 4), one trap (row 2 col 2), no obstacles.
@@ -71,7 +71,7 @@ def cache(tmp_path: Path) -> Path:
 @pytest.fixture
 def entry(cache: Path, tmp_path: Path) -> Path:
     """A cache entry pretrained once (its name is the source config's hash)."""
-    checkpoint = transfer_source(config(cache), tmp_path)
+    checkpoint = transfer_sources(config(cache), tmp_path)[0]
     return checkpoint.parent.parent
 
 
@@ -79,7 +79,7 @@ def entry(cache: Path, tmp_path: Path) -> Path:
 
 def test_a_pretraining_fills_one_entry_and_nothing_else(cache, tmp_path, caplog):
     caplog.set_level(logging.INFO, logger="dqn_transfer")
-    checkpoint = transfer_source(config(cache), tmp_path)
+    checkpoint = transfer_sources(config(cache), tmp_path)[0]
     entries, hidden = listing(cache)
     assert len(entries) == 1 and hidden == []
     assert checkpoint == cache / entries[0] / "checkpoints" / "agent_0.safetensors"
@@ -100,7 +100,7 @@ def test_a_complete_entry_is_reused_without_pretraining(cache, entry, tmp_path, 
         raise AssertionError("pretrained again")
 
     monkeypatch.setattr(dqn_transfer.sources, "train", no_training)
-    assert transfer_source(config(cache), tmp_path) == checkpoint
+    assert transfer_sources(config(cache), tmp_path)[0] == checkpoint
     assert REUSING in caplog.text and PRETRAINING not in caplog.text
     assert checkpoint.stat().st_mtime_ns == stamp
 
@@ -118,11 +118,11 @@ def test_a_failed_pretraining_leaves_nothing(cache, tmp_path, monkeypatch, failu
 
     monkeypatch.setattr(dqn_transfer.sources, "train", train_then_fail)
     with pytest.raises(failure):
-        transfer_source(config(cache), tmp_path)
+        transfer_sources(config(cache), tmp_path)[0]
     assert used and used[0].parent == cache  # it pretrained beside the entry it would have become ...
     assert listing(cache) == ([], [])  # ... and nothing of it is left
     monkeypatch.setattr(dqn_transfer.sources, "train", real_train)
-    checkpoint = transfer_source(config(cache), tmp_path)  # the next run pretrains afresh
+    checkpoint = transfer_sources(config(cache), tmp_path)[0]  # the next run pretrains afresh
     assert checkpoint_steps(checkpoint) == PRETRAIN_STEPS
 
 
@@ -135,7 +135,7 @@ def test_a_killed_pretrainings_temp_dir_is_removed_by_the_next(cache, entry, tmp
     (stale / "metrics.jsonl").write_text('{"step": 0, "team_return": -1.0}\n')
     other = cache / ".0123456789abcdef.tmp-1-cafe0000"  # another source's: another job may be using it
     other.mkdir()
-    checkpoint = transfer_source(config(cache), tmp_path)
+    checkpoint = transfer_sources(config(cache), tmp_path)[0]
     assert PRETRAINING in caplog.text
     assert checkpoint_steps(checkpoint) == PRETRAIN_STEPS
     assert listing(cache) == ([key], [other.name])
@@ -145,7 +145,7 @@ def test_an_unfinished_entry_of_the_in_place_layout_is_replaced(cache, entry, tm
     """Earlier versions pretrained into <hash>/ itself; a killed one left a checkpoint of fewer steps
     and the evaluations it had made. The next pretraining starts that entry afresh."""
     caplog.set_level(logging.INFO, logger="dqn_transfer")
-    shorter = transfer_source(config(tmp_path / "other_cache", pretrain_steps=PRETRAIN_STEPS // 2), tmp_path)
+    shorter = transfer_sources(config(tmp_path / "other_cache", pretrain_steps=PRETRAIN_STEPS // 2), tmp_path)[0]
     fresh_steps = evaluated_steps(entry / "metrics.jsonl")
     shutil.rmtree(entry)
     (entry / "checkpoints").mkdir(parents=True)
@@ -153,7 +153,7 @@ def test_an_unfinished_entry_of_the_in_place_layout_is_replaced(cache, entry, tm
     (entry / ".lock").touch()
     (entry / "metrics.jsonl").write_text('{"step": 0, "team_return": -1.0, "aborted": true}\n' * 3)
     caplog.clear()
-    checkpoint = transfer_source(config(cache), tmp_path)
+    checkpoint = transfer_sources(config(cache), tmp_path)[0]
     assert PRETRAINING in caplog.text
     assert checkpoint_steps(checkpoint) == PRETRAIN_STEPS
     assert evaluated_steps(entry / "metrics.jsonl") == fresh_steps  # the aborted evaluations are gone
@@ -164,7 +164,7 @@ def test_an_unfinished_entry_of_the_in_place_layout_is_replaced(cache, entry, tm
 def test_an_unusable_cache_dir_is_one_message(tmp_path):
     (tmp_path / "a_file").write_text("")
     with pytest.raises(TransferError) as err:
-        transfer_source(config(tmp_path / "a_file" / "cache"), tmp_path)
+        transfer_sources(config(tmp_path / "a_file" / "cache"), tmp_path)[0]
     assert str(err.value) == (f"cannot use the pretraining cache {tmp_path / 'a_file' / 'cache'}: Not a directory "
                               "(set transfer.cache_dir to a writable directory)")
 

@@ -302,7 +302,7 @@ def test_sigkilled_run_resumes_to_the_end(resumed):
 
 
 def test_resumed_run_equals_the_uninterrupted_run(resumed):
-    """Checkpoints sit on episode boundaries and carry every RNG, so resuming changes nothing."""
+    """Checkpoints carry the episode in progress and every RNG, so resuming changes nothing."""
     assert resumed["reference_code"] == 0
     assert resumed["killed_code"] == -signal.SIGKILL
     d, ref = resumed["result"].check().run_dir, resumed["reference_dir"]
@@ -417,9 +417,10 @@ class _Killed(Exception):
     """Stands in for SIGKILL at an exact point of the loop."""
 
 
-def kill_and_resume(tmp_path: Path, monkeypatch, config, dies) -> tuple[list[dict], list[dict]]:
+def kill_and_resume(tmp_path: Path, monkeypatch, config, dies, before: bool = False) -> tuple[list[dict], list[dict]]:
     """Run ``config(resume=False)`` uninterrupted into ``reference``; run it again into ``killed``,
-    dying right after the first checkpoint where ``dies(trainer)``, then resume it there.
+    dying right after (``before``: right before) the first checkpoint where ``dies(trainer)``, then
+    resume it from its last checkpoint.
 
     Returns the (resumed, reference) evaluations without their timing field.
     """
@@ -429,8 +430,11 @@ def kill_and_resume(tmp_path: Path, monkeypatch, config, dies) -> tuple[list[dic
     original = Trainer.save_checkpoint
 
     def save_then_die(self):
+        dying = self.step < self.config.total_steps and dies(self)
+        if dying and before:
+            raise _Killed
         original(self)
-        if self.counters.step < self.config.total_steps and dies(self):
+        if dying:
             raise _Killed
 
     monkeypatch.setattr(Trainer, "save_checkpoint", save_then_die)
@@ -442,11 +446,13 @@ def kill_and_resume(tmp_path: Path, monkeypatch, config, dies) -> tuple[list[dic
 
 
 @pytest.mark.filterwarnings("ignore:a layout fixes the map")
-def test_kill_between_a_checkpoint_and_its_evaluation_loses_nothing(tmp_path, monkeypatch):
-    """In-process: die right after the first checkpoint, before the evaluation of the same step.
+@pytest.mark.parametrize("before", [False, True], ids=["after_checkpoint", "between_evaluation_and_checkpoint"])
+def test_a_kill_at_a_checkpoint_loses_nothing(tmp_path, monkeypatch, before):
+    """In-process: die right after a checkpoint, or between the evaluation of its step and the
+    checkpoint itself (metrics.jsonl then holds a line the previous checkpoint does not know).
 
-    With ``eval_every=1`` every checkpoint step is also an evaluation step, and the loop writes the
-    checkpoint first. The resumed run must redo that evaluation and match an uninterrupted run.
+    With ``eval_every=1`` every checkpoint step is also an evaluation step, and the checkpoints fall
+    mid-episode. The resumed run must match an uninterrupted run, evaluation for evaluation.
     """
     from dqn_transfer.config import AgentConfig, TrainConfig
     from dqn_transfer.enums import Algorithm
@@ -457,7 +463,8 @@ def test_kill_between_a_checkpoint_and_its_evaluation_loses_nothing(tmp_path, mo
                            seed=2, total_steps=90, eval_every=1, eval_episodes=1, checkpoint_every=40,
                            progress=False, resume=resume)
 
-    resumed, reference = kill_and_resume(tmp_path, monkeypatch, config, dies=lambda trainer: trainer.counters.step > 0)
+    resumed, reference = kill_and_resume(tmp_path, monkeypatch, config, before=before,
+                                         dies=lambda trainer: trainer.step > 40)
     assert [m["step"] for m in resumed] == list(range(91))
     assert resumed == reference
 
@@ -496,7 +503,7 @@ def test_kill_mid_exchange_window_resumes_exactly(tmp_path, monkeypatch, exchang
             agent=AgentConfig(algorithm=Algorithm.dqn, hidden=[16], batch_size=8, learning_starts=30),
             transfer=TransferConfig(exchange=Exchange(exchange), exchange_every=5))
 
-    mid_window = lambda trainer: bool(trainer.window_returns)  # noqa: E731
+    mid_window = lambda trainer: bool(trainer.replicas[0].window_returns)  # noqa: E731
     resumed, reference = kill_and_resume(tmp_path, monkeypatch, config, dies=mid_window)
     assert resumed == reference
     digests = [agent_meta(tmp_path / name / "checkpoints" / "agent_1.safetensors")["digest"]

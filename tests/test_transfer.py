@@ -34,7 +34,7 @@ from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.analysis.compare import compare_runs
 from dqn_transfer.analysis.runs import learning_curve
 from dqn_transfer.analysis.transfer_metrics import jumpstart
-from dqn_transfer.sources import transfer_source
+from dqn_transfer.sources import transfer_sources
 from dqn_transfer.trainer import Trainer
 from dqn_transfer.transfer_mapping import TransferError
 
@@ -76,7 +76,7 @@ def make_config(layout: str, agent: dict, *, mode: Mode = Mode.cooperative, seed
 
 def make_trainer(config: TrainConfig, run_dir: Path, launch_dir: Path) -> Trainer:
     """What ``python train.py`` builds: the transfer source found (or pretrained) first, then the trainer."""
-    return Trainer(config, run_dir, source=transfer_source(config, launch_dir))
+    return Trainer(config, run_dir, sources=transfer_sources(config, launch_dir))
 
 
 def train_source(run_dir: Path, layout: str, agent: dict, total_steps: int, **top) -> Path:
@@ -136,7 +136,7 @@ def test_dqn_transfer_preserves_the_source_q_function(work, dqn_source, mode):
     config = make_config(TEAM_MAP, DQN_AGENT, mode=mode, seed=1,
                          transfer=TransferConfig(enabled=True, source=str(dqn_source)))
     trainer = make_trainer(config, work / f"fp_dqn_{mode.value}", work)
-    assert trainer.game.obs_layout() == expected_layout(mode, 2)
+    assert trainer.replicas[0].game.obs_layout() == expected_layout(mode, 2)
     trainer.run()  # total_steps=0: transfer, write the initial checkpoints, stop
 
     position, obs = random_observations(mode, 2, 200, np.random.default_rng(0))
@@ -171,12 +171,12 @@ def test_tabular_transfer_preserves_the_source_table(work, tabular_source, mode)
             _, obs = random_observations(mode, 2, 1, rng)
             obs[0, : N * N] = np.eye(N * N, dtype=np.float32)[cell]
             for agent in range(2):
-                np.testing.assert_array_equal(trainer.learner.agent_q_values(agent, obs[0]), values[row])
+                np.testing.assert_array_equal(trainer.replicas[0].learner.agent_q_values(agent, obs[0]), values[row])
     unvisited = sorted(set(range(N * N)) - set(visited.tolist()))
     if unvisited:  # a cell the source never saw is worth 0, as for a fresh table
         _, obs = random_observations(mode, 2, 1, rng)
         obs[0, : N * N] = np.eye(N * N, dtype=np.float32)[unvisited[0]]
-        assert not trainer.learner.agent_q_values(0, obs[0]).any()
+        assert not trainer.replicas[0].learner.agent_q_values(0, obs[0]).any()
 
 
 # --------------------------------------------------------------------------- CLI refusal of sources
@@ -309,20 +309,20 @@ def test_pretrained_source_is_cached_and_reused(work, caplog):
     meta = header_meta(checkpoint)
     assert meta["steps"] == 120 and meta["source_task"]
     stamp, digest = checkpoint.stat().st_mtime_ns, meta["digest"]
-    assert first.transfer_info["source"] == str(checkpoint.resolve()) and first.transfer_info["pretrained"]
+    assert first.replicas[0].transfer_info["source"] == str(checkpoint.resolve()) and first.replicas[0].transfer_info["pretrained"]
 
     caplog.clear()
     second = run("cache_2", 120)
     assert "reusing the pretrained source" in caplog.text and "pretraining a source agent" not in caplog.text
     assert checkpoint.stat().st_mtime_ns == stamp and header_meta(checkpoint)["digest"] == digest
-    assert second.transfer_info["digest"] == digest
+    assert second.replicas[0].transfer_info["digest"] == digest
 
     caplog.clear()
     third = run("cache_3", 140)  # another source config: another cache entry, the first untouched
     assert "pretraining a source agent" in caplog.text
     assert len([e for e in cache.iterdir() if not e.name.startswith(".")]) == 2
     assert checkpoint.stat().st_mtime_ns == stamp
-    assert third.transfer_info["digest"] != digest and header_meta(Path(third.transfer_info["source"]))["steps"] == 140
+    assert third.replicas[0].transfer_info["digest"] != digest and header_meta(Path(third.replicas[0].transfer_info["source"]))["steps"] == 140
 
 
 def test_relative_cache_dir_is_under_the_launch_dir(work, monkeypatch):
@@ -335,7 +335,7 @@ def test_relative_cache_dir_is_under_the_launch_dir(work, monkeypatch):
     transfer = TransferConfig(enabled=True, cache_dir="rel_cache", pretrain_steps=20)
     trainer = make_trainer(make_config(TEAM_MAP, QL_AGENT, transfer=transfer), work / "rel_run", launch)
     trainer.run()
-    assert Path(trainer.transfer_info["source"]).is_relative_to(launch / "rel_cache")
+    assert Path(trainer.replicas[0].transfer_info["source"]).is_relative_to(launch / "rel_cache")
     assert not (elsewhere / "rel_cache").exists()
 
 
@@ -433,8 +433,8 @@ def test_targets_transfers_only_the_listed_agents(work, dqn_source):
     off = make_trainer(make_config(TEAM_MAP, DQN_AGENT, seed=7), work / "targets_off", work)
     on.run()
     off.run()
-    assert on.transfer_info["targets"] == [0]
-    assert on.transferred.tolist() == [True, False]
+    assert on.replicas[0].transfer_info["targets"] == [0]
+    assert on.replicas[0].transferred.tolist() == [True, False]
     agent0, agent1 = on.learner.agent_tensors(0), on.learner.agent_tensors(1)
     fresh0, fresh1 = off.learner.agent_tensors(0), off.learner.agent_tensors(1)
     for name in fresh1:  # agent 1 keeps its random init: identical to the same seed without transfer
@@ -459,7 +459,7 @@ def test_freeze_keeps_layer_0_fixed_while_training(work, dqn_source):
         assert not tensors["q.layers.0.weight"][:, N * N:].any()
         torch.testing.assert_close(tensors["q.layers.0.bias"], source["q.layers.0.bias"], rtol=0, atol=0)
         assert not torch.equal(tensors["q.layers.1.weight"], source["q.layers.1.weight"])  # the rest learned
-    saved = load_file(str(trainer.run_dir.agent_checkpoint(1)))
+    saved = load_file(str(trainer.replicas[0].run_dir.agent_checkpoint(1)))
     torch.testing.assert_close(saved["q.layers.0.bias"], source["q.layers.0.bias"], rtol=0, atol=0)
 
 
@@ -486,7 +486,7 @@ def test_exchange_best_moves_others_towards_the_best(work, dqn_source, monkeypat
                               exchange_every=3, exchange_tau=0.25)
     trainer = make_trainer(make_config(TEAM_MAP, DQN_AGENT, total_steps=300, transfer=transfer), work / "best", work)
     trainer.run()
-    assert len(calls) == trainer.counters.episodes // 3 >= 3
+    assert len(calls) == trainer.replicas[0].counters.episodes // 3 >= 3
     for window_returns, tau, best, before, after in calls:
         assert tau == 0.25 and window_returns.shape == (3, 2)
         assert best == int(np.argmax(window_returns.mean(axis=0)))
@@ -503,18 +503,19 @@ def test_shared_replay_gives_each_agent_its_teammates_transitions(work, dqn_sour
     real = trainer_module.exchange_replay
     calls = []
 
-    def spy(learner, transitions):
-        size_before = learner.replay.size.copy()
-        real(learner, transitions)
-        calls.append((size_before, learner.replay.size.copy(), list(transitions),
-                      learner.replay.ptr.copy(), learner.replay.storage["obs"].clone()))
+    def spy(team, transitions):
+        replay = trainer.learner.replay  # the team's rows (one replica: all of them)
+        size_before = replay.size.copy()
+        real(team, transitions)
+        calls.append((size_before, replay.size.copy(), list(transitions), replay.ptr.copy(),
+                      torch.from_numpy(replay.state_dict()["obs"])))
 
     monkeypatch.setattr(trainer_module, "exchange_replay", spy)
     transfer = TransferConfig(enabled=True, source=str(dqn_source), exchange=Exchange.shared_replay,
                               exchange_every=2)
     trainer = make_trainer(make_config(TEAM_MAP, DQN_AGENT, total_steps=300, transfer=transfer), work / "shared", work)
     trainer.run()
-    assert len(calls) == trainer.counters.episodes // 2 >= 3
+    assert len(calls) == trainer.replicas[0].counters.episodes // 2 >= 3
     shared_total = np.zeros(2, dtype=np.int64)
     for size_before, size_after, transitions, ptr, obs_storage in calls:
         live = np.stack([t[6] for t in transitions])  # live_before, [steps, K]
@@ -530,7 +531,7 @@ def test_shared_replay_gives_each_agent_its_teammates_transitions(work, dqn_sour
             shared_total[receiver] += given
     # Over the run: own transitions (one per live step) + what the teammate shared.
     own = trainer.learner.replay.size - shared_total
-    assert (own > 0).all() and (own <= trainer.counters.step).all()
+    assert (own > 0).all() and (own <= trainer.replicas[0].counters.step).all()
 
 
 # ----------------------------------------------------------------------------- optimizer carry-over
@@ -542,17 +543,15 @@ def test_reset_optimizer_false_carries_the_sources_adam_moments(work, dqn_source
         enabled=True, source=str(dqn_source), reset_optimizer=False))
     trainer = make_trainer(config, work / "carry_adam", work)
     trainer.run()
-    state = trainer.learner.optimizer.state
-    weight_0 = trainer.learner.q_network.weight_0  # [K, in, out]; rows 0..24 position, 25..26 treasures
+    state, _ = trainer.learner.training_state()  # weight_0 moments [K, in, out]: rows 0..24 position, 25..26 treasures
     for key in ("exp_avg", "exp_avg_sq"):
         source_moment = source_state[f"learner/optim.weight_0.{key}"][0]  # [25, 32]
-        carried = state[weight_0][key]
+        carried = state[f"optim.weight_0.{key}"]
         for agent in (0, 1):
-            torch.testing.assert_close(carried[agent, :N * N], source_moment)
-            assert torch.count_nonzero(carried[agent, N * N:]) == 0  # treasures rows: no history
-            torch.testing.assert_close(state[trainer.learner.q_network.bias_1][key][agent],
-                                       source_state[f"learner/optim.bias_1.{key}"][0])
-    assert float(state[weight_0]["step"]) == float(source_state["learner/optim.weight_0.step"].reshape(-1)[0])
+            np.testing.assert_array_equal(carried[agent, :N * N], source_moment)
+            assert np.count_nonzero(carried[agent, N * N:]) == 0  # treasures rows: no history
+            np.testing.assert_array_equal(state[f"optim.bias_1.{key}"][agent], source_state[f"learner/optim.bias_1.{key}"][0])
+    assert float(state["optim.weight_0.step"]) == float(source_state["learner/optim.weight_0.step"].reshape(-1)[0])
 
 
 def test_reset_optimizer_false_refuses_partial_targets(work, dqn_source):

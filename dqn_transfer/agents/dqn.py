@@ -17,16 +17,17 @@ agent, loss the *mean* over agents.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from typing import Any
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
-from dqn_transfer.agents.base import ObsLayout, TeamShape, Transition, UpdateStats, epsilon_greedy
+from dqn_transfer.agents.adam import FlatAdam
+from dqn_transfer.agents.base import ObsLayout, TeamShape, Transition, UpdateStats, check_tensor_shape, epsilon_greedy
 from dqn_transfer.agents.networks import BatchedMLP
-from dqn_transfer.agents.replay import ReplayBuffer
+from dqn_transfer.agents.replay import ReplayBatch, ReplayBuffer
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm
 
@@ -59,7 +60,8 @@ def double_dqn_targets(
 
 
 class DQNLearner(TeamShape):
-    """K DQN / Double DQN agents (see the module docstring). Implements ``Learner``."""
+    """K DQN / Double DQN agents, in R independent replicas (see the module docstring). Implements
+    ``Learner`` for the R x K agents as rows ``r * K + k``; :meth:`replica` is one replica's team."""
 
     def __init__(
         self,
@@ -68,7 +70,7 @@ class DQNLearner(TeamShape):
         num_actions: int,
         hp: AgentConfig = AgentConfig(),
         *,
-        seed: int = 0,
+        seed: int | Sequence[int] = 0,
         device: torch.device | str = "cpu",
     ) -> None:
         """
@@ -77,7 +79,8 @@ class DQNLearner(TeamShape):
         :param num_actions: A, the discrete actions
         :param hp: the hyperparameters, documented on :class:`~dqn_transfer.config.AgentConfig` (their
             one home, shared with the command line); ``hp.algorithm`` picks the DQN or Double DQN target
-        :param seed: fixes the initial weights, exploration and replay sampling
+        :param seed: fixes the initial weights, exploration and replay sampling; a list of R seeds
+            makes R replicas, replica r exactly the team a lone learner of ``seed[r]`` would be
         :param device: where the networks and the replay storage live
         """
         algorithm = Algorithm(hp.algorithm)
@@ -97,76 +100,103 @@ class DQNLearner(TeamShape):
         self.max_grad_norm = hp.max_grad_norm
         self.share_parameters = hp.share_parameters
         self.device = torch.device(device)
+        self.seeds = [int(seed)] if isinstance(seed, (int, np.integer)) else [int(s) for s in seed]
+        self.num_replicas = len(self.seeds)
+        self.num_rows = self.num_replicas * num_agents
+        self.members_per_replica = 1 if self.share_parameters else num_agents
 
-        # Independent random streams: weights (torch, CPU so the seed gives the same weights on
-        # any device), exploration and replay sampling (numpy, their states are JSON-able).
-        init_generator = torch.Generator().manual_seed(seed)
-        explore_seed, replay_seed = np.random.SeedSequence(seed).spawn(2)
-        self.rng = np.random.default_rng(explore_seed)
+        # Per replica, independent random streams: weights (torch, CPU so the seed gives the same
+        # weights on any device), exploration and replay sampling (numpy, their states are JSON-able).
+        streams = [np.random.SeedSequence(s).spawn(2) for s in self.seeds]
+        self.rngs = [np.random.default_rng(explore) for explore, _ in streams]
 
-        num_members = 1 if self.share_parameters else num_agents
-        self.q_network = BatchedMLP(num_members, self.obs_dim, self.hidden, num_actions, init_generator)
-        self.q_network.to(self.device)
-        self.target_network = BatchedMLP(num_members, self.obs_dim, self.hidden, num_actions).to(self.device)
+        num_members = self.num_replicas * self.members_per_replica
+        generators = [torch.Generator().manual_seed(s) for s in self.seeds]
+        self.q_network = BatchedMLP(num_members, self.obs_dim, self.hidden, num_actions, generators, self.device)
+        self.target_network = BatchedMLP(num_members, self.obs_dim, self.hidden, num_actions, device=self.device)
         self.target_network.update_from(self.q_network, tau=1.0)
-        self.target_network.requires_grad_(False)
         self.frozen_layers: list[int] = []
-        self.optimizer = torch.optim.Adam(self.q_network.parameters(), lr=self.lr)
-        self.replay = ReplayBuffer(
-            num_agents, hp.buffer_size, self.obs_dim, np.random.default_rng(replay_seed), self.device
-        )
+        self.optimizer = FlatAdam(self.q_network.flat, self.q_network.flat_grad, self.q_network.spans, lr=self.lr)
+        self.replay = ReplayBuffer(self.num_rows, hp.buffer_size, self.obs_dim,
+                                   [np.random.default_rng(replay) for _, replay in streams], self.device)
         self.num_gradient_steps = 0
+        self._loss_weights_cache: tuple[bytes, torch.Tensor] | None = None
+
+    def replica(self, r: int) -> DQNReplica:
+        """Replica r's team of K agents, as a ``Learner`` of its own (evaluation, transfer, checkpoints)."""
+        return DQNReplica(self, r)
+
+    def _rows(self, replica: int | None) -> slice:
+        k = self.num_agents
+        return slice(None) if replica is None else slice(replica * k, (replica + 1) * k)
+
+    def _members(self, replica: int | None) -> slice:
+        m = self.members_per_replica
+        return slice(None) if replica is None else slice(replica * m, (replica + 1) * m)
 
     # ------------------------------------------------------------------------------------ acting
 
-    def _q_values(self, network: BatchedMLP, obs: torch.Tensor) -> torch.Tensor:
-        """``obs [K, B, D] -> Q [K, B, A]``; a shared network sees all agents as one big batch."""
+    def _team_batch(self, obs: torch.Tensor) -> torch.Tensor:
+        """``obs [rows, B, D]`` as the members' inputs: a shared network sees its replica's agents as
+        one big batch."""
         if self.share_parameters:
-            k, b, d = obs.shape
-            return network(obs.reshape(1, k * b, d)).reshape(k, b, -1)
-        return network(obs)
+            rows, b, d = obs.shape
+            return obs.reshape(rows // self.num_agents, self.num_agents * b, d)
+        return obs
 
-    @torch.no_grad()
-    def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, greedy: bool = False) -> np.ndarray:
-        """Per-agent epsilon-greedy; one forward pass for the whole team, skipped if everyone explores.
+    def _q_values(self, network: BatchedMLP, obs: torch.Tensor, replica: int | None = None) -> torch.Tensor:
+        """``obs [rows, B, D] -> Q [rows, B, A]`` (rows of one replica, or of all)."""
+        members = None if replica is None else self._members(replica)
+        q_values = network.predict(self._team_batch(obs), members)
+        return q_values.view(*obs.shape[:2], -1) if self.share_parameters else q_values
 
-        Actions are returned for every agent; those of non-live agents are ignored by the game.
+    def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, greedy: bool = False,
+            replica: int | None = None) -> np.ndarray:
+        """Per-agent epsilon-greedy; one forward pass for every agent, skipped if everyone explores.
+
+        Actions are returned for every row (of ``replica``, or of all); those of non-live agents are
+        ignored by the game.
         """
         obs = np.asarray(obs, dtype=np.float32)
         if greedy:
-            return self._greedy_actions(obs)
+            return self._greedy_actions(obs, replica)
         # The exploration draws come first, from the shared epsilon_greedy (the same draws, so the same
         # random stream): given -1 as every greedy action, it returns -1 exactly where the agent exploits.
-        actions = epsilon_greedy(np.full(obs.shape[0], -1, dtype=np.int64), epsilon, self.num_actions, self.rng)
+        epsilon = np.broadcast_to(np.asarray(epsilon, dtype=np.float64), obs.shape[:1])
+        k = self.num_agents
+        replicas = range(self.num_replicas) if replica is None else [replica]
+        actions = np.concatenate([
+            epsilon_greedy(np.full(k, -1, dtype=np.int64), epsilon[i * k : (i + 1) * k], self.num_actions, self.rngs[r])
+            for i, r in enumerate(replicas)])
         exploit = actions < 0
         if exploit.any():
-            np.copyto(actions, self._greedy_actions(obs), where=exploit)
+            np.copyto(actions, self._greedy_actions(obs, replica), where=exploit)
         return actions
 
     @torch.no_grad()
-    def q_values(self, obs: np.ndarray) -> np.ndarray:
-        """Each agent's online Q-values of its own observation: ``obs [K, D] -> [K, A]``."""
+    def q_values(self, obs: np.ndarray, replica: int | None = None) -> np.ndarray:
+        """Each agent's online Q-values of its own observation: ``obs [rows, D] -> [rows, A]``."""
         obs_t = torch.as_tensor(np.asarray(obs, dtype=np.float32), device=self.device)
-        return self._q_values(self.q_network, obs_t.unsqueeze(1)).squeeze(1).cpu().numpy()
+        return self._q_values(self.q_network, obs_t.unsqueeze(1), replica).squeeze(1).cpu().numpy()
 
-    def _greedy_actions(self, obs: np.ndarray) -> np.ndarray:
-        """``argmax_a Q(obs, a)`` per agent, ``obs`` float32 ``[K, D]``."""
-        obs_t = torch.as_tensor(obs, device=self.device)
-        q_values = self._q_values(self.q_network, obs_t.unsqueeze(1)).squeeze(1)
-        return q_values.argmax(dim=-1).cpu().numpy().astype(np.int64, copy=False)
+    def _greedy_actions(self, obs: np.ndarray, replica: int | None) -> np.ndarray:
+        """``argmax_a Q(obs, a)`` per row, ``obs`` float32 ``[rows, D]``."""
+        obs_t = torch.from_numpy(obs).to(self.device).unsqueeze(1)
+        return self._q_values(self.q_network, obs_t, replica).argmax(dim=-1).view(-1).cpu().numpy()
 
     # ---------------------------------------------------------------------------------- learning
 
     def update(self, transition: Transition, step: int) -> UpdateStats:
         """Store the live agents' transitions, train on schedule, sync the target on schedule.
 
-        ``step`` counts env steps including this one. The statistics are averaged over this
-        round's gradient steps (``q_mean``: mean ``Q(s, a)`` of the batch), nan if no training.
+        ``step`` counts env steps including this one (the same for every replica: they run in
+        lockstep). The statistics are averaged over this round's gradient steps (``q_mean``: mean
+        ``Q(s, a)`` of the batch), nan if no training.
         """
         self.replay.add(transition)
 
-        td_loss = np.full(self.num_agents, np.nan)
-        q_mean = np.full(self.num_agents, np.nan)
+        td_loss = np.full(self.num_rows, np.nan)
+        q_mean = np.full(self.num_rows, np.nan)
         if step > self.learning_starts and step % self.train_freq == 0:
             rounds = [self.gradient_step() for _ in range(self.gradient_steps)]
             td_loss = np.mean([r.td_loss for r in rounds], axis=0, dtype=np.float64)
@@ -176,9 +206,33 @@ class DQNLearner(TeamShape):
             self.target_network.update_from(self.q_network, tau=self.tau)
         return UpdateStats(td_loss, q_mean)
 
+    @property
+    def trainable_layers(self) -> list[int]:
+        return [l for l in range(self.q_network.num_layers) if l not in self.frozen_layers]
+
+    def _loss_weights(self, valid: np.ndarray) -> torch.Tensor:
+        """``[rows]`` weight of each row's mean loss in the total: 1 (each agent's gradient is its own
+        loss's), with a shared network 1 / (its replica's agents with data), the usual batch mean;
+        0 for a row with no data yet (its batch is placeholders)."""
+        key = valid.tobytes()
+        if self._loss_weights_cache is None or self._loss_weights_cache[0] != key:
+            weights = torch.from_numpy(valid.astype(np.float32))
+            if self.share_parameters:
+                counts = np.maximum(valid.reshape(-1, self.num_agents).sum(axis=1), 1).astype(np.float32)
+                weights = weights / torch.from_numpy(np.repeat(counts, self.num_agents))
+            self._loss_weights_cache = (key, weights.to(self.device))
+        return self._loss_weights_cache[1]
+
     def gradient_step(self) -> UpdateStats:
         """One Adam step for all agents on a fresh replay batch (what ``update`` runs on schedule)."""
-        batch = self.replay.sample(self.batch_size)
+        return self.train_on(self.replay.sample(self.batch_size))
+
+    def train_on(self, batch: ReplayBatch) -> UpdateStats:
+        """One Adam step for all agents on ``batch`` (``[rows, B, ...]``).
+
+        The loss is ``sum_rows weight[row] * mean_batch Huber(Q(s, a) - y)`` (see ``_loss_weights``);
+        its gradient is taken by hand, op for op as ``loss.backward()`` would (``BatchedMLP.backward``).
+        """
         with torch.no_grad():
             next_q_target = self._q_values(self.target_network, batch.next_obs)
             if self.double:
@@ -187,23 +241,24 @@ class DQNLearner(TeamShape):
             else:
                 targets = dqn_targets(batch.rewards, next_q_target, batch.terminated, self.gamma)
 
-        q_values = self._q_values(self.q_network, batch.obs)
-        q_taken = q_values.gather(-1, batch.actions.unsqueeze(-1)).squeeze(-1)  # Q(s, a) [K, B]
-        agent_losses = F.smooth_l1_loss(q_taken, targets, reduction="none").mean(dim=1)  # [K]
-        valid = self.replay.size > 0  # an empty agent's batch is placeholders: no loss
-        if not valid.all():
-            valid_t = torch.from_numpy(valid).to(self.device)
-            agent_losses = torch.where(valid_t, agent_losses, torch.zeros_like(agent_losses))
-        # Sum: each agent's gradient is its own loss's. Shared network: mean, the usual batch average.
-        loss = agent_losses.sum() / max(int(valid.sum()), 1) if self.share_parameters else agent_losses.sum()
+            out, inputs = self.q_network.forward_cached(self._team_batch(batch.obs))
+            q_values = out.reshape(*batch.obs.shape[:2], -1)
+            actions = batch.actions.unsqueeze(-1)
+            q_taken = q_values.gather(-1, actions).squeeze(-1)  # Q(s, a) [rows, B]
+            agent_losses = F.smooth_l1_loss(q_taken, targets, reduction="none").mean(dim=1)  # [rows]
+            valid = self.replay.size > 0
 
-        self.optimizer.zero_grad()
-        loss.backward()
-        self.q_network.clip_grad_norm_(self.max_grad_norm)
-        self.optimizer.step()
-        self.num_gradient_steps += 1
+            # d loss / d Q, through the mean over the batch, the Huber loss and the gather.
+            grad_taken = self._loss_weights(valid).unsqueeze(1).expand_as(q_taken) / q_taken.shape[1]
+            grad_taken = torch.ops.aten.smooth_l1_loss_backward(grad_taken, q_taken, targets, 0, 1.0)
+            grad_q = torch.zeros_like(q_values).scatter_add_(-1, actions, grad_taken.unsqueeze(-1))
+            layers = self.trainable_layers
+            self.q_network.backward(inputs, self._team_batch(grad_q), layers)
+            self.q_network.clip_grad_norm_(self.max_grad_norm, layers)
+            self.optimizer.step([2 * l + kind for l in layers for kind in (0, 1)])
+            self.num_gradient_steps += 1
 
-        stats = torch.stack([agent_losses.detach(), q_taken.detach().mean(dim=1)]).cpu().numpy()  # one transfer
+            stats = torch.stack([agent_losses, q_taken.mean(dim=1)]).cpu().numpy()  # one transfer
         return UpdateStats(np.where(valid, stats[0], np.nan), np.where(valid, stats[1], np.nan))
 
     # ------------------------------------------------------------------ transfer and exchange
@@ -211,39 +266,34 @@ class DQNLearner(TeamShape):
     def freeze(self, layer_indices: Iterable[int]) -> None:
         """Keep these layers' weights and biases fixed (negative indices count from the output).
 
-        The weights of a layer are one stacked Parameter for all agents, so freezing applies to the
-        whole team. A frozen Parameter gets no gradient, and Adam skips parameters without one, so
-        not even leftover momentum moves it.
+        The weights of a layer are one stacked tensor for all agents, so freezing applies to the
+        whole team (and every replica). A frozen layer gets no gradient and Adam skips it, so not
+        even leftover momentum moves it.
         """
         layers = [range(self.q_network.num_layers)[index] for index in layer_indices]  # IndexError if absent
-        for l in layers:
-            for parameter in self.q_network.layer(l):
-                parameter.requires_grad_(False)
         self.frozen_layers = sorted({*self.frozen_layers, *layers})
 
     def set_member_optimizer_state(self, i: int, moments: dict[str, dict[str, np.ndarray]], step: int) -> None:
-        """Adam moments for agent i's slice of each stacked parameter, e.g. carried over by transfer.
+        """Adam moments for agent i's slice of each stacked tensor, e.g. carried over by transfer.
 
         ``moments[name]`` holds ``exp_avg`` and ``exp_avg_sq`` shaped like one member's slice of
-        parameter ``name``. Adam keeps one ``step`` per stacked parameter, shared by all agents.
+        tensor ``name``. Adam keeps one ``step`` per stacked tensor, shared by all agents.
         """
         m = self._member(i)
-        for name, parameter in self.q_network.named_parameters():
+        optimizer, network = self.optimizer, self.q_network
+        for index, name in enumerate(network.tensor_names):
             if name not in moments:  # e.g. a layer the source kept frozen has no moments
                 continue
-            state = self.optimizer.state[parameter]
-            if not state:  # what Adam would create at its first step
-                state["step"] = torch.tensor(0.0)
-                state["exp_avg"] = torch.zeros_like(parameter, memory_format=torch.preserve_format)
-                state["exp_avg_sq"] = torch.zeros_like(parameter, memory_format=torch.preserve_format)
-            for key in ("exp_avg", "exp_avg_sq"):
-                state[key][m] = torch.as_tensor(moments[name][key], device=self.device)
-            state["step"] = torch.tensor(float(step))
+            optimizer.init_state(index)
+            (a, b), shape = network.spans[index], network.shapes[index]
+            for key, buffer in (("exp_avg", optimizer.exp_avg), ("exp_avg_sq", optimizer.exp_avg_sq)):
+                buffer[a:b].view(shape)[m] = torch.as_tensor(moments[name][key], device=self.device)
+            optimizer.steps[index] = int(step)
 
     def _member(self, i: int) -> int:
-        if not 0 <= i < self.num_agents:
-            raise IndexError(f"agent index {i} out of range for {self.num_agents} agents")
-        return 0 if self.share_parameters else i
+        if not 0 <= i < self.num_rows:
+            raise IndexError(f"agent index {i} out of range for {self.num_rows} agents")
+        return i // self.num_agents if self.share_parameters else i
 
     def add_experience(self, i: int, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray,
                        next_obs: np.ndarray, terminated: np.ndarray) -> None:
@@ -290,45 +340,108 @@ class DQNLearner(TeamShape):
             "share_parameters": self.share_parameters,
         }
 
-    def training_state(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        """Adam moments (by parameter name), replay storage and pointers, RNG states, counters.
+    def training_state(self, replica: int = 0) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """One replica's Adam moments (by tensor name), replay storage and pointers, RNG states, counters.
 
         The network weights themselves are in ``agent_tensors``: resume = ``load_agent_tensors``
         for every agent, then ``load_training_state``.
         """
-        arrays = {f"replay.{name}": value for name, value in self.replay.state_dict().items()}
-        names = {id(p): name for name, p in self.q_network.named_parameters()}
-        for parameter, state in self.optimizer.state.items():
-            for key, value in state.items():
-                value = np.ascontiguousarray(value.detach().cpu().numpy())
-                arrays[f"optim.{names[id(parameter)]}.{key}"] = value
+        if not 0 <= replica < self.num_replicas:
+            raise IndexError(f"replica {replica} out of range for {self.num_replicas} replicas")
+        arrays = {f"replay.{name}": value for name, value in self.replay.state_dict(self._rows(replica)).items()}
+        optimizer, network, members = self.optimizer, self.q_network, self._members(replica)
+        for index, name in enumerate(network.tensor_names):
+            if optimizer.has_state[index]:
+                (a, b), shape = network.spans[index], network.shapes[index]
+                for key, buffer in (("exp_avg", optimizer.exp_avg), ("exp_avg_sq", optimizer.exp_avg_sq)):
+                    arrays[f"optim.{name}.{key}"] = np.ascontiguousarray(buffer[a:b].view(shape)[members].cpu().numpy())
+                arrays[f"optim.{name}.step"] = np.array(optimizer.steps[index], dtype=np.float32)
         meta = {
-            "explore_rng": self.rng.bit_generator.state,
-            "replay_rng": self.replay.rng.bit_generator.state,
+            "explore_rng": self.rngs[replica].bit_generator.state,
+            "replay_rng": self.replay.rngs[replica].bit_generator.state,
             "num_gradient_steps": self.num_gradient_steps,
             "frozen_layers": list(self.frozen_layers),
         }
         return arrays, meta
 
-    def load_training_state(self, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
+    def load_training_state(self, arrays: dict[str, np.ndarray], meta: dict[str, Any], replica: int = 0) -> None:
         self.replay.load_state_dict(
-            {name[len("replay.") :]: value for name, value in arrays.items() if name.startswith("replay.")}
+            {name[len("replay.") :]: value for name, value in arrays.items() if name.startswith("replay.")},
+            self._rows(replica),
         )
         self.freeze(meta["frozen_layers"])
-        # Through Adam's own load_state_dict (state keyed by parameter position), which puts each
-        # moment on its parameter's device and keeps "step" where Adam expects it.
-        optimizer_state = self.optimizer.state_dict()
-        optimizer_state["state"] = {}
-        for index, (name, _) in enumerate(self.q_network.named_parameters()):
+        optimizer, network, members = self.optimizer, self.q_network, self._members(replica)
+        for index, name in enumerate(network.tensor_names):
             prefix = f"optim.{name}."
-            state = {
-                key[len(prefix) :]: torch.from_numpy(np.array(value))
-                for key, value in arrays.items()
-                if key.startswith(prefix)
-            }
-            if state:
-                optimizer_state["state"][index] = state
-        self.optimizer.load_state_dict(optimizer_state)
-        self.rng.bit_generator.state = meta["explore_rng"]
-        self.replay.rng.bit_generator.state = meta["replay_rng"]
+            if prefix + "step" not in arrays:
+                continue
+            (a, b), shape = network.spans[index], network.shapes[index]
+            optimizer.init_state(index)
+            for key, buffer in (("exp_avg", optimizer.exp_avg), ("exp_avg_sq", optimizer.exp_avg_sq)):
+                value = torch.from_numpy(np.array(arrays[prefix + key], dtype=np.float32))
+                check_tensor_shape(prefix + key, value, (self.members_per_replica, *shape[1:]))
+                buffer[a:b].view(shape)[members] = value.to(self.device)
+            optimizer.steps[index] = int(np.asarray(arrays[prefix + "step"]).reshape(-1)[0])
+        self.rngs[replica].bit_generator.state = meta["explore_rng"]
+        self.replay.rngs[replica].bit_generator.state = meta["replay_rng"]
         self.num_gradient_steps = int(meta["num_gradient_steps"])
+
+
+class DQNReplica:
+    """Replica r of a :class:`DQNLearner`: its K agents as a ``Learner`` (agent i is row ``r * K + i``).
+
+    Everything reads and writes the batched learner's own tensors; nothing is copied.
+    """
+
+    def __init__(self, learner: DQNLearner, r: int) -> None:
+        if not 0 <= r < learner.num_replicas:
+            raise IndexError(f"replica {r} out of range for {learner.num_replicas} replicas")
+        self.learner, self.index = learner, r
+        self.algorithm, self.num_agents = learner.algorithm, learner.num_agents
+        self.obs_layout, self.obs_dim, self.num_actions = learner.obs_layout, learner.obs_dim, learner.num_actions
+        self.offset = r * learner.num_agents
+
+    @property
+    def frozen_layers(self) -> list[int]:
+        return self.learner.frozen_layers
+
+    def _row(self, i: int) -> int:
+        if not 0 <= i < self.num_agents:
+            raise IndexError(f"agent index {i} out of range for {self.num_agents} agents")
+        return self.offset + i
+
+    def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, greedy: bool = False) -> np.ndarray:
+        return self.learner.act(obs, live, epsilon, greedy, replica=self.index)
+
+    def q_values(self, obs: np.ndarray) -> np.ndarray:
+        return self.learner.q_values(obs, replica=self.index)
+
+    def freeze(self, layer_indices: Iterable[int]) -> None:
+        self.learner.freeze(layer_indices)
+
+    def network_meta(self) -> dict[str, Any]:
+        return self.learner.network_meta()
+
+    def agent_tensors(self, i: int) -> dict[str, torch.Tensor]:
+        return self.learner.agent_tensors(self._row(i))
+
+    def load_agent_tensors(self, i: int, tensors: dict[str, torch.Tensor]) -> None:
+        self.learner.load_agent_tensors(self._row(i), tensors)
+
+    def get_member_weights(self, i: int) -> dict[str, torch.Tensor]:
+        return self.learner.get_member_weights(self._row(i))
+
+    def set_member_weights(self, i: int, tensors: dict[str, torch.Tensor]) -> None:
+        self.learner.set_member_weights(self._row(i), tensors)
+
+    def set_member_optimizer_state(self, i: int, moments: dict[str, dict[str, np.ndarray]], step: int) -> None:
+        self.learner.set_member_optimizer_state(self._row(i), moments, step)
+
+    def add_experience(self, i: int, *transitions: np.ndarray) -> None:
+        self.learner.add_experience(self._row(i), *transitions)
+
+    def training_state(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        return self.learner.training_state(self.index)
+
+    def load_training_state(self, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
+        self.learner.load_training_state(arrays, meta, self.index)

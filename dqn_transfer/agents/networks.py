@@ -1,11 +1,21 @@
-"""K independent MLPs evaluated as one: stacked weights and batched matrix products.
+"""M independent MLPs evaluated as one: stacked weights, batched matrix products, one flat parameter.
 
-A team of K DQN agents would otherwise run K small forward passes and K optimizer steps per env
-step, which is dominated by Python and kernel-launch overhead. Stacking member m's layer-l weight as
-``weight_l[m]`` (``[in, out]``) lets one ``torch.baddbmm`` per layer evaluate all members, and one
-optimizer step update them all, while each member stays mathematically its own network: member m's
-outputs depend only on ``weight_l[m]``, ``bias_l[m]``, so its gradients are exactly what a separate
+A team of K DQN agents (and R replicas of a team) would otherwise run M small forward passes and M
+optimizer steps per env step, which is dominated by Python and kernel-launch overhead. Stacking
+member m's layer-l weight as ``weight_l[m]`` (``[in, out]``) lets one ``torch.baddbmm`` per layer
+evaluate all members, while each member stays mathematically its own network: member m's outputs
+depend only on ``weight_l[m]``, ``bias_l[m]``, so its gradients are exactly what a separate
 ``nn.Sequential(nn.Linear, nn.ReLU, ...)`` would get from the same loss.
+
+All tensors live in one flat ``[P]`` Parameter (layer by layer: ``weight_0``, ``bias_0``,
+``weight_1``, ...), so a target sync is one copy and Adam is a few kernels over one buffer.
+
+Training does not go through autograd: :meth:`BatchedMLP.forward_cached` keeps the activations and
+:meth:`BatchedMLP.backward` applies the chain rule with the same kernels, in the same order,
+that autograd's derivative formulas call for ``baddbmm`` and ``relu`` (so the gradients are
+bit-identical to ``loss.backward()``, which the tests check), at a fifth of the cost: on networks this
+small, the autograd engine's bookkeeping costs more than the arithmetic. ``forward`` itself stays
+differentiable.
 """
 
 from __future__ import annotations
@@ -22,9 +32,14 @@ from dqn_transfer.agents.base import check_tensor_shape
 class BatchedMLP(nn.Module):
     """``num_members`` ReLU MLPs ``in_dim -> hidden... -> out_dim`` with stacked parameters.
 
-    Parameters: ``weight_{l}`` ``[M, in, out]`` and ``bias_{l}`` ``[M, out]`` for each layer l, one
-    Parameter per layer so a layer can be frozen on its own. ``member_state`` converts member m to
-    the ``nn.Linear`` convention (``layers.{l}.weight`` ``[out, in]``) used in checkpoints.
+    Tensors ``weight_{l}`` ``[M, in, out]`` and ``bias_{l}`` ``[M, out]`` for each layer l are views of
+    the one Parameter ``flat`` (``tensors``, :meth:`layer`, :meth:`named_tensors`; no autograd history);
+    ``grads`` are the same views of ``flat_grad``, where :meth:`backward` writes. ``member_state`` converts member m to the
+    ``nn.Linear`` convention (``layers.{l}.weight`` ``[out, in]``) used in checkpoints.
+
+    ``generators``: one per equal block of members (a replica), each drawing its block's initial
+    weights layer by layer, so a block starts exactly as a network of that block alone seeded the
+    same way would. None: all zeros (a target network, which copies its online network).
     """
 
     def __init__(
@@ -33,19 +48,54 @@ class BatchedMLP(nn.Module):
         in_dim: int,
         hidden: Sequence[int],
         out_dim: int,
-        generator: torch.Generator | None = None,
+        generators: Sequence[torch.Generator] | None = None,
+        device: torch.device | str = "cpu",
     ) -> None:
         super().__init__()
         self.num_members = num_members
         self.sizes = [in_dim, *hidden, out_dim]
+        self.tensor_names: list[str] = []
+        self.spans: list[tuple[int, int]] = []
+        self.shapes: list[tuple[int, ...]] = []
+        offset = 0
         for l, (fan_in, fan_out) in enumerate(self.layer_shapes):
-            # nn.Linear's default init (kaiming_uniform(a=sqrt(5)) == U(-1/sqrt(in), 1/sqrt(in)) for the
-            # weight, same bound for the bias), drawn from an explicit generator so a seed fixes it.
-            bound = 1.0 / math.sqrt(fan_in)
-            weight = (torch.rand(num_members, fan_in, fan_out, generator=generator) * 2 - 1) * bound
-            bias = (torch.rand(num_members, fan_out, generator=generator) * 2 - 1) * bound
-            self.register_parameter(f"weight_{l}", nn.Parameter(weight))
-            self.register_parameter(f"bias_{l}", nn.Parameter(bias))
+            for kind, shape in (("weight", (num_members, fan_in, fan_out)), ("bias", (num_members, fan_out))):
+                self.tensor_names.append(f"{kind}_{l}")
+                self.shapes.append(shape)
+                self.spans.append((offset, offset + math.prod(shape)))
+                offset += math.prod(shape)
+        self.flat = nn.Parameter(torch.zeros(offset, device=device))
+        self.flat_grad = torch.zeros(offset, device=device)
+        data = self.flat.detach()
+        self.tensors = [data[a:b].view(shape) for (a, b), shape in zip(self.spans, self.shapes)]
+        self.grads = [self.flat_grad[a:b].view(shape) for (a, b), shape in zip(self.spans, self.shapes)]
+        # Per layer: the weight and the bias as a [M, 1, out] row to broadcast over the batch.
+        self._affine = [(self.tensors[2 * l], self.tensors[2 * l + 1].unsqueeze(1)) for l in range(self.num_layers)]
+        if generators:
+            self._initialise(generators)
+
+    def _apply(self, fn, recurse=True):
+        # .to(), .cuda(), .double() ... would give ``flat`` new storage behind the views' back.
+        raise TypeError("a BatchedMLP is built on its device (device=...) and cannot be moved or converted")
+
+    @torch.no_grad()
+    def _initialise(self, generators: Sequence[torch.Generator]) -> None:
+        # nn.Linear's default init (kaiming_uniform(a=sqrt(5)) == U(-1/sqrt(in), 1/sqrt(in)) for the
+        # weight, same bound for the bias), drawn on the CPU so a seed gives the same weights anywhere.
+        block = self.num_members // len(generators)
+        if block * len(generators) != self.num_members:
+            raise ValueError(f"{len(generators)} generators cannot split {self.num_members} members evenly")
+        for r, generator in enumerate(generators):
+            members = slice(r * block, (r + 1) * block)
+            for l, (fan_in, fan_out) in enumerate(self.layer_shapes):
+                weight, bias = self.layer(l)
+                bound = 1.0 / math.sqrt(fan_in)
+                weight[members] = (torch.rand(block, fan_in, fan_out, generator=generator) * 2 - 1) * bound
+                bias[members] = (torch.rand(block, fan_out, generator=generator) * 2 - 1) * bound
+
+    # ------------------------------------------------------------------------------ views
+    def named_tensors(self) -> dict[str, torch.Tensor]:
+        return dict(zip(self.tensor_names, self.tensors))
 
     @property
     def layer_shapes(self) -> list[tuple[int, int]]:
@@ -56,25 +106,73 @@ class BatchedMLP(nn.Module):
     def num_layers(self) -> int:
         return len(self.sizes) - 1
 
-    def layer(self, l: int) -> tuple[nn.Parameter, nn.Parameter]:
-        return getattr(self, f"weight_{l}"), getattr(self, f"bias_{l}")
+    def layer(self, l: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """Layer l's ``(weight [M, in, out], bias [M, out])``, views of ``flat``."""
+        return self.tensors[2 * l], self.tensors[2 * l + 1]
 
+    # ------------------------------------------------------------------------- forward
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """``x [M, B, in] -> [M, B, out]``; member m only sees its own slice ``x[m]``."""
+        """``x [M, B, in] -> [M, B, out]``; member m only sees its own slice ``x[m]``. Differentiable."""
         for l in range(self.num_layers):
-            weight, bias = self.layer(l)
+            (w0, w1), (b0, b1) = self.spans[2 * l], self.spans[2 * l + 1]
+            weight = self.flat[w0:w1].view(self.shapes[2 * l])
+            bias = self.flat[b0:b1].view(self.shapes[2 * l + 1])
             x = torch.baddbmm(bias.unsqueeze(1), x, weight)
             if l < self.num_layers - 1:
                 x = torch.relu(x)
         return x
 
+    @torch.no_grad()
+    def predict(self, x: torch.Tensor, members: slice | None = None) -> torch.Tensor:
+        """``forward`` without autograd, for ``members`` only (default all; ``x [len(members), B, in]``)."""
+        last = self.num_layers - 1
+        for l, (weight, bias) in enumerate(self._affine):
+            if members is not None:
+                weight, bias = weight[members], bias[members]
+            x = torch.baddbmm(bias, x, weight)
+            if l < last:
+                x = torch.relu(x)
+        return x
+
+    @torch.no_grad()
+    def forward_cached(self, x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
+        """``forward`` without autograd, also returning every layer's input (what ``backward`` needs)."""
+        inputs, last = [], self.num_layers - 1
+        for l, (weight, bias) in enumerate(self._affine):
+            inputs.append(x)
+            x = torch.baddbmm(bias, x, weight)
+            if l < last:
+                x = torch.relu(x)
+        return x, inputs
+
+    @torch.no_grad()
+    def backward(self, inputs: list[torch.Tensor], grad_out: torch.Tensor, layers: Sequence[int]) -> None:
+        """Gradients of the loss w.r.t. the weights and biases of ``layers`` into :attr:`grads`, given
+        ``grad_out`` = d loss / d output and the ``inputs`` of :meth:`forward_cached`.
+
+        Autograd's formulas, kernel for kernel: for ``y = baddbmm(b, x, W)``, ``dW = x^T @ dy``,
+        ``db = dy`` summed over the batch, ``dx = dy @ W^T``; for ``h = relu(z)``,
+        ``dz = threshold_backward(dh, h, 0)``. Layers not listed keep their gradient untouched (zero)
+        and are not computed; the backward stops below the lowest listed layer.
+        """
+        grads, wanted = self.grads, set(layers)
+        grad = grad_out
+        for l in range(self.num_layers - 1, min(wanted, default=self.num_layers) - 1, -1):
+            if l in wanted:
+                torch.bmm(inputs[l].transpose(1, 2), grad, out=grads[2 * l])
+                torch.sum(grad, dim=1, out=grads[2 * l + 1])
+            if l > min(wanted):
+                grad = torch.bmm(grad, self.layer(l)[0].transpose(1, 2))
+                grad = torch.ops.aten.threshold_backward(grad, inputs[l], 0)
+
+    # ------------------------------------------------------------------------- members
     def member_state(self, m: int) -> dict[str, torch.Tensor]:
         """Member m's weights as detached CPU copies in ``nn.Linear`` layout."""
         state = {}
         for l in range(self.num_layers):
             weight, bias = self.layer(l)
-            state[f"layers.{l}.weight"] = weight[m].detach().t().contiguous().cpu()
-            state[f"layers.{l}.bias"] = bias[m].detach().cpu().clone()
+            state[f"layers.{l}.weight"] = weight[m].t().contiguous().cpu()
+            state[f"layers.{l}.bias"] = bias[m].cpu().clone()
         return state
 
     @torch.no_grad()
@@ -99,24 +197,32 @@ class BatchedMLP(nn.Module):
     def update_from(self, source: BatchedMLP, tau: float) -> None:
         """Move towards ``source``: exact copy when ``tau == 1`` (hard target update), else Polyak
         ``p <- p + tau * (p_source - p)``."""
-        for p, p_source in zip(self.parameters(), source.parameters()):
-            if tau == 1.0:
-                p.copy_(p_source)
-            else:
-                p.lerp_(p_source, tau)
+        if tau == 1.0:
+            self.flat.copy_(source.flat)
+        else:
+            self.flat.lerp_(source.flat, tau)
 
     @torch.no_grad()
-    def clip_grad_norm_(self, max_norm: float) -> torch.Tensor:
-        """``torch.nn.utils.clip_grad_norm_`` applied to each member separately; returns norms ``[M]``.
+    def clip_grad_norm_(self, max_norm: float, layers: Sequence[int] | None = None) -> torch.Tensor:
+        """``torch.nn.utils.clip_grad_norm_`` applied to each member separately, to the gradients of
+        ``layers`` (default: all) in :attr:`grads`; returns the norms ``[M]``.
 
         One global norm over the stacked gradients would let one agent's large gradient shrink
         every other agent's step; per member, each agent is clipped as its own network would be.
+        The norms are nan when the gradients are so small that nobody is clipped (CPU).
         """
-        grads = [p.grad for p in self.parameters() if p.grad is not None]
+        layers = range(self.num_layers) if layers is None else sorted(layers)
+        grads = [g for l in layers for g in self.grads[2 * l : 2 * l + 2]]
         if not grads:
             return torch.zeros(self.num_members)
+        if self.flat.device.type == "cpu" and float(self.flat_grad.norm()) < 0.99 * max_norm:
+            # No member's norm can exceed the norm of all gradients together (the 1 % margin covers
+            # rounding): nobody is clipped, and the exact per-member norms are not needed.
+            return torch.full((self.num_members,), math.nan)
         norms = torch.stack([g.flatten(1).pow(2).sum(1) for g in grads]).sum(0).sqrt()
         scale = (max_norm / (norms + 1e-6)).clamp(max=1.0)
-        for g in grads:
-            g.mul_(scale.view(-1, *([1] * (g.dim() - 1))))
+        # A factor of exactly 1 changes nothing: skip the multiplications when nobody is clipped.
+        if self.flat.device.type != "cpu" or bool((scale < 1.0).any()):
+            for g in grads:
+                g.mul_(scale.view(-1, *([1] * (g.dim() - 1))))
         return norms

@@ -1,12 +1,17 @@
-"""Uniform experience replay for K agents in one ``[K, capacity, ...]`` storage.
+"""Uniform experience replay for many agents in one ``[rows, capacity, width]`` storage.
 
-Each agent has its own row, write pointer and fill level: a dead agent adds nothing while its
-teammates keep playing, so rows fill at different rates. Sampling draws every agent's batch from its
-own filled range only, in one gather, giving ``[K, B, ...]`` tensors for the batched networks.
+Each row is one agent (of one replica): its own ring, write pointer and fill level. A dead agent
+adds nothing while its teammates keep playing, so rows fill at different rates. Sampling draws every
+row's batch from its own filled range only, with its replica's random generator, in one gather, giving
+``[rows, B, ...]`` tensors for the batched networks.
+
+A transition is stored as one float32 vector ``[obs, next_obs, reward, action, terminated]`` (actions
+are small integers and ``terminated`` is 0 or 1, both exact in float32), so a sample is one gather.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -16,29 +21,28 @@ from dqn_transfer.agents.base import Transition
 
 
 class ReplayBatch(NamedTuple):
-    """``batch_size`` transitions per agent, each field ``[K, B, ...]``."""
+    """``batch_size`` transitions per row, each field ``[rows, B, ...]``."""
 
-    obs: torch.Tensor  # float32 [K, B, D]
-    actions: torch.Tensor  # int64 [K, B]
-    rewards: torch.Tensor  # float32 [K, B]
-    next_obs: torch.Tensor  # float32 [K, B, D]
-    terminated: torch.Tensor  # bool [K, B]
-
-
-# Stored fields and their dtypes (what the TD target reads); the observation fields hold obs_dim
-# values per transition.
-_FIELDS = {name: dtype for name, dtype in zip(ReplayBatch._fields, (torch.float32, torch.int64, torch.float32,
-                                                                    torch.float32, torch.bool))}
-_OBS_FIELDS = ("obs", "next_obs")
+    obs: torch.Tensor  # float32 [rows, B, D]
+    actions: torch.Tensor  # int64 [rows, B]
+    rewards: torch.Tensor  # float32 [rows, B]
+    next_obs: torch.Tensor  # float32 [rows, B, D]
+    terminated: torch.Tensor  # float32 [rows, B], 1.0 where the episode ended for the agent
 
 
-def _as_fields(*values: np.ndarray) -> dict[str, np.ndarray]:
-    """Name the stored transition arrays in storage order."""
-    return {name: np.asarray(value) for name, value in zip(_FIELDS, values)}
+# The fields of a checkpoint's replay state, as they are stored there.
+FIELD_DTYPES = {"obs": np.float32, "actions": np.int64, "rewards": np.float32, "next_obs": np.float32,
+                "terminated": np.bool_}
 
 
 class ReplayBuffer:
-    """Per-agent ring buffers; ``ptr[k]`` is agent k's next write slot, ``size[k]`` its fill level.
+    """Per-row ring buffers; ``ptr[k]`` is row k's next write slot, ``size[k]`` its fill level.
+
+    :param num_rows: the agents, of all replicas (replica r owns rows ``r * K .. r * K + K - 1``)
+    :param capacity: transitions kept per row
+    :param obs_dim: values per observation
+    :param rngs: one generator per replica, drawing its rows' sample indices
+    :param device: where the storage lives
 
     The timeout rule lives here: only ``terminated`` is stored. A step truncated by the time limit
     is, for the TD target, an ordinary step whose next state still has a future (SB3's
@@ -47,112 +51,130 @@ class ReplayBuffer:
 
     def __init__(
         self,
-        num_agents: int,
+        num_rows: int,
         capacity: int,
         obs_dim: int,
-        rng: np.random.Generator,
+        rngs: Sequence[np.random.Generator],
         device: torch.device | str = "cpu",
     ) -> None:
-        self.num_agents = num_agents
+        if num_rows % len(rngs):
+            raise ValueError(f"{len(rngs)} generators cannot split {num_rows} replay rows evenly")
+        self.num_rows = num_rows
         self.capacity = capacity
         self.obs_dim = obs_dim
-        self.rng = rng
+        self.rngs = list(rngs)
+        self.rows_per_rng = num_rows // len(self.rngs)
         self.device = torch.device(device)
-        self.storage = {
-            name: torch.zeros(self._shape(name, capacity), dtype=dtype, device=self.device)
-            for name, dtype in _FIELDS.items()
-        }
-        self.ptr = np.zeros(num_agents, dtype=np.int64)
-        self.size = np.zeros(num_agents, dtype=np.int64)
+        d = obs_dim
+        self.columns = {"obs": slice(0, d), "next_obs": slice(d, 2 * d), "rewards": 2 * d, "actions": 2 * d + 1,
+                        "terminated": 2 * d + 2}
+        self.storage = torch.zeros((num_rows, capacity, 2 * d + 3), dtype=torch.float32, device=self.device)
+        # CPU: written and gathered through a numpy view of the same memory, a fraction of torch's
+        # per-call indexing cost.
+        self._array = self.storage.numpy() if self.device.type == "cpu" else None
+        self.ptr = np.zeros(num_rows, dtype=np.int64)
+        self.size = np.zeros(num_rows, dtype=np.int64)
 
-    def _shape(self, name: str, length: int) -> tuple[int, ...]:
-        extra = (self.obs_dim,) if name in _OBS_FIELDS else ()
-        return (self.num_agents, length, *extra)
+    def _pack(self, obs, actions, rewards, next_obs, terminated) -> np.ndarray:
+        """``[N, width]`` storage rows of N transitions."""
+        return np.concatenate([np.asarray(obs, dtype=np.float32).reshape(-1, self.obs_dim),
+                               np.asarray(next_obs, dtype=np.float32).reshape(-1, self.obs_dim),
+                               np.stack([np.asarray(rewards, dtype=np.float32).reshape(-1),
+                                         np.asarray(actions).reshape(-1).astype(np.float32),
+                                         np.asarray(terminated).reshape(-1).astype(np.float32)], axis=1)], axis=1)
 
-    def _write(self, rows: np.ndarray, cols: np.ndarray, data: dict[str, np.ndarray]) -> None:
-        if self.device.type == "cpu":
-            # Through numpy views of the storage (shared memory): a third of the torch indexing cost.
-            for name, tensor in self.storage.items():
-                tensor.numpy()[rows, cols] = data[name]
-            return
-        rows_t, cols_t = torch.from_numpy(rows).to(self.device), torch.from_numpy(cols).to(self.device)
-        for name, dtype in _FIELDS.items():
-            value = torch.as_tensor(np.asarray(data[name]), dtype=dtype, device=self.device)
-            self.storage[name][rows_t, cols_t] = value
+    def _write(self, rows: np.ndarray, cols: np.ndarray, packed: np.ndarray) -> None:
+        if self._array is not None:
+            self._array[rows, cols] = packed
+        else:
+            self.storage[torch.from_numpy(rows).to(self.device), torch.from_numpy(cols).to(self.device)] = (
+                torch.from_numpy(packed).to(self.device))
 
     def add(self, transition: Transition) -> None:
-        """Store row k of the joint step in agent k's buffer, for the agents live in it."""
+        """Store row k of the joint step in row k's buffer, for the rows live in it."""
         rows = np.flatnonzero(transition.live)
         if rows.size == 0:
             return
         t = transition
-        data = _as_fields(t.obs, t.actions, t.rewards, t.next_obs, t.terminated)
-        self._write(rows, self.ptr[rows], {name: value[rows] for name, value in data.items()})
+        packed = self._pack(t.obs[rows], t.actions[rows], t.rewards[rows], t.next_obs[rows], t.terminated[rows])
+        self._write(rows, self.ptr[rows], packed)
         self.ptr[rows] = (self.ptr[rows] + 1) % self.capacity
         self.size[rows] = np.minimum(self.size[rows] + 1, self.capacity)
 
     def extend(
         self,
-        agent: int,
+        row: int,
         obs: np.ndarray,
         actions: np.ndarray,
         rewards: np.ndarray,
         next_obs: np.ndarray,
         terminated: np.ndarray,
     ) -> None:
-        """Append N transitions (``[N, ...]`` arrays, oldest first) to one agent's buffer.
+        """Append N transitions (``[N, ...]`` arrays, oldest first) to one row's buffer.
 
         This is how experience crosses agents (``transfer.exchange=shared_replay``): an agent's row
         can receive a teammate's transitions. Beyond ``capacity`` only the newest ones are kept.
         """
-        data = _as_fields(obs, actions, rewards, next_obs, terminated)
-        data = {name: value[-self.capacity :] for name, value in data.items()}
-        n = len(data["actions"])
+        packed = self._pack(obs, actions, rewards, next_obs, terminated)[-self.capacity :]
+        n = len(packed)
         if n == 0:
             return
-        cols = (self.ptr[agent] + np.arange(n)) % self.capacity
-        self._write(np.full(n, agent, dtype=np.int64), cols, data)
-        self.ptr[agent] = (self.ptr[agent] + n) % self.capacity
-        self.size[agent] = min(self.size[agent] + n, self.capacity)
+        cols = (self.ptr[row] + np.arange(n)) % self.capacity
+        self._write(np.full(n, row, dtype=np.int64), cols, packed)
+        self.ptr[row] = (self.ptr[row] + n) % self.capacity
+        self.size[row] = min(self.size[row] + n, self.capacity)
 
     def sample(self, batch_size: int) -> ReplayBatch:
-        """``batch_size`` transitions per agent, uniformly (with replacement) from its filled range.
+        """``batch_size`` transitions per row, uniformly (with replacement) from its filled range.
 
-        An empty agent (``size[k] == 0``) gets placeholder rows (slot 0) that its loss must ignore.
+        An empty row (``size[k] == 0``) gets placeholder transitions (slot 0) that its loss must ignore.
         """
         high = np.maximum(self.size, 1)[:, None]
-        cols = self.rng.integers(0, high, size=(self.num_agents, batch_size))
-        # One flat gather per field (row k, slot c is element k * capacity + c of the [K * capacity, ...]
-        # view): much cheaper than indexing with a row tensor and a column tensor.
-        flat = (np.arange(self.num_agents)[:, None] * self.capacity + cols).reshape(-1)
-        flat_t = torch.from_numpy(flat).to(self.device)
-        shape = (self.num_agents, batch_size)
-        return ReplayBatch(*(tensor.flatten(0, 1).index_select(0, flat_t).unflatten(0, shape)
-                             for tensor in self.storage.values()))
+        k = self.rows_per_rng
+        cols = np.concatenate([rng.integers(0, high[r * k : (r + 1) * k], size=(k, batch_size))
+                               for r, rng in enumerate(self.rngs)])
+        # One flat gather (row k, slot c is element k * capacity + c of the [rows * capacity, width] view).
+        flat = (np.arange(self.num_rows)[:, None] * self.capacity + cols).reshape(-1)
+        if self._array is not None:
+            picked = torch.from_numpy(self._array.reshape(-1, self._array.shape[-1])[flat])
+        else:
+            picked = self.storage.flatten(0, 1).index_select(0, torch.from_numpy(flat).to(self.device))
+        picked = picked.view(self.num_rows, batch_size, -1)
+        c = self.columns
+        return ReplayBatch(picked[..., c["obs"]], picked[..., c["actions"]].long(), picked[..., c["rewards"]],
+                           picked[..., c["next_obs"]], picked[..., c["terminated"]])
 
-    def state_dict(self) -> dict[str, np.ndarray]:
-        """Pointers and the filled part of the storage (up to the fullest row), as numpy arrays."""
-        filled = int(self.size.max(initial=0))
+    # ------------------------------------------------------------------------ checkpoints
+    def state_dict(self, rows: slice | None = None) -> dict[str, np.ndarray]:
+        """Pointers and the filled part of the storage of ``rows`` (default all), by field, as numpy arrays."""
+        rows = slice(None) if rows is None else rows
+        size = self.size[rows]
+        filled = int(size.max(initial=0))
+        stored = self.storage[rows, :filled].cpu().numpy()
         # Contiguous copies: safetensors writes an array's raw buffer, and a slice is only a view.
-        arrays = {name: np.ascontiguousarray(t[:, :filled].cpu().numpy()) for name, t in self.storage.items()}
-        arrays["ptr"] = self.ptr.copy()
-        arrays["size"] = self.size.copy()
+        arrays = {name: np.ascontiguousarray(stored[..., self.columns[name]].astype(dtype))
+                  for name, dtype in FIELD_DTYPES.items()}
+        arrays["ptr"] = self.ptr[rows].copy()
+        arrays["size"] = size.copy()
         return arrays
 
-    def load_state_dict(self, arrays: dict[str, np.ndarray]) -> None:
+    def load_state_dict(self, arrays: dict[str, np.ndarray], rows: slice | None = None) -> None:
+        """Load what :meth:`state_dict` gave into ``rows`` (default all); checked before anything is written."""
+        rows = slice(None) if rows is None else rows
+        num_rows = len(range(self.num_rows)[rows])
         size = np.asarray(arrays["size"], dtype=np.int64)
-        if size.shape != (self.num_agents,) or (size > self.capacity).any():
-            raise ValueError(
-                f"replay state holds sizes {size.tolist()}, not valid for {self.num_agents} agents "
-                f"with capacity {self.capacity}"
-            )
+        if size.shape != (num_rows,) or (size > self.capacity).any():
+            raise ValueError(f"replay state holds sizes {size.tolist()}, not valid for {num_rows} agents "
+                             f"with capacity {self.capacity}")
         filled = int(size.max(initial=0))
-        for name, dtype in _FIELDS.items():
-            value = torch.as_tensor(np.asarray(arrays[name]), dtype=dtype)
-            if tuple(value.shape) != self._shape(name, filled):
-                expected = list(self._shape(name, filled))
-                raise ValueError(f"replay array '{name}' has shape {list(value.shape)}, expected {expected}")
-            self.storage[name].zero_()
-            self.storage[name][:, :filled] = value.to(self.device)
-        self.ptr = np.asarray(arrays["ptr"], dtype=np.int64).copy()
-        self.size = size.copy()
+        for name in FIELD_DTYPES:
+            expected = (num_rows, filled, self.obs_dim) if name in ("obs", "next_obs") else (num_rows, filled)
+            if tuple(np.shape(arrays[name])) != expected:
+                raise ValueError(f"replay array '{name}' has shape {list(np.shape(arrays[name]))}, "
+                                 f"expected {list(expected)}")
+        packed = self._pack(*(np.asarray(arrays[name]) for name in ("obs", "actions", "rewards", "next_obs",
+                                                                     "terminated")))
+        self.storage[rows] = 0.0
+        self.storage[rows, :filled] = torch.from_numpy(packed.reshape(num_rows, filled, -1)).to(self.device)
+        self.ptr[rows] = np.asarray(arrays["ptr"], dtype=np.int64)
+        self.size[rows] = size

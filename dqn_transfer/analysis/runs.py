@@ -104,12 +104,17 @@ def _is_hidden_below(path: Path, root: Path) -> bool:
 
 
 def _candidates(path: Path) -> list[Path]:
-    """The run directories ``path`` stands for: itself if it holds ``metrics.jsonl`` or is a Hydra job
-    directory (``.hydra/``); else every such directory below it, naturally sorted (a sweep directory)."""
-    if RunDir(path).has_metrics() or RunDir(path).hydra_dir.is_dir():
+    """The run directories ``path`` stands for: its replicas if it is a run of replicas; itself if it
+    holds ``metrics.jsonl`` or is a Hydra job directory (``.hydra/``); else every such directory below
+    it, naturally sorted (a sweep directory; a run of replicas there stands for its replicas)."""
+    run = RunDir(path)
+    if run.replicas_index.exists():
+        return run.replica_dirs()
+    if run.has_metrics() or run.hydra_dir.is_dir():
         return [path]
     found = {p.parent for name in (METRICS_FILE, HYDRA_DIR) for p in path.rglob(name)}
-    return sorted((d for d in found if not _is_hidden_below(d, path)), key=natural_key)
+    return sorted((d for d in found if not _is_hidden_below(d, path) and not RunDir(d).replicas_index.exists()),
+                  key=natural_key)
 
 
 def _last_error(log_path: Path) -> str | None:

@@ -391,7 +391,7 @@ def _team_table(res: dict[str, Any]) -> list[str]:
 
 UPDATE_LABELS = {
     "bare": "bare PyTorch, nn.Sequential, pre-sampled batch",
-    "bare_batched": "bare PyTorch, our BatchedMLP (K=1) + per-member clip, pre-sampled batch",
+    "in_memory": "ours without the replay sample: DQNLearner.train_on(pre-sampled batch)",
     "ours": "DQNLearner.gradient_step (replay sample + update + per-agent loss/Q stats)",
     "sample": "of which ReplayBuffer.sample",
     "sb3": "SB3 DQN.train, per gradient step (replay sample included)",

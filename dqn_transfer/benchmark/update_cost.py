@@ -3,8 +3,9 @@
 - ``bare``: a CleanRL-style update of an ``nn.Sequential`` (Linear/ReLU) on a batch already in memory
   as tensors: target max under no_grad, gather, Huber loss, backward, ``clip_grad_norm_``, Adam step.
   The floor PyTorch gives for this work.
-- ``bare_batched``: the same on our ``BatchedMLP`` (K = 1) with its per-member clip, batch in memory.
-- ``ours``: ``DQNLearner.gradient_step()``: replay sample + the above + per-agent loss/Q statistics.
+- ``in_memory``: ``DQNLearner.train_on(batch)``, our update (hand-written backward, per-member clip,
+  flat Adam, per-agent loss/Q statistics) on the same batch in memory.
+- ``ours``: ``DQNLearner.gradient_step()``: replay sample + ``in_memory``.
 - ``sample``: ``ReplayBuffer.sample`` alone (part of ``ours``).
 - ``sb3``: SB3's ``DQN.train``, per gradient step (its replay sample included).
 
@@ -25,13 +26,13 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from dqn_transfer.agents import BatchedMLP, DQNLearner, ReplayBatch, Transition, dqn_targets
+from dqn_transfer.agents import DQNLearner, ReplayBatch, Transition, dqn_targets
 from dqn_transfer.benchmark.config import BENCH_AGENT, SOURCE_MAP, replay_warmup, sb3_dqn
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.envs import make_game
 from dqn_transfer.timing import Stopwatch
 
-UPDATE_NAMES = ("bare", "bare_batched", "ours", "sample", "sb3")
+UPDATE_NAMES = ("bare", "in_memory", "ours", "sample", "sb3")
 THREAD_NAMES = ("bare", "ours")  # also timed at torch's default thread count
 
 
@@ -95,24 +96,16 @@ class UpdateRig:
         self.q_target = copy.deepcopy(self.q).requires_grad_(False)
         self.optimizer = torch.optim.Adam(self.q.parameters(), lr=agent.lr)
 
-        self.bq = BatchedMLP(1, game.obs_dim, agent.hidden, game.num_actions, torch.Generator().manual_seed(seed))
-        self.bq_target = copy.deepcopy(self.bq).requires_grad_(False)
-        self.b_optimizer = torch.optim.Adam(self.bq.parameters(), lr=agent.lr)
-
     def bare_update(self) -> None:
         td_update(self.q, self.q_target, self.optimizer,
                   lambda: nn.utils.clip_grad_norm_(self.q.parameters(), self.agent.max_grad_norm),
                   self.flat_batch, self.agent.gamma)
 
-    def bare_batched_update(self) -> None:
-        td_update(self.bq, self.bq_target, self.b_optimizer, lambda: self.bq.clip_grad_norm_(self.agent.max_grad_norm),
-                  self.batch, self.agent.gamma)
-
     def time(self, which: str, updates: int, max_seconds: float | None = None) -> tuple[float, float]:
-        """(wall, CPU) microseconds per update of ``which`` in (bare, bare_batched, ours, sample)."""
+        """(wall, CPU) microseconds per update of ``which`` in (bare, in_memory, ours, sample)."""
         fn = {
             "bare": self.bare_update,
-            "bare_batched": self.bare_batched_update,
+            "in_memory": lambda: self.learner.train_on(self.batch),
             "ours": self.learner.gradient_step,
             "sample": lambda: self.learner.replay.sample(self.agent.batch_size),
         }[which]

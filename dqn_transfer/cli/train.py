@@ -4,7 +4,7 @@ It refuses keys outside the schema before Hydra composes anything, claims the ru
 exclusive lock; never a directory that holds another run), takes the run's own saved config on
 ``resume=true``, finds or pretrains the transfer source, and trains. A user's mistake ends in one
 ``error:`` line and exit code 1, never a traceback, and leaves nothing behind that was not there
-before. SIGINT / SIGTERM stop the run at the next episode end with a checkpoint (exit 130 / 143).
+before. SIGINT / SIGTERM stop the run after the step in progress, with a checkpoint (exit 130 / 143).
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ from __future__ import annotations
 import difflib
 import logging
 import math
+import shutil
 import sys
 import warnings
 from dataclasses import fields, is_dataclass
@@ -32,7 +33,7 @@ from omegaconf.errors import OmegaConfBaseException
 from dqn_transfer.checkpoint import CheckpointError, load_training_state
 from dqn_transfer.config import CONFIG_DIR, SB3_NAMES, ConfigError, TrainConfig, register_configs, validate
 from dqn_transfer.run_dir import RunClaim, RunDir, RunDirError
-from dqn_transfer.sources import transfer_source
+from dqn_transfer.sources import transfer_sources
 from dqn_transfer.trainer import Interrupted, train
 from dqn_transfer.transfer_mapping import TransferError
 
@@ -97,12 +98,14 @@ def check_group_option(group: str, override) -> None:
 # ------------------------------------------------------------------------------------ the run directory
 
 class ClaimRunDir(Callback):
-    """Hydra callback: claim the run directory *before* Hydra writes its ``.hydra/`` record there —
+    """Hydra callback: claim the run directory *before* Hydra writes its ``.hydra/`` record there (a
+    multirun job's: just after) —
     refuse a directory in use by another process, or holding another run (unless resuming it), or
     under a regular file. The claim is kept for the app (``ClaimRunDir.claim``), which undoes it when
     the run is refused."""
 
     claim: RunClaim | None = None
+    requeued = False  # this multirun job's directory holds its own earlier attempt's checkpoint
 
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
         self._take(RunDir(config.hydra.run.dir), resume=config.resume, fresh=False)
@@ -115,8 +118,21 @@ class ClaimRunDir(Callback):
                                    f"{', ...' if len(used) > 5 else ''}); choose another hydra.sweep.dir"))
 
     def on_job_start(self, config: DictConfig, **kwargs: Any) -> None:
-        if config.hydra.mode == RunMode.MULTIRUN:  # Hydra has just made this job's directory
-            self._take(RunDir(config.hydra.runtime.output_dir), resume=config.resume, fresh=True)
+        if config.hydra.mode != RunMode.MULTIRUN:
+            return
+        # Hydra has just made this job's directory and written its .hydra/ record and log there. A sweep
+        # directory that holds runs is refused before any job starts, so a job directory that holds
+        # more holds this very job's earlier attempt, stopped and requeued (submitit does so on a
+        # SLURM preemption or timeout). With a checkpoint it is continued from there; without one,
+        # what it left (evaluations, events) is cleared and the job starts afresh.
+        run = RunDir(config.hydra.runtime.output_dir)
+        requeued = run.has_run()
+        if not requeued:
+            for leftover in (run.tensorboard, run.checkpoints, run.replicas_index, run.metrics,
+                             *run.replica_dirs()):
+                shutil.rmtree(leftover) if leftover.is_dir() else leftover.unlink(missing_ok=True)
+        ClaimRunDir.requeued = requeued
+        self._take(run, resume=config.resume or requeued, fresh=not requeued)
 
     @classmethod
     def _take(cls, run: RunDir, resume: bool, fresh: bool) -> None:
@@ -224,14 +240,16 @@ def app(cfg: DictConfig) -> float:
     run = RunDir(hydra_config.runtime.output_dir)
     claim = ClaimRunDir.claim
     try:
-        if cfg.resume and run.has_run():
+        if (cfg.resume or ClaimRunDir.requeued) and run.has_run():
+            if ClaimRunDir.requeued:
+                log.info("this job ran before and was stopped (requeued): resuming it from its last checkpoint")
             config = resume_config(run, cfg, hydra_config.overrides.task)
         else:
             config = OmegaConf.to_object(cfg)
         validate(config)
         log.info("run directory: %s", run)  # before a transfer source's pretraining, which can take minutes
-        source = transfer_source(config, Path(get_original_cwd()))
-        summary = train(config, run.path, source=source)
+        sources = transfer_sources(config, Path(get_original_cwd()))
+        summary = train(config, run.path, sources=sources)
     except USER_ERRORS as err:
         report_user_error(err)
         leave_nothing_behind(claim)  # a refused run

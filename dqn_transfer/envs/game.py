@@ -28,8 +28,10 @@ Choices the specification leaves open, made here:
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import fields
 from enum import Enum
+from typing import Any
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -140,6 +142,30 @@ def assign_agents(cost: np.ndarray) -> np.ndarray:
             fixed_cost += int(cost[agent, current[agent]])
             free_cols.remove(int(current[agent]))
     return current
+
+
+def _state_array(
+    state: Mapping[str, Any], key: str, shape: tuple[int, ...], kinds: str, game: str
+) -> np.ndarray:
+    """``state[key]`` as an array of ``shape`` and dtype kind in ``kinds``, else ``ValueError``."""
+    try:
+        value = np.asarray(state[key])
+    except ValueError:  # ragged nested lists
+        raise ValueError(f"game state {key!r} is ragged, expected shape {shape}: {game}") from None
+    if value.shape != shape:
+        raise ValueError(f"game state {key!r} has shape {value.shape}, expected {shape}: {game}")
+    if value.size and value.dtype.kind not in kinds:
+        wanted = {"b": "booleans", "iu": "integers", "fiu": "numbers"}[kinds]
+        raise ValueError(f"game state {key!r} must hold {wanted}, got dtype {value.dtype}")
+    return value
+
+
+def _state_int(state: Mapping[str, Any], key: str, high: int) -> int:
+    value = state[key]
+    integer = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+    if not integer or not 0 <= value <= high:
+        raise ValueError(f"game state {key!r} must be an integer in 0..{high}, got {value!r}")
+    return int(value)
 
 
 class TreasureHuntGame:
@@ -306,6 +332,76 @@ class TreasureHuntGame:
     @property
     def steps(self) -> int:
         return self._t
+
+    # ------------------------------------------------------------------ checkpointing
+    def state_dict(self) -> dict[str, Any]:
+        """The in-progress episode as JSON-able plain values, for checkpoints taken mid-episode.
+
+        The tie generator is not in it: it is the caller's (passed to :meth:`reset`), and the caller
+        saves its state along with this.
+        """
+        return {
+            "pos": self._pos.tolist(),
+            "live": self._live.tolist(),
+            "chest_full": self._chest_full.tolist(),
+            "belief": self._belief[:, : self.num_treasures].tolist(),  # column k is a constant 0
+            "assigned": self._assigned.tolist(),
+            "obs": self._obs.tolist(),  # float32 -> exact Python floats: round-trips bit-exactly
+            "t": self._t,
+            "treasures_collected": self.treasures_collected,
+        }
+
+    def load_state_dict(self, state: Mapping[str, Any], rng: np.random.Generator) -> np.ndarray:
+        """Resume the episode of a :meth:`state_dict`, returning the current observation; ``rng``
+        draws the later ties, as in :meth:`reset`.
+
+        Everything is checked before anything is assigned, so a state that does not fit this game
+        (another map or rules) raises ``ValueError`` and leaves the game as it was.
+        """
+        agents, k, cells = self.num_agents, self.num_treasures, self.size**2
+        game = (f"this game has {agents} agents, {k} chests, obs_dim {self.obs_dim} "
+                f"on a {self.size} x {self.size} grid")
+        if not isinstance(state, Mapping):
+            raise ValueError(f"game state must be a mapping, got {type(state).__name__}")
+        keys = {"pos", "live", "chest_full", "belief", "assigned", "obs", "t",
+                "treasures_collected"}
+        if set(state) != keys:
+            missing, unknown = sorted(keys - set(state)), sorted(map(str, set(state) - keys))
+            raise ValueError(f"game state keys do not match: missing {missing}, unknown {unknown}")
+        pos = _state_array(state, "pos", (agents,), "iu", game)
+        live = _state_array(state, "live", (agents,), "b", game)
+        chest_full = _state_array(state, "chest_full", (k,), "b", game)
+        belief = _state_array(state, "belief", (agents, k), "fiu", game)
+        assigned = _state_array(state, "assigned", (agents,), "iu", game)
+        obs = _state_array(state, "obs", (agents, self.obs_dim), "fiu", game)
+        t = _state_int(state, "t", self.max_steps)
+        collected = _state_int(state, "treasures_collected", k)
+        outside = np.flatnonzero((pos < 0) | (pos >= cells))
+        if outside.size:
+            raise ValueError(f"game state 'pos' puts agent {int(outside[0])} at cell "
+                             f"{int(pos[outside[0]])}, outside the {self.size} x {self.size} grid")
+        cells_at = [divmod(cell, self.size) for cell in pos.tolist()]
+        blocked = [a for a, cell in enumerate(cells_at) if cell in self.map.obstacles]
+        if blocked:
+            raise ValueError(f"game state 'pos' puts agent {blocked[0]} on an obstacle of this map")
+        if ((assigned < -1) | (assigned >= k)).any():
+            raise ValueError(
+                f"game state 'assigned' holds {assigned.tolist()}: chests are -1..{k - 1} here"
+            )
+        for name, value in (("belief", belief), ("obs", obs)):
+            if not np.array_equal(value.astype(np.float32), value):  # also rejects nan
+                raise ValueError(f"game state {name!r} holds values that are not float32 numbers")
+        self._rng = rng
+        self._pos[:] = pos
+        self._live[:] = live
+        self._live_idx = np.flatnonzero(self._live)
+        self._chest_full[:] = chest_full
+        self._belief[:, :k] = belief
+        self._assigned[:] = assigned
+        self._obs[:] = obs
+        self._t = t
+        self.treasures_collected = collected
+        return self._obs.copy()
 
     # ------------------------------------------------------------------ dynamics
     def reset(self, rng: np.random.Generator) -> np.ndarray:
