@@ -69,6 +69,12 @@ class BatchedMLP(nn.Module):
         data = self.flat.detach()
         self.tensors = [data[a:b].view(shape) for (a, b), shape in zip(self.spans, self.shapes)]
         self.grads = [self.flat_grad[a:b].view(shape) for (a, b), shape in zip(self.spans, self.shapes)]
+        # For the per-member clip: squared gradients, each tensor's as [M, numel / M], and which member
+        # every element of the flat buffer belongs to.
+        self._squares = torch.zeros(offset, device=device)
+        self._squares_by_member = [self._squares[a:b].view(num_members, -1) for a, b in self.spans]
+        self._member_of = torch.cat([torch.arange(num_members, device=device).repeat_interleave(math.prod(shape[1:]))
+                                     for shape in self.shapes])
         # Per layer: the weight and the bias as a [M, 1, out] row to broadcast over the batch.
         self._affine = [(self.tensors[2 * l], self.tensors[2 * l + 1].unsqueeze(1)) for l in range(self.num_layers)]
         if generators:
@@ -212,17 +218,19 @@ class BatchedMLP(nn.Module):
         The norms are nan when the gradients are so small that nobody is clipped (CPU).
         """
         layers = range(self.num_layers) if layers is None else sorted(layers)
-        grads = [g for l in layers for g in self.grads[2 * l : 2 * l + 2]]
-        if not grads:
+        tensors = [2 * l + kind for l in layers for kind in (0, 1)]
+        if not tensors:
             return torch.zeros(self.num_members)
         if self.flat.device.type == "cpu" and float(self.flat_grad.norm()) < 0.99 * max_norm:
             # No member's norm can exceed the norm of all gradients together (the 1 % margin covers
             # rounding): nobody is clipped, and the exact per-member norms are not needed.
             return torch.full((self.num_members,), math.nan)
-        norms = torch.stack([g.flatten(1).pow(2).sum(1) for g in grads]).sum(0).sqrt()
+        # clip_grad_norm_'s arithmetic per member: the sum of each tensor's squares, then over tensors.
+        torch.mul(self.flat_grad, self.flat_grad, out=self._squares)
+        norms = torch.stack([self._squares_by_member[i].sum(1) for i in tensors]).sum(0).sqrt()
         scale = (max_norm / (norms + 1e-6)).clamp(max=1.0)
-        # A factor of exactly 1 changes nothing: skip the multiplications when nobody is clipped.
+        # A factor of exactly 1 changes nothing: skip the multiplication when nobody is clipped.
         if self.flat.device.type != "cpu" or bool((scale < 1.0).any()):
-            for g in grads:
-                g.mul_(scale.view(-1, *([1] * (g.dim() - 1))))
+            # Untrained tensors' gradients are zero and stay zero.
+            self.flat_grad.mul_(scale[self._member_of])
         return norms
