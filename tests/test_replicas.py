@@ -155,12 +155,17 @@ def test_replicas_of_maps_need_a_generated_map():
 
 
 @pytest.mark.slow
-def test_the_command_line_runs_replicas_and_refuses_map_replicas_of_a_layout(tmp_path):
+def test_the_command_line_runs_and_resumes_replicas_and_refuses_map_replicas_of_a_layout(tmp_path):
     result = run_train(tmp_path, "agent=sarsa", "replicas.seeds=2", "total_steps=200", "eval_every=100")
     for seed in (0, 1):
         replica = result.run_dir / f"seed_{seed}"
         assert [m["step"] for m in read_metrics(replica)] == [0, 100, 200]
         assert (replica / "checkpoints" / "training_state.safetensors").exists() and (replica / "tb").is_dir()
+    run_train(tmp_path, "resume=true", "total_steps=300", run_dir=result.run_dir)  # the batch's own config
+    for seed in (0, 1):
+        replica = result.run_dir / f"seed_{seed}"
+        assert [m["step"] for m in read_metrics(replica)] == [0, 100, 200, 300]
+        assert load_config(replica)["agent"]["algorithm"] == "sarsa"
     refused = run_train(tmp_path, "replicas.maps=2", "env.layout=0.T", run_dir=tmp_path / "refused", check=False)
     assert refused.returncode == 1 and "Traceback" not in refused.output
     assert "replicas.maps=2 needs a generated map" in refused.stderr

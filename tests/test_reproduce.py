@@ -289,9 +289,9 @@ def _compose(*overrides: str, hydra: bool = False):
 
 
 @pytest.mark.parametrize("experiment, algorithm, size, treasures, swept", [
-    ("fig1", Algorithm.sarsa, 6, 1, {"mode", "seed"}),
-    ("fig2", Algorithm.sarsa, 10, 4, {"mode", "env.num_agents", "seed"}),
-    ("transfer", Algorithm.double_dqn, 6, 2, {"transfer", "seed"}),
+    ("fig1", Algorithm.sarsa, 6, 1, {"mode"}),
+    ("fig2", Algorithm.sarsa, 10, 4, {"mode", "env.num_agents"}),
+    ("transfer", Algorithm.double_dqn, 6, 2, {"transfer"}),
 ])
 def test_experiment_configs_compose(experiment, algorithm, size, treasures, swept):
     cfg = _compose(f"experiment={experiment}", hydra=True)
@@ -301,6 +301,7 @@ def test_experiment_configs_compose(experiment, algorithm, size, treasures, swep
     assert config.agent.algorithm.value == algorithm.value  # an enum member, not a string
     assert config.env.size == size and config.env.num_treasures == treasures
     assert config.progress is False and config.total_steps > config.eval_every
+    assert config.replicas.seeds >= 10  # the seeds are replicas inside each job
     validate(config)
     # every point of the sweep composes too (one job per value, the others at their first value)
     for key, values in cfg.hydra.sweeper.params.items():
@@ -320,7 +321,8 @@ def test_profiles_seed_counts_and_job_counts(tmp_path):
     assert all(n >= 10 for n in PROFILES["full"].seeds.values())
     assert all(2 <= n <= 3 for n in PROFILES["quick"].seeds.values())
     overrides = sweep_overrides("fig2", "quick", tmp_path)
-    assert count_jobs("fig2", overrides) == 3 * 4 * PROFILES["quick"].seeds["fig2"]
+    assert count_jobs("fig2", overrides) == 3 * 4  # one job per condition, its seeds as replicas
+    assert f"replicas.seeds={PROFILES['quick'].seeds['fig2']}" in overrides
     assert (tmp_path / "maps" / "fig2_m4.txt").exists()
     overrides = sweep_overrides("transfer", "full", tmp_path)
-    assert count_jobs("transfer", overrides) == 2 * 2 * PROFILES["full"].seeds["transfer"]
+    assert count_jobs("transfer", overrides) == 2 * 2

@@ -10,6 +10,7 @@ before. SIGINT / SIGTERM stop the run after the step in progress, with a checkpo
 from __future__ import annotations
 
 import difflib
+import json
 import logging
 import math
 import shutil
@@ -157,11 +158,15 @@ def resume_config(run: RunDir, cfg: DictConfig, overrides: list[str]) -> TrainCo
     ``resume=true hydra.run.dir=DIR`` alone continues the run as it was configured; an override that
     would change what is being learned (``agent.lr=...``, ``agent=sarsa``) is refused by name.
     """
-    _, meta = load_training_state(run.training_state)
+    # A run of replicas keeps the batch's config in its index; a lone run in its resume state.
+    if run.replicas_index.exists():
+        source, meta = run.replicas_index, json.loads(run.replicas_index.read_text())
+    else:
+        source, (_, meta) = run.training_state, load_training_state(run.training_state)
     try:
         saved = OmegaConf.merge(OmegaConf.structured(TrainConfig), meta["config"])
     except (KeyError, OmegaConfBaseException) as err:
-        raise ConfigError(f"{run.training_state}: its saved config does not fit this version of dqn_transfer "
+        raise ConfigError(f"{source}: its saved config does not fit this version of dqn_transfer "
                           f"({err})") from None
     for override in overrides:
         key = override.split("=", 1)[0].lstrip("+~")

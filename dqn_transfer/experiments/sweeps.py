@@ -1,9 +1,10 @@
 """Running the study's experiments: one Hydra multirun per experiment, into ``OUT/<name>/``.
 
 Each experiment is ``python -m dqn_transfer.cli.train -m experiment=<name>`` (``conf/experiment/``)
-in a subprocess, with the profile's overrides; ``--launcher joblib`` (the default, from the ``sweep``
-extra; without it, Hydra's basic launcher) runs ``--n-jobs`` jobs at a time, ``submitit_slurm`` one
-SLURM job per run. The ``full`` profile uses the experiment files' own step counts; ``quick`` shrinks
+in a subprocess, with the profile's overrides: one job per condition, its seeds batched inside the
+job as replicas (``replicas.seeds``, one run directory each); ``--launcher joblib`` (the default, from
+the ``sweep`` extra; without it, Hydra's basic launcher) runs ``--n-jobs`` jobs at a time,
+``submitit_slurm`` one SLURM job per condition. The ``full`` profile uses the experiment files' own step counts; ``quick`` shrinks
 them and the seeds.
 
 A sweep directory already complete for the same settings is reused (so a failed report or a second
@@ -85,7 +86,7 @@ def _quote(value: str | Path) -> str:
 def sweep_overrides(name: str, profile: str, out: Path) -> list[str]:
     """The command-line overrides of one experiment's multirun (they replace the file's sweep keys)."""
     prof = PROFILES[profile]
-    seeds = [f"seed=range(0,{prof.seeds[name]})"]
+    seeds = [f"replicas.seeds={prof.seeds[name]}"]  # seeds 0..N-1, as replicas inside each job
     if name == "fig1":
         sweep = [f"mode={Mode.competitive.value},{Mode.cooperative.value}"]
     elif name == "fig2":
@@ -154,7 +155,10 @@ def launcher_overrides(launcher: str, n_jobs: int) -> list[str]:
 
 
 def run_is_complete(run_dir: Path) -> bool:
-    """The run evaluated at its last step (the trainer's final act before its last checkpoint)."""
+    """The run (every replica of a run of replicas) evaluated at its last step."""
+    replicas = RunDir(run_dir).replica_dirs()
+    if replicas:
+        return all(run_is_complete(replica) for replica in replicas)
     config = load_config(run_dir)
     if config is None or not RunDir(run_dir).has_metrics():
         return False
