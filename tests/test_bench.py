@@ -2,7 +2,9 @@
 
 No timing assertions (the machine may be shared): the tests pin what each measurement counts and
 subtracts, that both contenders get the same hyperparameters and play the same episodes, how figures
-are summarised, what the table holds and how the command line refuses bad input.
+are summarised, what the table holds and how the command line refuses bad input. The whole-process
+sections (5, 6) start real processes at tiny sizes and check what they did (steps, gradient steps,
+replica directories), never how fast.
 """
 
 from __future__ import annotations
@@ -10,23 +12,27 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import sys
 
 import gymnasium
 import numpy as np
 import pytest
 import torch
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
 from torch import nn
 
 from dqn_transfer.agents import DQNLearner, make_learner
-from dqn_transfer.benchmark import suite
-from dqn_transfer.benchmark.config import (BENCH_AGENT, SB3_NAMES, SOURCE_MAP, replay_warmup, sb3_dqn,
-                                           sb3_kwargs)
+from dqn_transfer.benchmark import processes, suite, whole_process
+from dqn_transfer.benchmark.config import (BENCH_AGENT, BENCH_MAP, LONE_AGENT, LONE_MAP, SB3_NAMES, SOURCE_MAP,
+                                           TEAM_MAP, replay_warmup, sb3_dqn, sb3_kwargs)
 from dqn_transfer.benchmark.env_throughput import measure_env_throughput
 from dqn_transfer.benchmark.team_scaling import TeamRig
 from dqn_transfer.benchmark.training import greedy_check, measure_ours_training, measure_sb3_training
 from dqn_transfer.benchmark.update_cost import SB3UpdateRig, UpdateRig
 from dqn_transfer.cli import bench as cli
-from dqn_transfer.config import AgentConfig
+from dqn_transfer.cli.train import check_overrides
+from dqn_transfer.config import CONFIG_DIR, AgentConfig, TrainConfig, register_configs
 from dqn_transfer.enums import Algorithm
 from dqn_transfer.envs import make_game
 
@@ -35,6 +41,16 @@ TINY = dataclasses.replace(BENCH_AGENT, batch_size=8, buffer_size=200, learning_
 TINY_MAP = {**SOURCE_MAP, "max_steps": 10}
 TINY_SIZES = suite.Sizes(env_steps=20, train_steps=30, team_steps=2, updates=2, eval_episodes=1, thread_cap_s=0.05)
 TRAIN_STEPS = 40
+IN_PROCESS = ("env", "training", "team", "update")
+# Sections 5 and 6: 1,100 steps is 25 gradient steps after LONE_AGENT's learning_starts of 1,000; 60 steps
+# with learning_starts 20 is 10.
+PROCESS_SIZES = dataclasses.replace(TINY_SIZES, lone_steps=1_100, replica_steps=60, replica_counts=(1, 2),
+                                    replica_learning_starts=20)
+
+
+def gradient_steps(steps: int, learning_starts: int, train_freq: int) -> int:
+    """Updates of a run of ``steps`` env steps: at every step > learning_starts divisible by train_freq."""
+    return steps // train_freq - learning_starts // train_freq
 
 
 # ----------------------------------------------------------------------------- matched hyperparameters
@@ -183,10 +199,148 @@ def test_sb3_update_rig_fills_replay_without_training_then_times_train():
     assert rig.model._n_updates == 1 + 2
 
 
+# ----------------------------------------------------------------------------- 5. and 6. whole processes
+def compose_train_command(command: list[str]) -> TrainConfig:
+    """The config ``python -m dqn_transfer.cli.train`` composes from ``command``'s overrides."""
+    assert command[:3] == [sys.executable, "-m", "dqn_transfer.cli.train"]
+    overrides = command[3:]
+    check_overrides(overrides)  # every key is in the schema (else ConfigError)
+    register_configs()
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=[o for o in overrides if not o.startswith("hydra.")])
+    return OmegaConf.to_object(cfg)
+
+
+def test_our_lone_process_gets_exactly_the_lone_settings(tmp_path):
+    command = whole_process.train_command(tmp_path / "run", 2_000, 3, LONE_AGENT, {**LONE_MAP, "num_agents": 1})
+    # The settings the benchmark promises, spelt as on a command line.
+    for override in ("env.size=7", "env.num_treasures=1", "env.num_traps=1", "env.complexity=0.15", "env.map_seed=3",
+                     "env.num_agents=1", "agent=dqn", "agent.hidden=[64,64]", "agent.batch_size=32",
+                     "agent.train_freq=4", "agent.gradient_steps=1", "agent.target_update=1000", "agent.tau=1.0",
+                     "agent.buffer_size=50000", "agent.lr=0.0001", "agent.learning_starts=1000", "total_steps=2000",
+                     "eval_every=2000", "eval_episodes=1", "checkpoint_every=2000", "progress=false", "threads=1",
+                     f"hydra.run.dir={tmp_path / 'run'}"):
+        assert override in command, override
+    config = compose_train_command(command)
+    assert config.agent == LONE_AGENT  # every key, the unlisted ones (gamma, epsilon, clip) included
+    assert {key: getattr(config.env, key) for key in LONE_MAP} == LONE_MAP and config.env.num_agents == 1
+    assert (config.seed, config.total_steps, config.threads, config.replicas.seeds) == (3, 2_000, 1, 1)
+    # SB3 and bare get the same values (SB3 under its own names).
+    assert sb3_kwargs(LONE_AGENT)["learning_rate"] == 1e-4 and sb3_kwargs(LONE_AGENT)["target_update_interval"] == 1_000
+
+
+def test_our_replicas_process_is_a_cooperative_team_of_four_on_the_bench_map(tmp_path):
+    agent = dataclasses.replace(LONE_AGENT, learning_starts=500)
+    command = whole_process.train_command(tmp_path / "run", 300, 0, agent, TEAM_MAP, threads=2, replicas=16)
+    config = compose_train_command(command)
+    assert config.agent == agent
+    assert {key: getattr(config.env, key) for key in BENCH_MAP} == BENCH_MAP
+    assert (config.env.num_agents, config.env.mode.value) == (4, "cooperative")
+    assert (config.replicas.seeds, config.replicas.maps, config.threads) == (16, 1, 2)
+
+
+@pytest.mark.parametrize("program", ["sb3", "bare"])
+def test_reference_programs_train_on_schedule(program):
+    agent = dataclasses.replace(LONE_AGENT, learning_starts=20, buffer_size=100)
+    report = processes.PROGRAMS[program](60, 0, agent, LONE_MAP)
+    assert report["steps"] == 60
+    assert report["gradient_steps"] == gradient_steps(60, 20, LONE_AGENT.train_freq) == 10
+    assert report["episodes"] >= 1  # 49-step episodes at most on the 7 x 7 map
+
+
+def test_the_bare_loop_decays_epsilon_as_cleanrl_does():
+    assert processes.linear_schedule(1.0, 0.05, 100, 0) == 1.0
+    assert processes.linear_schedule(1.0, 0.05, 100, 50) == pytest.approx(0.525)
+    assert processes.linear_schedule(1.0, 0.05, 100, 500) == 0.05
+
+
+def test_run_together_times_each_process_and_reads_its_last_line():
+    script = "import json, time; time.sleep({}); print('log line'); print(json.dumps({{'slept': {}}}))"
+    out = whole_process.run_together([[sys.executable, "-c", script.format(0.2, 0.2)],
+                                      [sys.executable, "-c", script.format(0.4, 0.4)]])
+    assert [p["report"] for p in out["processes"]] == [{"slept": 0.2}, {"slept": 0.4}]
+    assert out["seconds"] >= max(p["seconds"] for p in out["processes"])  # first spawn to last exit
+    assert out["cpu_seconds"] == pytest.approx(sum(p["cpu_seconds"] for p in out["processes"]))
+    assert all(p["cpu_seconds"] > 0 and p["max_rss_mb"] > 1 for p in out["processes"])  # the child's, via wait4
+    with pytest.raises(whole_process.ProcessFailed, match="exited with 3:\nno good"):
+        whole_process.run_together([[sys.executable, "-c", "import sys; print('no good', file=sys.stderr); sys.exit(3)"]])
+
+
+def test_processes_command_line_prints_what_it_did(capsys):
+    threads = torch.get_num_threads()
+    try:
+        assert processes.main(["bare", "--steps", "30", "--seed", "1", "--map", "bench", "--learning-starts", "10"]) == 0
+    finally:
+        torch.set_num_threads(threads)  # main sets one thread, as its own process would
+    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert set(report) == {"program", "steps", "gradient_steps", "episodes"}
+    assert (report["program"], report["steps"], report["gradient_steps"]) == ("bare", 30, gradient_steps(30, 10, 4))
+
+
+@pytest.fixture(scope="module")
+def process_document():
+    return suite.run_benchmark("quick", 0, 1, 1, sizes=PROCESS_SIZES, sections=("lone", "replicas"),
+                               progress=lambda what: None)
+
+
+@pytest.mark.slow
+def test_lone_section_runs_three_whole_processes_that_train(process_document):
+    lone = process_document["lone"]
+    assert set(lone["raw"]) == {"ours", "sb3", "bare"} and lone["steps"] == PROCESS_SIZES.lone_steps
+    expected = gradient_steps(PROCESS_SIZES.lone_steps, LONE_AGENT.learning_starts, LONE_AGENT.train_freq)
+    for who, runs in lone["raw"].items():
+        assert len(runs) == 1
+        assert runs[0]["steps_done"] == PROCESS_SIZES.lone_steps, who
+        assert runs[0]["gradient_steps"] == expected == 25, who
+        assert runs[0]["cpu_seconds"] > 0 and runs[0]["max_rss_mb"] > 0
+    assert lone["contenders"]["ours"]["ours_over_this"] == 1.0
+    assert lone["ours_over_sb3"] == lone["contenders"]["sb3"]["ours_over_this"]
+    assert lone["hyperparameters"] == {**dataclasses.asdict(LONE_AGENT), "algorithm": "dqn"}
+    assert len(lone["loadavg_start"]) == len(lone["loadavg_end"]) == 3
+
+
+@pytest.mark.slow
+def test_replicas_section_runs_one_process_of_r_replicas_and_sb3_side_by_side(process_document):
+    rep = process_document["replicas"]
+    cores = process_document["machine"]["cpus_available"]
+    expected = gradient_steps(PROCESS_SIZES.replica_steps, PROCESS_SIZES.replica_learning_starts, 4)
+    assert [row["replicas"] for row in rep["rows"]] == [1, 2]
+    for row in rep["rows"]:
+        run = row["raw"][0]
+        assert row["learners"] == run["learners"] == 4 * row["replicas"]
+        assert run["replica_dirs"] == row["replicas"]  # R=2: seed_0/ and seed_1/, each a complete run
+        assert run["replica_steps"] == [PROCESS_SIZES.replica_steps] * row["replicas"]
+        assert run["gradient_steps"] == expected == 10
+        assert run["threads"] == cores
+        assert run["learner_steps_per_s"] == pytest.approx(4 * row["replicas"] * rep["steps"] / run["seconds"])
+    sb3 = rep["sb3"]["raw"][0]
+    assert sb3["processes"] == rep["sb3_processes"] == cores
+    assert sb3["process_steps"] == [rep["steps"]] * cores and sb3["gradient_steps"] == [expected] * cores
+    assert sb3["learner_steps_per_s"] == pytest.approx(cores * rep["steps"] / sb3["seconds"])
+    assert sb3["seconds"] >= max(sb3["process_seconds"])  # until the last one exits
+    assert rep["hyperparameters"]["learning_starts"] == PROCESS_SIZES.replica_learning_starts
+    assert process_document["settings"]["replica_counts"] == [1, 2]
+    assert json.loads(json.dumps(process_document)) == process_document
+
+
+@pytest.mark.slow
+def test_tables_of_the_whole_process_sections(process_document):
+    table = suite.render_markdown(process_document)
+    assert [line.split()[1] for line in table.splitlines() if line.startswith("## ")] == ["5.", "6."]
+    assert [row.split(":")[0] for row in table_rows(table, "## 5.")] == ["ours", "SB3", "bare PyTorch"]
+    assert table_rows(table, "## 6.") == ["1", "2"]
+    for heading in ("## 5.", "## 6."):
+        part = table.split(heading, 1)[1].split("\n## ", 1)[0]
+        assert process_document["machine"]["cpu_model"] in part
+        assert "at the start of this section" in part and "at its end" in part
+        assert "Settings:" in part and "batch 32" in part and "lr 0.0001" in part
+
+
 # ----------------------------------------------------------------------------- the document and its table
 @pytest.fixture(scope="module")
 def document():
-    return suite.run_benchmark("quick", 0, 1, 1, sizes=TINY_SIZES, agent=TINY, progress=lambda what: None)
+    return suite.run_benchmark("quick", 0, 1, 1, sizes=TINY_SIZES, agent=TINY, sections=IN_PROCESS,
+                               progress=lambda what: None)
 
 
 def table_rows(table: str, heading: str) -> list[str]:
@@ -233,8 +387,29 @@ def test_cli_prints_the_table_and_writes_the_document(tmp_path, monkeypatch, cap
     assert "env throughput" in stderr and f"wrote {out}" in stderr
 
 
+def test_cli_profile_and_sections_choose_what_is_measured(tmp_path, monkeypatch, capsys):
+    calls = []
+
+    def fake_run(profile, seed, repeats, threads, sections):
+        calls.append((profile, list(sections)))
+        return suite.run_benchmark(profile, seed, repeats, threads, sizes=TINY_SIZES, sections=["env"],
+                                   progress=lambda what: None)
+
+    monkeypatch.setattr(cli, "run_benchmark", fake_run)
+    out = str(tmp_path / "bench.json")
+    for argv in (["--profile", "quick", "--sections", "replicas,lone"], ["--quick", "--only", "lone", "--only",
+                                                                         "replicas"]):
+        assert cli.main([*argv, "--repeats", "1", "--out", out]) == 0
+    assert cli.main(["--sections", "update, env", "--only", "lone", "--out", out]) == 0
+    assert cli.main(["--out", out]) == 0
+    assert calls == [("quick", ["lone", "replicas"]), ("quick", ["lone", "replicas"]),
+                     ("full", ["env", "update", "lone"]), ("full", list(suite.SECTIONS))]
+    capsys.readouterr()
+
+
 @pytest.mark.parametrize("argv", [["--repeats", "0"], ["--threads", "x"], ["--seed", "1.5"], ["--bogus"],
-                                  ["--only", "everything"]])
+                                  ["--only", "everything"], ["--sections", "lone,bogus"], ["--sections", ","],
+                                  ["--profile", "tiny"]])
 def test_bad_arguments_are_argparse_errors(argv, capsys):
     with pytest.raises(SystemExit) as excinfo:
         cli.main(argv)

@@ -68,10 +68,16 @@ class ReplayBuffer:
         d = obs_dim
         self.columns = {"obs": slice(0, d), "next_obs": slice(d, 2 * d), "rewards": 2 * d, "actions": 2 * d + 1,
                         "terminated": 2 * d + 2}
-        self.storage = torch.zeros((num_rows, capacity, 2 * d + 3), dtype=torch.float32, device=self.device)
-        # CPU: written and gathered through a numpy view of the same memory, a fraction of torch's
-        # per-call indexing cost.
-        self._array = self.storage.numpy() if self.device.type == "cpu" else None
+        shape = (num_rows, capacity, 2 * d + 3)
+        if self.device.type == "cpu":
+            # numpy's zeros come from calloc: pages are committed as they are first written, so a
+            # 50k-transition buffer of 64 replicas costs what it holds, not 11 GB up front. Written and
+            # gathered through the numpy array: a fraction of torch's per-call indexing cost.
+            self._array = np.zeros(shape, dtype=np.float32)
+            self.storage = torch.from_numpy(self._array)
+        else:
+            self._array = None
+            self.storage = torch.zeros(shape, dtype=torch.float32, device=self.device)
         self.ptr = np.zeros(num_rows, dtype=np.int64)
         self.size = np.zeros(num_rows, dtype=np.int64)
 

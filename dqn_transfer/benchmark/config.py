@@ -1,4 +1,4 @@
-"""What the measurements share: the matched hyperparameters, the two maps, and SB3's side of the match.
+"""What the measurements share: the matched hyperparameters, the maps, and SB3's side of the match.
 
 Stable-Baselines3 is optional (the ``dev`` extra), so it is imported only inside :func:`sb3_dqn`, which
 only the SB3 measurements call.
@@ -26,6 +26,18 @@ BENCH_MAP: dict[str, Any] = dict(size=10, num_treasures=4, num_traps=4, complexi
 # so an episode is a real navigation problem (on BENCH_MAP agent 0 starts next to a chest: every
 # episode would last one step).
 SOURCE_MAP: dict[str, Any] = dict(size=10, num_treasures=1, num_traps=1, complexity=0.1, map_seed=2)
+
+# Sections 5 and 6, whole processes: the settings of a small CleanRL-sized run (CleanRL's dqn.py
+# trains every 4 steps on batches of 32 with lr 1e-4 and hard target copies), so that the processes
+# measured are the ones a user would start, not the in-process rigs of sections 2-4. The rest
+# (gamma, epsilon schedule, gradient clip) are AgentConfig's defaults.
+LONE_AGENT = AgentConfig(algorithm=Algorithm.dqn, lr=1e-4, batch_size=32, buffer_size=50_000, learning_starts=1_000,
+                         train_freq=4, gradient_steps=1, target_update=1_000, tau=1.0, hidden=[64, 64])
+# Section 5: a 7 x 7 map with one chest (agent 0 alone: num_agents defaults to the one chest).
+LONE_MAP: dict[str, Any] = dict(size=7, num_treasures=1, num_traps=1, complexity=0.15, map_seed=3)
+# Section 6: BENCH_MAP played by a cooperative team of 4 (TreasureHunt-v0 of it is agent 0 alone).
+TEAM_AGENTS = 4
+TEAM_MAP: dict[str, Any] = {**BENCH_MAP, "num_agents": TEAM_AGENTS, "mode": "cooperative"}
 
 
 def replay_warmup(agent: AgentConfig) -> int:

@@ -1,17 +1,22 @@
-"""The driver: the four measurements, interleaved repeats, paired ratios, the Markdown table, the JSON document.
+"""The driver: the six measurements, interleaved repeats, paired ratios, the Markdown table, the JSON document.
 
-Threads. Every measurement runs at ``threads`` torch threads (the CLI's default is 1: for networks this
+Threads. Sections 1-4 run at ``threads`` torch threads (the CLI's default is 1: for networks this
 small, intra-op parallelism costs more in synchronisation than it gains, and on a busy machine a second
 thread that has to wait for a core can make an update tens of times slower). Section 4 shows the
-default-thread figure beside it; the default-thread update timings stop after ``thread_cap_s``.
+default-thread figure beside it; the default-thread update timings stop after ``thread_cap_s``. Section
+5's processes run on one thread each; in section 6 both sides get every core: our one process
+``threads=<cores>``, SB3 one single-threaded process per core.
 
 Method. The machine may be shared and noisy, so every figure is the median of ``repeats`` interleaved
 repeats (the contenders of a comparison alternate order within each repeat), and every ratio is the
 median of the per-repeat paired ratios rather than a ratio of medians. Two clocks are read: wall time
 (what a user waits) and process CPU time (what the work costs; much less disturbed by other jobs, so on
 a shared machine the CPU ratios are the ones to trust). Setup (building networks, filling replay before
-``learning_starts``) is never timed. :func:`run_benchmark` returns everything, with the raw per-repeat
-figures and the machine, as one JSON-able document; :func:`render_markdown` makes the table of it.
+``learning_starts``) is never timed in sections 1-4. Sections 5 and 6 time whole processes instead
+(spawn to exit, setup included: :mod:`~dqn_transfer.benchmark.whole_process`); they record the load
+average at their own start and end, since a process-level figure is the most exposed to other jobs.
+:func:`run_benchmark` returns everything, with the raw per-repeat figures and the machine, as one
+JSON-able document; :func:`render_markdown` makes the table of it.
 """
 
 from __future__ import annotations
@@ -31,15 +36,17 @@ from typing import Any
 import numpy as np
 import torch
 
-from dqn_transfer.benchmark.config import BENCH_AGENT, BENCH_MAP, SOURCE_MAP
+from dqn_transfer.benchmark.config import BENCH_AGENT, BENCH_MAP, LONE_AGENT, LONE_MAP, SOURCE_MAP, TEAM_MAP
 from dqn_transfer.benchmark.env_throughput import measure_env_throughput
 from dqn_transfer.benchmark.team_scaling import TeamRig
 from dqn_transfer.benchmark.training import measure_ours_training, measure_sb3_training
 from dqn_transfer.benchmark.update_cost import THREAD_NAMES, UPDATE_NAMES, SB3UpdateRig, UpdateRig
+from dqn_transfer.benchmark.whole_process import (LONE_CONTENDERS, measure_lone, measure_ours_replicas,
+                                                  measure_sb3_parallel)
 from dqn_transfer.config import AgentConfig, to_plain
 
-SECTIONS = ("env", "training", "team", "update")
-NEEDS_SB3 = ("training", "update")
+SECTIONS = ("env", "training", "team", "update", "lone", "replicas")
+NEEDS_SB3 = ("training", "update", "lone", "replicas")
 ENV_AGENTS = (1, 4, 8)
 TEAM_SIZES = (1, 2, 4, 8)
 DEFAULT_THREADS = torch.get_num_threads()  # torch's own choice on this machine, read before any change
@@ -57,15 +64,22 @@ class Sizes:
     thread_cap_s: float = 1.0  # section 4: time limit of a default-thread timing
     team_learning_starts: int | None = None  # section 3: replay filled before timing (None: the agent's)
     default_thread_timings: bool = True  # section 4: also time bare and ours at torch's default threads
+    lone_steps: int = 10_000  # section 5: env steps per process
+    replica_steps: int = 3_000  # section 6: joint env steps per process
+    replica_counts: tuple[int, ...] = (1, 4, 16, 64)  # section 6: replicas.seeds of our processes
+    replica_learning_starts: int = 500  # section 6: env steps before the first update, ours and SB3's
 
 
 PROFILES = {
     "full": Sizes(env_steps=20_000, train_steps=10_000, team_steps=400, updates=2_000, eval_episodes=5,
-                  thread_cap_s=3.0),
+                  thread_cap_s=3.0, lone_steps=10_000, replica_steps=3_000, replica_counts=(1, 4, 16, 64),
+                  replica_learning_starts=500),
     # quick: section 3 fills only 200 steps of replay before timing (the fill level hardly changes the
     # per-step cost) and section 4 skips the default-thread timings; the hyperparameters stay matched.
+    # Sections 5 and 6 run so little that process start-up dominates: a smoke run, not a figure.
     "quick": Sizes(env_steps=2_000, train_steps=2_000, team_steps=40, updates=200, eval_episodes=2,
-                   team_learning_starts=200, default_thread_timings=False),
+                   team_learning_starts=200, default_thread_timings=False, lone_steps=2_000, replica_steps=300,
+                   replica_counts=(1, 2), replica_learning_starts=100),
 }
 
 METHOD = (
@@ -73,8 +87,9 @@ METHOD = (
     "order inside each repeat); each ratio is the median of the per-repeat paired ratios. Setup "
     "(networks, replay filling before learning_starts) is untimed. Two clocks: wall (time.perf_counter, "
     "what a user waits) and CPU (time.process_time, all threads of the process: what the work costs, "
-    "much less disturbed by other jobs on a shared machine). Compare ratios, not absolute figures, "
-    "across machines."
+    "much less disturbed by other jobs on a shared machine). Sections 5 and 6 time whole processes "
+    "instead: wall from spawn to exit, CPU = user + system of the child (os.wait4). Compare ratios, not "
+    "absolute figures, across machines."
 )
 
 ProgressFn = Callable[[str], None]
@@ -117,6 +132,11 @@ def _loadavg() -> list[float] | None:
     return list(os.getloadavg()) if hasattr(os, "getloadavg") else None
 
 
+def cpus_available() -> int:
+    """The cores this process may run on (its affinity mask), else the machine's count."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def machine_info(threads_used: list[int]) -> dict[str, Any]:
     cpu_model = platform.processor() or platform.machine()
     try:
@@ -126,11 +146,10 @@ def machine_info(threads_used: list[int]) -> dict[str, Any]:
                 break
     except OSError:
         pass
-    affinity = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     return {
         "cpu_model": cpu_model,
         "cpu_count": os.cpu_count(),
-        "cpus_available": affinity,
+        "cpus_available": cpus_available(),
         "platform": platform.platform(),
         "python": platform.python_version(),
         "torch": torch.__version__,
@@ -143,7 +162,7 @@ def machine_info(threads_used: list[int]) -> dict[str, Any]:
     }
 
 
-# ----------------------------------------------------------------------------- the four sections
+# ----------------------------------------------------------------------------- the six sections
 def env_section(sizes: Sizes, seed: int, repeats: int, progress: ProgressFn) -> list[dict[str, Any]]:
     raw: dict[int, list[dict[str, Any]]] = {k: [] for k in ENV_AGENTS}
     for r in range(repeats):
@@ -276,11 +295,111 @@ def update_section(sizes: Sizes, seed: int, repeats: int, threads: int, agent: A
     }
 
 
+def _series(runs: list[dict[str, Any]], key: str) -> list[float]:
+    return [run[key] for run in runs]
+
+
+def _medians(runs: Sequence[dict[str, Any]], keys: Sequence[str]) -> dict[str, float]:
+    """The median over repeats of each figure ``keys`` names."""
+    return {key: median(_series(runs, key)) for key in keys}
+
+
+def lone_section(sizes: Sizes, seed: int, repeats: int, progress: ProgressFn) -> dict[str, Any]:
+    """Section 5: whole processes of ours, SB3 and bare PyTorch, one learner each, interleaved."""
+    loadavg_start = _loadavg()
+    raw: dict[str, list[dict[str, Any]]] = {who: [] for who in LONE_CONTENDERS}
+    for r in range(repeats):
+        for who in alternate(LONE_CONTENDERS, r):
+            out = measure_lone(who, sizes.lone_steps, seed + r)
+            raw[who].append(out)
+            progress(f"lone learner, {who}, {sizes.lone_steps} steps, repeat {r + 1}/{repeats}: "
+                     f"{out['seconds']:.1f} s, {out['steps_per_s']:.0f} steps/s")
+    ours = raw["ours"]
+    contenders = {
+        who: {
+            **_medians(runs, ("seconds", "cpu_seconds", "steps_per_s", "steps_per_cpu_s", "max_rss_mb")),
+            "gradient_steps": runs[0]["gradient_steps"],
+            # ours' rate over this one's (> 1: ours is faster), paired by repeat
+            "ours_over_this": paired_ratio(_series(ours, "steps_per_s"), _series(runs, "steps_per_s")),
+            "ours_over_this_cpu": paired_ratio(_series(ours, "steps_per_cpu_s"), _series(runs, "steps_per_cpu_s")),
+        }
+        for who, runs in raw.items()
+    }
+    return {
+        "steps": sizes.lone_steps,
+        "map": LONE_MAP,
+        "hyperparameters": to_plain(LONE_AGENT),
+        "contenders": contenders,
+        **{f"ours_over_{who}": contenders[who]["ours_over_this"] for who in ("sb3", "bare")},
+        **{f"ours_over_{who}_cpu": contenders[who]["ours_over_this_cpu"] for who in ("sb3", "bare")},
+        "raw": raw,
+        "loadavg_start": loadavg_start,
+        "loadavg_end": _loadavg(),
+    }
+
+
+def replicas_section(sizes: Sizes, seed: int, repeats: int, cores: int, progress: ProgressFn) -> dict[str, Any]:
+    """Section 6: learner-steps/s of one process of R replicas (for each R) against ``cores`` SB3
+    processes run side by side; the SB3 figure is measured once per repeat and paired with every R."""
+    loadavg_start = _loadavg()
+    agent = dataclasses.replace(LONE_AGENT, learning_starts=sizes.replica_learning_starts)
+    steps = sizes.replica_steps
+    ours: dict[int, list[dict[str, Any]]] = {count: [] for count in sizes.replica_counts}
+    sb3: list[dict[str, Any]] = []
+    for r in range(repeats):
+        for who in alternate(("sb3", *sizes.replica_counts), r):
+            if who == "sb3":
+                out = measure_sb3_parallel(cores, steps, seed + r, agent.learning_starts)
+                sb3.append(out)
+                label = f"{cores} SB3 processes side by side"
+            else:
+                out = measure_ours_replicas(who, steps, seed + r, agent, threads=cores)
+                ours[who].append(out)
+                label = f"ours, {who} replica(s) in one process"
+            progress(f"replicas, {label}, {steps} steps, repeat {r + 1}/{repeats}: {out['seconds']:.1f} s, "
+                     f"{out['learner_steps_per_s']:.0f} learner-steps/s")
+    sb3_rate, sb3_cpu_rate = _series(sb3, "learner_steps_per_s"), _series(sb3, "learner_steps_per_cpu_s")
+    rows = [
+        {
+            "replicas": count,
+            "learners": count * TEAM_MAP["num_agents"],
+            **_medians(runs, ("seconds", "cpu_seconds", "learner_steps_per_s", "learner_steps_per_cpu_s",
+                              "max_rss_mb")),
+            "gradient_steps": runs[0]["gradient_steps"],
+            "ours_over_sb3": paired_ratio(_series(runs, "learner_steps_per_s"), sb3_rate),
+            "ours_over_sb3_cpu": paired_ratio(_series(runs, "learner_steps_per_cpu_s"), sb3_cpu_rate),
+            "raw": runs,
+        }
+        for count, runs in ours.items()
+    ]
+    return {
+        "steps": steps,
+        "learning_starts": agent.learning_starts,
+        "team_agents": TEAM_MAP["num_agents"],
+        "map": TEAM_MAP,
+        "hyperparameters": to_plain(agent),
+        "ours_threads": cores,
+        "sb3_processes": cores,
+        "sb3": {
+            "seconds": median(_series(sb3, "seconds")),
+            "cpu_seconds": median(_series(sb3, "cpu_seconds")),
+            "learner_steps_per_s": median(sb3_rate),
+            "learner_steps_per_cpu_s": median(sb3_cpu_rate),
+            "max_rss_mb": median(_series(sb3, "max_rss_mb")),
+            "gradient_steps": sb3[0]["gradient_steps"][0],
+            "raw": sb3,
+        },
+        "rows": rows,
+        "loadavg_start": loadavg_start,
+        "loadavg_end": _loadavg(),
+    }
+
+
 # ----------------------------------------------------------------------------- the document
 def run_benchmark(profile: str, seed: int, repeats: int, threads: int, train_threads: list[int] | None = None,
                   sizes: Sizes | None = None, agent: AgentConfig = BENCH_AGENT,
                   sections: Sequence[str] = SECTIONS, progress: ProgressFn | None = None) -> dict[str, Any]:
-    """The measurements of ``sections`` (all four by default), as the JSON document.
+    """The measurements of ``sections`` (all six by default), as the JSON document.
 
     ``sizes`` defaults to ``PROFILES[profile]``; ``train_threads`` (torch threads of section 2) to
     ``[threads]``; ``progress`` to numbered lines on stderr.
@@ -296,6 +415,8 @@ def run_benchmark(profile: str, seed: int, repeats: int, threads: int, train_thr
             "training": repeats * len(train_threads) * 2,
             "team": 2 * len(TEAM_SIZES) + repeats * len(TEAM_SIZES) * 2,
             "update": 2 + repeats * (len(UPDATE_NAMES) + (len(THREAD_NAMES) if with_default_threads else 0)),
+            "lone": repeats * len(LONE_CONTENDERS),
+            "replicas": repeats * (1 + len(sizes.replica_counts)),
         }
         progress = Progress(sum(steps[section] for section in sections))
     loadavg_start = _loadavg()
@@ -310,11 +431,16 @@ def run_benchmark(profile: str, seed: int, repeats: int, threads: int, train_thr
         results["team"] = team_section(sizes, seed, repeats, team_agent, progress)
     if "update" in sections:
         results["update"] = update_section(sizes, seed, repeats, threads, agent, with_default_threads, progress)
+    if "lone" in sections:
+        results["lone"] = lone_section(sizes, seed, repeats, progress)
+    if "replicas" in sections:
+        results["replicas"] = replicas_section(sizes, seed, repeats, cpus_available(), progress)
     results["machine"] = {**machine_info(sorted({threads, *train_threads})),
                           "loadavg_start": loadavg_start, "loadavg_end": _loadavg()}
     results["settings"] = {
         "profile": profile, "seed": seed, "repeats": repeats, "threads": threads, "train_threads": train_threads,
-        "sections": list(sections), **dataclasses.asdict(sizes), "hyperparameters": to_plain(agent),
+        "sections": list(sections), **dataclasses.asdict(sizes), "replica_counts": list(sizes.replica_counts),
+        "hyperparameters": to_plain(agent),
         "team_learning_starts": team_agent.learning_starts, "env_map": BENCH_MAP, "source_map": SOURCE_MAP,
     }
     results["method"] = METHOD
@@ -414,7 +540,79 @@ def _update_table(res: dict[str, Any]) -> list[str]:
         label_column=True)
 
 
-TABLES = {"env": _env_table, "training": _training_table, "team": _team_table, "update": _update_table}
+def _machine_line(res: dict[str, Any], section: dict[str, Any]) -> str:
+    """The machine, and the load average (1 min) when the section started and ended."""
+    m, start, end = res["machine"], section.get("loadavg_start"), section.get("loadavg_end")
+    load = (f"; load average (1 min) {start[0]:.2f} at the start of this section, {end[0]:.2f} at its end"
+            if start and end else "")
+    return f"Machine: {m['cpu_model']}, {m['cpus_available']} cores{load}."
+
+
+def _hyperparameters(hp: dict[str, Any]) -> str:
+    return (f"MLP {hp['hidden']}, Adam lr {hp['lr']:g}, batch {hp['batch_size']}, replay {hp['buffer_size']:,}, "
+            f"learning_starts {hp['learning_starts']:,}, train_freq {hp['train_freq']}, gradient_steps "
+            f"{hp['gradient_steps']}, target copy every {hp['target_update']:,} steps (tau {hp['tau']}), gamma "
+            f"{hp['gamma']}, epsilon {hp['eps_start']} -> {hp['eps_end']} over {hp['exploration_fraction']} of the "
+            f"run, Huber loss, max_grad_norm {hp['max_grad_norm']}, CPU")
+
+
+def _map(kwargs: dict[str, Any]) -> str:
+    return (f"{kwargs['size']}x{kwargs['size']} map ({kwargs['num_treasures']} chest(s), {kwargs['num_traps']} "
+            f"trap(s), complexity {kwargs['complexity']}, map seed {kwargs['map_seed']})")
+
+
+LONE_LABELS = {
+    "ours": "ours: `python -m dqn_transfer.cli.train` (`train.py`)",
+    "sb3": "SB3: `DQN(\"MlpPolicy\", gymnasium.make(\"TreasureHunt-v0\")).learn()`",
+    "bare": "bare PyTorch: a CleanRL-style dqn.py loop",
+}
+
+
+def _lone_table(res: dict[str, Any]) -> list[str]:
+    lone = res["lone"]
+    c = lone["contenders"]
+    return _part(
+        f"## 5. Whole process, one DQN learner ({lone['steps']:,} env steps, "
+        f"{c['ours']['gradient_steps']:,} gradient steps)",
+        f"{_machine_line(res, lone)} Settings: one agent on a {_map(lone['map'])}, each program trains "
+        f"{lone['steps']:,} env steps with {_hyperparameters(lone['hyperparameters'])}, one torch thread. Wall: "
+        "from spawn to exit (imports, setup, and ours' two one-episode evaluations, TensorBoard logging and "
+        "final checkpoint included); CPU: user + system of the process (os.wait4). Ours observes the "
+        "team game's position + chest-state inputs, SB3 and bare the position inputs of TreasureHunt-v0. "
+        "ours / this: ours' steps/s over this program's, paired by repeat (> 1: ours is faster).",
+        ["program", "wall s", "steps/s", "CPU s", "steps/CPU-s", "peak RSS MB", "gradient steps",
+         "ours / this (wall)", "ours / this (CPU)"],
+        ([label, _fmt(c[who]["seconds"], 1), _fmt(c[who]["steps_per_s"]), _fmt(c[who]["cpu_seconds"], 1),
+          _fmt(c[who]["steps_per_cpu_s"]), _fmt(c[who]["max_rss_mb"]), _fmt(c[who]["gradient_steps"]),
+          _x(c[who]["ours_over_this"]), _x(c[who]["ours_over_this_cpu"])]
+         for who, label in LONE_LABELS.items() if who in c),
+        label_column=True)
+
+
+def _replicas_table(res: dict[str, Any]) -> list[str]:
+    rep = res["replicas"]
+    sb3, k = rep["sb3"], rep["team_agents"]
+    return _part(
+        f"## 6. Sweep throughput: R replicas of a {k}-agent team in one process, against SB3 one learner "
+        f"per process ({rep['steps']:,} env steps per process)",
+        f"{_machine_line(res, rep)} Settings: a cooperative team of {k} DQN agents on a {_map(rep['map'])}, "
+        f"{rep['steps']:,} joint env steps, {_hyperparameters(rep['hyperparameters'])}. Ours: ONE "
+        f"`python -m dqn_transfer.cli.train replicas.seeds=R threads={rep['ours_threads']}` process (R x {k} "
+        f"learners, one batched learner); learner-steps/s = steps x R x {k} / whole-process wall. SB3: "
+        f"{rep['sb3_processes']} `DQN.learn` processes (TreasureHunt-v0 of the map, one learner each, one "
+        f"torch thread) started together; learner-steps/s = {rep['sb3_processes']} x steps / wall until the "
+        f"last exits: {_fmt(sb3['learner_steps_per_s'])} (CPU: {_fmt(sb3['learner_steps_per_cpu_s'])} per "
+        f"CPU-s), peak RSS {_fmt(sb3['max_rss_mb'])} MB per process. Measured once per repeat and paired with "
+        "every R of that repeat (> 1: ours is faster).",
+        ["R", "learners", "ours wall s", "ours learner-steps/s", "ours learner-steps/CPU-s", "ours peak RSS MB",
+         "SB3 learner-steps/s", "ours / SB3 (wall)", "ours / SB3 (CPU)"],
+        ([str(row["replicas"]), str(row["learners"]), _fmt(row["seconds"], 1), _fmt(row["learner_steps_per_s"]),
+          _fmt(row["learner_steps_per_cpu_s"]), _fmt(row["max_rss_mb"]), _fmt(sb3["learner_steps_per_s"]),
+          _x(row["ours_over_sb3"]), _x(row["ours_over_sb3_cpu"])] for row in rep["rows"]))
+
+
+TABLES = {"env": _env_table, "training": _training_table, "team": _team_table, "update": _update_table,
+          "lone": _lone_table, "replicas": _replicas_table}
 
 
 def render_markdown(res: dict[str, Any]) -> str:

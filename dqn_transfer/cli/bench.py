@@ -1,9 +1,12 @@
 """``dqn-transfer-bench`` / ``python -m dqn_transfer.cli.bench``: the benchmark table, and its JSON document.
 
-    dqn-transfer-bench [--quick] [--out outputs/bench.json] [--seed 0] [--repeats 3] [--threads 1] [--only SECTION]
+    dqn-transfer-bench [--profile full|quick] [--sections env,training,team,update,lone,replicas]
+                       [--out outputs/bench.json] [--seed 0] [--repeats 3] [--threads 1]
 
-Measures our environment, trainer and learner against PettingZoo's API, Stable-Baselines3 and bare
-PyTorch (:mod:`dqn_transfer.benchmark`, whose suite module explains the method). The table goes to
+(``--quick`` = ``--profile quick``; ``--only SECTION``, repeatable, adds to ``--sections``.) Measures our
+environment, trainer and learner against PettingZoo's API, Stable-Baselines3 and bare PyTorch, in
+process and as whole processes (:mod:`dqn_transfer.benchmark`, whose suite module explains the
+method). The table goes to
 stdout, progress to stderr, and everything (the raw per-repeat figures and the machine) to ``--out``,
 written atomically. What would fail after minutes of measuring (SB3 missing, ``--out`` not writable)
 is checked first: one ``error:`` line and exit code 1.
@@ -19,7 +22,7 @@ import time
 from importlib.util import find_spec
 from pathlib import Path
 
-from dqn_transfer.benchmark.suite import NEEDS_SB3, SECTIONS, render_markdown, run_benchmark
+from dqn_transfer.benchmark.suite import NEEDS_SB3, PROFILES, SECTIONS, render_markdown, run_benchmark
 from dqn_transfer.checkpoint import CheckpointError, atomic_write
 
 
@@ -33,21 +36,36 @@ def positive_int(text: str) -> int:
     return value
 
 
+def section_list(text: str) -> list[str]:
+    """``lone,replicas`` -> ``["lone", "replicas"]``, each one a section name."""
+    names = [name.strip() for name in text.split(",") if name.strip()]
+    unknown = [name for name in names if name not in SECTIONS]
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(f"expected comma-separated sections from {', '.join(SECTIONS)}, got {text!r}")
+    return names
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="dqn-transfer-bench",
-        description="Benchmark table: env throughput, DQN training vs SB3, team size, gradient-update overhead.")
-    parser.add_argument("--quick", action="store_true", help="small sizes: a smoke run (a few minutes)")
+        description="Benchmark table: env throughput, DQN training vs SB3, team size, gradient-update overhead, "
+                    "whole processes (one learner vs SB3 and bare PyTorch; replica sweeps vs SB3).")
+    parser.add_argument("--profile", choices=PROFILES, default="full",
+                        help="full (default) or quick: small sizes, a smoke run (a few minutes)")
+    parser.add_argument("--quick", dest="profile", action="store_const", const="quick", help="--profile quick")
     parser.add_argument("--out", type=Path, default=Path("outputs/bench.json"),
                         help="JSON output path (default outputs/bench.json)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--repeats", type=positive_int, default=3,
                         help="interleaved repeats per measurement; the median is reported (default 3)")
     parser.add_argument("--threads", type=positive_int, default=1,
-                        help="torch threads for every measurement (default 1, fastest for these tiny "
-                             "networks); section 4 also times torch's default thread count")
-    parser.add_argument("--only", choices=SECTIONS, action="append",
-                        help="measure only this section (repeatable; default: all four)")
+                        help="torch threads of sections 1-4 (default 1, fastest for these tiny networks); "
+                             "section 4 also times torch's default thread count. Section 5's processes run on "
+                             "one thread, section 6's process of ours on every core")
+    parser.add_argument("--sections", type=section_list, default=[],
+                        help=f"comma-separated sections to measure (default: all: {','.join(SECTIONS)})")
+    parser.add_argument("--only", choices=SECTIONS, action="append", default=[],
+                        help="measure this section too (repeatable; the same as listing it in --sections)")
     return parser
 
 
@@ -71,14 +89,14 @@ def check_ready(out: Path, sections: list[str]) -> str | None:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    sections = [s for s in SECTIONS if s in args.only] if args.only else list(SECTIONS)
+    chosen = {*args.sections, *args.only}
+    sections = [s for s in SECTIONS if s in chosen] if chosen else list(SECTIONS)
     problem = check_ready(args.out, sections)
     if problem is not None:
         print(f"error: {problem}", file=sys.stderr)
         return 1
-    profile = "quick" if args.quick else "full"
     start = time.perf_counter()
-    results = run_benchmark(profile, args.seed, args.repeats, args.threads, sections=sections)
+    results = run_benchmark(args.profile, args.seed, args.repeats, args.threads, sections=sections)
     results["total_seconds"] = time.perf_counter() - start
     table = render_markdown(results)
     results["markdown"] = table
