@@ -270,3 +270,31 @@ def test_loading_bad_tensors_names_the_tensor():
     online_only = {name: t for name, t in learner.agent_tensors(0).items() if name.startswith("q.")}
     learner.load_agent_tensors(1, online_only)
     assert torch.equal(learner.agent_tensors(1)["target.layers.0.weight"], online_only["q.layers.0.weight"])
+
+
+@pytest.mark.parametrize("share_parameters", [False, True])
+def test_greedy_actions_are_torchs_argmax_ties_included(share_parameters):
+    """On the CPU the greedy action is first computed in numpy; it must be exactly torch's argmax,
+    including near-ties (there torch decides) and exact ties (all-zero output layer: action 0)."""
+    learner = dqn(num_agents=3, share_parameters=share_parameters, hidden=[16])
+    rng = np.random.default_rng(0)
+
+    def torch_argmax(obs):
+        q = learner.q_network.predict(learner._team_batch(torch.from_numpy(obs).unsqueeze(1)))
+        return q.reshape(3, -1).argmax(dim=-1).numpy()
+
+    for _ in range(200):
+        obs = rng.random((3, D), dtype=np.float32)
+        assert np.array_equal(learner.act(obs, np.ones(3, bool), 0.0, greedy=True), torch_argmax(obs))
+    weight, bias = learner.q_network.layer(1)
+    with torch.no_grad():
+        weight.zero_()
+        bias.zero_()  # every Q-value 0: a tie everywhere
+    obs = rng.random((3, D), dtype=np.float32)
+    assert learner.act(obs, np.ones(3, bool), 0.0, greedy=True).tolist() == [0, 0, 0]
+    with torch.no_grad():
+        bias[:, 1] = 1e-7  # action 1 ahead by less than numpy and torch may disagree: torch decides
+    real = learner.q_network.predict_numpy
+    # A numpy that disagrees within the margin (its actions reversed: action 2 ahead): not to be trusted.
+    learner.q_network.predict_numpy = lambda x, members=None: real(x, members)[..., ::-1].copy()
+    assert learner.act(obs, np.ones(3, bool), 0.0, greedy=True).tolist() == torch_argmax(obs).tolist() == [1, 1, 1]

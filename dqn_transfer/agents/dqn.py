@@ -59,6 +59,11 @@ def double_dqn_targets(
     return rewards + gamma * next_q * (1.0 - terminated.float())
 
 
+# Relative lead of the best action's Q-value over the second best above which numpy's argmax is
+# torch's: their float32 results differ by a few units in the 7th digit, this is 1000x that.
+ACTION_MARGIN = 1e-4
+
+
 class DQNLearner(TeamShape):
     """K DQN / Double DQN agents, in R independent replicas (see the module docstring). Implements
     ``Learner`` for the R x K agents as rows ``r * K + k``; :meth:`replica` is one replica's team."""
@@ -180,9 +185,29 @@ class DQNLearner(TeamShape):
         return self._q_values(self.q_network, obs_t.unsqueeze(1), replica).squeeze(1).cpu().numpy()
 
     def _greedy_actions(self, obs: np.ndarray, replica: int | None) -> np.ndarray:
-        """``argmax_a Q(obs, a)`` per row, ``obs`` float32 ``[rows, D]``."""
+        """``argmax_a Q(obs, a)`` per row, ``obs`` float32 ``[rows, D]``.
+
+        On the CPU the Q-values are first computed in numpy, several times cheaper for these tiny
+        batches. numpy's kernels may differ from torch's in the last bits, which can only change an
+        argmax whose best two values are that close: when every row's best action leads by more than
+        ACTION_MARGIN, numpy's argmax is torch's; otherwise (a near-tie, e.g. fresh or copied weights)
+        torch decides. The actions are exactly torch's either way.
+        """
+        members = None if replica is None else self._members(replica)
+        q_values = self.q_network.predict_numpy(self._team_batch_numpy(obs), members)
+        if q_values is not None:
+            q_values = q_values.reshape(obs.shape[0], -1)
+            top_two = np.partition(q_values, -2, axis=-1)[:, -2:]
+            if (top_two[:, 1] - top_two[:, 0] > ACTION_MARGIN * (1.0 + np.abs(top_two[:, 1]))).all():
+                return q_values.argmax(axis=-1)
         obs_t = torch.from_numpy(obs).to(self.device).unsqueeze(1)
         return self._q_values(self.q_network, obs_t, replica).argmax(dim=-1).view(-1).cpu().numpy()
+
+    def _team_batch_numpy(self, obs: np.ndarray) -> np.ndarray:
+        """``obs [rows, D]`` as the members' inputs ``[members, B, D]`` (see ``_team_batch``)."""
+        if self.share_parameters:
+            return obs.reshape(-1, self.num_agents, obs.shape[-1])
+        return obs[:, None, :]
 
     # ---------------------------------------------------------------------------------- learning
 

@@ -34,7 +34,6 @@ from enum import Enum
 from typing import Any
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from dqn_transfer.enums import Mode, ObsEncoding, RewardMode, values
 from dqn_transfer.envs.maps import GridMap, resolve_map
@@ -100,6 +99,10 @@ def _best_matching(
     """Minimum-cost maximum matching of ``rows`` to ``cols``: (pairs, total, rows, cols)."""
     if len(rows) == 0 or len(cols) == 0:
         return 0, 0, rows[:0], cols[:0]
+    # Imported here: scipy.optimize is 0.65 s of every process's start-up, and only the deliberative
+    # mode's coordinator uses it.
+    from scipy.optimize import linear_sum_assignment
+
     sub = cost[np.ix_(rows, cols)]
     r, c = linear_sum_assignment(sub)
     return len(r), int(sub[r, c].sum()), rows[r], cols[c]
