@@ -5,7 +5,7 @@
   of the same map — for ``transfer.pretrain_steps`` and cached under
   ``outputs/pretrained/<hash of the source config>/``, so the next run with the same source config
   reuses it. The entry appears whole or not at all, and a file lock makes parallel sweep jobs
-  pretrain it once (:func:`pretrained_source`).
+  pretrain it once (:func:`pretrained_sources`).
 
 Either way the result is a path, which the trainer's warm start (:mod:`dqn_transfer.warm_start`) loads.
 """
@@ -64,39 +64,65 @@ def source_hash(plain: dict[str, Any], layout: str) -> str:
     return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def pretrained_source(config: TrainConfig, layout: str, launch_dir: Path) -> Path:
-    """Pretrain on TreasureHunt-v0 (of the map ``layout``) once per source config; later runs reuse
-    the cached checkpoint.
+def pretrained_sources(config: TrainConfig, layouts: list[str], launch_dir: Path) -> list[Path]:
+    """Pretrain on TreasureHunt-v0 (of each replica's map, ``layouts``) once per source config; later
+    runs reuse the cached checkpoints. One source per replica of ``config`` (one for a lone run).
 
-    The cache entry ``<cache_root>/<hash>/`` appears whole or not at all: the pretraining runs in a
+    A cache entry ``<cache_root>/<hash>/`` appears whole or not at all: the pretraining runs in a
     temporary sibling ``.<hash>.tmp-<pid>-<random>/``, renamed into place once complete, and removed
     if the pretraining fails or is interrupted. ``<cache_root>/.<hash>.lock`` (outside the entry, so
     it never moves or disappears under a waiting job) makes parallel jobs pretrain the same source once.
+    When every replica's source is missing, they are pretrained together, as one run of replicas (each
+    exactly the lone pretraining of its seed and map), and each replica's directory becomes its entry.
     """
     # Relative to the launch dir, like transfer.source: the process cwd may be a run dir (chdir, SLURM).
     cache_root = launch_dir / Path(config.transfer.cache_dir or "outputs/pretrained").expanduser()
-    key = source_hash(to_plain(config), layout)
-    entry = RunDir(cache_root / key)
-    checkpoint, steps = entry.agent_checkpoint(0), config.transfer.pretrain_steps
-    if _reuse(checkpoint, steps):  # an entry is complete once it exists: reading needs no lock
-        return checkpoint
-    with _cache_lock(cache_root, key, entry):
-        if _reuse(checkpoint, steps):  # another job pretrained it while this one waited
-            return checkpoint
-        # Under the lock nobody else pretrains this hash: what is there was left by a killed pretraining
-        # (a temp dir), or is an unfinished entry of the older in-place layout.
-        for leftover in [*cache_root.glob(f".{key}.tmp-*"), entry.path]:
-            _remove(leftover, key)
-        temp = cache_root / f".{key}.tmp-{os.getpid()}-{secrets.token_hex(4)}"
-        log.info("transfer: pretraining a source agent on TreasureHunt-v0 for %d steps into %s", steps, entry)
-        try:
-            train(source_config(config), temp, source_task=True)
-            _cache_call(os.rename, temp, entry.path, where=entry)
-        except BaseException:  # an error, Interrupted, KeyboardInterrupt: leave nothing half-made
-            _remove(temp, key)
-            raise
-    log.info("transfer: the pretrained source is cached in %s", entry)  # the trainer named the temp dir
-    return checkpoint
+    replicas = replica_configs(config)
+    keys = [source_hash(to_plain(c), layout) for c, layout in zip(replicas, layouts)]
+    entries = [RunDir(cache_root / key) for key in keys]
+    checkpoints, steps = [entry.agent_checkpoint(0) for entry in entries], config.transfer.pretrain_steps
+    done = [_reuse(checkpoint, steps) for checkpoint in checkpoints]  # complete once it exists: no lock
+    if all(done):
+        return checkpoints
+    with contextlib.ExitStack() as locks:
+        # Every lock of the batch, in one fixed order: two jobs never wait for each other in a circle.
+        for key, entry in sorted(zip(keys, entries), key=lambda pair: pair[0]):
+            locks.enter_context(_cache_lock(cache_root, key, entry))
+        missing = [i for i, checkpoint in enumerate(checkpoints)
+                   if not (done[i] or _reuse(checkpoint, steps))]  # another job's, pretrained meanwhile
+        if not missing:
+            return checkpoints
+        # Under the locks nobody else pretrains these hashes: what is there was left by a killed
+        # pretraining (a temp dir), or is an unfinished entry of the older in-place layout.
+        for i in missing:
+            for leftover in [*cache_root.glob(f".{keys[i]}.tmp-*"), entries[i].path]:
+                _remove(leftover, keys[i])
+        if len(missing) == len(replicas) > 1:
+            _pretrain(source_config(config), cache_root, keys[0], [entries[i] for i in missing])
+        else:
+            for i in missing:
+                _pretrain(source_config(replicas[i]), cache_root, keys[i], [entries[i]])
+    for i in missing:
+        log.info("transfer: the pretrained source is cached in %s", entries[i])  # the trainer named the temp dir
+    return checkpoints
+
+
+def _pretrain(config: TrainConfig, cache_root: Path, key: str, entries: list[RunDir]) -> None:
+    """Train ``config`` on the source task in a temp dir named after ``key``, then rename its run
+    directory (or, for a run of replicas, each replica's) to ``entries``; nothing is left on failure."""
+    temp = cache_root / f".{key}.tmp-{os.getpid()}-{secrets.token_hex(4)}"
+    what = "a source agent" if len(entries) == 1 else f"{len(entries)} source agents, one per replica,"
+    log.info("transfer: pretraining %s on TreasureHunt-v0 for %d steps into %s", what, config.total_steps,
+             entries[0] if len(entries) == 1 else cache_root)
+    try:
+        train(config, temp, source_task=True)
+        runs = RunDir(temp).replica_dirs() or [temp]
+        for run, entry in zip(runs, entries):
+            _cache_call(os.rename, run, entry.path, where=entry)
+        _remove(temp, key)
+    except BaseException:  # an error, Interrupted, KeyboardInterrupt: leave nothing half-made
+        _remove(temp, key)
+        raise
 
 
 @contextlib.contextmanager
@@ -173,4 +199,4 @@ def transfer_sources(config: TrainConfig, launch_dir: Path) -> list[Path] | None
     transfer_targets(config, games[0].num_agents)  # refuse bad targets before minutes of pretraining
     if config.transfer.source is not None:
         return [resolve_source(config.transfer, launch_dir)] * len(replicas)
-    return [pretrained_source(c, game.map.layout, launch_dir) for c, game in zip(replicas, games)]
+    return pretrained_sources(config, [game.map.layout for game in games], launch_dir)

@@ -11,6 +11,7 @@ the first line of its ``metrics.jsonl``. The two tests with real ``python train.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import os
@@ -26,7 +27,7 @@ from conftest import TRAIN_TIMEOUT, start_train
 from safetensors import safe_open
 
 import dqn_transfer.sources
-from dqn_transfer.config import AgentConfig, TrainConfig, TransferConfig
+from dqn_transfer.config import AgentConfig, ReplicasConfig, TrainConfig, TransferConfig
 from dqn_transfer.enums import Algorithm
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.sources import transfer_sources
@@ -250,3 +251,32 @@ def test_ctrl_c_during_pretraining_leaves_nothing(tmp_path):
     output = (tmp_path / "run.out").read_text()
     assert proc.returncode != 0, output
     assert [p.name for p in cache.iterdir() if p.is_dir()] == [], output  # no entry, no temp dir
+
+
+def test_replicas_pretrain_their_missing_sources_as_one_batch(cache, tmp_path, monkeypatch, caplog):
+    """Three replicas, no source cached: one pretraining run of three replicas fills three entries, each
+    the very entry (same hash, same tensors) the lone pretraining of its seed makes. Later, a batch
+    reuses them all, and with one entry gone it pretrains only that one, alone."""
+    caplog.set_level(logging.INFO, logger="dqn_transfer")
+    real, runs = dqn_transfer.sources.train, []
+
+    def counted(run_config, *args, **kwargs):
+        runs.append(run_config.replicas.seeds)
+        return real(run_config, *args, **kwargs)
+
+    monkeypatch.setattr(dqn_transfer.sources, "train", counted)
+    batch = dataclasses.replace(config(cache), replicas=ReplicasConfig(seeds=3))
+    sources = transfer_sources(batch, tmp_path)
+    assert runs == [3] and len(set(sources)) == 3
+    entries, hidden = listing(cache)
+    assert sorted(entries) == sorted(p.parent.parent.name for p in sources) and hidden == []
+    for seed, source in enumerate(sources):
+        lone = transfer_sources(dataclasses.replace(config(tmp_path / "lone_cache"), seed=seed), tmp_path)[0]
+        assert source.parent.parent.name == lone.parent.parent.name  # the same source config hash
+        assert checkpoint_steps(source) == PRETRAIN_STEPS
+        with safe_open(str(source), framework="pt") as a, safe_open(str(lone), framework="pt") as b:
+            assert json.loads(a.metadata()["meta"])["digest"] == json.loads(b.metadata()["meta"])["digest"]
+    runs.clear()
+    assert transfer_sources(batch, tmp_path) == sources and runs == []
+    shutil.rmtree(sources[1].parent.parent)
+    assert transfer_sources(batch, tmp_path) == sources and runs == [1]

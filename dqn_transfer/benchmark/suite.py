@@ -66,13 +66,13 @@ class Sizes:
     default_thread_timings: bool = True  # section 4: also time bare and ours at torch's default threads
     lone_steps: int = 10_000  # section 5: env steps per process
     replica_steps: int = 3_000  # section 6: joint env steps per process
-    replica_counts: tuple[int, ...] = (1, 4, 16, 64)  # section 6: replicas.seeds of our processes
+    replica_counts: tuple[int, ...] = (1, 4, 10, 16, 64)  # section 6: replicas.seeds of our processes
     replica_learning_starts: int = 500  # section 6: env steps before the first update, ours and SB3's
 
 
 PROFILES = {
     "full": Sizes(env_steps=20_000, train_steps=10_000, team_steps=400, updates=2_000, eval_episodes=5,
-                  thread_cap_s=3.0, lone_steps=10_000, replica_steps=3_000, replica_counts=(1, 4, 16, 64),
+                  thread_cap_s=3.0, lone_steps=10_000, replica_steps=3_000, replica_counts=(1, 4, 10, 16, 64),
                   replica_learning_starts=500),
     # quick: section 3 fills only 200 steps of replay before timing (the fill level hardly changes the
     # per-step cost) and section 4 skips the default-thread timings; the hyperparameters stay matched.
