@@ -39,7 +39,7 @@ import safetensors
 import safetensors.numpy
 
 from dqn_transfer.enums import Algorithm
-from dqn_transfer.run_dir import AGENT_FILE_GLOB, CHECKPOINTS_DIR, natural_key
+from dqn_transfer.run_dir import AGENT_FILE_GLOB, CHECKPOINTS_DIR, RunDir, natural_key
 
 if TYPE_CHECKING:  # torch is only needed to save/load agent tensors, not to inspect files
     import torch
@@ -359,7 +359,8 @@ def _normalise(value: Any) -> Any:
 
 
 def find_checkpoints(path: str | os.PathLike) -> list[Path]:
-    """Agent checkpoints under ``path``: a file, a run dir (``run/checkpoints``) or a checkpoints dir.
+    """Agent checkpoints under ``path``: a file, a run dir (``run/checkpoints``), a checkpoints dir, or a
+    run of replicas (every replica's, replica by replica).
 
     Sorted by agent index (``agent_10`` after ``agent_2``). A file is returned as is, so loading it
     gives the precise refusal (pickle, not safetensors, ...).
@@ -369,6 +370,9 @@ def find_checkpoints(path: str | os.PathLike) -> list[Path]:
         raise CheckpointError(f"{path}: no such file or directory")
     if path.is_file():
         return [path]
+    replicas = RunDir(path).replica_dirs()
+    if replicas:
+        return [file for replica in replicas for file in find_checkpoints(replica)]
     directory = path / CHECKPOINTS_DIR if (path / CHECKPOINTS_DIR).is_dir() else path
     files = sorted(directory.glob(AGENT_FILE_GLOB), key=lambda file: natural_key(file.name))
     if not files:

@@ -179,6 +179,10 @@ def resolve_source(transfer: TransferConfig, launch_dir: Path) -> Path:
     files = find_checkpoints(path)
     if path.is_file():
         return files[0]
+    replicas = RunDir(path).replica_dirs()
+    if replicas:
+        raise CheckpointError(f"{path} is a run of {len(replicas)} replicas: pass one replica's directory as "
+                              f"transfer.source (e.g. {replicas[0]})")
     wanted = agent_file_name(transfer.source_agent)
     for file in files:
         if file.name == wanted:

@@ -17,9 +17,11 @@ from safetensors.numpy import load_file
 
 from dqn_transfer.agents import DQNLearner, Transition
 from dqn_transfer.analysis.runs import find_run_dirs, load_config
+from dqn_transfer.checkpoint import CheckpointError, find_checkpoints
 from dqn_transfer.config import AgentConfig, ConfigError, ReplicasConfig, TrainConfig, TransferConfig, validate
 from dqn_transfer.enums import Algorithm, Mode
 from dqn_transfer.envs.settings import EnvConfig
+from dqn_transfer.sources import resolve_source
 from dqn_transfer.trainer import Trainer
 
 ENV = EnvConfig(size=5, num_treasures=2, complexity=0.1, map_seed=3, mode=Mode.cooperative)
@@ -135,6 +137,13 @@ def test_a_replica_directory_reads_like_a_lone_run(tmp_path):
     own = load_config(batch / "seed_5-map_4")
     assert own["seed"] == 5 and own["env"]["map_seed"] == 4 and own["replicas"] == {"seeds": 1, "maps": 1}
     assert find_run_dirs([tmp_path]) == sorted(replicas, key=lambda p: p.name)
+
+    files = find_checkpoints(batch)  # every replica's agent files, replica by replica
+    assert [f"{f.parent.parent.name}/{f.name}" for f in files] == [
+        f"{name}/agent_{i}.safetensors" for name in ("seed_4-map_3", "seed_5-map_3", "seed_4-map_4", "seed_5-map_4")
+        for i in range(2)]
+    with pytest.raises(CheckpointError, match="is a run of 4 replicas: pass one replica's directory"):
+        resolve_source(TransferConfig(enabled=True, source=str(batch)), tmp_path)
 
     source = batch / "seed_4-map_3"
     warm = config(seeds=2, total_steps=0, transfer=TransferConfig(enabled=True, source=str(source)))

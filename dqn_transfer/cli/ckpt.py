@@ -13,14 +13,16 @@ import sys
 from collections.abc import Mapping
 
 from dqn_transfer.checkpoint import CheckpointError, CheckpointInfo, find_checkpoints, verify_checkpoint
+from dqn_transfer.run_dir import RunDir
 
 
-def _format_list_row(info: CheckpointInfo) -> str:
+def _format_list_row(info: CheckpointInfo, replicas: bool) -> str:
     meta = info.meta
     last_eval = meta.get("last_eval")
     eval_return = last_eval.get("team_return") if isinstance(last_eval, Mapping) else None
     eval_text = "-" if eval_return is None else f"{float(eval_return):.2f}"
-    return (f"{info.path.name}  algorithm={meta.get('algorithm', '-')}  steps={meta.get('steps', '-')}"
+    name = f"{info.path.parent.parent.name}/{info.path.name}" if replicas else info.path.name  # seed_3/agent_0...
+    return (f"{name}  algorithm={meta.get('algorithm', '-')}  steps={meta.get('steps', '-')}"
             f"  episodes={meta.get('episodes', '-')}  eval_return={eval_text}"
             f"  size={_human_size(info.size_bytes)}")
 
@@ -55,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     except CheckpointError as e:
         print(f"error: {e}", file=sys.stderr)
         return 1
-    failed = False
+    failed, replicas = False, bool(RunDir(args.path).replica_dirs())
     for file in files:
         try:
             info = verify_checkpoint(file)
@@ -64,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
             failed = True
             continue
         if args.command == "list":
-            print(_format_list_row(info))
+            print(_format_list_row(info, replicas))
         elif args.command == "show":
             print(_format_show(info))
         else:
