@@ -11,7 +11,6 @@ each default is written once, here or there.
 from __future__ import annotations
 
 import dataclasses
-
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, List, Optional

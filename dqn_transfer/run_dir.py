@@ -104,10 +104,11 @@ class RunDir:
     def replica_dirs(self) -> list[Path]:
         """The replicas' run directories, if this is a run of replicas (else none)."""
         try:
-            names = json.loads(self.replicas_index.read_text())["replicas"]
+            names = [str(name) for name in json.loads(self.replicas_index.read_text())["replicas"]]
         except (OSError, ValueError, KeyError, TypeError):
             return []
-        return [self.path / str(name) for name in names]
+        # Plain names only: the index may come from elsewhere, and what it names may be cleared.
+        return [self.path / name for name in names if name not in ("", ".", "..") and Path(name).name == name]
 
     def has_run(self) -> bool:
         """Whether a run has checkpointed here (what resume continues and a new run must not overwrite)."""

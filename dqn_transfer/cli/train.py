@@ -159,13 +159,12 @@ def resume_config(run: RunDir, cfg: DictConfig, overrides: list[str]) -> TrainCo
     would change what is being learned (``agent.lr=...``, ``agent=sarsa``) is refused by name.
     """
     # A run of replicas keeps the batch's config in its index; a lone run in its resume state.
-    if run.replicas_index.exists():
-        source, meta = run.replicas_index, json.loads(run.replicas_index.read_text())
-    else:
-        source, (_, meta) = run.training_state, load_training_state(run.training_state)
+    replicas = run.replicas_index.exists()
+    source = run.replicas_index if replicas else run.training_state
     try:
+        meta = json.loads(source.read_text()) if replicas else load_training_state(source)[1]
         saved = OmegaConf.merge(OmegaConf.structured(TrainConfig), meta["config"])
-    except (KeyError, OmegaConfBaseException) as err:
+    except (OSError, ValueError, KeyError, TypeError, OmegaConfBaseException) as err:
         raise ConfigError(f"{source}: its saved config does not fit this version of dqn_transfer "
                           f"({err})") from None
     for override in overrides:
