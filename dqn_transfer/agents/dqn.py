@@ -1,4 +1,4 @@
-"""DQN and Double DQN for a team of K agents, batched into one network module and one optimizer.
+"""DQN and Double DQN for R replicas of a team of K agents, batched into one network module and one optimizer.
 
 The algorithm is CleanRL's ``dqn.py`` per agent (read ``DQNLearner.update`` top to bottom):
 store the transition; every ``train_freq`` env steps after ``learning_starts``, take
@@ -7,12 +7,14 @@ replay batch (Adam, gradient-norm clip); every ``target_update`` env steps move 
 ``tau`` of the way to the online one (``tau == 1``: a hard copy) — the same rule as SB3's
 ``target_update_interval``/``tau`` and CleanRL's ``target_network_frequency``/``tau``.
 
-What is particular here: all K agents are one ``BatchedMLP`` (stacked weights), their replay is one
-``[K, capacity, ...]`` storage, and one Adam step updates everyone. The loss is the *sum* of the
-agents' mean losses, so each agent's gradient is exactly the one its own network would get, and
-gradients are clipped per agent. With ``share_parameters`` the team shares one network instead (the
-parameter-sharing baseline): a single member whose forward pass serves all agents, replay still per
-agent, loss the *mean* over agents.
+What is particular here: all R x K agents are one ``BatchedMLP`` (stacked weights), their replay is
+one ``[R * K, capacity, ...]`` storage, and one Adam step updates everyone. The loss is the *sum* of
+the agents' mean losses, so each agent's gradient is exactly the one its own network would get, and
+gradients are clipped per agent. With ``share_parameters`` each replica's team shares one network
+instead (the parameter-sharing baseline): a single member whose forward pass serves its agents, replay
+still per agent, loss the *mean* over the replica's agents. Replica r (rows ``r * K .. r * K + K - 1``)
+has its own initial weights, exploration and replay sampling streams, seeded as a lone learner of its
+seed would be; ``DQNReplica`` is its team as a ``Learner``.
 """
 
 from __future__ import annotations
