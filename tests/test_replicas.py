@@ -6,13 +6,12 @@ The reference for every replica is the lone run of its own seed and map seed, tr
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-from conftest import read_metrics, run_train, without_timing
+from conftest import agent_meta, read_metrics, run_train, without_timing
 from safetensors.numpy import load_file
 
 from dqn_transfer.agents import DQNLearner, Transition
@@ -112,18 +111,11 @@ def test_replicas_resume_exactly_from_a_mid_episode_checkpoint(tmp_path, monkeyp
     with pytest.raises(KeyboardInterrupt):
         Trainer(config(seeds=2), tmp_path / "killed").run()
     monkeypatch.setattr(Trainer, "save_checkpoint", original)
-    state = json.loads(load_file_meta(tmp_path / "killed" / "seed_4" / "checkpoints" / "training_state.safetensors"))
+    state = agent_meta(tmp_path / "killed" / "seed_4" / "checkpoints" / "training_state.safetensors")
     assert state["counters"]["step"] == 100 and state["episode"] is not None  # mid-episode
     Trainer(config(seeds=2, resume=True), tmp_path / "killed").run()
     for name in ("seed_4", "seed_5"):
         assert_same_run(tmp_path / "killed" / name, tmp_path / "reference" / name)
-
-
-def load_file_meta(path: Path) -> str:
-    from safetensors import safe_open
-
-    with safe_open(str(path), framework="numpy") as f:
-        return f.metadata()["meta"]
 
 
 def test_a_replica_directory_reads_like_a_lone_run(tmp_path):

@@ -23,8 +23,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from conftest import TRAIN_TIMEOUT, start_train
-from safetensors import safe_open
+from conftest import TRAIN_TIMEOUT, agent_meta, start_train
 
 import dqn_transfer.sources
 from dqn_transfer.config import AgentConfig, ReplicasConfig, TrainConfig, TransferConfig
@@ -56,8 +55,7 @@ def listing(cache: Path) -> tuple[list[str], list[str]]:
 
 
 def checkpoint_steps(path: Path) -> int:
-    with safe_open(str(path), framework="pt") as f:
-        return json.loads(f.metadata()["meta"])["steps"]
+    return agent_meta(path)["steps"]
 
 
 def evaluated_steps(metrics: Path) -> list[int]:
@@ -274,8 +272,7 @@ def test_replicas_pretrain_their_missing_sources_as_one_batch(cache, tmp_path, m
         lone = transfer_sources(dataclasses.replace(config(tmp_path / "lone_cache"), seed=seed), tmp_path)[0]
         assert source.parent.parent.name == lone.parent.parent.name  # the same source config hash
         assert checkpoint_steps(source) == PRETRAIN_STEPS
-        with safe_open(str(source), framework="pt") as a, safe_open(str(lone), framework="pt") as b:
-            assert json.loads(a.metadata()["meta"])["digest"] == json.loads(b.metadata()["meta"])["digest"]
+        assert agent_meta(source)["digest"] == agent_meta(lone)["digest"]
     runs.clear()
     assert transfer_sources(batch, tmp_path) == sources and runs == []
     shutil.rmtree(sources[1].parent.parent)

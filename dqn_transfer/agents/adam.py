@@ -45,9 +45,15 @@ class FlatAdam:
         self.exp_avg_sq = torch.zeros_like(flat)
         self.steps = [0] * len(self.spans)
         self.has_state = [False] * len(self.spans)
-        # Views of the stretches of the last step, reused while the same tensors step together.
+        # Views of the stretches of the last step, reused while the same tensors step together at the
+        # same step counts relative to each other (what decides how they merge).
         self._stretches: list[tuple[int, tuple[torch.Tensor, ...]]] = []
-        self._stretches_key: tuple[int, ...] | None = None
+        self._stretches_key: tuple[tuple[int, int], ...] | None = None
+
+    def moments(self, i: int, shape: Sequence[int]) -> dict[str, torch.Tensor]:
+        """Tensor i's ``exp_avg`` and ``exp_avg_sq``, as views of shape ``shape`` (write through them)."""
+        a, b = self.spans[i]
+        return {"exp_avg": self.exp_avg[a:b].view(*shape), "exp_avg_sq": self.exp_avg_sq[a:b].view(*shape)}
 
     def init_state(self, i: int) -> None:
         """Give tensor i the state Adam creates at its first step (zero moments, step 0), if it has none."""
@@ -64,10 +70,9 @@ class FlatAdam:
         for i in active:
             self.init_state(i)
             self.steps[i] += 1
-        key = (tuple(active), tuple(self.steps[i] for i in active))
-        if self._stretches_key != key[0] or len(set(key[1])) > 1:
-            self._stretches = self._views(sorted(active))
-            self._stretches_key = key[0] if len(set(key[1])) <= 1 else None
+        key = tuple((i, self.steps[i] - self.steps[active[0]]) for i in active)
+        if key != self._stretches_key:
+            self._stretches, self._stretches_key = self._views(sorted(active)), key
         for index, views in self._stretches:
             self._update(*views, self.steps[index])
         if active and self.steps[active[0]] % FLUSH_EVERY == 0:  # a saved count: resume flushes alike

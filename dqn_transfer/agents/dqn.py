@@ -133,13 +133,14 @@ class DQNLearner(TeamShape):
         """Replica r's team of K agents, as a ``Learner`` of its own (evaluation, transfer, checkpoints)."""
         return DQNReplica(self, r)
 
-    def _rows(self, replica: int | None) -> slice:
+    def _rows(self, replica: int) -> slice:
         k = self.num_agents
-        return slice(None) if replica is None else slice(replica * k, (replica + 1) * k)
+        return slice(replica * k, (replica + 1) * k)
 
-    def _members(self, replica: int | None) -> slice:
+    def _members(self, replica: int | None) -> slice | None:
+        """Replica's members of the batched networks (None: all of them)."""
         m = self.members_per_replica
-        return slice(None) if replica is None else slice(replica * m, (replica + 1) * m)
+        return None if replica is None else slice(replica * m, (replica + 1) * m)
 
     # ------------------------------------------------------------------------------------ acting
 
@@ -153,8 +154,7 @@ class DQNLearner(TeamShape):
 
     def _q_values(self, network: BatchedMLP, obs: torch.Tensor, replica: int | None = None) -> torch.Tensor:
         """``obs [rows, B, D] -> Q [rows, B, A]`` (rows of one replica, or of all)."""
-        members = None if replica is None else self._members(replica)
-        q_values = network.predict(self._team_batch(obs), members)
+        q_values = network.predict(self._team_batch(obs), self._members(replica))
         return q_values.view(*obs.shape[:2], -1) if self.share_parameters else q_values
 
     def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, greedy: bool = False,
@@ -195,8 +195,7 @@ class DQNLearner(TeamShape):
         ACTION_MARGIN, numpy's argmax is torch's; otherwise (a near-tie, e.g. fresh or copied weights)
         torch decides. The actions are exactly torch's either way.
         """
-        members = None if replica is None else self._members(replica)
-        q_values = self.q_network.predict_numpy(self._team_batch_numpy(obs), members)
+        q_values = self.q_network.predict_numpy(self._team_batch_numpy(obs), self._members(replica))
         if q_values is not None:
             q_values = q_values.reshape(obs.shape[0], -1)
             top_two = np.partition(q_values, -2, axis=-1)[:, -2:]
@@ -312,9 +311,8 @@ class DQNLearner(TeamShape):
             if name not in moments:  # e.g. a layer the source kept frozen has no moments
                 continue
             optimizer.init_state(index)
-            (a, b), shape = network.spans[index], network.shapes[index]
-            for key, buffer in (("exp_avg", optimizer.exp_avg), ("exp_avg_sq", optimizer.exp_avg_sq)):
-                buffer[a:b].view(shape)[m] = torch.as_tensor(moments[name][key], device=self.device)
+            for key, moment in optimizer.moments(index, network.shapes[index]).items():
+                moment[m] = torch.as_tensor(moments[name][key], device=self.device)
             optimizer.steps[index] = int(step)
 
     def _member(self, i: int) -> int:
@@ -379,9 +377,8 @@ class DQNLearner(TeamShape):
         optimizer, network, members = self.optimizer, self.q_network, self._members(replica)
         for index, name in enumerate(network.tensor_names):
             if optimizer.has_state[index]:
-                (a, b), shape = network.spans[index], network.shapes[index]
-                for key, buffer in (("exp_avg", optimizer.exp_avg), ("exp_avg_sq", optimizer.exp_avg_sq)):
-                    arrays[f"optim.{name}.{key}"] = np.ascontiguousarray(buffer[a:b].view(shape)[members].cpu().numpy())
+                for key, moment in optimizer.moments(index, network.shapes[index]).items():
+                    arrays[f"optim.{name}.{key}"] = np.ascontiguousarray(moment[members].cpu().numpy())
                 arrays[f"optim.{name}.step"] = np.array(optimizer.steps[index], dtype=np.float32)
         meta = {
             "explore_rng": self.rngs[replica].bit_generator.state,
@@ -402,12 +399,12 @@ class DQNLearner(TeamShape):
             prefix = f"optim.{name}."
             if prefix + "step" not in arrays:
                 continue
-            (a, b), shape = network.spans[index], network.shapes[index]
+            shape = network.shapes[index]
             optimizer.init_state(index)
-            for key, buffer in (("exp_avg", optimizer.exp_avg), ("exp_avg_sq", optimizer.exp_avg_sq)):
+            for key, moment in optimizer.moments(index, shape).items():
                 value = torch.from_numpy(np.array(arrays[prefix + key], dtype=np.float32))
                 check_tensor_shape(prefix + key, value, (self.members_per_replica, *shape[1:]))
-                buffer[a:b].view(shape)[members] = value.to(self.device)
+                moment[members] = value.to(self.device)
             optimizer.steps[index] = int(np.asarray(arrays[prefix + "step"]).reshape(-1)[0])
         self.rngs[replica].bit_generator.state = meta["explore_rng"]
         self.replay.rngs[replica].bit_generator.state = meta["replay_rng"]

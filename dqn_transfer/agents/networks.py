@@ -132,20 +132,25 @@ class BatchedMLP(nn.Module):
         return x
 
     @torch.no_grad()
-    def predict(self, x: torch.Tensor, members: slice | None = None) -> torch.Tensor:
-        """``forward`` without autograd, for ``members`` only (default all; ``x [len(members), B, in]``)."""
+    def predict(self, x: torch.Tensor, members: slice | None = None,
+                inputs: list[torch.Tensor] | None = None) -> torch.Tensor:
+        """``forward`` without autograd, for ``members`` only (default all; ``x [len(members), B, in]``);
+        every layer's input is appended to ``inputs`` if given (what ``backward`` needs)."""
         last = self.num_layers - 1
         for l, (weight, bias) in enumerate(self._affine):
             if members is not None:
                 weight, bias = weight[members], bias[members]
+            if inputs is not None:
+                inputs.append(x)
             x = torch.baddbmm(bias, x, weight)
             if l < last:
                 x = torch.relu(x)
         return x
 
     def predict_numpy(self, x: np.ndarray, members: slice | None = None) -> np.ndarray | None:
-        """:meth:`predict` in numpy on the CPU (None elsewhere): a tenth of torch's per-call cost for a
-        batch of one, but other float32 kernels, so results may differ from ``predict`` in the last bits."""
+        """:meth:`predict` in numpy on the CPU (None elsewhere): cheaper per call for a batch of one (about
+        35 against 55 µs for a 64x64 net here), but other float32 kernels, so results may differ from
+        ``predict`` in the last bits."""
         if self._affine_arrays is None:
             return None
         last = self.num_layers - 1
@@ -158,16 +163,10 @@ class BatchedMLP(nn.Module):
                 np.maximum(x, 0.0, out=x)
         return x
 
-    @torch.no_grad()
     def forward_cached(self, x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
         """``forward`` without autograd, also returning every layer's input (what ``backward`` needs)."""
-        inputs, last = [], self.num_layers - 1
-        for l, (weight, bias) in enumerate(self._affine):
-            inputs.append(x)
-            x = torch.baddbmm(bias, x, weight)
-            if l < last:
-                x = torch.relu(x)
-        return x, inputs
+        inputs: list[torch.Tensor] = []
+        return self.predict(x, inputs=inputs), inputs
 
     @torch.no_grad()
     def backward(self, inputs: list[torch.Tensor], grad_out: torch.Tensor, layers: Sequence[int]) -> None:
