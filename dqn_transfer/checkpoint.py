@@ -14,8 +14,9 @@ file is sniffed first and refused when it looks like a pickle or a PyTorch zip, 
 problem (missing, truncated, foreign, newer, tampered) is a :class:`CheckpointError` with one line
 naming the file and the problem.
 
-Resume state (optimizer, replay, RNG, counters) uses the same container through
-:func:`save_training_state` / :func:`load_training_state`, with numpy arrays instead of torch tensors.
+Tensors are numpy arrays on both sides (a checkpoint is read and written without torch). Resume state
+(optimizer, replay, RNG, counters) uses the same container through :func:`save_training_state` /
+:func:`load_training_state`.
 Writes are atomic (temp file in the same directory, fsync, ``os.replace``), so a killed run never
 leaves a half-written file under the final name.
 
@@ -32,7 +33,7 @@ import secrets
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import safetensors
@@ -40,9 +41,6 @@ import safetensors.numpy
 
 from dqn_transfer.enums import Algorithm
 from dqn_transfer.run_dir import AGENT_FILE_GLOB, CHECKPOINTS_DIR, RunDir, natural_key
-
-if TYPE_CHECKING:  # torch is only needed to save/load agent tensors, not to inspect files
-    import torch
 
 FORMAT_VERSION = 1
 META_KEY = "meta"
@@ -74,12 +72,10 @@ class CheckpointInfo:
 # Writing
 
 
-def encode_agent_checkpoint(tensors: Mapping[str, torch.Tensor], meta: Mapping[str, Any]) -> bytes:
-    """One agent's tensors and meta as the bytes of its safetensors file (``meta`` is not modified)."""
-    import safetensors.torch  # torch only where agent tensors are handled: inspecting files needs none
-
-    tensors = {name: t.detach().cpu().contiguous() for name, t in tensors.items()}
-    return _encode(tensors, meta, AGENT_KIND, safetensors.torch.save)
+def encode_agent_checkpoint(tensors: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> bytes:
+    """One agent's arrays and meta as the bytes of its safetensors file (``meta`` is not modified)."""
+    tensors = {name: np.ascontiguousarray(t) for name, t in tensors.items()}
+    return _encode(tensors, meta, AGENT_KIND, safetensors.numpy.save)
 
 
 def encode_training_state(arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> bytes:
@@ -88,7 +84,7 @@ def encode_training_state(arrays: Mapping[str, np.ndarray], meta: Mapping[str, A
     return _encode(arrays, meta, TRAINING_STATE_KIND, safetensors.numpy.save)
 
 
-def save_agent_checkpoint(path: str | os.PathLike, tensors: Mapping[str, torch.Tensor],
+def save_agent_checkpoint(path: str | os.PathLike, tensors: Mapping[str, np.ndarray],
                           meta: Mapping[str, Any]) -> None:
     """Atomically write one agent's checkpoint file."""
     atomic_write(Path(path), encode_agent_checkpoint(tensors, meta))
@@ -188,12 +184,10 @@ def verify_checkpoint(path: str | os.PathLike, kind: str | None = None) -> Check
     return info
 
 
-def load_agent_checkpoint(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
-    """Verified tensors (CPU) and meta of one agent checkpoint; see :func:`verify_checkpoint`."""
-    import safetensors.torch
-
+def load_agent_checkpoint(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Verified arrays and meta of one agent checkpoint; see :func:`verify_checkpoint`."""
     info, data = _read(Path(path), AGENT_KIND)
-    return _decode(info.path, data, safetensors.torch.load), info.meta
+    return _decode(info.path, data, safetensors.numpy.load), info.meta
 
 
 def load_training_state(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, Any]]:

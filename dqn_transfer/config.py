@@ -18,7 +18,7 @@ from typing import Any, List, Optional
 from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
 
-from dqn_transfer.enums import Algorithm, Device, Exchange
+from dqn_transfer.enums import Algorithm, Device, Engine, Exchange
 from dqn_transfer.envs.settings import EnvConfig
 
 # The config groups (conf/ beside the package: a checkout or an editable install).
@@ -49,6 +49,7 @@ class AgentConfig:
     exploration_fraction: float = 0.5  # fraction of total_steps over which epsilon decays linearly
     max_grad_norm: float = 10.0  # gradient-norm clip
     share_parameters: bool = False  # one network for all agents (parameter-sharing baseline)
+    engine: Engine = Engine.torch  # DQN arithmetic: torch (any device) | numpy (CPU, no torch import: fastest for small nets)
 
 
 # Each AgentConfig key -> Stable-Baselines3 DQN's keyword for the same quantity ("hidden" becomes policy_kwargs.net_arch).
@@ -111,7 +112,7 @@ class TrainConfig:
     progress: bool = True  # tqdm progress bar
     resume: bool = False  # continue the run in hydra.run.dir from its last checkpoint
     device: Device = Device.cpu
-    threads: int = 1  # torch CPU threads: tiny networks run fastest on one, and sweep jobs don't oversubscribe
+    threads: int = 1  # torch CPU threads (engine torch): tiny networks run fastest on one, sweep jobs don't oversubscribe
 
 
 def register_configs() -> None:
@@ -177,6 +178,8 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
         layers = len(agent.hidden) + 1
         _check(all(-layers <= i < layers for i in transfer.freeze),
                f"transfer.freeze={list(transfer.freeze)}: the network has {layers} layers (0..{layers - 1})")
+    _check(Engine(agent.engine) is Engine.torch or Device(cfg.device) is not Device.cuda,
+           "agent.engine=numpy runs on the CPU: use device=cpu (or agent.engine=torch for device=cuda)")
     _check(cfg.replicas.maps == 1 or (env.layout is None and env.layout_file is None),
            f"replicas.maps={cfg.replicas.maps} needs a generated map; a layout fixes the map (use replicas.seeds)")
     if agent.share_parameters:

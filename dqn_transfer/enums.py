@@ -63,6 +63,13 @@ class Device(Enum):
     auto = "auto"
 
 
+class Engine(Enum):
+    """What computes the DQN learners: ``torch`` (any device) or ``numpy`` (CPU, no torch in the process)."""
+
+    torch = "torch"
+    numpy = "numpy"
+
+
 def values(enum: type[Enum]) -> tuple[str, ...]:
     """The accepted spellings of an enum, in declaration order (for checks and messages)."""
     return tuple(member.value for member in enum)

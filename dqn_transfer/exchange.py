@@ -11,10 +11,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from dqn_transfer.agents import DQNLearner, Transition
+from dqn_transfer.agents import BatchedDQN, Transition
 
 
-def exchange_best(learner: DQNLearner, window_returns: np.ndarray, tau: float) -> int:
+def exchange_best(learner: BatchedDQN, window_returns: np.ndarray, tau: float) -> int:
     """Soft-copy the best agent into the others; returns the best agent's index.
 
     ``window_returns [episodes, K]``: each agent's episodic return over the window.
@@ -30,7 +30,7 @@ def exchange_best(learner: DQNLearner, window_returns: np.ndarray, tau: float) -
     return best
 
 
-def exchange_replay(learner: DQNLearner, transitions: Sequence[Transition]) -> None:
+def exchange_replay(learner: BatchedDQN, transitions: Sequence[Transition]) -> None:
     """Each agent adds its team-mates' transitions of the window to its own replay row."""
     if not transitions:
         return

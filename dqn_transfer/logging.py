@@ -11,11 +11,18 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from pathlib import Path
 from typing import Any, Mapping
 
-from torch.utils.tensorboard import SummaryWriter
-from torch.utils.tensorboard.summary import hparams
+# TensorBoard's own summary builders and event writer: no torch (or TensorFlow) needed to write logs.
+from tensorboard.compat.proto.event_pb2 import Event, SessionLog
+from tensorboard.compat.proto.summary_pb2 import Summary, SummaryMetadata
+from tensorboard.compat.proto.tensor_pb2 import TensorProto
+from tensorboard.plugins.custom_scalar import layout_pb2, metadata as custom_scalar_metadata
+from tensorboard.plugins.hparams import summary_v2 as hparams_summary
+from tensorboard.plugins.text import summary_v2 as text_summary
+from tensorboard.summary.writer.event_file_writer import EventFileWriter
 
 AGENT_TAGS = ("episodic_return", "episodic_length", "td_loss", "q_mean")
 
@@ -35,26 +42,43 @@ def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 
 
 class RunLogger:
-    """A thin SummaryWriter wrapper that owns the tag vocabulary."""
+    """Writes a run's TensorBoard events and owns the tag vocabulary.
+
+    ``purge_step`` (a resumed run): events of the killed run from this step on are hidden by
+    TensorBoard, which the run then logs again.
+    """
 
     def __init__(self, tb_dir: Path, num_agents: int, config: Mapping[str, Any], purge_step: int | None = None):
-        self.writer = SummaryWriter(log_dir=str(tb_dir), purge_step=purge_step)
+        self.writer = EventFileWriter(str(tb_dir))
         self.num_agents = num_agents
-        if not purge_step:  # a resumed run already has its layout, hparams and text
+        if purge_step:  # TensorBoard drops the earlier events at or after the step of a restart
+            self.writer.add_event(Event(step=purge_step, wall_time=time.time(),
+                                        session_log=SessionLog(status=SessionLog.START)))
+        else:  # a resumed run already has its layout, hparams and text
             self._write_layout()
             self._write_config(config)
 
+    def _add(self, summary: Summary, step: int = 0) -> None:
+        self.writer.add_event(Event(summary=summary, step=step, wall_time=time.time()))
+
     def _write_layout(self) -> None:
         agents = range(self.num_agents)
-        per_agent = {
-            tag: ["Multiline", [f"agent_{i}/{tag}" for i in agents]] for tag in AGENT_TAGS
-        }
+        per_agent = {tag: [f"agent_{i}/{tag}" for i in agents] for tag in AGENT_TAGS}
         team = {
-            "return": ["Multiline", ["team/return", "eval/team_return"]],
-            "treasures and traps": ["Multiline", ["team/treasures_collected", "team/trap_rate"]],
-            "eval success rate": ["Multiline", ["eval/success_rate"]],
+            "return": ["team/return", "eval/team_return"],
+            "treasures and traps": ["team/treasures_collected", "team/trap_rate"],
+            "eval success rate": ["eval/success_rate"],
         }
-        self.writer.add_custom_scalars({"agents": per_agent, "team": team})
+        layout = layout_pb2.Layout(category=[
+            layout_pb2.Category(title=title, chart=[
+                layout_pb2.Chart(title=name, multiline=layout_pb2.MultilineChartContent(tag=tags))
+                for name, tags in charts.items()])
+            for title, charts in (("agents", per_agent), ("team", team))])
+        # What tensorboard.plugins.custom_scalar.summary.pb writes, without its TensorFlow import.
+        tensor = TensorProto(dtype="DT_STRING", string_val=[layout.SerializeToString()])
+        metadata = SummaryMetadata.FromString(custom_scalar_metadata.create_summary_metadata().SerializeToString())
+        self._add(Summary(value=[Summary.Value(tag=custom_scalar_metadata.CONFIG_SUMMARY_TAG, tensor=tensor,
+                                               metadata=metadata)]))
 
     def _write_config(self, config: Mapping[str, Any]) -> None:
         flat = flatten(config)
@@ -62,18 +86,15 @@ class RunLogger:
             key: value for key, value in flat.items() if isinstance(value, (int, float, str, bool))
         }
         hparam_values.update({key: "null" for key, value in flat.items() if value is None})
-        experiment, session_start, session_end = hparams(
-            hparam_values, {"eval/team_return": float("nan"), "eval/success_rate": float("nan")}
-        )
-        file_writer = self.writer._get_file_writer()
-        for summary in (experiment, session_start, session_end):
-            file_writer.add_summary(summary)
+        metrics = [hparams_summary.Metric(tag) for tag in ("eval/team_return", "eval/success_rate")]
+        self._add(hparams_summary.hparams_config_pb([hparams_summary.HParam(key) for key in hparam_values], metrics))
+        self._add(hparams_summary.hparams_pb(hparam_values))
         text = "\n".join(f"    {key}: {value}" for key, value in sorted(flat.items()))
-        self.writer.add_text("config", text, 0)
+        self.text("config", text)
 
     def scalar(self, tag: str, value: float, step: int) -> None:
         if value is not None and not math.isnan(float(value)):
-            self.writer.add_scalar(tag, float(value), step)
+            self._add(Summary(value=[Summary.Value(tag=tag, simple_value=float(value))]), step)
 
     def agent_scalars(self, name: str, values, step: int) -> None:
         """``agent_{i}/{name}`` for each agent; NaNs (no update yet) are skipped."""
@@ -81,7 +102,7 @@ class RunLogger:
             self.scalar(f"agent_{i}/{name}", value, step)
 
     def text(self, tag: str, text: str, step: int = 0) -> None:
-        self.writer.add_text(tag, text, step)
+        self._add(text_summary.text_pb(tag, text), step)
 
     def close(self) -> None:
         self.writer.close()

@@ -34,7 +34,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 from omegaconf import OmegaConf
 from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
@@ -49,7 +48,7 @@ from dqn_transfer.checkpoint import (
     load_training_state,
 )
 from dqn_transfer.config import ConfigError, TrainConfig, replica_configs, to_plain, validate
-from dqn_transfer.enums import Algorithm, Device, Exchange
+from dqn_transfer.enums import Algorithm, Exchange
 from dqn_transfer.envs import TreasureHuntGame, make_game
 from dqn_transfer.exchange import exchange_best, exchange_replay
 from dqn_transfer.logging import RunLogger
@@ -113,15 +112,6 @@ def build_game(config: TrainConfig, source_task: bool = False) -> TreasureHuntGa
     except (ValueError, OSError) as err:
         raise ConfigError(f"env: {err}") from err
     return game.single_agent_game() if source_task else game
-
-
-def resolve_device(device: Device, threads: int) -> str:
-    torch.set_num_threads(threads)
-    if device is Device.auto:
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    if device is Device.cuda and not torch.cuda.is_available():
-        raise ConfigError("device=cuda but no CUDA device is available here (use device=cpu or device=auto)")
-    return device.value
 
 
 def exploration_steps(config: TrainConfig) -> int:
@@ -248,12 +238,11 @@ class Trainer:
         self.run_dir = RunDir(run_dir)
         self.source_task = source_task
         self.algorithm = Algorithm(config.agent.algorithm)
-        self.device = resolve_device(config.device, config.threads)
         configs = replica_configs(config)
         games = [build_game(c, source_task) for c in configs]
         first = games[0]
         self.learner = make_replicas(config.agent, first.num_agents, first.obs_layout(), first.num_actions,
-                                     seeds=[c.seed for c in configs], device=self.device)
+                                     seeds=[c.seed for c in configs], device=config.device, threads=config.threads)
         sources = list(sources) if sources is not None else [None] * len(configs)
         self.replicas = [
             Replica(r, c, self.run_dir.path if len(configs) == 1 else self.run_dir.path / replica_name(c, config),
@@ -524,7 +513,7 @@ class Trainer:
                 for i in range(rep.game.num_agents):
                     tensors = rep.learner.agent_tensors(i)
                     agent_files[rep.run_dir.agent_checkpoint(i)] = encode_agent_checkpoint(tensors, self.agent_meta(rep, i, plain))
-                    arrays.update({f"agent_{i}/{name}": t.numpy() for name, t in tensors.items()})
+                    arrays.update({f"agent_{i}/{name}": t for name, t in tensors.items()})
                 learner_arrays, learner_meta = rep.learner.training_state()
                 arrays.update({f"learner/{name}": a for name, a in learner_arrays.items()})
                 arrays["exchange/returns"] = np.asarray(rep.window_returns, dtype=np.float64).reshape(-1, rep.game.num_agents)
@@ -558,8 +547,7 @@ class Trainer:
                                   f"{meta.get('layout')}\nthis config gives\n{rep.game.map.layout}")
         for i in range(rep.game.num_agents):
             prefix = f"agent_{i}/"
-            rep.learner.load_agent_tensors(i, {k[len(prefix):]: torch.from_numpy(v.copy())
-                                               for k, v in arrays.items() if k.startswith(prefix)})
+            rep.learner.load_agent_tensors(i, {k[len(prefix):]: v for k, v in arrays.items() if k.startswith(prefix)})
         rep.learner.load_training_state({k[len("learner/"):]: v for k, v in arrays.items()
                                          if k.startswith("learner/")}, meta["learner"])
         rep.counters = Counters(**meta["counters"])

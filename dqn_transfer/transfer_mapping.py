@@ -33,7 +33,6 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
 Layout = Sequence[tuple[str, int]]
 
@@ -163,7 +162,7 @@ def _warn_dropped(plan: SegmentPlan) -> None:
 # --------------------------------------------------------------------------------------------- DQN
 
 
-def _dqn_layers(tensors: Mapping[str, torch.Tensor]) -> list[tuple[torch.Tensor, torch.Tensor]]:
+def _dqn_layers(tensors: Mapping[str, np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
     """The online network's (weight, bias) per layer, checked to be a complete MLP."""
     indices = sorted(int(m.group(1)) for key in tensors if (m := _LAYER_WEIGHT.match(key)))
     if not indices:
@@ -180,12 +179,12 @@ def _dqn_layers(tensors: Mapping[str, torch.Tensor]) -> list[tuple[torch.Tensor,
 
 
 def transfer_dqn_tensors(
-    source_tensors: Mapping[str, torch.Tensor],
+    source_tensors: Mapping[str, np.ndarray],
     source_layout: Layout,
     target_layout: Layout,
     target_hidden: Sequence[int],
     num_actions: int,
-) -> dict[str, torch.Tensor]:
+) -> dict[str, np.ndarray]:
     """Target-shaped ``q.*`` and ``target.*`` tensors computing the source's Q-function.
 
     Only the first layer sees the observation, so only its weight changes shape: it starts at zero
@@ -210,17 +209,17 @@ def transfer_dqn_tensors(
         raise TransferError(f"number of actions differs: source {source_actions}, target {num_actions}")
     _warn_dropped(plan)
 
-    first_weight = layers[0][0].detach().cpu()
-    expanded = first_weight.new_zeros(first_weight.shape[0], plan.target_dim)
-    expanded[:, torch.from_numpy(plan.projection)] = first_weight[:, torch.from_numpy(plan.source_columns)]
+    first_weight = np.asarray(layers[0][0])
+    expanded = np.zeros((first_weight.shape[0], plan.target_dim), dtype=first_weight.dtype)
+    expanded[:, plan.projection] = first_weight[:, plan.source_columns]
 
-    out: dict[str, torch.Tensor] = {}
+    out: dict[str, np.ndarray] = {}
     for l, (weight, bias) in enumerate(layers):
-        weight = expanded if l == 0 else weight.detach().cpu()
+        weight = expanded if l == 0 else weight
         for net in ("q", "target"):
-            # Separate contiguous copies: safetensors refuses tensors that share storage.
-            out[f"{net}.layers.{l}.weight"] = weight.clone().contiguous()
-            out[f"{net}.layers.{l}.bias"] = bias.detach().cpu().clone().contiguous()
+            # Separate contiguous copies: the learner may keep what it is given.
+            out[f"{net}.layers.{l}.weight"] = np.array(weight, order="C")
+            out[f"{net}.layers.{l}.bias"] = np.array(bias, order="C")
     return out
 
 
@@ -271,12 +270,12 @@ def _check_fallback(
 
 
 def transfer_tabular_tensors(
-    source_tensors: Mapping[str, torch.Tensor],
+    source_tensors: Mapping[str, np.ndarray],
     source_layout: Layout,
     target_layout: Layout,
     *,
     num_actions: int | None = None,
-) -> dict[str, torch.Tensor]:
+) -> dict[str, np.ndarray]:
     """An empty target table whose fallback is the source table, re-keyed on the target's columns.
 
     The target's own observations are longer than the source's, so no source key is a target key;
@@ -292,8 +291,8 @@ def transfer_tabular_tensors(
     for name in ("keys", "values"):
         if name not in source_tensors:
             raise TransferError(f"source has no tabular tensor '{name}': not a tabular checkpoint?")
-    keys = source_tensors["keys"].detach().cpu().numpy()
-    values = source_tensors["values"].detach().cpu().numpy()
+    keys = np.asarray(source_tensors["keys"])
+    values = np.asarray(source_tensors["values"])
     if keys.ndim != 2 or keys.shape[1] != plan.source_dim:
         raise TransferError(
             f"source table keys have shape {list(keys.shape)} but its obs layout has {plan.source_dim} values"
@@ -318,18 +317,18 @@ def transfer_tabular_tensors(
 
     if has_fallback:
         table = (
-            source_tensors["fallback_keys"].detach().cpu().numpy(),
-            source_tensors["fallback_values"].detach().cpu().numpy(),
-            source_tensors["fallback_projection"].detach().cpu().numpy().astype(np.int64),
+            np.asarray(source_tensors["fallback_keys"]),
+            np.asarray(source_tensors["fallback_values"]),
+            np.asarray(source_tensors["fallback_projection"]).astype(np.int64),
         )
         _check_fallback(*table, plan, values.shape[1])
     else:
         table = (keys, values, np.arange(plan.source_dim, dtype=np.int64))
     fallback_keys, fallback_values, projection = _project_table(*table, plan)
     return {
-        "keys": torch.zeros(0, plan.target_dim, dtype=torch.float32),
-        "values": torch.zeros(0, values.shape[1], dtype=torch.float32),
-        "fallback_keys": torch.from_numpy(fallback_keys.astype(np.float32)).contiguous(),
-        "fallback_values": torch.from_numpy(fallback_values.astype(np.float32)).contiguous(),
-        "fallback_projection": torch.from_numpy(projection).contiguous(),
+        "keys": np.zeros((0, plan.target_dim), dtype=np.float32),
+        "values": np.zeros((0, values.shape[1]), dtype=np.float32),
+        "fallback_keys": np.ascontiguousarray(fallback_keys, dtype=np.float32),
+        "fallback_values": np.ascontiguousarray(fallback_values, dtype=np.float32),
+        "fallback_projection": np.ascontiguousarray(projection),
     }

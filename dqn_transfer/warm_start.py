@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from dqn_transfer.agents import DQNLearner, Learner
+from dqn_transfer.agents import BatchedDQN, Learner
 from dqn_transfer.checkpoint import CheckpointError, check_compatible, load_agent_checkpoint, load_training_state
 from dqn_transfer.config import TrainConfig
 from dqn_transfer.enums import Algorithm
@@ -86,7 +86,7 @@ def apply_transfer(config: TrainConfig, learner: Learner, game: TreasureHuntGame
     }
 
 
-def carry_optimizer_state(learner: DQNLearner, source: Path, meta: dict[str, Any], target_layout,
+def carry_optimizer_state(learner: BatchedDQN, source: Path, meta: dict[str, Any], target_layout,
                           targets: list[int]) -> None:
     """``transfer.reset_optimizer=false``: start the targets' Adam moments from the source's.
 

@@ -128,8 +128,8 @@ def reference_mlp(tensors: dict, prefix: str = "q"):
         weight = tensors[f"{prefix}.layers.{l}.weight"]
         linear = nn.Linear(weight.shape[1], weight.shape[0])
         with torch.no_grad():
-            linear.weight.copy_(weight)
-            linear.bias.copy_(tensors[f"{prefix}.layers.{l}.bias"])
+            linear.weight.copy_(torch.as_tensor(weight))
+            linear.bias.copy_(torch.as_tensor(tensors[f"{prefix}.layers.{l}.bias"]))
         modules.append(linear)
         if l < num_layers - 1:
             modules.append(nn.ReLU())

@@ -100,8 +100,8 @@ def constant_q_learner(c: float, **kwargs) -> DQNLearner:
     """Zero weights everywhere and output bias c: Q(s, a) = c for every s and a."""
     learner = dqn(hidden=[4], batch_size=1, **kwargs)
     state = {
-        "layers.0.weight": torch.zeros(4, D), "layers.0.bias": torch.zeros(4),
-        "layers.1.weight": torch.zeros(A, 4), "layers.1.bias": torch.full((A,), c),
+        "layers.0.weight": np.zeros((4, D), np.float32), "layers.0.bias": np.zeros(4, np.float32),
+        "layers.1.weight": np.zeros((A, 4), np.float32), "layers.1.bias": np.full(A, c, np.float32),
     }
     for i in range(learner.num_agents):
         learner.load_agent_tensors(i, {f"q.{k}": v for k, v in state.items()})
@@ -138,15 +138,15 @@ def test_share_parameters_one_network_for_all_agents():
     run(learner, random_steps(3, 10))
     first = learner.agent_tensors(0)
     for i in (1, 2):
-        assert all(torch.equal(first[name], t) for name, t in learner.agent_tensors(i).items())
+        assert all(np.array_equal(first[name], t) for name, t in learner.agent_tensors(i).items())
     # Same observation -> same greedy action for every agent.
     obs = np.repeat(np.random.default_rng(0).random((1, D), dtype=np.float32), 3, axis=0)
     actions = learner.act(obs, np.ones(3, bool), epsilon=0.0, greedy=True)
     assert len(set(actions.tolist())) == 1
     # Setting "agent 2's" weights sets everyone's.
-    new = {name: torch.zeros_like(t) for name, t in learner.get_member_weights(2).items()}
+    new = {name: np.zeros_like(t) for name, t in learner.get_member_weights(2).items()}
     learner.set_member_weights(2, new)
-    assert all(torch.equal(t, new[name]) for name, t in learner.get_member_weights(0).items())
+    assert all(np.array_equal(t, new[name]) for name, t in learner.get_member_weights(0).items())
     assert learner.network_meta()["share_parameters"] is True
 
 
@@ -178,7 +178,7 @@ def test_agent_tensor_names_and_shapes():
             expected[f"{net}.layers.{l}.weight"] = (fan_out, fan_in)  # nn.Linear: [out, in]
             expected[f"{net}.layers.{l}.bias"] = (fan_out,)
     assert {name: tuple(t.shape) for name, t in tensors.items()} == expected
-    assert all(t.is_contiguous() and t.device.type == "cpu" for t in tensors.values())
+    assert all(isinstance(t, np.ndarray) and t.flags.c_contiguous and t.dtype == np.float32 for t in tensors.values())
 
 
 def test_same_seed_same_actions_and_weights():
@@ -262,14 +262,14 @@ def test_loading_bad_tensors_names_the_tensor():
     learner = dqn(hidden=[8])
     tensors = learner.agent_tensors(0)
     with pytest.raises(ValueError, match=r"'q.layers.0.weight' has shape \[8, 5\], expected \[8, 4\]"):
-        learner.load_agent_tensors(0, {**tensors, "q.layers.0.weight": torch.zeros(8, 5)})
+        learner.load_agent_tensors(0, {**tensors, "q.layers.0.weight": np.zeros((8, 5), np.float32)})
     del tensors["target.layers.1.bias"]
     with pytest.raises(ValueError, match="'target.layers.1.bias' is missing"):
         learner.load_agent_tensors(0, tensors)
     # Only q.* given (e.g. a hand-made network): the target becomes a copy of it.
     online_only = {name: t for name, t in learner.agent_tensors(0).items() if name.startswith("q.")}
     learner.load_agent_tensors(1, online_only)
-    assert torch.equal(learner.agent_tensors(1)["target.layers.0.weight"], online_only["q.layers.0.weight"])
+    assert np.array_equal(learner.agent_tensors(1)["target.layers.0.weight"], online_only["q.layers.0.weight"])
 
 
 @pytest.mark.parametrize("share_parameters", [False, True])

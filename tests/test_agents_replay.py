@@ -1,7 +1,6 @@
 """Per-agent replay rows: own pointers, wraparound, nothing from dead agents, own-range sampling."""
 
 import numpy as np
-import torch
 
 from dqn_transfer.agents import ReplayBuffer, Transition
 
@@ -47,11 +46,12 @@ def test_sampling_stays_in_each_agents_filled_range_and_keeps_transitions_whole(
     assert set(batch.actions[0].tolist()) == {2, 3, 4, 5}
     assert set(batch.actions[1].tolist()) == {0, 1}
     # Fields of one sample come from the same transition.
-    actions = batch.actions.float()
-    torch.testing.assert_close(batch.obs[:2, :, 0], actions[:2])
-    torch.testing.assert_close(batch.next_obs[:2, :, 0], actions[:2] + 0.5)
-    torch.testing.assert_close(batch.rewards[:2], -actions[:2])
-    assert torch.equal(batch.terminated[:2], (batch.actions[:2] % 2 == 0).float())
+    assert batch.actions.dtype == np.int64
+    actions = batch.actions.astype(np.float32)
+    np.testing.assert_array_equal(batch.obs[:2, :, 0], actions[:2])
+    np.testing.assert_array_equal(batch.next_obs[:2, :, 0], actions[:2] + 0.5)
+    np.testing.assert_array_equal(batch.rewards[:2], -actions[:2])
+    np.testing.assert_array_equal(batch.terminated[:2], (batch.actions[:2] % 2 == 0).astype(np.float32))
     # Only what the TD target reads is stored: truncation is an ordinary step for it.
     assert set(filled_buffer().state_dict()) == {"obs", "actions", "rewards", "next_obs", "terminated", "ptr", "size"}
 
@@ -79,10 +79,10 @@ def test_state_dict_round_trip_continues_identically():
     b.load_state_dict(a.state_dict())
     b.rngs[0].bit_generator.state = a.rngs[0].bit_generator.state
     assert a.state_dict()["obs"].shape == (K, 4, OBS_DIM)  # only up to the fullest row is saved
-    assert torch.equal(a.storage, b.storage)
+    assert np.array_equal(a.storage, b.storage)
     batch_a, batch_b = a.sample(16), b.sample(16)
     for field_a, field_b in zip(batch_a, batch_b):
-        assert torch.equal(field_a, field_b)
+        assert np.array_equal(field_a, field_b)
 
 
 def test_replica_rows_sample_exactly_as_their_own_buffer_would():
@@ -97,6 +97,6 @@ def test_replica_rows_sample_exactly_as_their_own_buffer_would():
     for _ in range(3):
         batch, expected = joint.sample(8), lone.sample(8)
         for field, want in zip(batch, expected):
-            assert torch.equal(field[K:], want)
+            assert np.array_equal(field[K:], want)
     halves = joint.state_dict(slice(K, 2 * K)), lone.state_dict()
     assert all(np.array_equal(halves[0][name], halves[1][name]) for name in halves[1])

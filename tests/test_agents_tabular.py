@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-import torch
 
 from dqn_transfer.agents import TabularLearner, Transition
 from dqn_transfer.config import AgentConfig
@@ -23,7 +22,7 @@ def tabular(algorithm: str, num_agents: int, layout=LAYOUT, actions: int = 2, lr
 def learner(algorithm: str, num_agents: int = 3, seed: int = 0) -> TabularLearner:
     agent = tabular(algorithm, num_agents, seed=seed)
     for i in range(num_agents):  # every agent starts knowing Q(S1) = [2, 4]; S0 unseen (0, 0)
-        table = {"keys": torch.from_numpy(S1[None]), "values": torch.tensor([[2.0, 4.0]])}
+        table = {"keys": S1[None], "values": np.array([[2.0, 4.0]], dtype=np.float32)}
         agent.load_agent_tensors(i, table)
     return agent
 
@@ -112,8 +111,8 @@ def test_fallback_initialises_unseen_entries_and_round_trips():
     assert agent.agent_q_values(0, S1).tolist() == [2.5, 7.0]
 
     tensors = agent.agent_tensors(0)
-    assert tensors["fallback_projection"].dtype == torch.int64
-    assert tensors["keys"].dtype == tensors["values"].dtype == torch.float32
+    assert tensors["fallback_projection"].dtype == np.int64
+    assert tensors["keys"].dtype == tensors["values"].dtype == np.float32
     clone = tabular("qlearning", 1, seed=1)
     clone.load_agent_tensors(0, tensors)
     for obs in (S0, S1, np.array([1.0, 1.0], np.float32)):
@@ -142,7 +141,7 @@ def test_training_state_round_trip_continues_identically():
     run(b, inputs[30:])
     for i in range(2):
         for name, tensor in a.agent_tensors(i).items():
-            assert torch.equal(tensor, b.agent_tensors(i)[name])
+            assert np.array_equal(tensor, b.agent_tensors(i)[name])
 
 
 def test_tabular_learner_refuses_a_dqn_config():

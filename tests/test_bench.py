@@ -62,7 +62,8 @@ def test_sb3_kwargs_give_sb3_our_values_under_its_names():
         "policy_kwargs": {"net_arch": [64, 64]}, "device": "cpu",
     }
     # Every hyperparameter the DQN learner and the trainer read is matched (a new key must be added).
-    matched = {*SB3_NAMES, "hidden", "algorithm", "share_parameters"}  # hidden: net_arch; the others fixed
+    # hidden: net_arch; the others fixed (engine: what computes ours, not a hyperparameter)
+    matched = {*SB3_NAMES, "hidden", "algorithm", "share_parameters", "engine"}
     assert matched == {field.name for field in dataclasses.fields(AgentConfig)}
     model = sb3_dqn(TINY, TINY_MAP, seed=0)  # and SB3 keeps them as given
     assert (model.batch_size, model.buffer_size, model.learning_starts) == (8, 200, 20)
@@ -182,14 +183,14 @@ def test_the_bare_update_and_ours_are_the_same_update():
     linears = [layer for layer in rig.q if isinstance(layer, nn.Linear)]
     state = {f"layers.{l}.{kind}": getattr(layer, kind).detach().clone() for l, layer in enumerate(linears)
              for kind in ("weight", "bias")}
-    rig.learner.load_agent_tensors(0, {f"q.{name}": t for name, t in state.items()})
+    rig.learner.load_agent_tensors(0, {f"q.{name}": t.numpy() for name, t in state.items()})
     rig.bare_update()
     rig.learner.train_on(rig.batch)
     updated = {f"layers.{l}.{kind}": getattr(layer, kind).detach() for l, layer in enumerate(linears)
                for kind in ("weight", "bias")}
     for name, tensor in rig.learner.get_member_weights(0).items():
-        assert not torch.equal(tensor, state[name]), name  # it moved
-        assert torch.allclose(tensor, updated[name], atol=1e-6), name
+        assert not np.array_equal(tensor, state[name]), name  # it moved
+        np.testing.assert_allclose(tensor, updated[name], rtol=0, atol=1e-6, err_msg=name)
 
 
 def test_sb3_update_rig_fills_replay_without_training_then_times_train():
@@ -284,9 +285,9 @@ def process_document():
 
 
 @pytest.mark.slow
-def test_lone_section_runs_three_whole_processes_that_train(process_document):
+def test_lone_section_runs_four_whole_processes_that_train(process_document):
     lone = process_document["lone"]
-    assert set(lone["raw"]) == {"ours", "sb3", "bare"} and lone["steps"] == PROCESS_SIZES.lone_steps
+    assert set(lone["raw"]) == {"ours", "ours_torch", "sb3", "bare"} and lone["steps"] == PROCESS_SIZES.lone_steps
     expected = gradient_steps(PROCESS_SIZES.lone_steps, LONE_AGENT.learning_starts, LONE_AGENT.train_freq)
     for who, runs in lone["raw"].items():
         assert len(runs) == 1
@@ -295,7 +296,7 @@ def test_lone_section_runs_three_whole_processes_that_train(process_document):
         assert runs[0]["cpu_seconds"] > 0 and runs[0]["max_rss_mb"] > 0
     assert lone["contenders"]["ours"]["ours_over_this"] == 1.0
     assert lone["ours_over_sb3"] == lone["contenders"]["sb3"]["ours_over_this"]
-    assert lone["hyperparameters"] == {**dataclasses.asdict(LONE_AGENT), "algorithm": "dqn"}
+    assert lone["hyperparameters"] == {**dataclasses.asdict(LONE_AGENT), "algorithm": "dqn", "engine": "torch"}
     assert len(lone["loadavg_start"]) == len(lone["loadavg_end"]) == 3
 
 
@@ -327,7 +328,8 @@ def test_replicas_section_runs_one_process_of_r_replicas_and_sb3_side_by_side(pr
 def test_tables_of_the_whole_process_sections(process_document):
     table = suite.render_markdown(process_document)
     assert [line.split()[1] for line in table.splitlines() if line.startswith("## ")] == ["5.", "6."]
-    assert [row.split(":")[0] for row in table_rows(table, "## 5.")] == ["ours", "SB3", "bare PyTorch"]
+    assert [row.split(":")[0] for row in table_rows(table, "## 5.")] == ["ours", "ours, torch engine (the default)",
+                                                                       "SB3", "bare PyTorch"]
     assert table_rows(table, "## 6.") == ["1", "2"]
     for heading in ("## 5.", "## 6."):
         part = table.split(heading, 1)[1].split("\n## ", 1)[0]
@@ -359,7 +361,7 @@ def test_document_holds_every_section_and_is_json(document):
     assert {f"{name}_us" for name in ("bare", "in_memory", "ours", "sample", "sb3")} <= set(update)
     assert update["bare_over_bare"] == 1.0
     assert ("ours_default_threads_us" in update) == (suite.DEFAULT_THREADS != 1)
-    assert document["settings"]["hyperparameters"] == {**dataclasses.asdict(TINY), "algorithm": "dqn"}
+    assert document["settings"]["hyperparameters"] == {**dataclasses.asdict(TINY), "algorithm": "dqn", "engine": "torch"}
     assert document["machine"]["torch_threads_used"] == [1]
     assert json.loads(json.dumps(document)) == document  # plain JSON types throughout
 

@@ -50,12 +50,11 @@ def make_meta() -> dict:
     }
 
 
-def make_tensors() -> dict[str, torch.Tensor]:
-    gen = torch.Generator().manual_seed(0)
+def make_tensors() -> dict[str, np.ndarray]:
     return {
-        "q.layers.0.weight": torch.randn(64, 37, generator=gen),
-        "q.layers.0.bias": torch.zeros(64),
-        "counts": torch.arange(5, dtype=torch.int64),
+        "q.layers.0.weight": np.random.default_rng(0).standard_normal((64, 37), dtype=np.float32),
+        "q.layers.0.bias": np.zeros(64, dtype=np.float32),
+        "counts": np.arange(5, dtype=np.int64),
     }
 
 
@@ -90,9 +89,9 @@ def test_agent_round_trip_keeps_tensors_dtypes_and_meta(ckpt: Path):
     assert tensors.keys() == original.keys()
     for name, tensor in original.items():
         assert tensors[name].dtype == tensor.dtype
-        assert torch.equal(tensors[name], tensor)
-    assert tensors["q.layers.0.weight"].dtype == torch.float32
-    assert tensors["counts"].dtype == torch.int64
+        assert np.array_equal(tensors[name], tensor)
+    assert tensors["q.layers.0.weight"].dtype == np.float32
+    assert tensors["counts"].dtype == np.int64
     assert {k: loaded_meta[k] for k in meta} == meta
     assert loaded_meta["format_version"] == FORMAT_VERSION
     assert loaded_meta["kind"] == "agent"
@@ -159,13 +158,13 @@ def test_header_length_starting_with_pickle_byte_is_still_loaded(tmp_path: Path)
     # not refuse it. Grow a padding string in the meta until the header length is 128 mod 256.
     path = tmp_path / "agent_0.safetensors"
     for pad in range(300):
-        save_agent_checkpoint(path, {"w": torch.ones(1)}, {"pad": "x" * pad})
+        save_agent_checkpoint(path, {"w": np.ones(1, np.float32)}, {"pad": "x" * pad})
         if path.read_bytes()[0] == 0x80:
             break
     else:
         pytest.fail("no padding gave a header length starting with 0x80")
     tensors, _ = load_agent_checkpoint(path)
-    assert torch.equal(tensors["w"], torch.ones(1))
+    assert np.array_equal(tensors["w"], np.ones(1, np.float32))
 
 
 # ------------------------------------------------------------------ refusals
@@ -305,7 +304,7 @@ def test_check_compatible_names_the_mismatch(expected: dict, message: str):
 def test_find_checkpoints_from_file_run_dir_and_checkpoints_dir(tmp_path: Path):
     ckpt_dir = tmp_path / "run" / "checkpoints"
     for i in (10, 2, 0):
-        save_agent_checkpoint(ckpt_dir / f"agent_{i}.safetensors", {"w": torch.ones(1)}, {})
+        save_agent_checkpoint(ckpt_dir / f"agent_{i}.safetensors", {"w": np.ones(1, np.float32)}, {})
     save_training_state(ckpt_dir / "training_state.safetensors", {"a": np.zeros(1)}, {})
     expected = [ckpt_dir / f"agent_{i}.safetensors" for i in (0, 2, 10)]  # natural order
     assert find_checkpoints(tmp_path / "run") == expected

@@ -23,6 +23,17 @@ NUM_ACTIONS = 4
 HIDDEN = [32, 16]
 
 
+def dqn_transfer(source: dict[str, torch.Tensor], *args, **kwargs) -> dict[str, torch.Tensor]:
+    """The mapping takes and gives numpy arrays; the references here are torch modules."""
+    out = transfer_dqn_tensors({name: t.numpy() for name, t in source.items()}, *args, **kwargs)
+    return {name: torch.from_numpy(a) for name, a in out.items()}
+
+
+def tabular_transfer(source: dict[str, torch.Tensor], *args, **kwargs) -> dict[str, torch.Tensor]:
+    out = transfer_tabular_tensors({name: t.numpy() for name, t in source.items()}, *args, **kwargs)
+    return {name: torch.from_numpy(a) for name, a in out.items()}
+
+
 def random_dqn_tensors(in_dim: int, hidden: list[int], gen: torch.Generator) -> dict[str, torch.Tensor]:
     """Online and (different) target MLP tensors in the learners' naming, at nn.Linear's scale."""
     sizes = [in_dim, *hidden, NUM_ACTIONS]
@@ -67,7 +78,7 @@ VIEW = ("view", 27)
 def test_dqn_transfer_preserves_q_values(source_layout, target_layout):
     gen = torch.Generator().manual_seed(0)
     source = random_dqn_tensors(sum(size for _, size in source_layout), HIDDEN, gen)
-    out = transfer_dqn_tensors(source, source_layout, target_layout, HIDDEN, NUM_ACTIONS)
+    out = dqn_transfer(source, source_layout, target_layout, HIDDEN, NUM_ACTIONS)
 
     segments = random_segments(target_layout, 100, gen)
     with torch.no_grad():
@@ -80,7 +91,7 @@ def test_dqn_transfer_preserves_q_values(source_layout, target_layout):
 def test_dqn_transfer_target_only_columns_are_zero_and_target_net_copies_online():
     gen = torch.Generator().manual_seed(1)
     source = random_dqn_tensors(36, HIDDEN, gen)
-    out = transfer_dqn_tensors(source, [POSITION], [TREASURES, POSITION], HIDDEN, NUM_ACTIONS)
+    out = dqn_transfer(source, [POSITION], [TREASURES, POSITION], HIDDEN, NUM_ACTIONS)
 
     weight = out["q.layers.0.weight"]
     assert weight.shape == (32, 39)
@@ -99,7 +110,7 @@ def test_dqn_transfer_target_only_columns_are_zero_and_target_net_copies_online(
 def test_dqn_transfer_without_hidden_layers():
     gen = torch.Generator().manual_seed(2)
     source = random_dqn_tensors(36, [], gen)
-    out = transfer_dqn_tensors(source, [POSITION], [POSITION, TREASURES], [], NUM_ACTIONS)
+    out = dqn_transfer(source, [POSITION], [POSITION, TREASURES], [], NUM_ACTIONS)
     segments = random_segments([POSITION, TREASURES], 20, gen)
     with torch.no_grad():
         torch.testing.assert_close(
@@ -116,7 +127,7 @@ def test_dropped_source_segment_is_reported_and_acts_as_zeros():
 
     source = random_dqn_tensors(63, HIDDEN, gen)
     with pytest.warns(UserWarning, match="view"):
-        out = transfer_dqn_tensors(source, source_layout, target_layout, HIDDEN, NUM_ACTIONS)
+        out = dqn_transfer(source, source_layout, target_layout, HIDDEN, NUM_ACTIONS)
     segments = random_segments(target_layout, 50, gen)
     segments["view"] = torch.zeros(50, 27)
     with torch.no_grad():
@@ -168,25 +179,25 @@ def test_unmappable_layouts_are_errors(source_layout, target_layout, message):
 def test_hidden_shape_mismatch_is_an_error():
     source = random_dqn_tensors(36, [64, 64], torch.Generator().manual_seed(4))
     with pytest.raises(TransferError, match=r"hidden layers differ: source \[64, 64\], target \[128, 128\]"):
-        transfer_dqn_tensors(source, [POSITION], [POSITION, TREASURES], [128, 128], NUM_ACTIONS)
+        dqn_transfer(source, [POSITION], [POSITION, TREASURES], [128, 128], NUM_ACTIONS)
 
 
 def test_num_actions_mismatch_is_an_error():
     source = random_dqn_tensors(36, HIDDEN, torch.Generator().manual_seed(5))
     with pytest.raises(TransferError, match="number of actions differs: source 4, target 5"):
-        transfer_dqn_tensors(source, [POSITION], [POSITION, TREASURES], HIDDEN, 5)
+        dqn_transfer(source, [POSITION], [POSITION, TREASURES], HIDDEN, 5)
 
 
 def test_source_network_not_matching_its_layout_is_an_error():
     source = random_dqn_tensors(40, HIDDEN, torch.Generator().manual_seed(6))
     with pytest.raises(TransferError, match="source network takes 40 inputs but its obs layout has 36"):
-        transfer_dqn_tensors(source, [POSITION], [POSITION, TREASURES], HIDDEN, NUM_ACTIONS)
+        dqn_transfer(source, [POSITION], [POSITION, TREASURES], HIDDEN, NUM_ACTIONS)
 
 
 def test_tabular_tensors_are_not_a_dqn_source():
     source = {"keys": torch.zeros(1, 36), "values": torch.zeros(1, 4)}
     with pytest.raises(TransferError, match="not a DQN checkpoint"):
-        transfer_dqn_tensors(source, [POSITION], [POSITION], HIDDEN, NUM_ACTIONS)
+        dqn_transfer(source, [POSITION], [POSITION], HIDDEN, NUM_ACTIONS)
 
 
 # ------------------------------------------------------------------------------------------- tabular
@@ -206,7 +217,7 @@ def lookup(out: dict[str, torch.Tensor], obs: torch.Tensor) -> torch.Tensor | No
 
 def test_tabular_transfer_puts_the_source_table_in_the_fallback():
     source = {"keys": TABLE_KEYS, "values": TABLE_VALUES}
-    out = transfer_tabular_tensors(source, [("position", 4)], [("treasures", 2), ("position", 4)], num_actions=4)
+    out = tabular_transfer(source, [("position", 4)], [("treasures", 2), ("position", 4)], num_actions=4)
 
     assert out["keys"].shape == (0, 6) and out["keys"].dtype == torch.float32
     assert out["values"].shape == (0, 4) and out["values"].dtype == torch.float32
@@ -226,7 +237,7 @@ def test_tabular_dropped_segment_averages_merged_keys():
         "values": torch.tensor([[1.0, 2], [5, 5], [3, 6], [7, 0]]),
     }
     with pytest.warns(UserWarning, match="treasures"):
-        out = transfer_tabular_tensors(source, [("position", 3), ("treasures", 1)], [("position", 3), ("view", 2)])
+        out = tabular_transfer(source, [("position", 3), ("treasures", 1)], [("position", 3), ("view", 2)])
     assert out["fallback_keys"].tolist() == [[1, 0, 0], [0, 1, 0], [0, 0, 1]]
     assert out["fallback_values"].tolist() == [[2, 4], [5, 5], [7, 0]]
     assert out["fallback_projection"].tolist() == [0, 1, 2]
@@ -242,7 +253,7 @@ def test_tabular_transfer_composes_a_transferred_source_with_an_empty_table():
         "fallback_values": torch.tensor([[1.0, 2], [3, 4]]),
         "fallback_projection": torch.tensor([1, 2, 3]),
     }
-    out = transfer_tabular_tensors(source, source_layout, [("position", 3), ("assignment", 1), ("treasures", 1)])
+    out = tabular_transfer(source, source_layout, [("position", 3), ("assignment", 1), ("treasures", 1)])
     assert torch.equal(out["fallback_keys"], source["fallback_keys"])
     assert torch.equal(out["fallback_values"], source["fallback_values"])
     assert out["fallback_projection"].tolist() == [0, 1, 2]
@@ -258,16 +269,16 @@ def test_tabular_chained_transfer_of_a_trained_source_is_an_error():
         "fallback_projection": torch.tensor([1, 2, 3]),
     }
     with pytest.raises(TransferError, match="chained tabular transfer not supported"):
-        transfer_tabular_tensors(source, [("treasures", 1), ("position", 3)], [("position", 3)])
+        tabular_transfer(source, [("treasures", 1), ("position", 3)], [("position", 3)])
 
 
 def test_tabular_key_width_not_matching_layout_is_an_error():
     source = {"keys": TABLE_KEYS, "values": TABLE_VALUES}
     with pytest.raises(TransferError, match="keys have shape \\[3, 4\\] but its obs layout has 5 values"):
-        transfer_tabular_tensors(source, [("position", 5)], [("position", 5)])
+        tabular_transfer(source, [("position", 5)], [("position", 5)])
 
 
 def test_tabular_num_actions_mismatch_is_an_error():
     source = {"keys": TABLE_KEYS, "values": TABLE_VALUES}
     with pytest.raises(TransferError, match="number of actions differs: source 4, target 5"):
-        transfer_tabular_tensors(source, [("position", 4)], [("position", 4)], num_actions=5)
+        tabular_transfer(source, [("position", 4)], [("position", 4)], num_actions=5)

@@ -4,25 +4,39 @@
 one home of every hyperparameter's default). Every learner implements
 :class:`~dqn_transfer.agents.base.Learner`; the DQN family adds ``freeze``, ``set_member_optimizer_state``,
 ``get_member_weights`` / ``set_member_weights`` and ``add_experience``, the tabular one ``set_fallback``.
+
+The DQN family has two engines (``agent.engine``): ``torch`` (:mod:`~dqn_transfer.agents.dqn`) and
+``numpy`` (:mod:`~dqn_transfer.agents.numpy_dqn`). An engine's module is imported when a learner of it
+is built, so that a process that trains a tabular or numpy learner never imports torch (3-4 s of
+start-up); the torch engine's names below (``DQNLearner``, ``BatchedMLP``, ...) are imported on first
+use.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-
-import torch
+from importlib import import_module
+from typing import Any
 
 from dqn_transfer.agents.base import Learner, ObsLayout, Transition, UpdateStats, epsilon_greedy
-from dqn_transfer.agents.dqn import DQNLearner, DQNReplica, double_dqn_targets, dqn_targets
-from dqn_transfer.agents.networks import BatchedMLP
+from dqn_transfer.agents.dqn_base import BatchedDQN, DQNReplica
 from dqn_transfer.agents.replay import ReplayBatch, ReplayBuffer
 from dqn_transfer.agents.replicas import LearnerReplicas
 from dqn_transfer.agents.schedules import linear_schedule
 from dqn_transfer.agents.tabular import TabularLearner
 from dqn_transfer.config import AgentConfig
-from dqn_transfer.enums import Algorithm
+from dqn_transfer.enums import Algorithm, Device, Engine
+
+# The torch engine's public names, by module (imported on first access: see __getattr__).
+_TORCH_NAMES = {
+    "DQNLearner": "dqn_transfer.agents.dqn",
+    "double_dqn_targets": "dqn_transfer.agents.dqn",
+    "dqn_targets": "dqn_transfer.agents.dqn",
+    "BatchedMLP": "dqn_transfer.agents.networks",
+}
 
 __all__ = [
+    "BatchedDQN",
     "BatchedMLP",
     "DQNLearner",
     "DQNReplica",
@@ -42,22 +56,28 @@ __all__ = [
 ]
 
 
+def __getattr__(name: str) -> Any:
+    if name in _TORCH_NAMES:
+        return getattr(import_module(_TORCH_NAMES[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 def make_learner(
     hp: AgentConfig,
     num_agents: int,
     obs_layout: ObsLayout,
     num_actions: int,
     seed: int,
-    device: torch.device | str = "cpu",
+    device: Device | str = "cpu",
+    threads: int | None = None,
 ) -> Learner:
     """The learner ``hp.algorithm`` names, for ``num_agents`` agents.
 
     ``seed`` fixes the initial weights and every random draw the learner makes (exploration,
     replay sampling, tie-breaking). Raises ``ValueError`` for an unknown algorithm.
     """
-    if Algorithm(hp.algorithm).is_tabular:
-        return TabularLearner(num_agents, obs_layout, num_actions, hp, seed=seed)
-    return DQNLearner(num_agents, obs_layout, num_actions, hp, seed=seed, device=device)
+    learner = make_replicas(hp, num_agents, obs_layout, num_actions, [seed], device, threads)
+    return learner.replica(0) if isinstance(learner, LearnerReplicas) else learner
 
 
 def make_replicas(
@@ -66,12 +86,23 @@ def make_replicas(
     obs_layout: ObsLayout,
     num_actions: int,
     seeds: Sequence[int],
-    device: torch.device | str = "cpu",
-) -> DQNLearner | LearnerReplicas:
+    device: Device | str = "cpu",
+    threads: int | None = None,
+) -> BatchedDQN | LearnerReplicas:
     """One replica of ``num_agents`` agents per seed, behind one batched interface (rows ``r * K + k``,
-    ``replica(r)``): for the DQN family one ``DQNLearner`` whose network module holds every replica,
-    for the tabular ones a :class:`LearnerReplicas` of separate learners. Replica r is exactly the
-    learner ``make_learner`` builds for ``seeds[r]``."""
+    ``replica(r)``): for the DQN family one learner whose network module holds every replica, for the
+    tabular ones a :class:`LearnerReplicas` of separate learners. Replica r is exactly the learner
+    ``make_learner`` builds for ``seeds[r]``.
+
+    ``device`` (cpu | cuda | auto) and ``threads`` (torch's CPU threads; None: as they are) concern the torch engine;
+    the numpy engine and the tabular learners run on the CPU. Raises ``ConfigError`` for a device
+    that is not there.
+    """
     if Algorithm(hp.algorithm).is_tabular:
         return LearnerReplicas([TabularLearner(num_agents, obs_layout, num_actions, hp, seed=s) for s in seeds])
-    return DQNLearner(num_agents, obs_layout, num_actions, hp, seed=list(seeds), device=device)
+    if Engine(hp.engine) is Engine.numpy:
+        engine = import_module("dqn_transfer.agents.numpy_dqn")
+        return engine.NumpyDQNLearner(num_agents, obs_layout, num_actions, hp, seed=list(seeds))
+    engine = import_module("dqn_transfer.agents.dqn")
+    return engine.DQNLearner(num_agents, obs_layout, num_actions, hp, seed=list(seeds),
+                             device=engine.resolve_device(device, threads))

@@ -10,7 +10,6 @@ from collections.abc import Sequence
 from typing import Any, NamedTuple, Protocol
 
 import numpy as np
-import torch
 
 from dqn_transfer.enums import Algorithm
 
@@ -56,11 +55,11 @@ class Learner(Protocol):
         """Each agent's Q-values of its own observation: ``obs [K, D] -> [K, A]`` (a copy)."""
         ...
 
-    def agent_tensors(self, i: int) -> dict[str, torch.Tensor]:
-        """Agent ``i``'s values, as stored in ``agent_{i}.safetensors`` (CPU, contiguous)."""
+    def agent_tensors(self, i: int) -> dict[str, np.ndarray]:
+        """Agent ``i``'s values, as stored in ``agent_{i}.safetensors`` (contiguous copies)."""
         ...
 
-    def load_agent_tensors(self, i: int, tensors: dict[str, torch.Tensor]) -> None: ...
+    def load_agent_tensors(self, i: int, tensors: dict[str, np.ndarray]) -> None: ...
 
     def network_meta(self) -> dict[str, Any]:
         """JSON-able shape information written beside the tensors."""
@@ -103,7 +102,7 @@ def epsilon_greedy(
     return np.where(explore, random_actions, greedy_actions).astype(np.int64)
 
 
-def check_tensor_shape(name: str, tensor: torch.Tensor, shape: Sequence[int]) -> None:
+def check_tensor_shape(name: str, tensor: np.ndarray, shape: Sequence[int]) -> None:
     """Loading a tensor of the wrong shape must fail with the name, not deep inside a copy."""
     if tuple(tensor.shape) != tuple(shape):
         raise ValueError(f"tensor '{name}' has shape {list(tensor.shape)}, expected {list(shape)}")

@@ -1,37 +1,26 @@
-"""DQN and Double DQN for R replicas of a team of K agents, batched into one network module and one optimizer.
+"""The ``torch`` engine of :class:`~dqn_transfer.agents.dqn_base.BatchedDQN` (the default): any device.
 
-The algorithm is CleanRL's ``dqn.py`` per agent (read ``DQNLearner.update`` top to bottom):
-store the transition; every ``train_freq`` env steps after ``learning_starts``, take
-``gradient_steps`` steps of Huber loss between ``Q(s, a)`` and the bootstrapped target on a uniform
-replay batch (Adam, gradient-norm clip); every ``target_update`` env steps move the target network
-``tau`` of the way to the online one (``tau == 1``: a hard copy) — the same rule as SB3's
-``target_update_interval``/``tau`` and CleanRL's ``target_network_frequency``/``tau``.
-
-What is particular here: all R x K agents are one ``BatchedMLP`` (stacked weights), their replay is
-one ``[R * K, capacity, ...]`` storage, and one Adam step updates everyone. The loss is the *sum* of
-the agents' mean losses, so each agent's gradient is exactly the one its own network would get, and
-gradients are clipped per agent. With ``share_parameters`` each replica's team shares one network
-instead (the parameter-sharing baseline): a single member whose forward pass serves its agents, replay
-still per agent, loss the *mean* over the replica's agents. Replica r (rows ``r * K .. r * K + K - 1``)
-has its own initial weights, exploration and replay sampling streams, seeded as a lone learner of its
-seed would be; ``DQNReplica`` is its team as a ``Learner``.
+The networks are one :class:`~dqn_transfer.agents.networks.BatchedMLP`, trained without autograd by
+its hand-written backward and :class:`~dqn_transfer.agents.adam.FlatAdam`, both bit-identical to
+``loss.backward()`` and ``torch.optim.Adam`` (the tests check it). The replay batch comes from the
+host and is moved to the device. Read the algorithm in :mod:`dqn_transfer.agents.dqn_base`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
-from typing import Any
+from collections.abc import Sequence
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
 from dqn_transfer.agents.adam import FlatAdam
-from dqn_transfer.agents.base import ObsLayout, TeamShape, Transition, UpdateStats, check_tensor_shape, epsilon_greedy
+from dqn_transfer.agents.base import ObsLayout, UpdateStats
+from dqn_transfer.agents.dqn_base import BatchedDQN
 from dqn_transfer.agents.networks import BatchedMLP
-from dqn_transfer.agents.replay import ReplayBatch, ReplayBuffer
-from dqn_transfer.config import AgentConfig
-from dqn_transfer.enums import Algorithm
+from dqn_transfer.agents.replay import ReplayBatch
+from dqn_transfer.config import AgentConfig, ConfigError
+from dqn_transfer.enums import Device
 
 
 def dqn_targets(
@@ -66,9 +55,22 @@ def double_dqn_targets(
 ACTION_MARGIN = 1e-4
 
 
-class DQNLearner(TeamShape):
-    """K DQN / Double DQN agents, in R independent replicas (see the module docstring). Implements
-    ``Learner`` for the R x K agents as rows ``r * K + k``; :meth:`replica` is one replica's team."""
+
+def resolve_device(device: Device | str, threads: int | None = None) -> str:
+    """``device`` (cpu | cuda | auto) as torch's device name; torch then uses ``threads`` CPU threads
+    (None: leave them as they are)."""
+    device = Device(device)
+    if threads is not None:
+        torch.set_num_threads(threads)
+    if device is Device.auto:
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if device is Device.cuda and not torch.cuda.is_available():
+        raise ConfigError("device=cuda but no CUDA device is available here (use device=cpu or device=auto)")
+    return device.value
+
+
+class DQNLearner(BatchedDQN):
+    """:class:`~dqn_transfer.agents.dqn_base.BatchedDQN` in torch, on ``device``."""
 
     def __init__(
         self,
@@ -84,63 +86,26 @@ class DQNLearner(TeamShape):
         :param num_agents: K, the agents of the team (each its own network unless ``share_parameters``)
         :param obs_layout: the observation's named segments ``[(name, size), ...]``
         :param num_actions: A, the discrete actions
-        :param hp: the hyperparameters, documented on :class:`~dqn_transfer.config.AgentConfig` (their
-            one home, shared with the command line); ``hp.algorithm`` picks the DQN or Double DQN target
+        :param hp: the hyperparameters (:class:`~dqn_transfer.config.AgentConfig`)
         :param seed: fixes the initial weights, exploration and replay sampling; a list of R seeds
             makes R replicas, replica r exactly the team a lone learner of ``seed[r]`` would be
-        :param device: where the networks and the replay storage live
+        :param device: where the networks live (the replay stays on the host)
         """
-        algorithm = Algorithm(hp.algorithm)
-        if algorithm.is_tabular:
-            raise ValueError(f"DQNLearner trains the DQN family, not {algorithm.value}")
-        super().__init__(algorithm, num_agents, obs_layout, num_actions)
-        self.double = algorithm is Algorithm.double_dqn
-        self.lr = hp.lr
-        self.gamma = hp.gamma
-        self.batch_size = hp.batch_size
-        self.learning_starts = hp.learning_starts
-        self.train_freq = hp.train_freq
-        self.gradient_steps = hp.gradient_steps
-        self.target_update = hp.target_update
-        self.tau = hp.tau
-        self.hidden = [int(h) for h in hp.hidden]
-        self.max_grad_norm = hp.max_grad_norm
-        self.share_parameters = hp.share_parameters
+        super().__init__(num_agents, obs_layout, num_actions, hp, seed)
         self.device = torch.device(device)
-        self.seeds = [int(seed)] if isinstance(seed, (int, np.integer)) else [int(s) for s in seed]
-        self.num_replicas = len(self.seeds)
-        self.num_rows = self.num_replicas * num_agents
-        self.members_per_replica = 1 if self.share_parameters else num_agents
-
-        # Per replica, independent random streams: weights (torch, CPU so the seed gives the same
-        # weights on any device), exploration and replay sampling (numpy, their states are JSON-able).
-        streams = [np.random.SeedSequence(s).spawn(2) for s in self.seeds]
-        self.rngs = [np.random.default_rng(explore) for explore, _ in streams]
-
-        num_members = self.num_replicas * self.members_per_replica
+        # Initial weights: torch's generator, on the CPU, so the seed gives the same weights on any device.
         generators = [torch.Generator().manual_seed(s) for s in self.seeds]
-        self.q_network = BatchedMLP(num_members, self.obs_dim, self.hidden, num_actions, generators, self.device)
-        self.target_network = BatchedMLP(num_members, self.obs_dim, self.hidden, num_actions, device=self.device)
+        self.q_network = BatchedMLP(self.num_members, self.obs_dim, self.hidden, num_actions, generators, self.device)
+        self.target_network = BatchedMLP(self.num_members, self.obs_dim, self.hidden, num_actions, device=self.device)
         self.target_network.update_from(self.q_network, tau=1.0)
-        self.frozen_layers: list[int] = []
         self.optimizer = FlatAdam(self.q_network.flat, self.q_network.flat_grad, self.q_network.spans, lr=self.lr)
-        self.replay = ReplayBuffer(self.num_rows, hp.buffer_size, self.obs_dim,
-                                   [np.random.default_rng(replay) for _, replay in streams], self.device)
-        self.num_gradient_steps = 0
         self._loss_weights_cache: tuple[bytes, torch.Tensor] | None = None
 
-    def replica(self, r: int) -> DQNReplica:
-        """Replica r's team of K agents, as a ``Learner`` of its own (evaluation, transfer, checkpoints)."""
-        return DQNReplica(self, r)
+    def _to_engine(self, array: np.ndarray) -> torch.Tensor:
+        return torch.as_tensor(array, device=self.device)
 
-    def _rows(self, replica: int) -> slice:
-        k = self.num_agents
-        return slice(replica * k, (replica + 1) * k)
-
-    def _members(self, replica: int | None) -> slice | None:
-        """Replica's members of the batched networks (None: all of them)."""
-        m = self.members_per_replica
-        return None if replica is None else slice(replica * m, (replica + 1) * m)
+    def _to_numpy(self, array: torch.Tensor) -> np.ndarray:
+        return array.cpu().numpy()
 
     # ------------------------------------------------------------------------------------ acting
 
@@ -157,39 +122,13 @@ class DQNLearner(TeamShape):
         q_values = network.predict(self._team_batch(obs), self._members(replica))
         return q_values.view(*obs.shape[:2], -1) if self.share_parameters else q_values
 
-    def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, greedy: bool = False,
-            replica: int | None = None) -> np.ndarray:
-        """Per-agent epsilon-greedy; one forward pass for every agent, skipped if everyone explores.
-
-        Actions are returned for every row (of ``replica``, or of all); those of non-live agents are
-        ignored by the game.
-        """
-        obs = np.asarray(obs, dtype=np.float32)
-        if greedy:
-            return self._greedy_actions(obs, replica)
-        # The exploration draws come first, from the shared epsilon_greedy (the same draws, so the same
-        # random stream): given -1 as every greedy action, it returns -1 exactly where the agent exploits.
-        epsilon = np.broadcast_to(np.asarray(epsilon, dtype=np.float64), obs.shape[:1])
-        k = self.num_agents
-        replicas = range(self.num_replicas) if replica is None else [replica]
-        actions = np.concatenate([
-            epsilon_greedy(np.full(k, -1, dtype=np.int64), epsilon[i * k : (i + 1) * k], self.num_actions, self.rngs[r])
-            for i, r in enumerate(replicas)])
-        exploit = actions < 0
-        if exploit.any():
-            np.copyto(actions, self._greedy_actions(obs, replica), where=exploit)
-        return actions
-
     @torch.no_grad()
     def q_values(self, obs: np.ndarray, replica: int | None = None) -> np.ndarray:
-        """Each agent's online Q-values of its own observation: ``obs [rows, D] -> [rows, A]``."""
         obs_t = torch.as_tensor(np.asarray(obs, dtype=np.float32), device=self.device)
         return self._q_values(self.q_network, obs_t.unsqueeze(1), replica).squeeze(1).cpu().numpy()
 
     def _greedy_actions(self, obs: np.ndarray, replica: int | None) -> np.ndarray:
-        """``argmax_a Q(obs, a)`` per row, ``obs`` float32 ``[rows, D]``.
-
-        On the CPU the Q-values are first computed in numpy, several times cheaper for these tiny
+        """On the CPU the Q-values are first computed in numpy, several times cheaper for these tiny
         batches. numpy's kernels may differ from torch's in the last bits, which can only change an
         argmax whose best two values are that close: when every row's best action leads by more than
         ACTION_MARGIN, numpy's argmax is torch's; otherwise (a near-tie, e.g. fresh or copied weights)
@@ -204,72 +143,33 @@ class DQNLearner(TeamShape):
         obs_t = torch.from_numpy(obs).to(self.device).unsqueeze(1)
         return self._q_values(self.q_network, obs_t, replica).argmax(dim=-1).view(-1).cpu().numpy()
 
-    def _team_batch_numpy(self, obs: np.ndarray) -> np.ndarray:
-        """``obs [rows, D]`` as the members' inputs ``[members, B, D]`` (see ``_team_batch``)."""
-        if self.share_parameters:
-            return obs.reshape(-1, self.num_agents, obs.shape[-1])
-        return obs[:, None, :]
-
     # ---------------------------------------------------------------------------------- learning
 
-    def update(self, transition: Transition, step: int) -> UpdateStats:
-        """Store the live agents' transitions, train on schedule, sync the target on schedule.
-
-        ``step`` counts env steps including this one (the same for every replica: they run in
-        lockstep). The statistics are averaged over this round's gradient steps (``q_mean``: mean
-        ``Q(s, a)`` of the batch), nan if no training.
-        """
-        self.replay.add(transition)
-
-        td_loss = np.full(self.num_rows, np.nan)
-        q_mean = np.full(self.num_rows, np.nan)
-        if step > self.learning_starts and step % self.train_freq == 0:
-            rounds = [self.gradient_step() for _ in range(self.gradient_steps)]
-            td_loss = np.mean([r.td_loss for r in rounds], axis=0, dtype=np.float64)
-            q_mean = np.mean([r.q_mean for r in rounds], axis=0, dtype=np.float64)
-
-        if step % self.target_update == 0:
-            self.target_network.update_from(self.q_network, tau=self.tau)
-        return UpdateStats(td_loss, q_mean)
-
-    @property
-    def trainable_layers(self) -> list[int]:
-        return [l for l in range(self.q_network.num_layers) if l not in self.frozen_layers]
-
     def _loss_weights(self, valid: np.ndarray) -> torch.Tensor:
-        """``[rows]`` weight of each row's mean loss in the total: 1 (each agent's gradient is its own
-        loss's), with a shared network 1 / (its replica's agents with data), the usual batch mean;
-        0 for a row with no data yet (its batch is placeholders)."""
+        """:meth:`loss_weights` on the device, cached while the same rows have data."""
         key = valid.tobytes()
         if self._loss_weights_cache is None or self._loss_weights_cache[0] != key:
-            weights = torch.from_numpy(valid.astype(np.float32))
-            if self.share_parameters:
-                counts = np.maximum(valid.reshape(-1, self.num_agents).sum(axis=1), 1).astype(np.float32)
-                weights = weights / torch.from_numpy(np.repeat(counts, self.num_agents))
-            self._loss_weights_cache = (key, weights.to(self.device))
+            self._loss_weights_cache = (key, torch.from_numpy(self.loss_weights(valid)).to(self.device))
         return self._loss_weights_cache[1]
 
-    def gradient_step(self) -> UpdateStats:
-        """One Adam step for all agents on a fresh replay batch (what ``update`` runs on schedule)."""
-        return self.train_on(self.replay.sample(self.batch_size))
-
     def train_on(self, batch: ReplayBatch) -> UpdateStats:
-        """One Adam step for all agents on ``batch`` (``[rows, B, ...]``).
+        """One Adam step for all agents on ``batch`` (``[rows, B, ...]``, numpy on the host).
 
-        The loss is ``sum_rows weight[row] * mean_batch Huber(Q(s, a) - y)`` (see ``_loss_weights``);
+        The loss is ``sum_rows weight[row] * mean_batch Huber(Q(s, a) - y)`` (see ``loss_weights``);
         its gradient is taken by hand, op for op as ``loss.backward()`` would (``BatchedMLP.backward``).
         """
+        obs, actions, rewards, next_obs, terminated = (torch.from_numpy(field).to(self.device) for field in batch)
         with torch.no_grad():
-            next_q_target = self._q_values(self.target_network, batch.next_obs)
+            next_q_target = self._q_values(self.target_network, next_obs)
             if self.double:
-                next_q_online = self._q_values(self.q_network, batch.next_obs)
-                targets = double_dqn_targets(batch.rewards, next_q_online, next_q_target, batch.terminated, self.gamma)
+                next_q_online = self._q_values(self.q_network, next_obs)
+                targets = double_dqn_targets(rewards, next_q_online, next_q_target, terminated, self.gamma)
             else:
-                targets = dqn_targets(batch.rewards, next_q_target, batch.terminated, self.gamma)
+                targets = dqn_targets(rewards, next_q_target, terminated, self.gamma)
 
-            out, inputs = self.q_network.forward_cached(self._team_batch(batch.obs))
-            q_values = out.reshape(*batch.obs.shape[:2], -1)
-            actions = batch.actions.unsqueeze(-1)
+            out, inputs = self.q_network.forward_cached(self._team_batch(obs))
+            q_values = out.reshape(*obs.shape[:2], -1)
+            actions = actions.unsqueeze(-1)
             q_taken = q_values.gather(-1, actions).squeeze(-1)  # Q(s, a) [rows, B]
             agent_losses = F.smooth_l1_loss(q_taken, targets, reduction="none").mean(dim=1)  # [rows]
             valid = self.replay.size > 0
@@ -286,186 +186,3 @@ class DQNLearner(TeamShape):
 
             stats = torch.stack([agent_losses, q_taken.mean(dim=1)]).cpu().numpy()  # one transfer
         return UpdateStats(np.where(valid, stats[0], np.nan), np.where(valid, stats[1], np.nan))
-
-    # ------------------------------------------------------------------ transfer and exchange
-
-    def freeze(self, layer_indices: Iterable[int]) -> None:
-        """Keep these layers' weights and biases fixed (negative indices count from the output).
-
-        The weights of a layer are one stacked tensor for all agents, so freezing applies to the
-        whole team (and every replica). A frozen layer gets no gradient and Adam skips it, so not
-        even leftover momentum moves it.
-        """
-        layers = [range(self.q_network.num_layers)[index] for index in layer_indices]  # IndexError if absent
-        self.frozen_layers = sorted({*self.frozen_layers, *layers})
-
-    def set_member_optimizer_state(self, i: int, moments: dict[str, dict[str, np.ndarray]], step: int) -> None:
-        """Adam moments for agent i's slice of each stacked tensor, e.g. carried over by transfer.
-
-        ``moments[name]`` holds ``exp_avg`` and ``exp_avg_sq`` shaped like one member's slice of
-        tensor ``name``. Adam keeps one ``step`` per stacked tensor, shared by all agents.
-        """
-        m = self._member(i)
-        optimizer, network = self.optimizer, self.q_network
-        for index, name in enumerate(network.tensor_names):
-            if name not in moments:  # e.g. a layer the source kept frozen has no moments
-                continue
-            optimizer.init_state(index)
-            for key, moment in optimizer.moments(index, network.shapes[index]).items():
-                moment[m] = torch.as_tensor(moments[name][key], device=self.device)
-            optimizer.steps[index] = int(step)
-
-    def _member(self, i: int) -> int:
-        if not 0 <= i < self.num_rows:
-            raise IndexError(f"agent index {i} out of range for {self.num_rows} agents")
-        return i // self.num_agents if self.share_parameters else i
-
-    def add_experience(self, i: int, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray,
-                       next_obs: np.ndarray, terminated: np.ndarray) -> None:
-        """Append ``[N, ...]`` transitions (e.g. a team-mate's) to agent i's replay row."""
-        self.replay.extend(i, obs, actions, rewards, next_obs, terminated)
-
-    def get_member_weights(self, i: int) -> dict[str, torch.Tensor]:
-        """Agent i's online network, ``layers.{l}.weight`` ``[out, in]`` / ``layers.{l}.bias``."""
-        return self.q_network.member_state(self._member(i))
-
-    def set_member_weights(self, i: int, tensors: dict[str, torch.Tensor]) -> None:
-        """Overwrite agent i's online network (the target follows at its next sync)."""
-        self.q_network.load_member_state(self._member(i), tensors)
-
-    # -------------------------------------------------------------------------- checkpoints
-
-    def agent_tensors(self, i: int) -> dict[str, torch.Tensor]:
-        """``q.layers.{l}.weight|bias`` (online) and ``target.layers.{l}.weight|bias``.
-
-        With ``share_parameters`` every agent returns the one shared network.
-        """
-        m = self._member(i)
-        tensors = {f"q.{name}": t for name, t in self.q_network.member_state(m).items()}
-        tensors.update({f"target.{name}": t for name, t in self.target_network.member_state(m).items()})
-        return tensors
-
-    def load_agent_tensors(self, i: int, tensors: dict[str, torch.Tensor]) -> None:
-        """Load ``q.*`` and, if present, ``target.*`` (else the target becomes a copy of ``q.*``).
-
-        With ``share_parameters`` all agents load into the one shared network: the last load wins.
-        """
-        m = self._member(i)
-        online = {name[2:]: t for name, t in tensors.items() if name.startswith("q.")}
-        target = {name[7:]: t for name, t in tensors.items() if name.startswith("target.")}
-        self.q_network.load_member_state(m, online, name_prefix="q.")
-        self.target_network.load_member_state(m, target or online, name_prefix="target." if target else "q.")
-
-    def network_meta(self) -> dict[str, Any]:
-        return {
-            "obs_dim": self.obs_dim,
-            "num_actions": self.num_actions,
-            "hidden": list(self.hidden),
-            "activation": "relu",
-            "share_parameters": self.share_parameters,
-        }
-
-    def training_state(self, replica: int = 0) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        """One replica's Adam moments (by tensor name), replay storage and pointers, RNG states, counters.
-
-        The network weights themselves are in ``agent_tensors``: resume = ``load_agent_tensors``
-        for every agent, then ``load_training_state``.
-        """
-        if not 0 <= replica < self.num_replicas:
-            raise IndexError(f"replica {replica} out of range for {self.num_replicas} replicas")
-        arrays = {f"replay.{name}": value for name, value in self.replay.state_dict(self._rows(replica)).items()}
-        optimizer, network, members = self.optimizer, self.q_network, self._members(replica)
-        for index, name in enumerate(network.tensor_names):
-            if optimizer.has_state[index]:
-                for key, moment in optimizer.moments(index, network.shapes[index]).items():
-                    arrays[f"optim.{name}.{key}"] = np.ascontiguousarray(moment[members].cpu().numpy())
-                arrays[f"optim.{name}.step"] = np.array(optimizer.steps[index], dtype=np.float32)
-        meta = {
-            "explore_rng": self.rngs[replica].bit_generator.state,
-            "replay_rng": self.replay.rngs[replica].bit_generator.state,
-            "num_gradient_steps": self.num_gradient_steps,
-            "frozen_layers": list(self.frozen_layers),
-        }
-        return arrays, meta
-
-    def load_training_state(self, arrays: dict[str, np.ndarray], meta: dict[str, Any], replica: int = 0) -> None:
-        self.replay.load_state_dict(
-            {name[len("replay.") :]: value for name, value in arrays.items() if name.startswith("replay.")},
-            self._rows(replica),
-        )
-        self.freeze(meta["frozen_layers"])
-        optimizer, network, members = self.optimizer, self.q_network, self._members(replica)
-        for index, name in enumerate(network.tensor_names):
-            prefix = f"optim.{name}."
-            if prefix + "step" not in arrays:
-                continue
-            shape = network.shapes[index]
-            optimizer.init_state(index)
-            for key, moment in optimizer.moments(index, shape).items():
-                value = torch.from_numpy(np.array(arrays[prefix + key], dtype=np.float32))
-                check_tensor_shape(prefix + key, value, (self.members_per_replica, *shape[1:]))
-                moment[members] = value.to(self.device)
-            optimizer.steps[index] = int(np.asarray(arrays[prefix + "step"]).reshape(-1)[0])
-        self.rngs[replica].bit_generator.state = meta["explore_rng"]
-        self.replay.rngs[replica].bit_generator.state = meta["replay_rng"]
-        self.num_gradient_steps = int(meta["num_gradient_steps"])
-
-
-class DQNReplica:
-    """Replica r of a :class:`DQNLearner`: its K agents as a ``Learner`` (agent i is row ``r * K + i``).
-
-    Everything reads and writes the batched learner's own tensors; nothing is copied.
-    """
-
-    def __init__(self, learner: DQNLearner, r: int) -> None:
-        if not 0 <= r < learner.num_replicas:
-            raise IndexError(f"replica {r} out of range for {learner.num_replicas} replicas")
-        self.learner, self.index = learner, r
-        self.algorithm, self.num_agents = learner.algorithm, learner.num_agents
-        self.obs_layout, self.obs_dim, self.num_actions = learner.obs_layout, learner.obs_dim, learner.num_actions
-        self.offset = r * learner.num_agents
-
-    @property
-    def frozen_layers(self) -> list[int]:
-        return self.learner.frozen_layers
-
-    def _row(self, i: int) -> int:
-        if not 0 <= i < self.num_agents:
-            raise IndexError(f"agent index {i} out of range for {self.num_agents} agents")
-        return self.offset + i
-
-    def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, greedy: bool = False) -> np.ndarray:
-        return self.learner.act(obs, live, epsilon, greedy, replica=self.index)
-
-    def q_values(self, obs: np.ndarray) -> np.ndarray:
-        return self.learner.q_values(obs, replica=self.index)
-
-    def freeze(self, layer_indices: Iterable[int]) -> None:
-        self.learner.freeze(layer_indices)
-
-    def network_meta(self) -> dict[str, Any]:
-        return self.learner.network_meta()
-
-    def agent_tensors(self, i: int) -> dict[str, torch.Tensor]:
-        return self.learner.agent_tensors(self._row(i))
-
-    def load_agent_tensors(self, i: int, tensors: dict[str, torch.Tensor]) -> None:
-        self.learner.load_agent_tensors(self._row(i), tensors)
-
-    def get_member_weights(self, i: int) -> dict[str, torch.Tensor]:
-        return self.learner.get_member_weights(self._row(i))
-
-    def set_member_weights(self, i: int, tensors: dict[str, torch.Tensor]) -> None:
-        self.learner.set_member_weights(self._row(i), tensors)
-
-    def set_member_optimizer_state(self, i: int, moments: dict[str, dict[str, np.ndarray]], step: int) -> None:
-        self.learner.set_member_optimizer_state(self._row(i), moments, step)
-
-    def add_experience(self, i: int, *transitions: np.ndarray) -> None:
-        self.learner.add_experience(self._row(i), *transitions)
-
-    def training_state(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        return self.learner.training_state(self.index)
-
-    def load_training_state(self, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
-        self.learner.load_training_state(arrays, meta, self.index)

@@ -189,17 +189,17 @@ class BatchedMLP(nn.Module):
                 grad = torch.ops.aten.threshold_backward(grad, inputs[l], 0)
 
     # ------------------------------------------------------------------------- members
-    def member_state(self, m: int) -> dict[str, torch.Tensor]:
-        """Member m's weights as detached CPU copies in ``nn.Linear`` layout."""
+    def member_state(self, m: int) -> dict[str, np.ndarray]:
+        """Member m's weights as numpy copies in ``nn.Linear`` layout."""
         state = {}
         for l in range(self.num_layers):
             weight, bias = self.layer(l)
-            state[f"layers.{l}.weight"] = weight[m].t().contiguous().cpu()
-            state[f"layers.{l}.bias"] = bias[m].cpu().clone()
+            state[f"layers.{l}.weight"] = weight[m].t().contiguous().cpu().numpy()
+            state[f"layers.{l}.bias"] = bias[m].cpu().clone().numpy()
         return state
 
     @torch.no_grad()
-    def load_member_state(self, m: int, state: dict[str, torch.Tensor], name_prefix: str = "") -> None:
+    def load_member_state(self, m: int, state: dict[str, np.ndarray], name_prefix: str = "") -> None:
         """Overwrite member m from ``nn.Linear``-layout tensors (all layers must be present).
 
         Everything is checked before anything is written; errors name tensors as ``name_prefix +
@@ -213,8 +213,8 @@ class BatchedMLP(nn.Module):
                 check_tensor_shape(name_prefix + name, state[name], shape)
         for l in range(self.num_layers):
             weight, bias = self.layer(l)
-            weight[m].copy_(state[f"layers.{l}.weight"].t())
-            bias[m].copy_(state[f"layers.{l}.bias"])
+            weight[m].copy_(torch.as_tensor(state[f"layers.{l}.weight"]).t())
+            bias[m].copy_(torch.as_tensor(state[f"layers.{l}.bias"]))
 
     @torch.no_grad()
     def update_from(self, source: BatchedMLP, tau: float) -> None:

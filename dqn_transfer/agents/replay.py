@@ -3,7 +3,8 @@
 Each row is one agent (of one replica): its own ring, write pointer and fill level. A dead agent
 adds nothing while its teammates keep playing, so rows fill at different rates. Sampling draws every
 row's batch from its own filled range only, with its replica's random generator, in one gather, giving
-``[rows, B, ...]`` tensors for the batched networks.
+``[rows, B, ...]`` arrays for the batched networks. The storage is numpy on the host, as in SB3: an
+engine on another device moves each sampled batch there.
 
 A transition is stored as one float32 vector ``[obs, next_obs, reward, action, terminated]`` (actions
 are small integers and ``terminated`` is 0 or 1, both exact in float32), so a sample is one gather.
@@ -15,7 +16,6 @@ from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
-import torch
 
 from dqn_transfer.agents.base import Transition
 
@@ -23,11 +23,11 @@ from dqn_transfer.agents.base import Transition
 class ReplayBatch(NamedTuple):
     """``batch_size`` transitions per row, each field ``[rows, B, ...]``."""
 
-    obs: torch.Tensor  # float32 [rows, B, D]
-    actions: torch.Tensor  # int64 [rows, B]
-    rewards: torch.Tensor  # float32 [rows, B]
-    next_obs: torch.Tensor  # float32 [rows, B, D]
-    terminated: torch.Tensor  # float32 [rows, B], 1.0 where the episode ended for the agent
+    obs: np.ndarray  # float32 [rows, B, D]
+    actions: np.ndarray  # int64 [rows, B]
+    rewards: np.ndarray  # float32 [rows, B]
+    next_obs: np.ndarray  # float32 [rows, B, D]
+    terminated: np.ndarray  # float32 [rows, B], 1.0 where the episode ended for the agent
 
 
 # The fields of a checkpoint's replay state, as they are stored there.
@@ -42,7 +42,6 @@ class ReplayBuffer:
     :param capacity: transitions kept per row
     :param obs_dim: values per observation
     :param rngs: one generator per replica, drawing its rows' sample indices
-    :param device: where the storage lives
 
     The timeout rule lives here: only ``terminated`` is stored. A step truncated by the time limit
     is, for the TD target, an ordinary step whose next state still has a future (SB3's
@@ -55,7 +54,6 @@ class ReplayBuffer:
         capacity: int,
         obs_dim: int,
         rngs: Sequence[np.random.Generator],
-        device: torch.device | str = "cpu",
     ) -> None:
         if num_rows % len(rngs):
             raise ValueError(f"{len(rngs)} generators cannot split {num_rows} replay rows evenly")
@@ -64,37 +62,26 @@ class ReplayBuffer:
         self.obs_dim = obs_dim
         self.rngs = list(rngs)
         self.rows_per_rng = num_rows // len(self.rngs)
-        self.device = torch.device(device)
         d = obs_dim
         self.columns = {"obs": slice(0, d), "next_obs": slice(d, 2 * d), "rewards": 2 * d, "actions": 2 * d + 1,
                         "terminated": 2 * d + 2}
-        shape = (num_rows, capacity, 2 * d + 3)
-        if self.device.type == "cpu":
-            # numpy's zeros come from calloc: pages are committed as they are first written, so a
-            # 50k-transition buffer of 64 replicas costs what it holds, not 11 GB up front. Written and
-            # gathered through the numpy array: a fraction of torch's per-call indexing cost.
-            self._array = np.zeros(shape, dtype=np.float32)
-            self.storage = torch.from_numpy(self._array)
-        else:
-            self._array = None
-            self.storage = torch.zeros(shape, dtype=torch.float32, device=self.device)
+        # numpy's zeros come from calloc: pages are committed as they are first written, so a
+        # 50k-transition buffer of 64 replicas costs what it holds, not 11 GB up front.
+        self.storage = np.zeros((num_rows, capacity, 2 * d + 3), dtype=np.float32)
         self.ptr = np.zeros(num_rows, dtype=np.int64)
         self.size = np.zeros(num_rows, dtype=np.int64)
 
     def _pack(self, obs, actions, rewards, next_obs, terminated) -> np.ndarray:
         """``[N, width]`` storage rows of N transitions."""
-        return np.concatenate([np.asarray(obs, dtype=np.float32).reshape(-1, self.obs_dim),
-                               np.asarray(next_obs, dtype=np.float32).reshape(-1, self.obs_dim),
-                               np.stack([np.asarray(rewards, dtype=np.float32).reshape(-1),
-                                         np.asarray(actions).reshape(-1).astype(np.float32),
-                                         np.asarray(terminated).reshape(-1).astype(np.float32)], axis=1)], axis=1)
-
-    def _write(self, rows: np.ndarray, cols: np.ndarray, packed: np.ndarray) -> None:
-        if self._array is not None:
-            self._array[rows, cols] = packed
-        else:
-            self.storage[torch.from_numpy(rows).to(self.device), torch.from_numpy(cols).to(self.device)] = (
-                torch.from_numpy(packed).to(self.device))
+        obs = np.asarray(obs).reshape(-1, self.obs_dim)
+        packed = np.empty((len(obs), self.storage.shape[-1]), dtype=np.float32)
+        c = self.columns
+        packed[:, c["obs"]] = obs
+        packed[:, c["next_obs"]] = np.asarray(next_obs).reshape(-1, self.obs_dim)
+        packed[:, c["rewards"]] = np.asarray(rewards).reshape(-1)
+        packed[:, c["actions"]] = np.asarray(actions).reshape(-1)
+        packed[:, c["terminated"]] = np.asarray(terminated).reshape(-1)
+        return packed
 
     def add(self, transition: Transition) -> None:
         """Store row k of the joint step in row k's buffer, for the rows live in it."""
@@ -102,9 +89,11 @@ class ReplayBuffer:
         if rows.size == 0:
             return
         t = transition
-        packed = self._pack(t.obs[rows], t.actions[rows], t.rewards[rows], t.next_obs[rows], t.terminated[rows])
-        self._write(rows, self.ptr[rows], packed)
-        self.ptr[rows] = (self.ptr[rows] + 1) % self.capacity
+        if rows.size < self.num_rows:
+            t = Transition(*(field[rows] for field in t))
+        ptr = self.ptr[rows]
+        self.storage[rows, ptr] = self._pack(t.obs, t.actions, t.rewards, t.next_obs, t.terminated)
+        self.ptr[rows] = (ptr + 1) % self.capacity
         self.size[rows] = np.minimum(self.size[rows] + 1, self.capacity)
 
     def extend(
@@ -126,7 +115,7 @@ class ReplayBuffer:
         if n == 0:
             return
         cols = (self.ptr[row] + np.arange(n)) % self.capacity
-        self._write(np.full(n, row, dtype=np.int64), cols, packed)
+        self.storage[row, cols] = packed
         self.ptr[row] = (self.ptr[row] + n) % self.capacity
         self.size[row] = min(self.size[row] + n, self.capacity)
 
@@ -141,13 +130,9 @@ class ReplayBuffer:
                                for r, rng in enumerate(self.rngs)])
         # One flat gather (row k, slot c is element k * capacity + c of the [rows * capacity, width] view).
         flat = (np.arange(self.num_rows)[:, None] * self.capacity + cols).reshape(-1)
-        if self._array is not None:
-            picked = torch.from_numpy(self._array.reshape(-1, self._array.shape[-1])[flat])
-        else:
-            picked = self.storage.flatten(0, 1).index_select(0, torch.from_numpy(flat).to(self.device))
-        picked = picked.view(self.num_rows, batch_size, -1)
+        picked = self.storage.reshape(-1, self.storage.shape[-1])[flat].reshape(self.num_rows, batch_size, -1)
         c = self.columns
-        return ReplayBatch(picked[..., c["obs"]], picked[..., c["actions"]].long(), picked[..., c["rewards"]],
+        return ReplayBatch(picked[..., c["obs"]], picked[..., c["actions"]].astype(np.int64), picked[..., c["rewards"]],
                            picked[..., c["next_obs"]], picked[..., c["terminated"]])
 
     # ------------------------------------------------------------------------ checkpoints
@@ -156,7 +141,7 @@ class ReplayBuffer:
         rows = slice(None) if rows is None else rows
         size = self.size[rows]
         filled = int(size.max(initial=0))
-        stored = self.storage[rows, :filled].cpu().numpy()
+        stored = self.storage[rows, :filled]
         # Contiguous copies: safetensors writes an array's raw buffer, and a slice is only a view.
         arrays = {name: np.ascontiguousarray(stored[..., self.columns[name]].astype(dtype))
                   for name, dtype in FIELD_DTYPES.items()}
@@ -181,6 +166,6 @@ class ReplayBuffer:
         packed = self._pack(*(np.asarray(arrays[name]) for name in ("obs", "actions", "rewards", "next_obs",
                                                                      "terminated")))
         self.storage[rows] = 0.0
-        self.storage[rows, :filled] = torch.from_numpy(packed.reshape(num_rows, filled, -1)).to(self.device)
+        self.storage[rows, :filled] = packed.reshape(num_rows, filled, -1)
         self.ptr[rows] = np.asarray(arrays["ptr"], dtype=np.int64)
         self.size[rows] = size

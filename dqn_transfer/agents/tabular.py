@@ -23,7 +23,6 @@ import zlib
 from typing import Any
 
 import numpy as np
-import torch
 
 from dqn_transfer.agents.base import ObsLayout, TeamShape, Transition, UpdateStats, check_tensor_shape, epsilon_greedy
 from dqn_transfer.config import AgentConfig
@@ -215,7 +214,7 @@ class TabularLearner(TeamShape):
 
     # ----------------------------------------------------------------------------- checkpoints
 
-    def agent_tensors(self, i: int) -> dict[str, torch.Tensor]:
+    def agent_tensors(self, i: int) -> dict[str, np.ndarray]:
         """``keys [N, D]`` / ``values [N, A]`` float32 in insertion order, plus the fallback
         (``fallback_keys``, ``fallback_values``, ``fallback_projection`` int64) if set."""
         table = self.tables[i]
@@ -224,30 +223,24 @@ class TabularLearner(TeamShape):
         for n, (key, row) in enumerate(table.items()):
             keys[n] = np.frombuffer(key, dtype=np.float32)
             values[n] = row
-        tensors = {"keys": torch.from_numpy(keys), "values": torch.from_numpy(values)}
+        tensors = {"keys": keys, "values": values}
         fallback = self.fallbacks[i]
         if fallback is not None:
-            tensors["fallback_keys"] = torch.from_numpy(fallback.keys.copy())
-            tensors["fallback_values"] = torch.from_numpy(fallback.values.copy())
-            tensors["fallback_projection"] = torch.from_numpy(fallback.projection.copy())
+            tensors["fallback_keys"] = fallback.keys.copy()
+            tensors["fallback_values"] = fallback.values.copy()
+            tensors["fallback_projection"] = fallback.projection.copy()
         return tensors
 
-    def load_agent_tensors(self, i: int, tensors: dict[str, torch.Tensor]) -> None:
+    def load_agent_tensors(self, i: int, tensors: dict[str, np.ndarray]) -> None:
         """Replace agent i's table (and fallback: set if the tensors have one, cleared otherwise)."""
-        keys = tensors["keys"].detach().cpu()
+        keys = np.asarray(tensors["keys"], dtype=np.float32)
         check_tensor_shape("keys", keys, (keys.shape[0], self.obs_dim))
         check_tensor_shape("values", tensors["values"], (keys.shape[0], self.num_actions))
-        values = tensors["values"].detach().cpu().numpy().astype(np.float32)
-        keys_np = keys.numpy().astype(np.float32)
-        self.tables[i] = {key.tobytes(): row.copy() for key, row in zip(keys_np, values)}
+        values = np.asarray(tensors["values"], dtype=np.float32)
+        self.tables[i] = {key.tobytes(): row.copy() for key, row in zip(keys, values)}
         self.fallbacks[i] = None
         if "fallback_keys" in tensors:
-            self.set_fallback(
-                tensors["fallback_keys"].detach().cpu().numpy(),
-                tensors["fallback_values"].detach().cpu().numpy(),
-                tensors["fallback_projection"].detach().cpu().numpy(),
-                agent=i,
-            )
+            self.set_fallback(tensors["fallback_keys"], tensors["fallback_values"], tensors["fallback_projection"], agent=i)
 
     def network_meta(self) -> dict[str, Any]:
         return {"obs_dim": self.obs_dim, "num_actions": self.num_actions}

@@ -330,8 +330,8 @@ def lone_section(sizes: Sizes, seed: int, repeats: int, progress: ProgressFn) ->
         "map": LONE_MAP,
         "hyperparameters": to_plain(LONE_AGENT),
         "contenders": contenders,
-        **{f"ours_over_{who}": contenders[who]["ours_over_this"] for who in ("sb3", "bare")},
-        **{f"ours_over_{who}_cpu": contenders[who]["ours_over_this_cpu"] for who in ("sb3", "bare")},
+        **{f"ours_over_{who}": contenders[who]["ours_over_this"] for who in ("ours_torch", "sb3", "bare")},
+        **{f"ours_over_{who}_cpu": contenders[who]["ours_over_this_cpu"] for who in ("ours_torch", "sb3", "bare")},
         "raw": raw,
         "loadavg_start": loadavg_start,
         "loadavg_end": _loadavg(),
@@ -562,7 +562,8 @@ def _map(kwargs: dict[str, Any]) -> str:
 
 
 LONE_LABELS = {
-    "ours": "ours: `python -m dqn_transfer.cli.train` (`train.py`)",
+    "ours": "ours: `python -m dqn_transfer.cli.train agent.engine=numpy` (`train.py`)",
+    "ours_torch": "ours, torch engine (the default): `python -m dqn_transfer.cli.train`",
     "sb3": "SB3: `DQN(\"MlpPolicy\", gymnasium.make(\"TreasureHunt-v0\")).learn()`",
     "bare": "bare PyTorch: a CleanRL-style dqn.py loop",
 }

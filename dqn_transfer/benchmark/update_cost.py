@@ -89,7 +89,7 @@ class UpdateRig:
             self.learner.replay.add(Transition(obs, actions, rewards, next_obs, terminated, truncated, live))
             obs = game.reset(rng) if game.done else next_obs
         self.batch = self.learner.replay.sample(agent.batch_size)  # [1, B, ...]
-        self.flat_batch = ReplayBatch(*(field[0] for field in self.batch))  # [B, ...]
+        self.flat_batch = ReplayBatch(*(torch.from_numpy(field[0]) for field in self.batch))  # [B, ...], for torch
 
         torch.manual_seed(seed)
         self.q = mlp([game.obs_dim, *agent.hidden, game.num_actions])

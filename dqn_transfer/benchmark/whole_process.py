@@ -4,9 +4,11 @@ Sections 2-4 time loops inside one Python process and subtract what is not train
 subtracted: imports, building the networks, replay filling, the trainer's evaluations, TensorBoard
 logging and checkpoint writes all count, as they do for whoever runs the command.
 
-5. ``lone``: one DQN learner on ``LONE_MAP`` with ``LONE_AGENT``'s hyperparameters, three programs:
-   ``ours`` = ``python -m dqn_transfer.cli.train`` (the Hydra app, ``train.py``), ``sb3`` and ``bare``
-   = :mod:`dqn_transfer.benchmark.processes` (SB3's ``DQN.learn`` and a CleanRL-style bare-PyTorch loop).
+5. ``lone``: one DQN learner on ``LONE_MAP`` with ``LONE_AGENT``'s hyperparameters, four programs:
+   ``ours`` = ``python -m dqn_transfer.cli.train agent.engine=numpy`` (the Hydra app, ``train.py``, with
+   the engine for small networks, whose process never imports torch), ``ours_torch`` = the same with the
+   default torch engine, ``sb3`` and ``bare`` = :mod:`dqn_transfer.benchmark.processes` (SB3's
+   ``DQN.learn`` and a CleanRL-style bare-PyTorch loop).
 6. ``replicas``: sweep throughput. ``ours``: R replicas of a 4-agent cooperative team on ``BENCH_MAP``
    in ONE process (``replicas.seeds=R``, one batched learner, every core's torch threads). ``sb3``: the
    same learners the way SB3 trains them, one per process, one process per core started together.
@@ -19,6 +21,7 @@ step and gradient-step count), the others from the JSON line they print last.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -34,12 +37,15 @@ from typing import Any
 from dqn_transfer.benchmark.config import LONE_AGENT, LONE_MAP, TEAM_MAP
 from dqn_transfer.checkpoint import verify_checkpoint
 from dqn_transfer.config import SB3_NAMES, AgentConfig
+from dqn_transfer.enums import Engine
 from dqn_transfer.run_dir import RunDir
 
-LONE_CONTENDERS = ("ours", "sb3", "bare")
+LONE_CONTENDERS = ("ours", "ours_torch", "sb3", "bare")
+# The engine of each of our contenders.
+OUR_ENGINES = {"ours": Engine.numpy, "ours_torch": Engine.torch}
 # Every AgentConfig key the programs are matched on, given to ours on its command line (so it trains
 # with LONE_AGENT's values whatever the CLI's defaults are).
-MATCHED_KEYS = ("hidden", *SB3_NAMES)
+MATCHED_KEYS = ("hidden", "engine", *SB3_NAMES)
 
 
 class ProcessFailed(RuntimeError):
@@ -65,7 +71,7 @@ def train_command(run_dir: Path, steps: int, seed: int, agent: AgentConfig, env_
     :param run_dir: ``hydra.run.dir`` (must not hold a run)
     :param steps: ``total_steps``
     :param seed: ``seed`` (replica r gets ``seed + r``)
-    :param agent: the DQN hyperparameters
+    :param agent: the DQN hyperparameters (and engine)
     :param env_kwargs: the ``env`` keys to set
     :param threads: ``threads``, torch's CPU threads
     :param replicas: ``replicas.seeds``
@@ -184,16 +190,17 @@ def _figures(steps: int, timing: dict[str, Any], learners: int = 1) -> dict[str,
 
 # ----------------------------------------------------------------------------- 5. lone learner
 def measure_lone(who: str, steps: int, seed: int) -> dict[str, Any]:
-    """One whole process of ``who`` (ours, sb3, bare) training one learner on ``LONE_MAP`` for ``steps``.
+    """One whole process of ``who`` training one learner on ``LONE_MAP`` for ``steps``.
 
-    :param who: ``ours``, ``sb3`` or ``bare``
+    :param who: one of ``LONE_CONTENDERS``
     :param steps: env steps
     :param seed: the run's seed
     """
-    if who == "ours":
+    if who in OUR_ENGINES:
+        agent = dataclasses.replace(LONE_AGENT, engine=OUR_ENGINES[who])
         with tempfile.TemporaryDirectory(prefix="dqn_transfer_bench_") as tmp:
             run_dir = Path(tmp) / "run"
-            timing = run_together([train_command(run_dir, steps, seed, LONE_AGENT, {**LONE_MAP, "num_agents": 1})])
+            timing = run_together([train_command(run_dir, steps, seed, agent, {**LONE_MAP, "num_agents": 1})])
             report = trainer_report(run_dir)
         done = {"gradient_steps": report["gradient_steps"][0], "episodes": report["episodes"][0],
                 "steps_done": report["steps"][0]}

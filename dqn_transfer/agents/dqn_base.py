@@ -1,0 +1,374 @@
+"""DQN and Double DQN for R replicas of a team of K agents, batched into one network module and one optimizer.
+
+The algorithm is CleanRL's ``dqn.py`` per agent (read :meth:`BatchedDQN.update`, then an engine's
+``train_on``): store the transition; every ``train_freq`` env steps after ``learning_starts``, take
+``gradient_steps`` steps of Huber loss between ``Q(s, a)`` and the bootstrapped target on a uniform
+replay batch (Adam, gradient-norm clip); every ``target_update`` env steps move the target network
+``tau`` of the way to the online one (``tau == 1``: a hard copy) — the same rule as SB3's
+``target_update_interval``/``tau`` and CleanRL's ``target_network_frequency``/``tau``.
+
+What is particular here: all R x K agents are one batched network (stacked weights), their replay is
+one ``[R * K, capacity, ...]`` storage, and one Adam step updates everyone. The loss is the *sum* of
+the agents' mean losses, so each agent's gradient is exactly the one its own network would get, and
+gradients are clipped per agent. With ``share_parameters`` each replica's team shares one network
+instead (the parameter-sharing baseline): a single member whose forward pass serves its agents, replay
+still per agent, loss the *mean* over the replica's agents. Replica r (rows ``r * K .. r * K + K - 1``)
+has its own initial weights, exploration and replay sampling streams, seeded as a lone learner of its
+seed would be; :class:`DQNReplica` is its team as a ``Learner``.
+
+Two engines do the arithmetic (``agent.engine``): ``torch`` (:mod:`dqn_transfer.agents.dqn`, the
+default; any device, bit-identical to autograd and ``torch.optim.Adam``) and ``numpy``
+(:mod:`dqn_transfer.agents.numpy_dqn`, CPU only, no torch in the process: the fastest for a few small
+networks). This module is what they share, and imports neither torch nor an engine.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+import numpy as np
+
+from dqn_transfer.agents.base import ObsLayout, TeamShape, Transition, UpdateStats, check_tensor_shape, epsilon_greedy
+from dqn_transfer.agents.replay import ReplayBatch, ReplayBuffer
+from dqn_transfer.config import AgentConfig
+from dqn_transfer.enums import Algorithm
+
+
+class BatchedDQN(TeamShape):
+    """K DQN / Double DQN agents, in R independent replicas (see the module docstring). Implements
+    ``Learner`` for the R x K agents as rows ``r * K + k``; :meth:`replica` is one replica's team.
+
+    An engine subclass builds ``q_network`` and ``target_network`` (stacked MLPs with ``num_layers``,
+    ``tensor_names``, ``shapes``, ``member_state``, ``load_member_state``, ``update_from``) and
+    ``optimizer`` (``moments``, ``init_state``, ``has_state``, ``steps``), and implements
+    :meth:`q_values`, :meth:`_greedy_actions`, :meth:`train_on` and the array conversions.
+    """
+
+    def __init__(self, num_agents: int, obs_layout: ObsLayout, num_actions: int, hp: AgentConfig,
+                 seed: int | Sequence[int]) -> None:
+        """
+        :param num_agents: K, the agents of the team (each its own network unless ``share_parameters``)
+        :param obs_layout: the observation's named segments ``[(name, size), ...]``
+        :param num_actions: A, the discrete actions
+        :param hp: the hyperparameters, documented on :class:`~dqn_transfer.config.AgentConfig` (their
+            one home, shared with the command line); ``hp.algorithm`` picks the DQN or Double DQN target
+        :param seed: fixes the initial weights, exploration and replay sampling; a list of R seeds
+            makes R replicas, replica r exactly the team a lone learner of ``seed[r]`` would be
+        """
+        algorithm = Algorithm(hp.algorithm)
+        if algorithm.is_tabular:
+            raise ValueError(f"{type(self).__name__} trains the DQN family, not {algorithm.value}")
+        super().__init__(algorithm, num_agents, obs_layout, num_actions)
+        self.double = algorithm is Algorithm.double_dqn
+        self.lr = hp.lr
+        self.gamma = hp.gamma
+        self.batch_size = hp.batch_size
+        self.learning_starts = hp.learning_starts
+        self.train_freq = hp.train_freq
+        self.gradient_steps = hp.gradient_steps
+        self.target_update = hp.target_update
+        self.tau = hp.tau
+        self.hidden = [int(h) for h in hp.hidden]
+        self.max_grad_norm = hp.max_grad_norm
+        self.share_parameters = hp.share_parameters
+        self.seeds = [int(seed)] if isinstance(seed, (int, np.integer)) else [int(s) for s in seed]
+        self.num_replicas = len(self.seeds)
+        self.num_rows = self.num_replicas * num_agents
+        self.members_per_replica = 1 if self.share_parameters else num_agents
+        self.num_members = self.num_replicas * self.members_per_replica
+
+        # Per replica, independent random streams: exploration and replay sampling (numpy, their states
+        # are JSON-able); the engine draws the initial weights from the seed itself.
+        streams = [np.random.SeedSequence(s).spawn(2) for s in self.seeds]
+        self.rngs = [np.random.default_rng(explore) for explore, _ in streams]
+        self.replay = ReplayBuffer(self.num_rows, hp.buffer_size, self.obs_dim,
+                                   [np.random.default_rng(replay) for _, replay in streams])
+        self.frozen_layers: list[int] = []
+        self.num_gradient_steps = 0
+
+    # ------------------------------------------------------------------------ engine hooks
+    def q_values(self, obs: np.ndarray, replica: int | None = None) -> np.ndarray:
+        """Each agent's online Q-values of its own observation: ``obs [rows, D] -> [rows, A]``."""
+        raise NotImplementedError
+
+    def _greedy_actions(self, obs: np.ndarray, replica: int | None) -> np.ndarray:
+        """``argmax_a Q(obs, a)`` per row, ``obs`` float32 ``[rows, D]`` (of ``replica``, or of all)."""
+        raise NotImplementedError
+
+    def train_on(self, batch: ReplayBatch) -> UpdateStats:
+        """One Adam step for all agents on ``batch`` (``[rows, B, ...]``)."""
+        raise NotImplementedError
+
+    def _to_engine(self, array: np.ndarray) -> Any:
+        """A numpy array as the engine's array type (on its device)."""
+        raise NotImplementedError
+
+    def _to_numpy(self, array: Any) -> np.ndarray:
+        """An engine array as a numpy array on the host."""
+        raise NotImplementedError
+
+    # ---------------------------------------------------------------------------- replicas
+    def replica(self, r: int) -> DQNReplica:
+        """Replica r's team of K agents, as a ``Learner`` of its own (evaluation, transfer, checkpoints)."""
+        return DQNReplica(self, r)
+
+    def _rows(self, replica: int) -> slice:
+        k = self.num_agents
+        return slice(replica * k, (replica + 1) * k)
+
+    def _members(self, replica: int | None) -> slice | None:
+        """Replica's members of the batched networks (None: all of them)."""
+        m = self.members_per_replica
+        return None if replica is None else slice(replica * m, (replica + 1) * m)
+
+    def _team_batch_numpy(self, obs: np.ndarray) -> np.ndarray:
+        """``obs [rows, D]`` as the members' inputs ``[members, B, D]``: a shared network sees its
+        replica's agents as one batch."""
+        if self.share_parameters:
+            return obs.reshape(-1, self.num_agents, obs.shape[-1])
+        return obs[:, None, :]
+
+    # ------------------------------------------------------------------------------ acting
+    def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, greedy: bool = False,
+            replica: int | None = None) -> np.ndarray:
+        """Per-agent epsilon-greedy; one forward pass for every agent, skipped if everyone explores.
+
+        Actions are returned for every row (of ``replica``, or of all); those of non-live agents are
+        ignored by the game.
+        """
+        obs = np.asarray(obs, dtype=np.float32)
+        if greedy:
+            return self._greedy_actions(obs, replica)
+        # The exploration draws come first, from the shared epsilon_greedy (the same draws, so the same
+        # random stream): given -1 as every greedy action, it returns -1 exactly where the agent exploits.
+        epsilon = np.broadcast_to(np.asarray(epsilon, dtype=np.float64), obs.shape[:1])
+        k = self.num_agents
+        replicas = range(self.num_replicas) if replica is None else [replica]
+        actions = np.concatenate([
+            epsilon_greedy(np.full(k, -1, dtype=np.int64), epsilon[i * k : (i + 1) * k], self.num_actions, self.rngs[r])
+            for i, r in enumerate(replicas)])
+        exploit = actions < 0
+        if exploit.any():
+            np.copyto(actions, self._greedy_actions(obs, replica), where=exploit)
+        return actions
+
+    # ---------------------------------------------------------------------------- learning
+    def update(self, transition: Transition, step: int) -> UpdateStats:
+        """Store the live agents' transitions, train on schedule, sync the target on schedule.
+
+        ``step`` counts env steps including this one (the same for every replica: they run in
+        lockstep). The statistics are averaged over this round's gradient steps (``q_mean``: mean
+        ``Q(s, a)`` of the batch), nan if no training.
+        """
+        self.replay.add(transition)
+
+        td_loss = np.full(self.num_rows, np.nan)
+        q_mean = np.full(self.num_rows, np.nan)
+        if step > self.learning_starts and step % self.train_freq == 0:
+            rounds = [self.gradient_step() for _ in range(self.gradient_steps)]
+            td_loss = np.mean([r.td_loss for r in rounds], axis=0, dtype=np.float64)
+            q_mean = np.mean([r.q_mean for r in rounds], axis=0, dtype=np.float64)
+
+        if step % self.target_update == 0:
+            self.target_network.update_from(self.q_network, tau=self.tau)
+        return UpdateStats(td_loss, q_mean)
+
+    @property
+    def trainable_layers(self) -> list[int]:
+        return [l for l in range(self.q_network.num_layers) if l not in self.frozen_layers]
+
+    def gradient_step(self) -> UpdateStats:
+        """One Adam step for all agents on a fresh replay batch (what ``update`` runs on schedule)."""
+        return self.train_on(self.replay.sample(self.batch_size))
+
+    def loss_weights(self, valid: np.ndarray) -> np.ndarray:
+        """``[rows]`` weight of each row's mean loss in the total: 1 (each agent's gradient is its own
+        loss's), with a shared network 1 / (its replica's agents with data), the usual batch mean;
+        0 for a row with no data yet (its batch is placeholders)."""
+        weights = valid.astype(np.float32)
+        if self.share_parameters:
+            counts = np.maximum(valid.reshape(-1, self.num_agents).sum(axis=1), 1).astype(np.float32)
+            weights = weights / np.repeat(counts, self.num_agents)
+        return weights
+
+    # ------------------------------------------------------------------ transfer and exchange
+    def freeze(self, layer_indices: Iterable[int]) -> None:
+        """Keep these layers' weights and biases fixed (negative indices count from the output).
+
+        The weights of a layer are one stacked tensor for all agents, so freezing applies to the
+        whole team (and every replica). A frozen layer gets no gradient and Adam skips it, so not
+        even leftover momentum moves it.
+        """
+        layers = [range(self.q_network.num_layers)[index] for index in layer_indices]  # IndexError if absent
+        self.frozen_layers = sorted({*self.frozen_layers, *layers})
+
+    def set_member_optimizer_state(self, i: int, moments: dict[str, dict[str, np.ndarray]], step: int) -> None:
+        """Adam moments for agent i's slice of each stacked tensor, e.g. carried over by transfer.
+
+        ``moments[name]`` holds ``exp_avg`` and ``exp_avg_sq`` shaped like one member's slice of
+        tensor ``name``. Adam keeps one ``step`` per stacked tensor, shared by all agents.
+        """
+        m = self._member(i)
+        optimizer, network = self.optimizer, self.q_network
+        for index, name in enumerate(network.tensor_names):
+            if name not in moments:  # e.g. a layer the source kept frozen has no moments
+                continue
+            optimizer.init_state(index)
+            for key, moment in optimizer.moments(index, network.shapes[index]).items():
+                moment[m] = self._to_engine(np.asarray(moments[name][key]))
+            optimizer.steps[index] = int(step)
+
+    def _member(self, i: int) -> int:
+        if not 0 <= i < self.num_rows:
+            raise IndexError(f"agent index {i} out of range for {self.num_rows} agents")
+        return i // self.num_agents if self.share_parameters else i
+
+    def add_experience(self, i: int, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray,
+                       next_obs: np.ndarray, terminated: np.ndarray) -> None:
+        """Append ``[N, ...]`` transitions (e.g. a team-mate's) to agent i's replay row."""
+        self.replay.extend(i, obs, actions, rewards, next_obs, terminated)
+
+    def get_member_weights(self, i: int) -> dict[str, np.ndarray]:
+        """Agent i's online network, ``layers.{l}.weight`` ``[out, in]`` / ``layers.{l}.bias``."""
+        return self.q_network.member_state(self._member(i))
+
+    def set_member_weights(self, i: int, tensors: dict[str, np.ndarray]) -> None:
+        """Overwrite agent i's online network (the target follows at its next sync)."""
+        self.q_network.load_member_state(self._member(i), tensors)
+
+    # -------------------------------------------------------------------------- checkpoints
+    def agent_tensors(self, i: int) -> dict[str, np.ndarray]:
+        """``q.layers.{l}.weight|bias`` (online) and ``target.layers.{l}.weight|bias``.
+
+        With ``share_parameters`` every agent returns the one shared network.
+        """
+        m = self._member(i)
+        tensors = {f"q.{name}": t for name, t in self.q_network.member_state(m).items()}
+        tensors.update({f"target.{name}": t for name, t in self.target_network.member_state(m).items()})
+        return tensors
+
+    def load_agent_tensors(self, i: int, tensors: dict[str, np.ndarray]) -> None:
+        """Load ``q.*`` and, if present, ``target.*`` (else the target becomes a copy of ``q.*``).
+
+        With ``share_parameters`` all agents load into the one shared network: the last load wins.
+        """
+        m = self._member(i)
+        online = {name[2:]: t for name, t in tensors.items() if name.startswith("q.")}
+        target = {name[7:]: t for name, t in tensors.items() if name.startswith("target.")}
+        self.q_network.load_member_state(m, online, name_prefix="q.")
+        self.target_network.load_member_state(m, target or online, name_prefix="target." if target else "q.")
+
+    def network_meta(self) -> dict[str, Any]:
+        return {
+            "obs_dim": self.obs_dim,
+            "num_actions": self.num_actions,
+            "hidden": list(self.hidden),
+            "activation": "relu",
+            "share_parameters": self.share_parameters,
+        }
+
+    def training_state(self, replica: int = 0) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """One replica's Adam moments (by tensor name), replay storage and pointers, RNG states, counters.
+
+        The network weights themselves are in ``agent_tensors``: resume = ``load_agent_tensors``
+        for every agent, then ``load_training_state``.
+        """
+        if not 0 <= replica < self.num_replicas:
+            raise IndexError(f"replica {replica} out of range for {self.num_replicas} replicas")
+        arrays = {f"replay.{name}": value for name, value in self.replay.state_dict(self._rows(replica)).items()}
+        optimizer, network, members = self.optimizer, self.q_network, self._members(replica)
+        for index, name in enumerate(network.tensor_names):
+            if optimizer.has_state[index]:
+                for key, moment in optimizer.moments(index, network.shapes[index]).items():
+                    arrays[f"optim.{name}.{key}"] = np.ascontiguousarray(self._to_numpy(moment[members]))
+                arrays[f"optim.{name}.step"] = np.array(optimizer.steps[index], dtype=np.float32)
+        meta = {
+            "explore_rng": self.rngs[replica].bit_generator.state,
+            "replay_rng": self.replay.rngs[replica].bit_generator.state,
+            "num_gradient_steps": self.num_gradient_steps,
+            "frozen_layers": list(self.frozen_layers),
+        }
+        return arrays, meta
+
+    def load_training_state(self, arrays: dict[str, np.ndarray], meta: dict[str, Any], replica: int = 0) -> None:
+        self.replay.load_state_dict(
+            {name[len("replay.") :]: value for name, value in arrays.items() if name.startswith("replay.")},
+            self._rows(replica),
+        )
+        self.freeze(meta["frozen_layers"])
+        optimizer, network, members = self.optimizer, self.q_network, self._members(replica)
+        for index, name in enumerate(network.tensor_names):
+            prefix = f"optim.{name}."
+            if prefix + "step" not in arrays:
+                continue
+            shape = network.shapes[index]
+            optimizer.init_state(index)
+            for key, moment in optimizer.moments(index, shape).items():
+                value = np.array(arrays[prefix + key], dtype=np.float32)
+                check_tensor_shape(prefix + key, value, (self.members_per_replica, *shape[1:]))
+                moment[members] = self._to_engine(value)
+            optimizer.steps[index] = int(np.asarray(arrays[prefix + "step"]).reshape(-1)[0])
+        self.rngs[replica].bit_generator.state = meta["explore_rng"]
+        self.replay.rngs[replica].bit_generator.state = meta["replay_rng"]
+        self.num_gradient_steps = int(meta["num_gradient_steps"])
+
+
+class DQNReplica:
+    """Replica r of a :class:`BatchedDQN`: its K agents as a ``Learner`` (agent i is row ``r * K + i``).
+
+    Everything reads and writes the batched learner's own arrays; nothing is copied.
+    """
+
+    def __init__(self, learner: BatchedDQN, r: int) -> None:
+        if not 0 <= r < learner.num_replicas:
+            raise IndexError(f"replica {r} out of range for {learner.num_replicas} replicas")
+        self.learner, self.index = learner, r
+        self.algorithm, self.num_agents = learner.algorithm, learner.num_agents
+        self.obs_layout, self.obs_dim, self.num_actions = learner.obs_layout, learner.obs_dim, learner.num_actions
+        self.offset = r * learner.num_agents
+
+    @property
+    def frozen_layers(self) -> list[int]:
+        return self.learner.frozen_layers
+
+    def _row(self, i: int) -> int:
+        if not 0 <= i < self.num_agents:
+            raise IndexError(f"agent index {i} out of range for {self.num_agents} agents")
+        return self.offset + i
+
+    def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, greedy: bool = False) -> np.ndarray:
+        return self.learner.act(obs, live, epsilon, greedy, replica=self.index)
+
+    def q_values(self, obs: np.ndarray) -> np.ndarray:
+        return self.learner.q_values(obs, replica=self.index)
+
+    def freeze(self, layer_indices: Iterable[int]) -> None:
+        self.learner.freeze(layer_indices)
+
+    def network_meta(self) -> dict[str, Any]:
+        return self.learner.network_meta()
+
+    def agent_tensors(self, i: int) -> dict[str, np.ndarray]:
+        return self.learner.agent_tensors(self._row(i))
+
+    def load_agent_tensors(self, i: int, tensors: dict[str, np.ndarray]) -> None:
+        self.learner.load_agent_tensors(self._row(i), tensors)
+
+    def get_member_weights(self, i: int) -> dict[str, np.ndarray]:
+        return self.learner.get_member_weights(self._row(i))
+
+    def set_member_weights(self, i: int, tensors: dict[str, np.ndarray]) -> None:
+        self.learner.set_member_weights(self._row(i), tensors)
+
+    def set_member_optimizer_state(self, i: int, moments: dict[str, dict[str, np.ndarray]], step: int) -> None:
+        self.learner.set_member_optimizer_state(self._row(i), moments, step)
+
+    def add_experience(self, i: int, *transitions: np.ndarray) -> None:
+        self.learner.add_experience(self._row(i), *transitions)
+
+    def training_state(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        return self.learner.training_state(self.index)
+
+    def load_training_state(self, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
+        self.learner.load_training_state(arrays, meta, self.index)

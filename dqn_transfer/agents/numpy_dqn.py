@@ -1,0 +1,332 @@
+"""The ``numpy`` engine of :class:`~dqn_transfer.agents.dqn_base.BatchedDQN`: CPU only, no torch in the process.
+
+For networks this small (a few 64x64 MLPs) a gradient step is a few dozen tiny array operations, and
+what they cost is per-call overhead, not arithmetic: numpy's is a fraction of torch's, and a process
+that never imports torch starts seconds sooner. The arithmetic is the torch engine's, written out
+(forward, Huber loss, the chain rule through ReLU layers, per-member gradient clip, Adam), in float32,
+but with numpy's kernels: results agree with the torch engine to float32 rounding, not bit for bit,
+and the initial weights come from numpy's generator (same distribution as ``nn.Linear``'s, other
+numbers). ``agent.engine`` is therefore part of what a run is (its config and checkpoints record it).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from dqn_transfer.agents.base import ObsLayout, UpdateStats, check_tensor_shape
+from dqn_transfer.agents.dqn_base import BatchedDQN
+from dqn_transfer.agents.replay import ReplayBatch
+from dqn_transfer.config import AgentConfig
+
+SMALLEST_NORMAL = np.finfo(np.float32).tiny
+FLUSH_EVERY = 50  # Adam steps between flushes of subnormal moments (they slow every kernel reading them)
+WEIGHT_STREAM = 2  # SeedSequence spawn key of the initial weights (0 and 1: exploration and replay)
+
+
+class NumpyMLP:
+    """``num_members`` ReLU MLPs ``in_dim -> hidden... -> out_dim``, stacked: ``weight_l [M, in, out]``,
+    ``bias_l [M, out]``, all views of one flat float32 buffer ``flat`` (gradients: ``flat_grad``).
+
+    :param num_members: M, the stacked networks
+    :param in_dim: inputs
+    :param hidden: hidden layer sizes
+    :param out_dim: outputs
+    :param rngs: one generator per equal block of members (a replica), drawing its block's initial
+        weights layer by layer (``nn.Linear``'s distribution); None: all zeros (a target network)
+    """
+
+    def __init__(self, num_members: int, in_dim: int, hidden: Sequence[int], out_dim: int,
+                 rngs: Sequence[np.random.Generator] | None = None) -> None:
+        self.num_members = num_members
+        self.sizes = [in_dim, *hidden, out_dim]
+        self.tensor_names: list[str] = []
+        self.spans: list[tuple[int, int]] = []
+        self.shapes: list[tuple[int, ...]] = []
+        offset = 0
+        for l, (fan_in, fan_out) in enumerate(self.layer_shapes):
+            for kind, shape in (("weight", (num_members, fan_in, fan_out)), ("bias", (num_members, fan_out))):
+                self.tensor_names.append(f"{kind}_{l}")
+                self.shapes.append(shape)
+                self.spans.append((offset, offset + math.prod(shape)))
+                offset += math.prod(shape)
+        self.flat = np.zeros(offset, dtype=np.float32)
+        self.flat_grad = np.zeros(offset, dtype=np.float32)
+        self.tensors = [self.flat[a:b].reshape(shape) for (a, b), shape in zip(self.spans, self.shapes)]
+        self.grads = [self.flat_grad[a:b].reshape(shape) for (a, b), shape in zip(self.spans, self.shapes)]
+        if rngs is not None:
+            self._initialise(rngs)
+
+    def _initialise(self, rngs: Sequence[np.random.Generator]) -> None:
+        block = self.num_members // len(rngs)
+        if block * len(rngs) != self.num_members:
+            raise ValueError(f"{len(rngs)} generators cannot split {self.num_members} members evenly")
+        for r, rng in enumerate(rngs):
+            members = slice(r * block, (r + 1) * block)
+            for l, (fan_in, fan_out) in enumerate(self.layer_shapes):
+                weight, bias = self.layer(l)
+                bound = 1.0 / math.sqrt(fan_in)
+                weight[members] = rng.uniform(-bound, bound, size=(block, fan_in, fan_out))
+                bias[members] = rng.uniform(-bound, bound, size=(block, fan_out))
+
+    @property
+    def layer_shapes(self) -> list[tuple[int, int]]:
+        """``(in, out)`` of every layer."""
+        return list(zip(self.sizes[:-1], self.sizes[1:]))
+
+    @property
+    def num_layers(self) -> int:
+        return len(self.sizes) - 1
+
+    def layer(self, l: int) -> tuple[np.ndarray, np.ndarray]:
+        """Layer l's ``(weight [M, in, out], bias [M, out])``, views of ``flat``."""
+        return self.tensors[2 * l], self.tensors[2 * l + 1]
+
+    # ------------------------------------------------------------------------- forward
+    def predict(self, x: np.ndarray, members: slice | None = None,
+                inputs: list[np.ndarray] | None = None) -> np.ndarray:
+        """``x [len(members), B, in] -> [len(members), B, out]`` for ``members`` (default all); every
+        layer's input is appended to ``inputs`` if given (what :meth:`backward` needs)."""
+        last = self.num_layers - 1
+        for l in range(self.num_layers):
+            weight, bias = self.layer(l)
+            if members is not None:
+                weight, bias = weight[members], bias[members]
+            if inputs is not None:
+                inputs.append(x)
+            x = np.matmul(x, weight)
+            x += bias[:, None, :]
+            if l < last:
+                np.maximum(x, 0.0, out=x)
+        return x
+
+    def backward(self, inputs: list[np.ndarray], grad_out: np.ndarray, layers: Sequence[int]) -> None:
+        """Gradients of the trainable ``layers`` into :attr:`grads` (the others are left as they are),
+        given d loss / d output ``grad_out [M, B, out]`` and the inputs :meth:`predict` collected."""
+        wanted = set(layers)
+        if not wanted:
+            return
+        grad = grad_out
+        for l in range(self.num_layers - 1, min(wanted) - 1, -1):
+            if l in wanted:
+                np.matmul(inputs[l].transpose(0, 2, 1), grad, out=self.grads[2 * l])
+                np.sum(grad, axis=1, out=self.grads[2 * l + 1])
+            if l > min(wanted):
+                grad = np.matmul(grad, self.layer(l)[0].transpose(0, 2, 1))
+                grad *= inputs[l] > 0  # ReLU: the gradient passes where its output was positive
+
+    def clip_grad_norm_(self, max_norm: float, layers: Sequence[int]) -> None:
+        """Scale each member's gradients of ``layers`` to a norm of at most ``max_norm`` (the torch
+        engine's per-member ``clip_grad_norm_``: one agent's large gradient never shrinks another's)."""
+        tensors = [2 * l + kind for l in layers for kind in (0, 1)]
+        if not tensors:
+            return
+        flat = self.flat_grad
+        if float(np.dot(flat, flat)) < (0.99 * max_norm) ** 2:
+            return  # no member's norm exceeds the norm of all gradients together: nobody is clipped
+        squares = sum(np.einsum("mi,mi->m", g, g) for g in (self.grads[i].reshape(self.num_members, -1)
+                                                          for i in tensors))
+        scale = np.minimum(max_norm / (np.sqrt(squares) + 1e-6), 1.0).astype(np.float32)
+        if (scale < 1.0).any():
+            for i in tensors:
+                self.grads[i] *= scale.reshape(-1, *([1] * (len(self.shapes[i]) - 1)))
+
+    # ------------------------------------------------------------------------- members
+    def member_state(self, m: int) -> dict[str, np.ndarray]:
+        """Member m's weights as copies in ``nn.Linear`` layout (``layers.{l}.weight`` ``[out, in]``)."""
+        state = {}
+        for l in range(self.num_layers):
+            weight, bias = self.layer(l)
+            state[f"layers.{l}.weight"] = np.ascontiguousarray(weight[m].T)
+            state[f"layers.{l}.bias"] = bias[m].copy()
+        return state
+
+    def load_member_state(self, m: int, state: dict[str, np.ndarray], name_prefix: str = "") -> None:
+        """Overwrite member m from ``nn.Linear``-layout arrays (all layers must be present); everything
+        is checked before anything is written, errors naming ``name_prefix + "layers.{l}.weight"``."""
+        for l, (fan_in, fan_out) in enumerate(self.layer_shapes):
+            for kind, shape in (("weight", (fan_out, fan_in)), ("bias", (fan_out,))):
+                name = f"layers.{l}.{kind}"
+                if name not in state:
+                    raise ValueError(f"tensor '{name_prefix}{name}' is missing")
+                check_tensor_shape(name_prefix + name, state[name], shape)
+        for l in range(self.num_layers):
+            weight, bias = self.layer(l)
+            weight[m] = np.asarray(state[f"layers.{l}.weight"]).T
+            bias[m] = state[f"layers.{l}.bias"]
+
+    def update_from(self, source: NumpyMLP, tau: float) -> None:
+        """Move towards ``source``: exact copy when ``tau == 1`` (hard target update), else Polyak
+        ``p <- p + tau * (p_source - p)``."""
+        if tau == 1.0:
+            np.copyto(self.flat, source.flat)
+        else:
+            self.flat += np.float32(tau) * (source.flat - self.flat)
+
+
+class NumpyAdam:
+    """Adam (``torch.optim.Adam``'s defaults and arithmetic order) over the tensors ``spans`` of one flat
+    buffer, one pass per stretch of neighbouring tensors at the same step count. A tensor that gets
+    no gradient in a step (a frozen layer) is skipped: its moments and step count stay as they were.
+
+    :param flat: the parameters, one 1-D float32 array
+    :param flat_grad: their gradients, same shape
+    :param spans: the ``[start, end)`` range of each tensor, in order and without overlap
+    :param lr: the step size
+    :param betas: the moments' decay rates
+    :param eps: added to the denominator
+    """
+
+    def __init__(self, flat: np.ndarray, flat_grad: np.ndarray, spans: Sequence[tuple[int, int]], lr: float,
+                 betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8) -> None:
+        self.flat, self.flat_grad = flat, flat_grad
+        self.spans = list(spans)
+        self.lr, (self.beta1, self.beta2), self.eps = lr, betas, eps
+        self.exp_avg = np.zeros_like(flat)
+        self.exp_avg_sq = np.zeros_like(flat)
+        self._scratch = np.zeros_like(flat)
+        self.steps = [0] * len(self.spans)
+        self.has_state = [False] * len(self.spans)
+
+    def moments(self, i: int, shape: Sequence[int]) -> dict[str, np.ndarray]:
+        """Tensor i's ``exp_avg`` and ``exp_avg_sq``, as views of shape ``shape`` (write through them)."""
+        a, b = self.spans[i]
+        return {"exp_avg": self.exp_avg[a:b].reshape(shape), "exp_avg_sq": self.exp_avg_sq[a:b].reshape(shape)}
+
+    def init_state(self, i: int) -> None:
+        """Give tensor i the state Adam creates at its first step (zero moments, step 0), if it has none."""
+        if not self.has_state[i]:
+            a, b = self.spans[i]
+            self.exp_avg[a:b] = 0.0
+            self.exp_avg_sq[a:b] = 0.0
+            self.steps[i] = 0
+            self.has_state[i] = True
+
+    def step(self, active: Sequence[int]) -> None:
+        """One Adam step for the tensors ``active`` (the others got no gradient)."""
+        stretches: list[list[int]] = []  # [start, end, step]
+        for i in sorted(active):
+            self.init_state(i)
+            self.steps[i] += 1
+            (a, b), step = self.spans[i], self.steps[i]
+            if stretches and stretches[-1][1] == a and stretches[-1][2] == step:
+                stretches[-1][1] = b
+            else:
+                stretches.append([a, b, step])
+        for a, b, step in stretches:
+            self._update(slice(a, b), step)
+        if active and self.steps[active[0]] % FLUSH_EVERY == 0:
+            for moment in (self.exp_avg, self.exp_avg_sq):
+                moment[np.abs(moment) < SMALLEST_NORMAL] = 0.0
+
+    def _update(self, span: slice, step: int) -> None:
+        param, grad = self.flat[span], self.flat_grad[span]
+        exp_avg, exp_avg_sq, scratch = self.exp_avg[span], self.exp_avg_sq[span], self._scratch[span]
+        np.subtract(grad, exp_avg, out=scratch)  # exp_avg.lerp_(grad, 1 - beta1)
+        scratch *= np.float32(1 - self.beta1)
+        exp_avg += scratch
+        exp_avg_sq *= np.float32(self.beta2)
+        np.multiply(grad, grad, out=scratch)
+        scratch *= np.float32(1 - self.beta2)
+        exp_avg_sq += scratch
+        bias_correction1 = 1 - self.beta1**step
+        bias_correction2_sqrt = (1 - self.beta2**step) ** 0.5
+        np.sqrt(exp_avg_sq, out=scratch)
+        scratch /= np.float32(bias_correction2_sqrt)
+        scratch += np.float32(self.eps)
+        np.divide(exp_avg, scratch, out=scratch)
+        scratch *= np.float32(-self.lr / bias_correction1)
+        param += scratch
+
+
+class NumpyDQNLearner(BatchedDQN):
+    """:class:`~dqn_transfer.agents.dqn_base.BatchedDQN` in numpy, on the CPU."""
+
+    def __init__(
+        self,
+        num_agents: int,
+        obs_layout: ObsLayout,
+        num_actions: int,
+        hp: AgentConfig = AgentConfig(),
+        *,
+        seed: int | Sequence[int] = 0,
+    ) -> None:
+        """
+        :param num_agents: K, the agents of the team (each its own network unless ``share_parameters``)
+        :param obs_layout: the observation's named segments ``[(name, size), ...]``
+        :param num_actions: A, the discrete actions
+        :param hp: the hyperparameters (:class:`~dqn_transfer.config.AgentConfig`)
+        :param seed: fixes the initial weights, exploration and replay sampling; a list of R seeds
+            makes R replicas, replica r exactly the team a lone learner of ``seed[r]`` would be
+        """
+        super().__init__(num_agents, obs_layout, num_actions, hp, seed)
+        weight_rngs = [np.random.default_rng(np.random.SeedSequence(s, spawn_key=(WEIGHT_STREAM,))) for s in self.seeds]
+        self.q_network = NumpyMLP(self.num_members, self.obs_dim, self.hidden, num_actions, weight_rngs)
+        self.target_network = NumpyMLP(self.num_members, self.obs_dim, self.hidden, num_actions)
+        self.target_network.update_from(self.q_network, tau=1.0)
+        self.optimizer = NumpyAdam(self.q_network.flat, self.q_network.flat_grad, self.q_network.spans, lr=self.lr)
+        self._loss_weights_cache: tuple[bytes, np.ndarray] | None = None
+
+    def _to_engine(self, array: np.ndarray) -> np.ndarray:
+        return array
+
+    def _to_numpy(self, array: np.ndarray) -> np.ndarray:
+        return array
+
+    def _predict(self, network: NumpyMLP, obs: np.ndarray, replica: int | None = None,
+                 inputs: list[np.ndarray] | None = None) -> np.ndarray:
+        """``obs [rows, B, D] -> Q [rows, B, A]`` (rows of one replica, or of all)."""
+        rows, batch, width = obs.shape
+        if self.share_parameters:  # a shared network sees its replica's agents as one batch
+            obs = obs.reshape(rows // self.num_agents, self.num_agents * batch, width)
+        return network.predict(obs, self._members(replica), inputs).reshape(rows, batch, -1)
+
+    def q_values(self, obs: np.ndarray, replica: int | None = None) -> np.ndarray:
+        obs = np.asarray(obs, dtype=np.float32)
+        return self._predict(self.q_network, obs[:, None, :], replica)[:, 0]
+
+    def _greedy_actions(self, obs: np.ndarray, replica: int | None) -> np.ndarray:
+        return self.q_values(obs, replica).argmax(axis=-1)
+
+    def train_on(self, batch: ReplayBatch) -> UpdateStats:
+        """One Adam step for all agents on ``batch`` (``[rows, B, ...]``): the torch engine's loss,
+        ``sum_rows weight[row] * mean_batch Huber(Q(s, a) - y)``, and its gradient by the chain rule."""
+        obs, actions, rewards, next_obs, terminated = batch
+        next_q_target = self._predict(self.target_network, next_obs)
+        if self.double:  # the online network picks the next action, the target network scores it
+            next_actions = self._predict(self.q_network, next_obs).argmax(axis=-1)[..., None]
+            next_q = np.take_along_axis(next_q_target, next_actions, axis=-1)[..., 0]
+        else:
+            next_q = next_q_target.max(axis=-1)
+        targets = rewards + np.float32(self.gamma) * next_q * (1.0 - terminated)  # truncation bootstraps
+
+        inputs: list[np.ndarray] = []
+        q_values = self._predict(self.q_network, obs, inputs=inputs)
+        q_taken = np.take_along_axis(q_values, actions[..., None], axis=-1)[..., 0]  # Q(s, a) [rows, B]
+        error = q_taken - targets
+        magnitude = np.abs(error)
+        agent_losses = np.where(magnitude < 1.0, 0.5 * error * error, magnitude - 0.5).mean(axis=1)
+        valid = self.replay.size > 0
+
+        # d loss / d Q: the Huber derivative (the error, clipped to [-1, 1]) through the weighted batch
+        # mean, scattered onto the actions taken.
+        grad_taken = np.clip(error, -1.0, 1.0) * (self._loss_weights(valid)[:, None] / np.float32(q_taken.shape[1]))
+        grad_q = np.zeros_like(q_values)
+        np.put_along_axis(grad_q, actions[..., None], grad_taken[..., None], axis=-1)
+        if self.share_parameters:
+            grad_q = grad_q.reshape(len(inputs[0]), -1, grad_q.shape[-1])
+        layers = self.trainable_layers
+        self.q_network.backward(inputs, grad_q, layers)
+        self.q_network.clip_grad_norm_(self.max_grad_norm, layers)
+        self.optimizer.step([2 * l + kind for l in layers for kind in (0, 1)])
+        self.num_gradient_steps += 1
+        return UpdateStats(np.where(valid, agent_losses, np.nan), np.where(valid, q_taken.mean(axis=1), np.nan))
+
+    def _loss_weights(self, valid: np.ndarray) -> np.ndarray:
+        """:meth:`loss_weights`, cached while the same rows have data."""
+        key = valid.tobytes()
+        if self._loss_weights_cache is None or self._loss_weights_cache[0] != key:
+            self._loss_weights_cache = (key, self.loss_weights(valid))
+        return self._loss_weights_cache[1]
