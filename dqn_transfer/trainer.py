@@ -153,7 +153,7 @@ class EpisodeStats:
     def add(self, transition: Transition, traps: np.ndarray, reward_mode) -> None:
         self.returns += transition.rewards
         self.lengths += transition.live
-        self.traps += int(np.sum(traps))
+        self.traps += int(traps.sum())
         self.team_return += team_return_of(transition.rewards[transition.live], reward_mode)
 
     def reset(self) -> None:
@@ -334,14 +334,14 @@ class Trainer:
         while self.step < config.total_steps:
             # 1. act: one batched forward for every agent of every replica
             step = self.step
-            epsilon = np.concatenate([rep.epsilon(step) for rep in replicas])
-            live = np.concatenate([rep.game.live for rep in replicas])
-            obs = np.concatenate([rep.obs for rep in replicas])
+            epsilon = joined([rep.epsilon(step) for rep in replicas])
+            live = joined([rep.game.live for rep in replicas])
+            obs = joined([rep.obs for rep in replicas])
             actions = learner.act(obs, live, epsilon=epsilon)
             # 2. step the games and learn
             outcomes = [rep.game.step(actions[rep.rows]) for rep in replicas]
             step += 1
-            next_obs, rewards, terminated, truncated = (np.concatenate([o[i] for o in outcomes]) for i in range(4))
+            next_obs, rewards, terminated, truncated = (joined([o[i] for o in outcomes]) for i in range(4))
             transition = Transition(obs, actions, rewards, next_obs, terminated, truncated, live)
             stats = learner.update(transition, step)
             for rep, outcome in zip(replicas, outcomes):
@@ -573,6 +573,11 @@ class Trainer:
         lines = [line for line in rep.run_dir.metrics.read_text().splitlines() if line.strip()][:evaluations]
         atomic_write(rep.run_dir.metrics, "".join(line + "\n" for line in lines).encode())
         rep.last_eval_step = json.loads(lines[-1])["step"] if lines else None
+
+
+def joined(parts: list[np.ndarray]) -> np.ndarray:
+    """The replicas' rows as one array; a lone run's own array as it is (the game hands out copies)."""
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
 
 def replica_name(replica: TrainConfig, config: TrainConfig) -> str:

@@ -305,14 +305,15 @@ def test_replicas_section_runs_one_process_of_r_replicas_and_sb3_side_by_side(pr
     rep = process_document["replicas"]
     cores = process_document["machine"]["cpus_available"]
     expected = gradient_steps(PROCESS_SIZES.replica_steps, PROCESS_SIZES.replica_learning_starts, 4)
-    assert [row["replicas"] for row in rep["rows"]] == [1, 2]
+    assert [(row["engine"], row["replicas"]) for row in rep["rows"]] == [("numpy", 1), ("numpy", 2), ("torch", 1),
+                                                                      ("torch", 2)]
     for row in rep["rows"]:
         run = row["raw"][0]
         assert row["learners"] == run["learners"] == 4 * row["replicas"]
         assert run["replica_dirs"] == row["replicas"]  # R=2: seed_0/ and seed_1/, each a complete run
         assert run["replica_steps"] == [PROCESS_SIZES.replica_steps] * row["replicas"]
         assert run["gradient_steps"] == expected == 10
-        assert run["threads"] == cores
+        assert run["threads"] == 1
         assert run["learner_steps_per_s"] == pytest.approx(4 * row["replicas"] * rep["steps"] / run["seconds"])
     sb3 = rep["sb3"]["raw"][0]
     assert sb3["processes"] == rep["sb3_processes"] == cores
@@ -330,7 +331,7 @@ def test_tables_of_the_whole_process_sections(process_document):
     assert [line.split()[1] for line in table.splitlines() if line.startswith("## ")] == ["5.", "6."]
     assert [row.split(":")[0] for row in table_rows(table, "## 5.")] == ["ours", "ours, torch engine (the default)",
                                                                        "SB3", "bare PyTorch"]
-    assert table_rows(table, "## 6.") == ["1", "2"]
+    assert table_rows(table, "## 6.") == ["numpy", "numpy", "torch", "torch"]
     for heading in ("## 5.", "## 6."):
         part = table.split(heading, 1)[1].split("\n## ", 1)[0]
         assert process_document["machine"]["cpu_model"] in part

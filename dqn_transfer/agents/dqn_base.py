@@ -86,6 +86,8 @@ class BatchedDQN(TeamShape):
                                    [np.random.default_rng(replay) for _, replay in streams])
         self.frozen_layers: list[int] = []
         self.num_gradient_steps = 0
+        # What update returns when it does not train (read-only: the trainer only reads statistics).
+        self._no_training = UpdateStats(np.full(self.num_rows, np.nan), np.full(self.num_rows, np.nan))
 
     # ------------------------------------------------------------------------ engine hooks
     def q_values(self, obs: np.ndarray, replica: int | None = None) -> np.ndarray:
@@ -142,12 +144,15 @@ class BatchedDQN(TeamShape):
             return self._greedy_actions(obs, replica)
         # The exploration draws come first, from the shared epsilon_greedy (the same draws, so the same
         # random stream): given -1 as every greedy action, it returns -1 exactly where the agent exploits.
-        epsilon = np.broadcast_to(np.asarray(epsilon, dtype=np.float64), obs.shape[:1])
+        epsilon = np.asarray(epsilon, dtype=np.float64)
+        if epsilon.ndim == 0:
+            epsilon = np.full(obs.shape[0], epsilon)
         k = self.num_agents
         replicas = range(self.num_replicas) if replica is None else [replica]
-        actions = np.concatenate([
-            epsilon_greedy(np.full(k, -1, dtype=np.int64), epsilon[i * k : (i + 1) * k], self.num_actions, self.rngs[r])
-            for i, r in enumerate(replicas)])
+        undecided = np.full(k, -1, dtype=np.int64)
+        draws = [epsilon_greedy(undecided, epsilon[i * k : (i + 1) * k], self.num_actions, self.rngs[r])
+                 for i, r in enumerate(replicas)]
+        actions = draws[0] if len(draws) == 1 else np.concatenate(draws)
         exploit = actions < 0
         if exploit.any():
             np.copyto(actions, self._greedy_actions(obs, replica), where=exploit)
@@ -163,16 +168,17 @@ class BatchedDQN(TeamShape):
         """
         self.replay.add(transition)
 
-        td_loss = np.full(self.num_rows, np.nan)
-        q_mean = np.full(self.num_rows, np.nan)
+        stats = self._no_training
         if step > self.learning_starts and step % self.train_freq == 0:
             rounds = [self.gradient_step() for _ in range(self.gradient_steps)]
-            td_loss = np.mean([r.td_loss for r in rounds], axis=0, dtype=np.float64)
-            q_mean = np.mean([r.q_mean for r in rounds], axis=0, dtype=np.float64)
+            if len(rounds) == 1:  # the mean of one round, without np.mean's cost
+                stats = UpdateStats(*(column.astype(np.float64) for column in rounds[0]))
+            else:
+                stats = UpdateStats(*(np.mean(column, axis=0, dtype=np.float64) for column in zip(*rounds)))
 
         if step % self.target_update == 0:
             self.target_network.update_from(self.q_network, tau=self.tau)
-        return UpdateStats(td_loss, q_mean)
+        return stats
 
     @property
     def trainable_layers(self) -> list[int]:

@@ -56,6 +56,8 @@ class NumpyMLP:
         self.flat_grad = np.zeros(offset, dtype=np.float32)
         self.tensors = [self.flat[a:b].reshape(shape) for (a, b), shape in zip(self.spans, self.shapes)]
         self.grads = [self.flat_grad[a:b].reshape(shape) for (a, b), shape in zip(self.spans, self.shapes)]
+        # Per layer: the weight and the bias as a [M, 1, out] row to broadcast over the batch.
+        self._affine = [(self.tensors[2 * l], self.tensors[2 * l + 1][:, None, :]) for l in range(self.num_layers)]
         if rngs is not None:
             self._initialise(rngs)
 
@@ -90,14 +92,13 @@ class NumpyMLP:
         """``x [len(members), B, in] -> [len(members), B, out]`` for ``members`` (default all); every
         layer's input is appended to ``inputs`` if given (what :meth:`backward` needs)."""
         last = self.num_layers - 1
-        for l in range(self.num_layers):
-            weight, bias = self.layer(l)
+        for l, (weight, bias) in enumerate(self._affine):
             if members is not None:
                 weight, bias = weight[members], bias[members]
             if inputs is not None:
                 inputs.append(x)
             x = np.matmul(x, weight)
-            x += bias[:, None, :]
+            x += bias
             if l < last:
                 np.maximum(x, 0.0, out=x)
         return x
@@ -268,6 +269,7 @@ class NumpyDQNLearner(BatchedDQN):
         self.target_network.update_from(self.q_network, tau=1.0)
         self.optimizer = NumpyAdam(self.q_network.flat, self.q_network.flat_grad, self.q_network.spans, lr=self.lr)
         self._loss_weights_cache: tuple[bytes, np.ndarray] | None = None
+        self._grid: tuple[np.ndarray, np.ndarray] | None = None
 
     def _to_engine(self, array: np.ndarray) -> np.ndarray:
         return array
@@ -294,17 +296,17 @@ class NumpyDQNLearner(BatchedDQN):
         """One Adam step for all agents on ``batch`` (``[rows, B, ...]``): the torch engine's loss,
         ``sum_rows weight[row] * mean_batch Huber(Q(s, a) - y)``, and its gradient by the chain rule."""
         obs, actions, rewards, next_obs, terminated = batch
+        rows, cols = self._batch_grid(actions.shape)  # (row, sample) of each Q(s, a) picked below
         next_q_target = self._predict(self.target_network, next_obs)
         if self.double:  # the online network picks the next action, the target network scores it
-            next_actions = self._predict(self.q_network, next_obs).argmax(axis=-1)[..., None]
-            next_q = np.take_along_axis(next_q_target, next_actions, axis=-1)[..., 0]
+            next_q = next_q_target[rows, cols, self._predict(self.q_network, next_obs).argmax(axis=-1)]
         else:
             next_q = next_q_target.max(axis=-1)
         targets = rewards + np.float32(self.gamma) * next_q * (1.0 - terminated)  # truncation bootstraps
 
         inputs: list[np.ndarray] = []
         q_values = self._predict(self.q_network, obs, inputs=inputs)
-        q_taken = np.take_along_axis(q_values, actions[..., None], axis=-1)[..., 0]  # Q(s, a) [rows, B]
+        q_taken = q_values[rows, cols, actions]  # Q(s, a) [rows, B]
         error = q_taken - targets
         magnitude = np.abs(error)
         agent_losses = np.where(magnitude < 1.0, 0.5 * error * error, magnitude - 0.5).mean(axis=1)
@@ -314,7 +316,7 @@ class NumpyDQNLearner(BatchedDQN):
         # mean, scattered onto the actions taken.
         grad_taken = np.clip(error, -1.0, 1.0) * (self._loss_weights(valid)[:, None] / np.float32(q_taken.shape[1]))
         grad_q = np.zeros_like(q_values)
-        np.put_along_axis(grad_q, actions[..., None], grad_taken[..., None], axis=-1)
+        grad_q[rows, cols, actions] = grad_taken
         if self.share_parameters:
             grad_q = grad_q.reshape(len(inputs[0]), -1, grad_q.shape[-1])
         layers = self.trainable_layers
@@ -323,6 +325,12 @@ class NumpyDQNLearner(BatchedDQN):
         self.optimizer.step([2 * l + kind for l in layers for kind in (0, 1)])
         self.num_gradient_steps += 1
         return UpdateStats(np.where(valid, agent_losses, np.nan), np.where(valid, q_taken.mean(axis=1), np.nan))
+
+    def _batch_grid(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+        """Index grids ``[rows, 1]`` and ``[1, B]`` that, with ``[rows, B]`` actions, pick one Q-value per sample."""
+        if self._grid is None or self._grid[0].shape[0] != shape[0] or self._grid[1].shape[1] != shape[1]:
+            self._grid = (np.arange(shape[0])[:, None], np.arange(shape[1])[None, :])
+        return self._grid
 
     def _loss_weights(self, valid: np.ndarray) -> np.ndarray:
         """:meth:`loss_weights`, cached while the same rows have data."""

@@ -4,8 +4,9 @@ Threads. Sections 1-4 run at ``threads`` torch threads (the CLI's default is 1: 
 small, intra-op parallelism costs more in synchronisation than it gains, and on a busy machine a second
 thread that has to wait for a core can make an update tens of times slower). Section 4 shows the
 default-thread figure beside it; the default-thread update timings stop after ``thread_cap_s``. Section
-5's processes run on one thread each; in section 6 both sides get every core: our one process
-``threads=<cores>``, SB3 one single-threaded process per core.
+5's processes run on one thread each; in section 6 SB3 gets every core (one single-threaded process
+per core) and ours one process on one thread: both engines, whose second torch thread measured slower
+here (spin-waiting for a core that SB3's processes, or any other job, hold).
 
 Method. The machine may be shared and noisy, so every figure is the median of ``repeats`` interleaved
 repeats (the contenders of a comparison alternate order within each repeat), and every ratio is the
@@ -44,6 +45,7 @@ from dqn_transfer.benchmark.update_cost import THREAD_NAMES, UPDATE_NAMES, SB3Up
 from dqn_transfer.benchmark.whole_process import (LONE_CONTENDERS, measure_lone, measure_ours_replicas,
                                                   measure_sb3_parallel)
 from dqn_transfer.config import AgentConfig, to_plain
+from dqn_transfer.enums import Engine
 
 SECTIONS = ("env", "training", "team", "update", "lone", "replicas")
 NEEDS_SB3 = ("training", "update", "lone", "replicas")
@@ -81,6 +83,10 @@ PROFILES = {
                    team_learning_starts=200, default_thread_timings=False, lone_steps=2_000, replica_steps=300,
                    replica_counts=(1, 2), replica_learning_starts=100),
 }
+
+# Section 6: our process runs each engine on one thread (see the module docstring).
+REPLICA_ENGINES = (Engine.numpy, Engine.torch)
+REPLICA_THREADS = 1
 
 METHOD = (
     "Each figure is the median of R interleaved repeats (the contenders of a comparison alternate "
@@ -339,28 +345,33 @@ def lone_section(sizes: Sizes, seed: int, repeats: int, progress: ProgressFn) ->
 
 
 def replicas_section(sizes: Sizes, seed: int, repeats: int, cores: int, progress: ProgressFn) -> dict[str, Any]:
-    """Section 6: learner-steps/s of one process of R replicas (for each R) against ``cores`` SB3
-    processes run side by side; the SB3 figure is measured once per repeat and paired with every R."""
+    """Section 6: learner-steps/s of one process of R replicas (for each R and each engine, one thread)
+    against ``cores`` SB3 processes run side by side; the SB3 figure is measured once per repeat and
+    paired with every row of that repeat."""
     loadavg_start = _loadavg()
     agent = dataclasses.replace(LONE_AGENT, learning_starts=sizes.replica_learning_starts)
     steps = sizes.replica_steps
-    ours: dict[int, list[dict[str, Any]]] = {count: [] for count in sizes.replica_counts}
+    ours: dict[tuple[Engine, int], list[dict[str, Any]]] = {
+        (engine, count): [] for engine in REPLICA_ENGINES for count in sizes.replica_counts}
     sb3: list[dict[str, Any]] = []
     for r in range(repeats):
-        for who in alternate(("sb3", *sizes.replica_counts), r):
+        for who in alternate(("sb3", *ours), r):
             if who == "sb3":
                 out = measure_sb3_parallel(cores, steps, seed + r, agent.learning_starts)
                 sb3.append(out)
                 label = f"{cores} SB3 processes side by side"
             else:
-                out = measure_ours_replicas(who, steps, seed + r, agent, threads=cores)
+                engine, count = who
+                out = measure_ours_replicas(count, steps, seed + r, dataclasses.replace(agent, engine=engine),
+                                            threads=REPLICA_THREADS)
                 ours[who].append(out)
-                label = f"ours, {who} replica(s) in one process"
+                label = f"ours, {engine.value} engine, {count} replica(s) in one process"
             progress(f"replicas, {label}, {steps} steps, repeat {r + 1}/{repeats}: {out['seconds']:.1f} s, "
                      f"{out['learner_steps_per_s']:.0f} learner-steps/s")
     sb3_rate, sb3_cpu_rate = _series(sb3, "learner_steps_per_s"), _series(sb3, "learner_steps_per_cpu_s")
     rows = [
         {
+            "engine": engine.value,
             "replicas": count,
             "learners": count * TEAM_MAP["num_agents"],
             **_medians(runs, ("seconds", "cpu_seconds", "learner_steps_per_s", "learner_steps_per_cpu_s",
@@ -370,7 +381,7 @@ def replicas_section(sizes: Sizes, seed: int, repeats: int, cores: int, progress
             "ours_over_sb3_cpu": paired_ratio(_series(runs, "learner_steps_per_cpu_s"), sb3_cpu_rate),
             "raw": runs,
         }
-        for count, runs in ours.items()
+        for (engine, count), runs in ours.items()
     ]
     return {
         "steps": steps,
@@ -378,7 +389,7 @@ def replicas_section(sizes: Sizes, seed: int, repeats: int, cores: int, progress
         "team_agents": TEAM_MAP["num_agents"],
         "map": TEAM_MAP,
         "hyperparameters": to_plain(agent),
-        "ours_threads": cores,
+        "ours_threads": REPLICA_THREADS,
         "sb3_processes": cores,
         "sb3": {
             "seconds": median(_series(sb3, "seconds")),
@@ -416,7 +427,7 @@ def run_benchmark(profile: str, seed: int, repeats: int, threads: int, train_thr
             "team": 2 * len(TEAM_SIZES) + repeats * len(TEAM_SIZES) * 2,
             "update": 2 + repeats * (len(UPDATE_NAMES) + (len(THREAD_NAMES) if with_default_threads else 0)),
             "lone": repeats * len(LONE_CONTENDERS),
-            "replicas": repeats * (1 + len(sizes.replica_counts)),
+            "replicas": repeats * (1 + len(REPLICA_ENGINES) * len(sizes.replica_counts)),
         }
         progress = Progress(sum(steps[section] for section in sections))
     loadavg_start = _loadavg()
@@ -598,16 +609,16 @@ def _replicas_table(res: dict[str, Any]) -> list[str]:
         f"per process ({rep['steps']:,} env steps per process)",
         f"{_machine_line(res, rep)} Settings: a cooperative team of {k} DQN agents on a {_map(rep['map'])}, "
         f"{rep['steps']:,} joint env steps, {_hyperparameters(rep['hyperparameters'])}. Ours: ONE "
-        f"`python -m dqn_transfer.cli.train replicas.seeds=R threads={rep['ours_threads']}` process (R x {k} "
+        f"`python -m dqn_transfer.cli.train replicas.seeds=R agent.engine=E threads={rep['ours_threads']}` process (R x {k} "
         f"learners, one batched learner); learner-steps/s = steps x R x {k} / whole-process wall. SB3: "
         f"{rep['sb3_processes']} `DQN.learn` processes (TreasureHunt-v0 of the map, one learner each, one "
         f"torch thread) started together; learner-steps/s = {rep['sb3_processes']} x steps / wall until the "
         f"last exits: {_fmt(sb3['learner_steps_per_s'])} (CPU: {_fmt(sb3['learner_steps_per_cpu_s'])} per "
         f"CPU-s), peak RSS {_fmt(sb3['max_rss_mb'])} MB per process. Measured once per repeat and paired with "
         "every R of that repeat (> 1: ours is faster).",
-        ["R", "learners", "ours wall s", "ours learner-steps/s", "ours learner-steps/CPU-s", "ours peak RSS MB",
+        ["engine", "R", "learners", "ours wall s", "ours learner-steps/s", "ours learner-steps/CPU-s", "ours peak RSS MB",
          "SB3 learner-steps/s", "ours / SB3 (wall)", "ours / SB3 (CPU)"],
-        ([str(row["replicas"]), str(row["learners"]), _fmt(row["seconds"], 1), _fmt(row["learner_steps_per_s"]),
+        ([row["engine"], str(row["replicas"]), str(row["learners"]), _fmt(row["seconds"], 1), _fmt(row["learner_steps_per_s"]),
           _fmt(row["learner_steps_per_cpu_s"]), _fmt(row["max_rss_mb"]), _fmt(sb3["learner_steps_per_s"]),
           _x(row["ours_over_sb3"]), _x(row["ours_over_sb3_cpu"])] for row in rep["rows"]))
 
