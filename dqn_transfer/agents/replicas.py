@@ -31,7 +31,9 @@ class LearnerReplicas:
         return slice(r * self.num_agents, (r + 1) * self.num_agents)
 
     def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, greedy: bool = False) -> np.ndarray:
-        epsilon = np.broadcast_to(np.asarray(epsilon, dtype=np.float64), (self.num_rows,))
+        epsilon = np.asarray(epsilon, dtype=np.float64)
+        if epsilon.ndim == 0:
+            epsilon = np.full(self.num_rows, epsilon)
         return np.concatenate([learner.act(obs[self._rows(r)], live[self._rows(r)], epsilon[self._rows(r)], greedy)
                                for r, learner in enumerate(self.learners)])
 

@@ -24,7 +24,14 @@ from typing import Any
 
 import numpy as np
 
-from dqn_transfer.agents.base import ObsLayout, TeamShape, Transition, UpdateStats, check_tensor_shape, epsilon_greedy
+from dqn_transfer.agents.base import (
+    ObsLayout,
+    TeamShape,
+    Transition,
+    UpdateStats,
+    check_tensor_shape,
+    epsilon_greedy_action,
+)
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm
 
@@ -57,8 +64,15 @@ def _evaluation_argmax(q: np.ndarray, obs: np.ndarray) -> int:
     the top wall and bias evaluation curves. The hash picks a per-state direction deterministically,
     so evaluations stay reproducible and consume no random numbers.
     """
-    best = np.flatnonzero(q == q.max())
-    return int(best[zlib.crc32(obs.tobytes()) % best.size])
+    best = _best_actions(q)
+    return best[zlib.crc32(obs.tobytes()) % len(best)]
+
+
+def _best_actions(q: np.ndarray) -> list[int]:
+    """The actions of the highest value (in Python: for a handful of actions, cheaper than numpy calls)."""
+    values = q.tolist()
+    top = max(values)
+    return [action for action, value in enumerate(values) if value == top]
 
 
 class TabularLearner(TeamShape):
@@ -120,11 +134,11 @@ class TabularLearner(TeamShape):
     def _greedy(self, q: np.ndarray) -> int:
         """Argmax with random tie-breaking: a fresh table is all ties, and always taking the
         first action would bias early exploration towards it."""
-        best = np.flatnonzero(q == q.max())
-        return int(best[0]) if best.size == 1 else int(self.rng.choice(best))
+        best = _best_actions(q)
+        return best[0] if len(best) == 1 else int(self.rng.choice(best))
 
     def _epsilon_greedy(self, q: np.ndarray, epsilon: float) -> int:
-        return int(epsilon_greedy(np.array([self._greedy(q)]), epsilon, self.num_actions, self.rng)[0])
+        return epsilon_greedy_action(self._greedy(q), epsilon, self.num_actions, self.rng)
 
     def set_fallback(
         self, keys: np.ndarray, values: np.ndarray, projection: np.ndarray, agent: int | None = None
@@ -159,7 +173,7 @@ class TabularLearner(TeamShape):
         obs = np.asarray(obs, dtype=np.float32)
         actions = np.zeros(self.num_agents, dtype=np.int64)
         if not greedy:
-            self.epsilon = np.broadcast_to(np.asarray(epsilon, dtype=float), (self.num_agents,)).copy()
+            self.epsilon = np.array(epsilon, dtype=float) if np.ndim(epsilon) else np.full(self.num_agents, epsilon)
         for i in np.flatnonzero(live):
             if greedy:
                 actions[i] = _evaluation_argmax(self.agent_q_values(i, obs[i]), obs[i])
