@@ -59,6 +59,8 @@ def test_the_import_graph_has_no_cycle():
 FORBIDDEN = {
     "dqn_transfer.enums": ("dqn_transfer.",),
     "dqn_transfer.run_dir": ("dqn_transfer.",),
+    "dqn_transfer.documented": ("dqn_transfer.",),
+    "dqn_transfer.config_help": ("dqn_transfer.trainer", "dqn_transfer.agents", "dqn_transfer.cli"),
     "dqn_transfer.envs": ("dqn_transfer.agents", "dqn_transfer.config", "dqn_transfer.trainer",
                           "dqn_transfer.checkpoint", "dqn_transfer.analysis"),
     "dqn_transfer.agents": ("dqn_transfer.envs", "dqn_transfer.trainer", "dqn_transfer.checkpoint",
