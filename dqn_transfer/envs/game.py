@@ -39,7 +39,7 @@ from dqn_transfer.enums import Mode, ObsEncoding, RewardMode, values
 from dqn_transfer.envs.maps import GridMap, resolve_map
 from dqn_transfer.envs.settings import DEFAULTS, MAP_KEYS, EnvConfig
 
-RENDER_MODES = ("ansi", "rgb_array")
+RENDER_MODES = ("ansi", "rgb_array", "human")  # human: the ansi frame printed to the terminal
 ACTION_MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))  # 0 up, 1 down, 2 left, 3 right
 
 _FREE, _CHEST, _TRAP = 0, 1, 2  # what a move can land on (an obstacle sends the agent home)
@@ -535,11 +535,14 @@ class TreasureHuntGame:
 
     # ------------------------------------------------------------------ rendering
     def render(self, render_mode: str | None) -> str | np.ndarray | None:
-        """What both faces' ``render()`` return: text for ``ansi``, an RGB array for ``rgb_array``."""
+        """What both faces' ``render()`` return: text for ``ansi``, an RGB array for ``rgb_array``;
+        ``human`` prints the text frame (a grid game's window is the terminal) and returns None."""
         if render_mode == "ansi":
             return self.render_ansi()
         if render_mode == "rgb_array":
             return self.render_rgb()
+        if render_mode == "human":
+            print(self.render_ansi(), end="\n\n", flush=True)
         return None
 
     def render_ansi(self) -> str:
