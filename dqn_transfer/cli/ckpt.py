@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from collections.abc import Mapping
 
 from dqn_transfer.checkpoint import CheckpointError, CheckpointInfo, find_checkpoints, verify_checkpoint
+from dqn_transfer.cli.console import exit_with
 from dqn_transfer.run_dir import RunDir
 
 
@@ -76,11 +76,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def run() -> None:
     """Console-script entry: ``main`` with a quiet exit when the reader of stdout goes away."""
-    try:
-        sys.exit(main())
-    except BrokenPipeError:  # `... show FILE | head`: the reader left; not an error worth a traceback
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        sys.exit(0)
+    exit_with(main)
 
 
 if __name__ == "__main__":
