@@ -1,8 +1,11 @@
 """TensorBoard logging with the tag names other tools rely on.
 
 Per agent: ``agent_{i}/episodic_return``, ``agent_{i}/episodic_length``, ``agent_{i}/td_loss``,
-``agent_{i}/q_mean``.  Team: ``team/return``, ``team/treasures_collected``, ``team/trap_rate``.
-Evaluation: ``eval/team_return``, ``eval/success_rate``.  Training: ``train/epsilon``, ``train/sps``.
+``agent_{i}/q_mean``, and the histogram ``agent_{i}/q_values`` (at each evaluation: the Q-values of
+every observation the agent acted on in the evaluation's first episode).  Team: ``team/return``,
+``team/treasures_collected``, ``team/trap_rate``.  Evaluation: ``eval/team_return``,
+``eval/success_rate``, ``eval/trap_rate``, and the image ``eval/episode`` (the first episode's last
+frame with every agent's trail).  Training: ``train/epsilon``, ``train/sps``.
 A custom-scalars layout overlays the agents' curves in one chart each; the flattened config goes to
 the hparams plugin (so runs of a sweep can be compared in its table) and, as YAML, to the text plugin.
 """
@@ -12,8 +15,9 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
+import numpy as np
 from torch.utils.tensorboard import SummaryWriter
 from torch.utils.tensorboard.summary import hparams
 
@@ -52,7 +56,7 @@ class RunLogger:
         team = {
             "return": ["Multiline", ["team/return", "eval/team_return"]],
             "treasures and traps": ["Multiline", ["team/treasures_collected", "team/trap_rate"]],
-            "eval success rate": ["Multiline", ["eval/success_rate"]],
+            "eval success and trap rates": ["Multiline", ["eval/success_rate", "eval/trap_rate"]],
         }
         self.writer.add_custom_scalars({"agents": per_agent, "team": team})
 
@@ -79,6 +83,13 @@ class RunLogger:
         """``agent_{i}/{name}`` for each agent; NaNs (no update yet) are skipped."""
         for i, value in enumerate(values):
             self.scalar(f"agent_{i}/{name}", value, step)
+
+    def evaluation_views(self, picture: np.ndarray, q_values: Sequence[np.ndarray], step: int) -> None:
+        """An evaluation's picture (``[H, W, 3]`` uint8) and each agent's Q-values (agents with none skipped)."""
+        self.writer.add_image("eval/episode", picture, step, dataformats="HWC")
+        for i, values in enumerate(q_values):
+            if values.size:
+                self.writer.add_histogram(f"agent_{i}/q_values", values, step)
 
     def text(self, tag: str, text: str, step: int = 0) -> None:
         self.writer.add_text(tag, text, step)

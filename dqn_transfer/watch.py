@@ -93,7 +93,7 @@ def outcome(episode: RecordedEpisode) -> str:
 def frame_caption(episode: RecordedEpisode, index: int, label: str = "") -> list[str]:
     frame, game = episode.frames[index], episode.game
     return [f"{label}step {frame.step}/{game.max_steps}",
-            f"team return {frame.team_return:g}  chests {int(frame.chest_full.sum())}/{game.num_treasures} full"]
+            f"team return {frame.team_return:g}  full chests {int(frame.chest_full.sum())}/{game.num_treasures}"]
 
 
 def frame_picture(episode: RecordedEpisode, index: int, label: str = "", cell_px: int = GIF_CELL_PX) -> Image.Image:

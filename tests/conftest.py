@@ -152,14 +152,15 @@ def _one_torch_thread():
 
 # Agent 0 at the top left, two steps left of a chest; agent 1 below it, facing the right edge.
 ALWAYS_RIGHT_LAYOUT = "0.T\n1..\nX.."
+UP, DOWN, LEFT, RIGHT = range(4)
 
 
-def always_right_team(run_dir: Path, layout: str = ALWAYS_RIGHT_LAYOUT) -> Path:
-    """A finished run directory whose DQN agents always move right: what a greedy episode does there
-    is worked out by hand. On the default layout agent 0 takes the chest on step 2 (-1 + 100) and
-    agent 1 walks to the right edge and stays there until the 9th step truncates it (9 x -1): 9
-    steps, team return 90. The run is ``total_steps=0``; its agent files are then rewritten with zero
-    weights and an output bias that prefers action 3 (right)."""
+def always_acting_team(run_dir: Path, action: int = RIGHT, layout: str = ALWAYS_RIGHT_LAYOUT) -> Path:
+    """A finished run directory whose DQN agents always take ``action``: what a greedy episode does
+    there is worked out by hand. Always right on the default layout: agent 0 takes the chest on step 2
+    (-1 + 100) and agent 1 walks to the right edge and stays there until the 9th step truncates it
+    (9 x -1): 9 steps, team return 90. The run is ``total_steps=0``; its agent files are then rewritten
+    with zero weights and an output bias of 1 for ``action``, 0 for the others."""
     import torch
 
     from dqn_transfer.checkpoint import load_agent_checkpoint, save_agent_checkpoint
@@ -175,6 +176,6 @@ def always_right_team(run_dir: Path, layout: str = ALWAYS_RIGHT_LAYOUT) -> Path:
         tensors, meta = load_agent_checkpoint(file)
         tensors = {name: torch.zeros_like(t) for name, t in tensors.items()}
         for net in ("q", "target"):
-            tensors[f"{net}.layers.1.bias"][3] = 1.0
+            tensors[f"{net}.layers.1.bias"][action] = 1.0
         save_agent_checkpoint(file, tensors, {k: v for k, v in meta.items() if k not in ("format_version", "kind", "digest")})
     return run_dir

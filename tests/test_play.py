@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from conftest import always_right_team, train_env
+from conftest import always_acting_team, train_env
 from dqn_transfer.cli.play import main as play
 
 CELL = 40  # the GIF's cell size in pixels
@@ -21,7 +21,7 @@ GOLD, FREE = (255, 196, 0), (235, 235, 235)  # a full chest; a free cell (and an
 
 @pytest.fixture(scope="module")
 def team(tmp_path_factory) -> Path:
-    return always_right_team(tmp_path_factory.mktemp("team") / "run")
+    return always_acting_team(tmp_path_factory.mktemp("team") / "run")
 
 
 def gif_frames(path: Path) -> list[np.ndarray]:
@@ -68,9 +68,9 @@ def test_gif_frames_show_agents_chests_and_trails(team, tmp_path):
 def test_ansi_replays_every_frame_as_text(team, capsys):
     assert play([str(team), "--ansi"]) == 0
     frames = capsys.readouterr().out.split("\n\n")
-    assert frames[0].endswith("0.T\n1..\nX..\nstep 0/9  team return 0  chests 1/1 full")
-    assert frames[2] == "..t\n..1\nX..\nstep 2/9  team return 97  chests 0/1 full"  # 0 took the chest; 1 at the edge
-    assert frames[9].startswith("..t\n...\nX..\nstep 9/9  team return 90  chests 0/1 full")
+    assert frames[0].endswith("0.T\n1..\nX..\nstep 0/9  team return 0  full chests 1/1")
+    assert frames[2] == "..t\n..1\nX..\nstep 2/9  team return 97  full chests 0/1"  # 0 took the chest; 1 at the edge
+    assert frames[9].startswith("..t\n...\nX..\nstep 9/9  team return 90  full chests 0/1")
 
 
 def test_a_lone_agent_file_drives_every_agent_of_its_map(team, capsys):
