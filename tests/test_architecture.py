@@ -73,6 +73,7 @@ FORBIDDEN = {
     "dqn_transfer.experiments": ("dqn_transfer.trainer", "dqn_transfer.cli"),
     "dqn_transfer.watch": ("dqn_transfer.trainer", "dqn_transfer.checkpoint", "dqn_transfer.cli"),
     "dqn_transfer.team": ("dqn_transfer.trainer", "dqn_transfer.sources", "dqn_transfer.cli"),
+    "dqn_transfer.model_card": ("dqn_transfer.trainer", "dqn_transfer.sources", "dqn_transfer.cli"),
 }
 # Entry points: the command-line modules, and `python -m dqn_transfer.play` (dqn-transfer-play's short name).
 ENTRY_POINTS = ("dqn_transfer.cli", "dqn_transfer.play")
