@@ -28,8 +28,8 @@ QUARTERS = [(0.3, 0.3), (0.7, 0.3), (0.3, 0.7), (0.7, 0.7)]
 
 
 @lru_cache(maxsize=8)
-def font(size: int) -> ImageFont.ImageFont | ImageFont.FreeTypeFont:
-    """Pillow's own font (no system font needed) at ``size`` pixels."""
+def font(size: int) -> ImageFont.FreeTypeFont:
+    """Pillow's own scalable font (no system font needed) at ``size`` pixels."""
     return ImageFont.load_default(size=size)
 
 
@@ -47,7 +47,7 @@ def draw_state(grid_map: GridMap, positions: np.ndarray, live: np.ndarray, chest
     """
     n = grid_map.size
     text = font(max(10, cell_px * 3 // 10 + 2))
-    line_px = text.size + 4 if hasattr(text, "size") else 14
+    line_px = text.size + 4
     height = n * cell_px + (len(caption) * line_px + 6 if caption else 0)
     image = Image.new("RGB", (n * cell_px, height), CAPTION_BACKGROUND)
     draw = ImageDraw.Draw(image)
