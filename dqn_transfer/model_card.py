@@ -123,8 +123,9 @@ def warm_start_command(team: TrainedTeam) -> str:
     meta, env = team.meta, team.meta["env"]
     overrides = [f"agent={meta['algorithm']}", f"mode={meta['mode']}", "transfer=on",
                  "transfer.source=$FOLDER", f"env.layout_file=$FOLDER/{MAP_FILE}"]
-    overrides += [f"env.{f.name}={format_default(env[f.name])}" for f in fields(EnvConfig)
-                  if f.name not in NOT_IN_COMMAND and env[f.name] != format_plain(getattr(DEFAULTS, f.name))]
+    defaults = {f.name: format_plain(getattr(DEFAULTS, f.name)) for f in fields(EnvConfig) if f.name not in NOT_IN_COMMAND}
+    overrides += [f"env.{key}={format_default(env[key])}" for key, default in defaults.items()
+                  if env.get(key, default) != default]  # a key newer than the checkpoint has its default
     if "hidden" in meta["network"]:
         overrides.append(f"'agent.hidden={format_default(meta['network']['hidden'])}'")
     return "python train.py " + " ".join(overrides)

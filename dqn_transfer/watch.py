@@ -20,7 +20,7 @@ import numpy as np
 from PIL import Image
 
 from dqn_transfer.agents.base import Learner
-from dqn_transfer.envs.game import TreasureHuntGame, text_grid
+from dqn_transfer.envs.game import COLOURS, TreasureHuntGame, text_grid
 from dqn_transfer.envs.pictures import agent_colour, draw_state
 from dqn_transfer.rollout import EpisodeResult, Policy, evaluation_rng, greedy_policy, play_episode, team_return_of
 
@@ -48,10 +48,6 @@ class RecordedEpisode:
     frames: list[Frame]
     observations: list[tuple[np.ndarray, np.ndarray]]  # per step: (obs [K, D], live [K]) the policy acted on
     result: EpisodeResult
-
-    @property
-    def steps(self) -> int:
-        return self.result.length
 
     def trails(self, upto: int) -> list[np.ndarray]:
         """Per agent, the cells it stood on in frames 0..``upto`` (``[upto + 1, 2]``)."""
@@ -134,7 +130,8 @@ def _coloured(text: str, rgb: tuple[int, int, int]) -> str:
     return f"\x1b[1;38;2;{rgb[0]};{rgb[1]};{rgb[2]}m{text}\x1b[0m"
 
 
-CELL_COLOURS = {"T": (255, 196, 0), "t": (150, 110, 60), "X": (200, 30, 30), "#": (120, 120, 120)}
+# The pictures' colours, but a lighter grey for obstacles: the pictures' dark grey is hard to read on a dark terminal.
+CELL_COLOURS = {"T": COLOURS["chest_full"], "t": COLOURS["chest_empty"], "X": COLOURS["trap"], "#": (120, 120, 120)}
 
 
 def frame_text(episode: RecordedEpisode, index: int, colour: bool) -> str:

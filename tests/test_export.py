@@ -152,3 +152,15 @@ def test_export_then_the_cards_own_command_warm_starts(run, tmp_path):
     run_train(tmp_path, *overrides, "total_steps=0", run_dir=tmp_path / "warm")
     assert torch.equal(q_values(tmp_path / "warm" / "checkpoints" / "agent_0.safetensors"),
                        q_values(out / "agent_0.safetensors"))
+
+
+def test_the_cards_command_names_every_rule_that_differs_from_the_default(tmp_path):
+    env = EnvConfig(size=4, num_treasures=1, num_traps=1, num_agents=2, complexity=0.0, view_radius=1, reward_mode="team")
+    train(TrainConfig(env=env, agent=AgentConfig(algorithm="double_dqn", hidden=[8, 8]), total_steps=0, progress=False),
+          tmp_path / "run")
+    assert ckpt(["export", str(tmp_path / "run"), str(tmp_path / "team")]) == 0
+    command = next(line for line in (tmp_path / "team" / "README.md").read_text().splitlines()
+                   if line.startswith("python train.py "))
+    assert shlex.split(command)[2:] == ["agent=double_dqn", "mode=competitive", "transfer=on", "transfer.source=$FOLDER",
+                                        "env.layout_file=$FOLDER/map.txt", "env.reward_mode=team", "env.view_radius=1",
+                                        "agent.hidden=[8,8]"]

@@ -13,6 +13,8 @@ from PIL import Image
 
 from conftest import always_acting_team, train_env
 from dqn_transfer.cli.play import main as play
+from dqn_transfer.envs import make_game
+from dqn_transfer.watch import map_picture
 
 CELL = 40  # the GIF's cell size in pixels
 BLUE, GREEN = (31, 119, 180), (44, 160, 44)  # agents 0 and 1
@@ -63,6 +65,14 @@ def test_gif_frames_show_agents_chests_and_trails(team, tmp_path):
     # row's middle (the trails of two agents are drawn apart by an eighth of a cell).
     assert near(last[CELL // 2 - 3, CELL], BLUE)
     assert near(last[CELL + CELL // 2 + 2, CELL], GREEN)  # and agent 1's along the second row
+
+
+def test_the_map_picture_shows_every_agent_on_its_start_and_every_chest_full():
+    picture = np.asarray(map_picture(make_game(layout="0.T\n1..\nX.."))).astype(int)
+    assert picture.shape == (3 * CELL, 3 * CELL, 3)  # no caption
+    assert near(picture[CELL // 2, CELL // 2 - 11], BLUE) and near(picture[CELL + CELL // 2, CELL // 2 - 11], GREEN)
+    assert near(picture[8, 2 * CELL + 8], GOLD)
+    assert near(picture[2 * CELL + 4, 4], (200, 30, 30))  # the trap, red
 
 
 def test_ansi_replays_every_frame_as_text(team, capsys):

@@ -45,8 +45,8 @@ def main(argv: list[str] | None = None) -> int:
                                      epilog=__doc__.split("\n\n", 2)[2], formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("path", metavar="RUN_DIR", type=Path,
                         help="a run or replica directory, an exported folder, or one agent's checkpoint file")
-    parser.add_argument("--episodes", type=int, default=1, help="greedy episodes to play (default 1)")
-    parser.add_argument("--seed", type=int, default=0, help="seeds the chest ties of the episodes (default 0)")
+    parser.add_argument("--episodes", type=int, default=1, metavar="N", help="greedy episodes to play (default 1)")
+    parser.add_argument("--seed", type=int, default=0, metavar="S", help="seeds the chest ties of the episodes (default 0)")
     parser.add_argument("--gif", type=Path, metavar="OUT.gif", help="write every frame of every episode to this GIF")
     parser.add_argument("--ansi", action="store_true", help="replay the episodes in the terminal")
     args = parser.parse_args(argv)
