@@ -6,7 +6,8 @@ upload to a model hub as it is.
     OUT_DIR/
       README.md              the model card: YAML front matter (library_name, tags, the env and mode
                              config, the evaluation metrics with their seeds) and how to warm-start
-      agent_{i}.safetensors  the agents' checkpoints, byte for byte (each verified first)
+      agent_{i}.safetensors  the agents' checkpoints, byte for byte (each verified first; a lone agent
+                             file given instead of a run is agent_0 here, so it is the default source)
       map.txt                the map as it was played (an ASCII layout)
       replay.gif             the team's first evaluation episode
 

@@ -48,11 +48,13 @@ def _human_size(n_bytes: int) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``list`` / ``show`` / ``verify`` checkpoints; exit 1 with one ``error:`` line per bad file."""
+    """``list`` / ``show`` / ``verify`` checkpoints (exit 1 with one ``error:`` line per bad file), or
+    ``export`` a team (exit 1 with one ``error:`` line, nothing written)."""
     parser = argparse.ArgumentParser(prog="dqn-transfer-ckpt",
                                      description="Inspect dqn_transfer safetensors checkpoints, or export a team.")
     parser.add_argument("command", choices=["list", "show", "verify", "export"])
-    parser.add_argument("path", help="a checkpoint file, a run directory or a checkpoints directory")
+    parser.add_argument("path", help="a checkpoint file, a run directory or a checkpoints directory (export: the "
+                                     "run, replica or agent file to export)")
     parser.add_argument("out_dir", nargs="?", metavar="OUT_DIR",
                         help="export: a new (or empty) folder for the agents' files and the model card")
     args = parser.parse_args(argv)
