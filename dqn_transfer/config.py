@@ -5,7 +5,8 @@ The YAML files under ``conf/`` are merged *into* these dataclasses, so a misspel
 anything runs.  Enums give the closed vocabularies (modes, algorithms) the same protection.
 Range checks that a type cannot express live in :func:`validate`. The ``env`` schema is the game's
 own :class:`~dqn_transfer.envs.settings.EnvConfig`; the learners are built from :class:`AgentConfig`:
-each default is written once, here or there.
+each default is written once, here or there, with the one-line description ``--help`` shows
+(:func:`~dqn_transfer.documented.documented`).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from typing import Any, List, Optional
 from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
 
+from dqn_transfer.documented import documented
 from dqn_transfer.enums import Algorithm, Device, Engine, Exchange
 from dqn_transfer.envs.settings import EnvConfig
 
@@ -33,23 +35,24 @@ class AgentConfig:
     exploration schedule); the tabular ones read ``algorithm``, ``lr`` and ``gamma``.
     """
 
-    algorithm: Algorithm = Algorithm.dqn
-    lr: float = 1e-3  # Adam step size (DQN) or alpha (tabular)
-    gamma: float = 0.99  # discount
-    batch_size: int = 64  # transitions per agent per gradient step
-    buffer_size: int = 50_000  # replay capacity per agent
-    learning_starts: int = 1_000  # env steps of pure collection before the first update
-    train_freq: int = 1  # env steps between updates
-    gradient_steps: int = 1  # gradient steps per update
-    target_update: int = 1  # env steps between target-network updates (SB3's target_update_interval)
-    tau: float = 0.01  # each target update: target <- tau*online + (1-tau)*target; 1.0 = hard copy
-    hidden: List[int] = field(default_factory=lambda: [64, 64])  # MLP hidden sizes
-    eps_start: float = 1.0  # initial exploration rate
-    eps_end: float = 0.05  # final exploration rate
-    exploration_fraction: float = 0.5  # fraction of total_steps over which epsilon decays linearly
-    max_grad_norm: float = 10.0  # gradient-norm clip
-    share_parameters: bool = False  # one network for all agents (parameter-sharing baseline)
-    engine: Engine = Engine.torch  # DQN arithmetic: torch (any device) | numpy (CPU, no torch import: fastest for small nets)
+    algorithm: Algorithm = documented(Algorithm.dqn, "sarsa | qlearning (tabular) or dqn | double_dqn (networks)")
+    lr: float = documented(1e-3, "Adam step size (DQN) or alpha (tabular)")
+    gamma: float = documented(0.99, "discount")
+    batch_size: int = documented(64, "transitions per agent per gradient step")
+    buffer_size: int = documented(50_000, "replay capacity per agent")
+    learning_starts: int = documented(1_000, "env steps of pure collection before the first update")
+    train_freq: int = documented(1, "env steps between updates")
+    gradient_steps: int = documented(1, "gradient steps per update")
+    target_update: int = documented(1, "env steps between target-network updates (SB3's target_update_interval)")
+    tau: float = documented(0.01, "each target update: target <- tau*online + (1-tau)*target; 1.0 = hard copy")
+    hidden: List[int] = documented(factory=lambda: [64, 64], doc="MLP hidden sizes")
+    eps_start: float = documented(1.0, "initial exploration rate")
+    eps_end: float = documented(0.05, "final exploration rate")
+    exploration_fraction: float = documented(0.5, "fraction of total_steps over which epsilon decays linearly")
+    max_grad_norm: float = documented(10.0, "gradient-norm clip, per agent")
+    share_parameters: bool = documented(False, "one network for all agents (parameter-sharing baseline)")
+    engine: Engine = documented(Engine.torch, "DQN arithmetic: torch (any device) | numpy (CPU, no torch import: "
+                                              "fastest for small networks)")
 
 
 # Each AgentConfig key -> Stable-Baselines3 DQN's keyword for the same quantity ("hidden" becomes policy_kwargs.net_arch).
@@ -75,18 +78,18 @@ SB3_NAMES = {
 class TransferConfig:
     """Warm start from a pretrained agent, and knowledge exchange inside the team (docs/transfer.md)."""
 
-    enabled: bool = False
-    source: Optional[str] = None  # checkpoint file or run directory; None: pretrain on TreasureHunt-v0
-    source_agent: int = 0  # which agent_{i}.safetensors of a run directory
-    pretrain_steps: int = 20_000  # env steps of source-task pretraining when no source is given
-    cache_dir: Optional[str] = None  # pretrained-source cache; default <launch dir>/outputs/pretrained
-    targets: Optional[List[int]] = None  # agents that receive the transfer; None: all
-    reset_optimizer: bool = True  # start Adam moments afresh (the source's belong to another task)
-    epsilon_start: float = 0.3  # transferred agents explore less than eps_start
-    freeze: List[int] = field(default_factory=list)  # indices of layers kept fixed
-    exchange: Exchange = Exchange.none  # knowledge exchange inside the team during training
-    exchange_every: int = 20  # episodes between exchanges
-    exchange_tau: float = 0.5  # 'best': weight of the best agent in the soft copy
+    enabled: bool = documented(False, "start the target agents from a source agent (the group transfer=on)")
+    source: Optional[str] = documented(None, "checkpoint file, run directory or exported folder; null: pretrain on TreasureHunt-v0")
+    source_agent: int = documented(0, "which agent_{i}.safetensors of a directory")
+    pretrain_steps: int = documented(20_000, "env steps of source-task pretraining when no source is given")
+    cache_dir: Optional[str] = documented(None, "pretrained-source cache; null: <launch dir>/outputs/pretrained")
+    targets: Optional[List[int]] = documented(None, "agents that receive the transfer; null: all")
+    reset_optimizer: bool = documented(True, "start Adam moments afresh (the source's belong to another task)")
+    epsilon_start: float = documented(0.3, "transferred agents explore less than agent.eps_start")
+    freeze: List[int] = documented(factory=list, doc="indices of layers kept fixed")
+    exchange: Exchange = documented(Exchange.none, "knowledge exchange inside the team during training: none | best | shared_replay")
+    exchange_every: int = documented(20, "episodes between exchanges")
+    exchange_tau: float = documented(0.5, "'best': weight of the best agent in the soft copy")
 
 
 @dataclass
@@ -94,8 +97,8 @@ class ReplicasConfig:
     """Independent runs batched in one process (docs/sweeps.md): ``seeds`` x ``maps`` replicas, seeds
     ``seed .. seed + seeds - 1`` crossed with map seeds ``env.map_seed .. env.map_seed + maps - 1``."""
 
-    seeds: int = 1  # replicas with consecutive seeds
-    maps: int = 1  # replicas with consecutive map seeds (a generated map only)
+    seeds: int = documented(1, "replicas with consecutive seeds")
+    maps: int = documented(1, "replicas with consecutive map seeds (a generated map only)")
 
 
 @dataclass
@@ -104,15 +107,16 @@ class TrainConfig:
     agent: AgentConfig = field(default_factory=AgentConfig)
     transfer: TransferConfig = field(default_factory=TransferConfig)
     replicas: ReplicasConfig = field(default_factory=ReplicasConfig)
-    seed: int = 0  # seeds the learners, exploration and episode resets
-    total_steps: int = 20_000  # joint env steps (every live agent acts once)
-    eval_every: int = 1_000  # env steps between greedy evaluations
-    eval_episodes: int = 10  # greedy episodes per evaluation
-    checkpoint_every: int = 5_000  # env steps between checkpoints
-    progress: bool = True  # tqdm progress bar
-    resume: bool = False  # continue the run in hydra.run.dir from its last checkpoint
-    device: Device = Device.cpu
-    threads: int = 1  # torch CPU threads (engine torch): tiny networks run fastest on one, sweep jobs don't oversubscribe
+    seed: int = documented(0, "seeds the learners, exploration and episode resets")
+    total_steps: int = documented(20_000, "joint env steps (every live agent acts once)")
+    eval_every: int = documented(1_000, "env steps between greedy evaluations")
+    eval_episodes: int = documented(10, "greedy episodes per evaluation")
+    checkpoint_every: int = documented(5_000, "env steps between checkpoints")
+    progress: bool = documented(True, "tqdm progress bar")
+    resume: bool = documented(False, "continue the run in hydra.run.dir from its last checkpoint")
+    device: Device = documented(Device.cpu, "cpu | cuda | auto")
+    threads: int = documented(1, "torch CPU threads (agent.engine=torch): tiny networks run fastest on one, and sweep "
+                                 "jobs don't oversubscribe")
 
 
 def register_configs() -> None:

@@ -1,23 +1,30 @@
 """TensorBoard logging with the tag names other tools rely on.
 
 Per agent: ``agent_{i}/episodic_return``, ``agent_{i}/episodic_length``, ``agent_{i}/td_loss``,
-``agent_{i}/q_mean``.  Team: ``team/return``, ``team/treasures_collected``, ``team/trap_rate``.
-Evaluation: ``eval/team_return``, ``eval/success_rate``.  Training: ``train/epsilon``, ``train/sps``.
+``agent_{i}/q_mean``, and the histogram ``agent_{i}/q_values`` (at each evaluation: the Q-values of
+every observation the agent acted on in the evaluation's first episode).  Team: ``team/return``,
+``team/treasures_collected``, ``team/trap_rate``.  Evaluation: ``eval/team_return``,
+``eval/success_rate``, ``eval/trap_rate``, and the image ``eval/episode`` (the first episode's last
+frame with every agent's trail).  Training: ``train/epsilon``, ``train/sps``.
 A custom-scalars layout overlays the agents' curves in one chart each; the flattened config goes to
 the hparams plugin (so runs of a sweep can be compared in its table) and, as YAML, to the text plugin.
 """
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import time
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+from PIL import Image
 
 # TensorBoard's own summary builders and event writer: no torch (or TensorFlow) needed to write logs.
 from tensorboard.compat.proto.event_pb2 import Event, SessionLog
-from tensorboard.compat.proto.summary_pb2 import Summary, SummaryMetadata
+from tensorboard.compat.proto.summary_pb2 import HistogramProto, Summary, SummaryMetadata
 from tensorboard.compat.proto.tensor_pb2 import TensorProto
 from tensorboard.plugins.custom_scalar import layout_pb2, metadata as custom_scalar_metadata
 from tensorboard.plugins.hparams import summary_v2 as hparams_summary
@@ -39,6 +46,14 @@ def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
         else:
             flat[name] = value
     return flat
+
+
+def histogram(values: np.ndarray, bins: int = 30) -> HistogramProto:
+    """TensorBoard's histogram of ``values``: ``bucket[i]`` values up to ``bucket_limit[i]``."""
+    values = np.asarray(values, dtype=np.float64).ravel()
+    counts, edges = np.histogram(values, bins=bins)
+    return HistogramProto(min=values.min(), max=values.max(), num=values.size, sum=values.sum(),
+                          sum_squares=float(values @ values), bucket_limit=edges[1:].tolist(), bucket=counts.tolist())
 
 
 class RunLogger:
@@ -67,7 +82,7 @@ class RunLogger:
         team = {
             "return": ["team/return", "eval/team_return"],
             "treasures and traps": ["team/treasures_collected", "team/trap_rate"],
-            "eval success rate": ["eval/success_rate"],
+            "eval success and trap rates": ["eval/success_rate", "eval/trap_rate"],
         }
         layout = layout_pb2.Layout(category=[
             layout_pb2.Category(title=title, chart=[
@@ -100,6 +115,17 @@ class RunLogger:
         """``agent_{i}/{name}`` for each agent; NaNs (no update yet) are skipped."""
         for i, value in enumerate(values):
             self.scalar(f"agent_{i}/{name}", value, step)
+
+    def evaluation_views(self, picture: np.ndarray, q_values: Sequence[np.ndarray], step: int) -> None:
+        """An evaluation's picture (``[H, W, 3]`` uint8) and each agent's Q-values (agents with none skipped)."""
+        png = io.BytesIO()
+        Image.fromarray(picture).save(png, format="PNG")
+        height, width, channels = picture.shape
+        image = Summary.Image(height=height, width=width, colorspace=channels, encoded_image_string=png.getvalue())
+        self._add(Summary(value=[Summary.Value(tag="eval/episode", image=image)]), step)
+        for i, values in enumerate(q_values):
+            if values.size:
+                self._add(Summary(value=[Summary.Value(tag=f"agent_{i}/q_values", histo=histogram(values))]), step)
 
     def text(self, tag: str, text: str, step: int = 0) -> None:
         self._add(text_summary.text_pb(tag, text), step)

@@ -20,6 +20,7 @@ from dqn_transfer.envs.game import TreasureHuntGame
 Policy = Callable[[np.ndarray, np.ndarray], np.ndarray]
 # Called after every step with the joint transition and the game's info dict.
 StepCallback = Callable[[Transition, dict], None]
+EVALUATION_STREAM = 1_000_003  # keeps evaluation episodes' generators apart from every other stream of a seed
 
 
 class EpisodeResult(NamedTuple):
@@ -42,9 +43,12 @@ def greedy_policy(learner: Learner) -> Policy:
 
 
 def play_episode(game: TreasureHuntGame, policy: Policy, rng: np.random.Generator,
-                 on_step: StepCallback | None = None) -> EpisodeResult:
-    """Reset ``game`` with ``rng`` (it draws the winners of chest ties) and play one episode."""
+                 on_step: StepCallback | None = None, on_reset: Callable[[], None] | None = None) -> EpisodeResult:
+    """Reset ``game`` with ``rng`` (it draws the winners of chest ties) and play one episode;
+    ``on_reset`` sees the game right after the reset, ``on_step`` after every step."""
     obs = game.reset(rng)
+    if on_reset is not None:
+        on_reset()
     team_return, length, trapped = 0.0, 0, 0
     while not game.done:
         live = game.live
@@ -60,11 +64,16 @@ def play_episode(game: TreasureHuntGame, policy: Policy, rng: np.random.Generato
                          game.treasures_collected / game.num_treasures, trapped / game.num_agents)
 
 
+def evaluation_rng(seed: int, evaluation: int, episode: int) -> np.random.Generator:
+    """The generator of one evaluation episode: from (seed, evaluation, episode) alone, so independent
+    of training history."""
+    return np.random.default_rng([seed, EVALUATION_STREAM, evaluation, episode])
+
+
 def evaluate(learner: Learner, game: TreasureHuntGame, episodes: int, seed: int, evaluation: int) -> dict[str, float]:
-    """Greedy episodes, each seeded from (seed, evaluation, episode): independent of training history."""
+    """Greedy episodes, each seeded by :func:`evaluation_rng`."""
     policy = greedy_policy(learner)
-    results = [play_episode(game, policy, np.random.default_rng([seed, 1_000_003, evaluation, episode]))
-               for episode in range(episodes)]
+    results = [play_episode(game, policy, evaluation_rng(seed, evaluation, episode)) for episode in range(episodes)]
     return {
         "team_return": float(np.mean([r.team_return for r in results])),
         "success_rate": float(np.mean([r.success_rate for r in results])),

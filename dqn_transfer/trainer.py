@@ -9,7 +9,8 @@ learner, each replica otherwise a complete run of its own (:class:`Replica`, its
 1. act epsilon-greedily for every live agent (one batched forward for all agents of all replicas);
 2. step the games, hand the joint transition to the learner (which stores it and trains);
 3. at a replica's episode end: log per-agent and team statistics, exchange knowledge if due, reset;
-4. every ``eval_every`` steps: greedy evaluation on separately seeded episodes -> ``metrics.jsonl``;
+4. every ``eval_every`` steps: greedy evaluation on separately seeded episodes -> ``metrics.jsonl``,
+   and to TensorBoard with a picture of its first episode and the agents' Q-values there;
 5. every ``LOG_EVERY`` steps: losses, Q means, epsilon and speed to TensorBoard and the progress bar;
 6. every ``checkpoint_every`` steps, and when a signal asks to stop: a checkpoint of every replica.
 
@@ -56,6 +57,7 @@ from dqn_transfer.rollout import evaluate, team_return_of
 from dqn_transfer.run_dir import RunDir, existing_run_message
 from dqn_transfer.timing import Stopwatch
 from dqn_transfer.warm_start import apply_transfer
+from dqn_transfer.watch import evaluation_views
 
 log = logging.getLogger("dqn_transfer.train")
 
@@ -458,6 +460,7 @@ class Trainer:
             step = rep.counters.step
             result = evaluate(rep.learner, rep.eval_game, rep.config.eval_episodes, rep.config.seed,
                               rep.counters.evaluations)
+            views = evaluation_views(rep.learner, rep.eval_game, rep.config.seed, rep.counters.evaluations)
             rep.counters.evaluations += 1
             rep.last_eval = result
             rep.last_eval_step = step
@@ -469,6 +472,8 @@ class Trainer:
                 stream.write(json.dumps(record) + "\n")
             rep.logger.scalar("eval/team_return", result["team_return"], step)
             rep.logger.scalar("eval/success_rate", result["success_rate"], step)
+            rep.logger.scalar("eval/trap_rate", result["trap_rate"], step)
+            rep.logger.evaluation_views(*views, step)
         log.info("eval step %d%s: team_return %.1f success_rate %.2f trap_rate %.2f", step,
                  f" {rep.run_dir.path.name}" if len(self.replicas) > 1 else "",
                  result["team_return"], result["success_rate"], result["trap_rate"])

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Sequence
 
+import numpy as np
 import pytest
 from safetensors import safe_open
 
@@ -148,3 +149,32 @@ def _one_torch_thread():
     import torch
 
     torch.set_num_threads(1)
+
+
+# Agent 0 at the top left, two steps left of a chest; agent 1 below it, facing the right edge.
+ALWAYS_RIGHT_LAYOUT = "0.T\n1..\nX.."
+UP, DOWN, LEFT, RIGHT = range(4)
+
+
+def always_acting_team(run_dir: Path, action: int = RIGHT, layout: str = ALWAYS_RIGHT_LAYOUT) -> Path:
+    """A finished run directory whose DQN agents always take ``action``: what a greedy episode does
+    there is worked out by hand. Always right on the default layout: agent 0 takes the chest on step 2
+    (-1 + 100) and agent 1 walks to the right edge and stays there until the 9th step truncates it
+    (9 x -1): 9 steps, team return 90. The run is ``total_steps=0``; its agent files are then rewritten
+    with zero weights and an output bias of 1 for ``action``, 0 for the others."""
+    from dqn_transfer.checkpoint import load_agent_checkpoint, save_agent_checkpoint
+    from dqn_transfer.config import AgentConfig, TrainConfig
+    from dqn_transfer.envs.settings import EnvConfig
+    from dqn_transfer.run_dir import RunDir
+    from dqn_transfer.trainer import train
+
+    env = EnvConfig(layout=layout, size=3, num_treasures=layout.count("T"), num_traps=layout.count("X"),
+                    num_agents=sum(ch.isdigit() for ch in layout), complexity=0.0)
+    train(TrainConfig(env=env, agent=AgentConfig(algorithm="dqn", hidden=[8]), total_steps=0, progress=False), run_dir)
+    for file in sorted(RunDir(run_dir).checkpoints.glob("agent_*.safetensors")):
+        tensors, meta = load_agent_checkpoint(file)
+        tensors = {name: np.zeros_like(t) for name, t in tensors.items()}
+        for net in ("q", "target"):
+            tensors[f"{net}.layers.1.bias"][action] = 1.0
+        save_agent_checkpoint(file, tensors, {k: v for k, v in meta.items() if k not in ("format_version", "kind", "digest")})
+    return run_dir

@@ -59,6 +59,8 @@ def test_the_import_graph_has_no_cycle():
 FORBIDDEN = {
     "dqn_transfer.enums": ("dqn_transfer.",),
     "dqn_transfer.run_dir": ("dqn_transfer.",),
+    "dqn_transfer.documented": ("dqn_transfer.",),
+    "dqn_transfer.config_help": ("dqn_transfer.trainer", "dqn_transfer.agents", "dqn_transfer.cli"),
     "dqn_transfer.envs": ("dqn_transfer.agents", "dqn_transfer.config", "dqn_transfer.trainer",
                           "dqn_transfer.checkpoint", "dqn_transfer.analysis"),
     "dqn_transfer.agents": ("dqn_transfer.envs", "dqn_transfer.trainer", "dqn_transfer.checkpoint",
@@ -69,7 +71,12 @@ FORBIDDEN = {
     "dqn_transfer.analysis": ("dqn_transfer.trainer", "dqn_transfer.agents", "dqn_transfer.envs",
                               "dqn_transfer.experiments", "dqn_transfer.cli"),
     "dqn_transfer.experiments": ("dqn_transfer.trainer", "dqn_transfer.cli"),
+    "dqn_transfer.watch": ("dqn_transfer.trainer", "dqn_transfer.checkpoint", "dqn_transfer.cli"),
+    "dqn_transfer.team": ("dqn_transfer.trainer", "dqn_transfer.sources", "dqn_transfer.cli"),
+    "dqn_transfer.model_card": ("dqn_transfer.trainer", "dqn_transfer.sources", "dqn_transfer.cli"),
 }
+# Entry points: the command-line modules, and `python -m dqn_transfer.play` (dqn-transfer-play's short name).
+ENTRY_POINTS = ("dqn_transfer.cli", "dqn_transfer.play")
 
 
 @pytest.mark.parametrize("part", sorted(FORBIDDEN))
@@ -80,6 +87,7 @@ def test_each_part_imports_only_what_lies_below_it(part):
 
 
 def test_nothing_imports_the_entry_points():
-    users = {module for module, targets in GRAPH.items() if not module.startswith("dqn_transfer.cli")
-             and any(t.startswith("dqn_transfer.cli") for t in targets)}
+    users = {module for module, targets in GRAPH.items() if not module.startswith(ENTRY_POINTS)
+             and any(t.startswith(ENTRY_POINTS) for t in targets)}
     assert not users
+    assert not any(t.startswith("dqn_transfer.play") for targets in GRAPH.values() for t in targets)

@@ -8,7 +8,7 @@ import gymnasium
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
-from pettingzoo.test import api_test, parallel_api_test
+from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test, render_test, seed_test
 
 import dqn_transfer
 from dqn_transfer.envs import TreasureHuntEnv, TreasureHuntParallelEnv, generate_layout, make_game
@@ -99,7 +99,7 @@ def test_aec_env_plays_the_parallel_game_agent_by_agent():
         (dict(size=1), "size must be >= 2"),
         (dict(num_agents=11), "num_agents must be between 1 and 10"),
         (dict(complexity=2.0), "complexity must be in"),
-        (dict(render_mode="human"), "render_mode must be one of ansi, rgb_array"),
+        (dict(render_mode="window"), "render_mode must be one of ansi, rgb_array, human"),
         (dict(step_reward=float("nan")), "step_reward must be finite"),
         (dict(treasure_reward="lots"), "treasure_reward must be a number"),
         (dict(layout="0T\n.a"), "unknown character 'a'"),
@@ -182,3 +182,30 @@ def test_stable_baselines3_dqn_runs():
 def test_generated_map_matches_generate_layout():
     env = parallel_env(size=7, num_treasures=2, complexity=0.2, map_seed=4)
     assert env.game.map.layout == generate_layout(7, 2, complexity=0.2, seed=4)
+
+
+def test_pettingzoo_render_and_seed_tests_pass():
+    """PettingZoo's own render_test builds the env with render_mode="human" first, then every mode
+    of its metadata; the seed tests play two envs seeded alike and compare everything."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        render_test(lambda render_mode=None: aec_env(render_mode=render_mode, **MAP))
+        seed_test(lambda: aec_env(**MAP), num_cycles=100)
+        parallel_seed_test(lambda: parallel_env(**MAP), num_cycles=100)
+
+
+def test_human_mode_prints_the_text_frame_at_reset_and_every_step(capsys):
+    layout = "0.T\n...\nX.."
+    env = parallel_env(layout=layout, render_mode="human")
+    env.reset(seed=0)
+    env.step({"agent_0": 3})  # right: beside the chest
+    assert env.render() is None
+    frames = capsys.readouterr().out.split("\n\n")
+    assert frames[:3] == ["0.T\n...\nX..\nstep 0/9  live agents: [0]  full chests: 1/1",
+                          ".0T\n...\nX..\nstep 1/9  live agents: [0]  full chests: 1/1",
+                          ".0T\n...\nX..\nstep 1/9  live agents: [0]  full chests: 1/1"]
+    single = gymnasium.make("TreasureHunt-v0", layout=layout, render_mode="human")
+    single.reset(seed=0)
+    single.step(3)
+    single.step(3)  # into the chest: the agent is done, the chest emptied
+    assert capsys.readouterr().out.split("\n\n")[2] == "..t\n...\nX..\nstep 2/9  live agents: []  full chests: 0/1"

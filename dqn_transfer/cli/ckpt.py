@@ -1,4 +1,6 @@
-"""``dqn-transfer-ckpt list|show|verify PATH``: inspect checkpoints (a file, a run dir or a checkpoints dir).
+"""``dqn-transfer-ckpt list|show|verify PATH``: inspect checkpoints (a file, a run dir or a checkpoints dir);
+``dqn-transfer-ckpt export RUN_DIR OUT_DIR``: the team as a folder to share, with its model card
+(:mod:`dqn_transfer.model_card`).
 
 Every file is verified (format, meta, digest) before anything is shown; a bad file is one ``error:``
 line and exit code 1, never a traceback, and nothing is ever unpickled.
@@ -8,11 +10,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from collections.abc import Mapping
 
 from dqn_transfer.checkpoint import CheckpointError, CheckpointInfo, find_checkpoints, verify_checkpoint
+from dqn_transfer.cli.console import exit_with
+from dqn_transfer.model_card import ExportError, export_team
 from dqn_transfer.run_dir import RunDir
 
 
@@ -45,12 +48,27 @@ def _human_size(n_bytes: int) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``list`` / ``show`` / ``verify`` checkpoints; exit 1 with one ``error:`` line per bad file."""
+    """``list`` / ``show`` / ``verify`` checkpoints (exit 1 with one ``error:`` line per bad file), or
+    ``export`` a team (exit 1 with one ``error:`` line, nothing written)."""
     parser = argparse.ArgumentParser(prog="dqn-transfer-ckpt",
-                                     description="Inspect dqn_transfer safetensors checkpoints.")
-    parser.add_argument("command", choices=["list", "show", "verify"])
-    parser.add_argument("path", help="a checkpoint file, a run directory or a checkpoints directory")
+                                     description="Inspect dqn_transfer safetensors checkpoints, or export a team.")
+    parser.add_argument("command", choices=["list", "show", "verify", "export"])
+    parser.add_argument("path", help="a checkpoint file, a run directory or a checkpoints directory (export: the "
+                                     "run, replica or agent file to export)")
+    parser.add_argument("out_dir", nargs="?", metavar="OUT_DIR",
+                        help="export: a new (or empty) folder for the agents' files and the model card")
     args = parser.parse_args(argv)
+    if (args.command == "export") != (args.out_dir is not None):
+        print("error: OUT_DIR goes with export only: dqn-transfer-ckpt export RUN_DIR OUT_DIR", file=sys.stderr)
+        return 1
+    if args.command == "export":
+        try:
+            out_dir = export_team(args.path, args.out_dir)
+        except ExportError as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 1
+        print(f"exported {args.path} to {out_dir}: {', '.join(sorted(p.name for p in out_dir.iterdir()))}")
+        return 0
 
     try:
         files = find_checkpoints(args.path)
@@ -76,11 +94,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def run() -> None:
     """Console-script entry: ``main`` with a quiet exit when the reader of stdout goes away."""
-    try:
-        sys.exit(main())
-    except BrokenPipeError:  # `... show FILE | head`: the reader left; not an error worth a traceback
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        sys.exit(0)
+    exit_with(main)
 
 
 if __name__ == "__main__":

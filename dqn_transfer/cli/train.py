@@ -16,7 +16,6 @@ import math
 import shutil
 import sys
 import warnings
-from dataclasses import fields, is_dataclass
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +32,8 @@ from omegaconf.errors import OmegaConfBaseException
 
 from dqn_transfer.checkpoint import CheckpointError, load_training_state
 from dqn_transfer.config import CONFIG_DIR, SB3_NAMES, ConfigError, TrainConfig, register_configs, validate
+from dqn_transfer.config_help import config_groups, group_options, help_text
+from dqn_transfer.documented import describe
 from dqn_transfer.run_dir import RunClaim, RunDir, RunDirError
 from dqn_transfer.sources import transfer_sources
 from dqn_transfer.trainer import Interrupted, train
@@ -43,7 +44,7 @@ log = logging.getLogger("dqn_transfer.train")
 USER_ERRORS = (ConfigError, CheckpointError, TransferError, RunDirError)
 # What a resumed run may change; everything else is the run's own saved config.
 RESUMABLE_KEYS = ("total_steps", "progress", "checkpoint_every", "device", "threads")
-CONFIG_GROUPS = tuple(sorted(p.name for p in CONFIG_DIR.iterdir() if p.is_dir()))
+CONFIG_GROUPS = config_groups()
 # Other libraries' names for our agent keys (SB3's, and CleanRL's dqn.py where they differ), so a user
 # who types the name they know is pointed at ours.
 AGENT_ALIASES = {**{sb3: ours for ours, sb3 in SB3_NAMES.items()}, "net_arch": "hidden",
@@ -53,18 +54,6 @@ AGENT_ALIASES = {**{sb3: ours for ours, sb3 in SB3_NAMES.items()}, "net_arch": "
 
 # ------------------------------------------------------------------------------------ the command line
 
-def schema_keys(schema: type = TrainConfig, prefix: str = "") -> list[str]:
-    """Every dotted key of the config schema (``agent.lr``, ``env.size``, ``seed``, ...)."""
-    keys = []
-    for f in fields(schema):
-        default = f.default_factory() if callable(f.default_factory) else f.default  # type: ignore[misc]
-        if is_dataclass(default):
-            keys += schema_keys(type(default), f"{prefix}{f.name}.")
-        else:
-            keys.append(prefix + f.name)
-    return keys
-
-
 def check_overrides(argv: list[str]) -> None:
     """Refuse a key outside the schema (``+`` appends included) or an option no group has, naming the
     nearest valid one, before Hydra turns it into a multi-line error or silently stores it."""
@@ -73,7 +62,7 @@ def check_overrides(argv: list[str]) -> None:
         overrides = OverridesParser.create().parse_overrides(args.overrides)
     except (SystemExit, HydraException):
         return  # malformed: Hydra's own parser says what is wrong
-    keys = schema_keys()
+    keys = [k.key for k in describe(TrainConfig)]
     for override in overrides:
         key = override.key_or_group
         if key in CONFIG_GROUPS:
@@ -86,7 +75,7 @@ def check_overrides(argv: list[str]) -> None:
 
 
 def check_group_option(group: str, override) -> None:
-    options = sorted(p.stem for p in (CONFIG_DIR / group).glob("*.yaml"))
+    options = group_options(group)
     chosen = list(override.sweep_string_iterator()) if override.is_sweep_override() else [
         override.get_value_element_as_str()]
     for option in chosen:
@@ -277,12 +266,25 @@ def app(cfg: DictConfig) -> float:
 
 
 def main() -> None:
-    """The command line: unknown keys refused first, then the Hydra app."""
+    """The command line: ``--help`` (the menu and every key's description), unknown keys refused
+    first, then the Hydra app."""
+    if {"--help", "-h"} & set(sys.argv[1:]):
+        print(help_text(program_name()))
+        return
     try:
         check_overrides(sys.argv[1:])
     except ConfigError as err:
         _exit_with(err)
     app()
+
+
+def program_name() -> str:
+    """The command as the user typed it: ``python train.py``, ``python -m dqn_transfer.cli.train`` or
+    ``dqn-transfer-train``."""
+    script = Path(sys.argv[0])
+    if script.resolve() == Path(__file__).resolve():
+        return f"python -m {__spec__.name}" if __spec__ else f"python {sys.argv[0]}"
+    return f"python {sys.argv[0]}" if script.suffix == ".py" else script.name
 
 
 if __name__ == "__main__":

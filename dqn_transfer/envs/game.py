@@ -39,13 +39,13 @@ from dqn_transfer.enums import Mode, ObsEncoding, RewardMode, values
 from dqn_transfer.envs.maps import GridMap, resolve_map
 from dqn_transfer.envs.settings import DEFAULTS, MAP_KEYS, EnvConfig
 
-RENDER_MODES = ("ansi", "rgb_array")
+RENDER_MODES = ("ansi", "rgb_array", "human")  # human: the ansi frame printed to the terminal
 ACTION_MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))  # 0 up, 1 down, 2 left, 3 right
 
 _FREE, _CHEST, _TRAP = 0, 1, 2  # what a move can land on (an obstacle sends the agent home)
 
 CELL_PX = 16
-_COLOURS = {
+COLOURS = {
     "free": (235, 235, 235),
     "obstacle": (60, 60, 60),
     "chest_full": (255, 196, 0),
@@ -53,7 +53,7 @@ _COLOURS = {
     "trap": (200, 30, 30),
     "grid": (200, 200, 200),
 }
-_AGENT_COLOURS = np.array(
+AGENT_COLOURS = np.array(
     [(31, 119, 180), (44, 160, 44), (148, 103, 189), (23, 190, 207), (227, 119, 194),
      (255, 127, 14), (140, 86, 75), (127, 127, 127), (188, 189, 34), (0, 0, 128)],
     dtype=np.uint8,
@@ -535,48 +535,57 @@ class TreasureHuntGame:
 
     # ------------------------------------------------------------------ rendering
     def render(self, render_mode: str | None) -> str | np.ndarray | None:
-        """What both faces' ``render()`` return: text for ``ansi``, an RGB array for ``rgb_array``."""
+        """What both faces' ``render()`` return: text for ``ansi``, an RGB array for ``rgb_array``;
+        ``human`` prints the text frame (a grid game's window is the terminal) and returns None."""
         if render_mode == "ansi":
             return self.render_ansi()
         if render_mode == "rgb_array":
             return self.render_rgb()
+        if render_mode == "human":
+            print(self.render_ansi(), end="\n\n", flush=True)
         return None
 
     def render_ansi(self) -> str:
         """The grid (``T`` full chest, ``t`` empty chest, digits: live agents, ``*``: several)."""
-        grid = [["." if ch.isdigit() else ch for ch in row] for row in self.map.rows]
-        for chest, (r, c) in enumerate(self.map.chests):
-            grid[r][c] = "T" if self._chest_full[chest] else "t"
-        for agent in self._live_idx.tolist():
-            r, c = divmod(int(self._pos[agent]), self.size)
-            grid[r][c] = "*" if grid[r][c].isdigit() else str(agent)
         status = (
             f"step {self._t}/{self.max_steps}  live agents: {self._live_idx.tolist()}  "
             f"full chests: {int(self._chest_full.sum())}/{self.num_treasures}"
         )
-        return "\n".join("".join(row) for row in grid) + "\n" + status
+        return text_grid(self.map, self.positions, self._live, self._chest_full) + "\n" + status
 
     def render_rgb(self) -> np.ndarray:
         """``[n*16, n*16, 3]`` uint8 image: cells coloured by type, live agents drawn on top."""
         n, px = self.size, CELL_PX
         colour = np.empty((n, n, 3), dtype=np.uint8)
-        colour[:] = _COLOURS["free"]
+        colour[:] = COLOURS["free"]
         for r, c in self.map.obstacles:
-            colour[r, c] = _COLOURS["obstacle"]
+            colour[r, c] = COLOURS["obstacle"]
         for r, c in self.map.traps:
-            colour[r, c] = _COLOURS["trap"]
+            colour[r, c] = COLOURS["trap"]
         for chest, (r, c) in enumerate(self.map.chests):
-            colour[r, c] = _COLOURS["chest_full" if self._chest_full[chest] else "chest_empty"]
+            colour[r, c] = COLOURS["chest_full" if self._chest_full[chest] else "chest_empty"]
         img = np.repeat(np.repeat(colour, px, axis=0), px, axis=1)
-        img[::px, :] = _COLOURS["grid"]
-        img[:, ::px] = _COLOURS["grid"]
+        img[::px, :] = COLOURS["grid"]
+        img[:, ::px] = COLOURS["grid"]
         pad = px // 4
         for agent in self._live_idx.tolist():
             r, c = divmod(int(self._pos[agent]), n)
             img[r * px + pad : (r + 1) * px - pad, c * px + pad : (c + 1) * px - pad] = (
-                _AGENT_COLOURS[agent % len(_AGENT_COLOURS)]
+                AGENT_COLOURS[agent % len(AGENT_COLOURS)]
             )
         return img
+
+
+def text_grid(grid_map: GridMap, positions: np.ndarray, live: np.ndarray, chest_full: np.ndarray) -> str:
+    """The map's rows with the chests' state (``T`` full, ``t`` empty) and the live agents (their digit,
+    ``*`` where several stand): the text frame of a game state, live or recorded."""
+    grid = [["." if ch.isdigit() else ch for ch in row] for row in grid_map.rows]
+    for chest, (r, c) in enumerate(grid_map.chests):
+        grid[r][c] = "T" if chest_full[chest] else "t"
+    for agent in np.flatnonzero(live).tolist():
+        r, c = (int(x) for x in positions[agent])
+        grid[r][c] = "*" if grid[r][c].isdigit() else str(agent)
+    return "\n".join("".join(row) for row in grid)
 
 
 def make_game(**settings) -> TreasureHuntGame:

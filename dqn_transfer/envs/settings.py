@@ -1,7 +1,8 @@
 """The game's settings and their defaults, in one dataclass.
 
 ``make_game(**kwargs)``, the PettingZoo and Gymnasium faces and the trainer's ``env`` config group
-all take exactly these keys (the config schema *is* this dataclass), so a default is written once.
+all take exactly these keys (the config schema *is* this dataclass), so a default is written once,
+beside the one-line description that ``--help`` shows.
 """
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 from typing import Optional
 
+from dqn_transfer.documented import documented
 from dqn_transfer.enums import Mode, ObsEncoding, RewardMode
 
 
@@ -16,24 +18,24 @@ from dqn_transfer.enums import Mode, ObsEncoding, RewardMode
 class EnvConfig:
     """One treasure-hunt game. A ``layout`` / ``layout_file`` fixes the size and the counts."""
 
-    size: int = 6  # grid side n
-    num_treasures: int = 2  # chests k
-    num_traps: Optional[int] = None  # None: k
-    num_agents: Optional[int] = None  # None: k
-    complexity: float = 0.1  # obstacle fraction Rc: round(Rc * n * n) obstacles
-    map_seed: int = 0  # the map is fixed for a run; episodes reset agents and chests only
-    layout: Optional[str] = None  # an ASCII map (rows of . # T X 0-9) instead of a generated one
-    layout_file: Optional[str] = None  # a path to an ASCII map
-    max_steps: Optional[int] = None  # truncation horizon; None: n * n
-    mode: Mode = Mode.competitive  # how `treasures` is kept: no communication / announcements / coordinator
-    reward_mode: RewardMode = RewardMode.individual  # team: every live agent receives the step's sum
-    obs_encoding: ObsEncoding = ObsEncoding.onehot  # `position` as one-hot of the cell or (row, col) in [0, 1]
-    view_radius: int = 0  # > 0 adds an egocentric (2r+1)^2 `view` segment
-    treasure_reward: float = 100.0  # entering a full chest (the agent is then done)
-    trap_reward: float = -100.0  # entering a trap (the agent is then done)
-    step_reward: float = -1.0  # every other move, an empty chest included
-    render_mode: Optional[str] = None  # ansi | rgb_array for the faces' render(); training does not render
-
+    size: int = documented(6, "grid side n")
+    num_treasures: int = documented(2, "chests k")
+    num_traps: Optional[int] = documented(None, "traps; null: k")
+    num_agents: Optional[int] = documented(None, "agents (at most 10); null: k")
+    complexity: float = documented(0.1, "obstacle fraction Rc: round(Rc * n * n) obstacles")
+    map_seed: int = documented(0, "seeds the generated map, fixed for a run (episodes reset agents and chests only)")
+    layout: Optional[str] = documented(None, "an ASCII map (rows of . # T X 0-9) instead of a generated one")
+    layout_file: Optional[str] = documented(None, "a path to an ASCII map")
+    max_steps: Optional[int] = documented(None, "truncation horizon in joint steps; null: n * n")
+    mode: Mode = documented(Mode.competitive, "how `treasures` is kept: competitive (no communication), "
+                                              "cooperative (announcements), deliberative (a coordinator)")
+    reward_mode: RewardMode = documented(RewardMode.individual, "team: every live agent receives the step's sum")
+    obs_encoding: ObsEncoding = documented(ObsEncoding.onehot, "`position` as one-hot of the cell or (row, col) in [0, 1]")
+    view_radius: int = documented(0, "> 0 adds an egocentric (2r+1)^2 `view` segment")
+    treasure_reward: float = documented(100.0, "entering a full chest (the agent is then done)")
+    trap_reward: float = documented(-100.0, "entering a trap (the agent is then done)")
+    step_reward: float = documented(-1.0, "every other move, an empty chest included")
+    render_mode: Optional[str] = documented(None, "ansi | rgb_array | human for the faces' render(); training does not render")
 
 ENV_KEYS = tuple(f.name for f in fields(EnvConfig))
 # The keys that shape the map itself; the rest are rules, observations and rewards.

@@ -16,7 +16,7 @@ from dqn_transfer.envs.game import make_game
 
 
 class TreasureHuntEnv(gymnasium.Env):
-    metadata = {"render_modes": ["ansi", "rgb_array"], "render_fps": 4}
+    metadata = {"render_modes": ["ansi", "rgb_array", "human"], "render_fps": 4}
 
     def __init__(self, render_mode: str | None = None, **env_kwargs) -> None:
         self.game = make_game(render_mode=render_mode, **env_kwargs).single_agent_game()
@@ -32,11 +32,16 @@ class TreasureHuntEnv(gymnasium.Env):
         self, *, seed: int | None = None, options: dict | None = None
     ) -> tuple[np.ndarray, dict]:
         super().reset(seed=seed)
-        return self.game.reset(self.np_random)[0], {}
+        obs = self.game.reset(self.np_random)[0]
+        if self.render_mode == "human":
+            self.render()
+        return obs, {}
 
     def step(self, action: int) -> tuple[np.ndarray, float, bool, bool, dict]:
         self._action[0] = action
         obs, reward, terminated, truncated, info = self.game.step(self._action)
+        if self.render_mode == "human":
+            self.render()
         return (
             obs[0],
             float(reward[0]),

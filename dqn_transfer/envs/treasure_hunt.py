@@ -2,7 +2,8 @@
 
 Follows the PettingZoo custom-environment API: agents ``agent_0``..``agent_{K-1}``, cached spaces,
 ``reset(seed, options) -> (observations, infos)``, ``step(actions)`` returning five dicts keyed by
-the agents live before the step, and finished agents removed from ``agents``. The game itself is
+the agents live before the step, and finished agents removed from ``agents``. With
+``render_mode="human"`` every reset and step prints the text frame. The game itself is
 :class:`~dqn_transfer.envs.game.TreasureHuntGame` (``env.game``), which the trainer drives directly.
 """
 
@@ -21,7 +22,7 @@ class TreasureHuntParallelEnv(ParallelEnv):
 
     metadata = {
         "name": "treasure_hunt_v0",
-        "render_modes": ["ansi", "rgb_array"],
+        "render_modes": ["ansi", "rgb_array", "human"],
         "render_fps": 4,
         "is_parallelizable": True,
     }
@@ -60,6 +61,8 @@ class TreasureHuntParallelEnv(ParallelEnv):
             self._rng = np.random.default_rng(seed)
         obs = self.game.reset(self._rng)
         self.agents = self.possible_agents[:]
+        if self.render_mode == "human":
+            self.render()
         return {name: obs[i] for i, name in enumerate(self.agents)}, {a: {} for a in self.agents}
 
     def step(self, actions: dict[str, int]) -> tuple[dict, dict, dict, dict, dict]:
@@ -72,6 +75,8 @@ class TreasureHuntParallelEnv(ParallelEnv):
         rows = [self._index[name] for name in acting]
         rew, term, trunc = rewards.tolist(), terminated.tolist(), truncated.tolist()
         self.agents = [name for name, i in zip(acting, rows) if not (term[i] or trunc[i])]
+        if self.render_mode == "human":
+            self.render()
         return (
             {name: obs[i] for name, i in zip(acting, rows)},
             {name: rew[i] for name, i in zip(acting, rows)},

@@ -1,0 +1,219 @@
+"""``dqn-transfer-ckpt export RUN_DIR OUT_DIR``: a trained team as one folder to hand to a colleague or
+upload to a model hub as it is.
+
+::
+
+    OUT_DIR/
+      README.md              the model card: YAML front matter (library_name, tags, the env and mode
+                             config, the evaluation metrics with their seeds) and how to warm-start
+      agent_{i}.safetensors  the agents' checkpoints, byte for byte (each verified first; a lone agent
+                             file given instead of a run is agent_0 here, so it is the default source)
+      map.txt                the map as it was played (an ASCII layout)
+      replay.gif             the team's first evaluation episode
+
+``transfer.source=OUT_DIR`` warm-starts a new run from the folder. The card's metrics are measured
+when exporting, on greedy episodes whose seeds it states, so ``dqn-transfer-play OUT_DIR --episodes N
+--seed S`` reproduces them. The folder appears whole or not at all: everything is written into a
+temporary sibling, which is renamed to OUT_DIR once complete (and removed on any failure).
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+import shutil
+from dataclasses import fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from dqn_transfer.checkpoint import CheckpointError, atomic_write_all
+from dqn_transfer.documented import format_default
+from dqn_transfer.enums import Algorithm
+from dqn_transfer.envs.settings import DEFAULTS, MAP_KEYS, EnvConfig
+from dqn_transfer.team import TeamError, TrainedTeam, load_team
+from dqn_transfer.watch import RecordedEpisode, gif_bytes, watch_team
+
+CARD_FILE, MAP_FILE, GIF_FILE = "README.md", "map.txt", "replay.gif"
+EVAL_EPISODES, EVAL_SEED = 10, 0
+LIBRARY_NAME = "dqn-transfer"
+ENV_ID = "treasure_hunt_v0"
+# Env keys the card's warm-start command leaves out: the map is map.txt, the mode has its own group,
+# and rendering changes nothing learned.
+NOT_IN_COMMAND = (*MAP_KEYS, "mode", "render_mode")
+
+
+class ExportError(Exception):
+    """The team cannot be exported there; the message is one user-facing line."""
+
+
+def export_team(run_path: str | Path, out_dir: str | Path) -> Path:
+    """Write the folder (see the module docstring) for the team at ``run_path``; returns ``out_dir``."""
+    out_dir = Path(out_dir)
+    check_destination(out_dir)
+    try:
+        team = load_team(run_path)
+    except TeamError as err:
+        raise ExportError(str(err)) from None
+    episodes = watch_team(team.game, team.learner, EVAL_EPISODES, EVAL_SEED)
+    files = {out_dir / f"agent_{i}.safetensors": file.read_bytes() for i, file in enumerate(unique(team.files))}
+    files[out_dir / MAP_FILE] = (team.game.map.layout + "\n").encode()
+    files[out_dir / GIF_FILE] = gif_bytes(episodes[:1])
+    files[out_dir / CARD_FILE] = model_card(team, episodes).encode()
+    write_folder(out_dir, files)
+    return out_dir
+
+
+def unique(files: list[Path]) -> list[Path]:
+    """A lone agent file drives every agent of its map, but is exported once."""
+    return list(dict.fromkeys(files))
+
+
+def check_destination(out_dir: Path) -> None:
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ExportError(f"{out_dir} is a file; give a new folder to export into")
+    if out_dir.is_dir() and any(out_dir.iterdir()):
+        raise ExportError(f"{out_dir} is not empty; give a new or empty folder to export into")
+    if not out_dir.parent.is_dir():
+        raise ExportError(f"the directory {out_dir.parent} does not exist (create it, or export elsewhere)")
+
+
+def write_folder(out_dir: Path, files: dict[Path, bytes]) -> None:
+    """All of ``files`` (paths inside ``out_dir``) into ``out_dir`` at once, or nothing."""
+    temp = out_dir.with_name(f".{out_dir.name}.export-{secrets.token_hex(4)}")
+    try:
+        temp.mkdir()
+        atomic_write_all({temp / path.relative_to(out_dir): data for path, data in files.items()})
+        os.rename(temp, out_dir)  # replaces an empty out_dir; refused if someone filled it meanwhile
+    except (OSError, CheckpointError) as err:
+        shutil.rmtree(temp, ignore_errors=True)
+        reason = err.strerror if isinstance(err, OSError) else str(err)
+        raise ExportError(f"cannot export into {out_dir}: {reason}") from None
+
+
+# ------------------------------------------------------------------------------------ the card
+
+def evaluation(episodes: list[RecordedEpisode]) -> dict[str, Any]:
+    """The card's metrics: means over the greedy episodes, with the seeds that reproduce them."""
+    results = [episode.result for episode in episodes]
+    returns = np.array([r.team_return for r in results])
+    return {
+        "episodes": len(results),
+        "seed": EVAL_SEED,
+        "episode_seeds": [[EVAL_SEED, i] for i in range(len(results))],
+        "team_return_mean": round(float(returns.mean()), 3),
+        "team_return_std": round(float(returns.std()), 3),
+        "success_rate": round(float(np.mean([r.success_rate for r in results])), 3),
+        "trap_rate": round(float(np.mean([r.trap_rate for r in results])), 3),
+        "episode_length": round(float(np.mean([r.length for r in results])), 3),
+        "reproduce": f"dqn-transfer-play $FOLDER --episodes {len(results)} --seed {EVAL_SEED}",
+    }
+
+
+def algorithm_tags(algorithm: Algorithm) -> list[str]:
+    if algorithm.is_tabular:
+        return ["tabular", algorithm.value.replace("_", "-")]
+    return sorted({"dqn", algorithm.value.replace("_", "-")})
+
+
+def warm_start_command(team: TrainedTeam) -> str:
+    """``python train.py ...`` that warm-starts a run of the same game and network from the folder
+    ``$FOLDER``: the map, the mode, the learner, its network and every rule that differs from the default."""
+    meta, env = team.meta, team.meta["env"]
+    overrides = [f"agent={meta['algorithm']}", f"mode={meta['mode']}", "transfer=on",
+                 "transfer.source=$FOLDER", f"env.layout_file=$FOLDER/{MAP_FILE}"]
+    defaults = {f.name: format_plain(getattr(DEFAULTS, f.name)) for f in fields(EnvConfig) if f.name not in NOT_IN_COMMAND}
+    overrides += [f"env.{key}={format_default(env[key])}" for key, default in defaults.items()
+                  if env.get(key, default) != default]  # a key newer than the checkpoint has its default
+    if "hidden" in meta["network"]:
+        overrides.append(f"'agent.hidden={format_default(meta['network']['hidden'])}'")
+    return "python train.py " + " ".join(overrides)
+
+
+def format_plain(value: Any) -> Any:
+    """A schema default as the checkpoint's JSON meta spells it (enums by their value)."""
+    return getattr(value, "value", value)
+
+
+def model_card(team: TrainedTeam, episodes: list[RecordedEpisode]) -> str:
+    meta, game = team.meta, team.game
+    algorithm = Algorithm(meta["algorithm"])
+    metrics = evaluation(episodes)
+    size = f"{game.size}x{game.size}"
+    name = f"{algorithm.value}-{ENV_ID}-{meta['mode']}-{size}"
+    front = {
+        "library_name": LIBRARY_NAME,
+        "license": "mit",
+        "tags": ["reinforcement-learning", "multi-agent", *algorithm_tags(algorithm), "treasure-hunt", "pettingzoo"],
+        "model-index": [{
+            "name": name,
+            "results": [{
+                "task": {"type": "reinforcement-learning", "name": "reinforcement-learning"},
+                "dataset": {"name": f"{ENV_ID} ({meta['mode']}, {size}, {game.num_agents} agents)", "type": ENV_ID},
+                "metrics": [{"type": "mean_reward", "name": "mean team return",
+                             "value": f"{metrics['team_return_mean']:.2f} +/- {metrics['team_return_std']:.2f}",
+                             "verified": False}],
+            }],
+        }],
+        "env": {key: value for key, value in meta["env"].items() if key != "layout"},
+        "mode": meta["mode"],
+        "algorithm": algorithm.value,
+        "agents": game.num_agents,
+        "network": meta["network"],
+        "training": {"seed": meta["seed"], "steps": meta["steps"], "episodes": meta["episodes"],
+                     "last_evaluation": meta.get("last_eval") or None},
+        "evaluation": metrics,
+    }
+    agent_files = ", ".join(f"`agent_{i}.safetensors`" for i in range(len(unique(team.files))))
+    return f"""---
+{yaml.safe_dump(front, sort_keys=False, width=120, default_flow_style=None).rstrip()}
+---
+
+# {name}
+
+A team of {game.num_agents} {algorithm.value} agents trained with dqn_transfer on the treasure hunt
+({meta['mode']} mode, a {size} map with {game.num_treasures} chests and {game.map.num_traps} traps) for
+{meta['steps']} steps (seed {meta['seed']}). Each agent observes the expanded state
+{', '.join(f'`{name}` ({size_})' for name, size_ in meta['obs_layout'])} and acts greedily on its Q-values.
+
+![the team's first evaluation episode]({GIF_FILE})
+
+## The map
+
+```
+{game.map.layout}
+```
+
+`.` free, `#` obstacle, `T` chest, `X` trap, digits: the agents' starts (also in `{MAP_FILE}`).
+
+## Evaluation
+
+{metrics['episodes']} greedy episodes, episode i drawing its chest ties from the seed ({EVAL_SEED}, i);
+`{metrics['reproduce']}` plays them again (`$FOLDER`: where this folder is).
+
+| mean team return | std | success rate (chests taken) | trap rate | episode length |
+|---:|---:|---:|---:|---:|
+| {metrics['team_return_mean']:g} | {metrics['team_return_std']:g} | {metrics['success_rate']:g} | {metrics['trap_rate']:g} | {metrics['episode_length']:g} |
+
+## Warm-start from it
+
+With dqn_transfer installed, a new run of the same game starts its agents from agent 0 of this folder
+(at step 0 they compute exactly its Q-values):
+
+```bash
+FOLDER=path/to/this/folder
+{warm_start_command(team)}
+```
+
+`transfer.source_agent=1` starts them from agent 1 instead, `transfer.targets=[0]` warm-starts agent 0
+only; another mode or a map of the same size works too (segments only the new run has start at zero
+weight). Watch the team: `dqn-transfer-play $FOLDER`; check the files: `dqn-transfer-ckpt verify $FOLDER`.
+
+## Files
+
+- {agent_files}: each agent's tensors (safetensors, never a pickle) and a JSON `meta` (algorithm,
+  observation layout, network, env, training steps, a SHA-256 digest of the tensors)
+- `{MAP_FILE}`: the map; `{GIF_FILE}`: the team's first evaluation episode, one frame per step
+"""

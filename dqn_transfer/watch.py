@@ -1,0 +1,179 @@
+"""Watching a team play: greedy episodes recorded frame by frame, as a GIF, in the terminal, and as
+TensorBoard's evaluation picture.
+
+An episode of T steps is T + 1 :class:`Frame` s: the state after the reset, then after every step.
+Each frame is drawn with the agents' trails up to it (:mod:`dqn_transfer.envs.pictures`) and a caption
+with the step and the team return so far; the GIF holds every frame of every episode watched, the
+terminal replay prints the same frames as text (:func:`~dqn_transfer.envs.game.text_grid`).
+"""
+
+from __future__ import annotations
+
+import io
+import sys
+import time
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import NamedTuple, TextIO
+
+import numpy as np
+from PIL import Image
+
+from dqn_transfer.agents.base import Learner
+from dqn_transfer.envs.game import COLOURS, TreasureHuntGame, text_grid
+from dqn_transfer.envs.pictures import agent_colour, draw_state
+from dqn_transfer.rollout import EpisodeResult, Policy, evaluation_rng, greedy_policy, play_episode, team_return_of
+
+GIF_FRAME_MS = 250  # the faces' render_fps of 4
+GIF_LAST_FRAME_MS = 1500  # a pause on each episode's outcome
+GIF_CELL_PX = 40
+TENSORBOARD_CELL_PX = 32  # small: the evaluation image is written at every evaluation
+
+
+class Frame(NamedTuple):
+    """The game as it stood after ``step`` joint steps of an episode."""
+
+    step: int
+    positions: np.ndarray  # [K, 2] (row, col); a done agent stays where it ended
+    live: np.ndarray  # [K] bool
+    chest_full: np.ndarray  # [k] bool
+    team_return: float  # so far
+
+
+@dataclass
+class RecordedEpisode:
+    """One episode as played: its frames, what each agent saw when it acted, and its outcome."""
+
+    game: TreasureHuntGame
+    frames: list[Frame]
+    observations: list[tuple[np.ndarray, np.ndarray]]  # per step: (obs [K, D], live [K]) the policy acted on
+    result: EpisodeResult
+
+    def trails(self, upto: int) -> list[np.ndarray]:
+        """Per agent, the cells it stood on in frames 0..``upto`` (``[upto + 1, 2]``)."""
+        cells = np.stack([frame.positions for frame in self.frames[: upto + 1]])  # [T, K, 2]
+        return [cells[:, agent] for agent in range(cells.shape[1])]
+
+
+def record_episode(game: TreasureHuntGame, policy: Policy, rng: np.random.Generator) -> RecordedEpisode:
+    """Play one episode with ``policy`` (``rng`` draws chest ties), keeping every frame."""
+    frames: list[Frame] = []
+    observations: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def snapshot(team_return: float) -> None:
+        frames.append(Frame(game.steps, game.positions, game.live, game.chest_full, team_return))
+
+    def on_step(transition, info) -> None:
+        observations.append((transition.obs, transition.live))
+        snapshot(frames[-1].team_return + team_return_of(transition.rewards[transition.live], game.reward_mode))
+
+    result = play_episode(game, policy, rng, on_step=on_step, on_reset=lambda: snapshot(0.0))
+    return RecordedEpisode(game, frames, observations, result)
+
+
+def watch_team(game: TreasureHuntGame, learner: Learner, episodes: int, seed: int) -> list[RecordedEpisode]:
+    """``episodes`` greedy episodes; episode i draws its chest ties from ``(seed, i)``."""
+    policy = greedy_policy(learner)
+    return [record_episode(game, policy, np.random.default_rng([seed, i])) for i in range(episodes)]
+
+
+def outcome(episode: RecordedEpisode) -> str:
+    """One line: what the team achieved."""
+    r = episode.result
+    return (f"{r.length} steps, team return {r.team_return:g}, chests {r.treasures_collected}/{episode.game.num_treasures}, "
+            f"trapped agents {round(r.trap_rate * episode.game.num_agents)}/{episode.game.num_agents}")
+
+
+# ------------------------------------------------------------------------------------ pictures
+
+def frame_caption(episode: RecordedEpisode, index: int, label: str = "") -> list[str]:
+    frame, game = episode.frames[index], episode.game
+    return [f"{label}step {frame.step}/{game.max_steps}",
+            f"team return {frame.team_return:g}  full chests {int(frame.chest_full.sum())}/{game.num_treasures}"]
+
+
+def frame_picture(episode: RecordedEpisode, index: int, label: str = "", cell_px: int = GIF_CELL_PX) -> Image.Image:
+    """Frame ``index`` with the trails that led to it."""
+    frame = episode.frames[index]
+    return draw_state(episode.game.map, frame.positions, frame.live, frame.chest_full, episode.trails(index),
+                      frame_caption(episode, index, label), cell_px)
+
+
+def episode_pictures(episodes: Sequence[RecordedEpisode]) -> Iterable[tuple[Image.Image, int]]:
+    """Every frame of every episode, with how long the GIF shows it (ms)."""
+    for number, episode in enumerate(episodes, 1):
+        label = f"episode {number}/{len(episodes)}  " if len(episodes) > 1 else ""
+        for index in range(len(episode.frames)):
+            last = index == len(episode.frames) - 1
+            yield frame_picture(episode, index, label), GIF_LAST_FRAME_MS if last else GIF_FRAME_MS
+
+
+def gif_bytes(episodes: Sequence[RecordedEpisode]) -> bytes:
+    """The episodes as one looping GIF: one frame per step plus each episode's first."""
+    pictures, durations = zip(*episode_pictures(episodes))
+    buffer = io.BytesIO()
+    # disposal 1 and optimize off: every frame is kept whole, none merged into its neighbour.
+    pictures[0].save(buffer, format="GIF", save_all=True, append_images=list(pictures[1:]), duration=list(durations),
+                     loop=0, disposal=1, optimize=False)
+    return buffer.getvalue()
+
+
+def map_picture(game: TreasureHuntGame, cell_px: int = GIF_CELL_PX) -> Image.Image:
+    """The map with every agent on its start and every chest full (the docs' picture of a map)."""
+    game.reset(np.random.default_rng(0))
+    return draw_state(game.map, game.positions, game.live, game.chest_full, cell_px=cell_px)
+
+
+# ------------------------------------------------------------------------------------ the terminal
+
+def _coloured(text: str, rgb: tuple[int, int, int]) -> str:
+    return f"\x1b[1;38;2;{rgb[0]};{rgb[1]};{rgb[2]}m{text}\x1b[0m"
+
+
+# The pictures' colours, but a lighter grey for obstacles: the pictures' dark grey is hard to read on a dark terminal.
+CELL_COLOURS = {"T": COLOURS["chest_full"], "t": COLOURS["chest_empty"], "X": COLOURS["trap"], "#": (120, 120, 120)}
+
+
+def frame_text(episode: RecordedEpisode, index: int, colour: bool) -> str:
+    """Frame ``index`` as the game's text grid (agents by their digit), in colour for a terminal."""
+    frame = episode.frames[index]
+    grid = text_grid(episode.game.map, frame.positions, frame.live, frame.chest_full)
+    if colour:
+        grid = "".join(_coloured(ch, agent_colour(int(ch))) if ch.isdigit() else
+                       _coloured(ch, CELL_COLOURS[ch]) if ch in CELL_COLOURS else ch for ch in grid)
+    return grid + "\n" + "  ".join(frame_caption(episode, index))
+
+
+def replay_in_terminal(episodes: Sequence[RecordedEpisode], stream: TextIO | None = None, fps: float = 4.0) -> None:
+    """Print every frame to ``stream`` (default: stdout). On a terminal: in colour, each frame drawn
+    over the last at ``fps``; piped: plain frames one after another, at once."""
+    stream = stream or sys.stdout
+    live_terminal = stream.isatty()
+    for number, episode in enumerate(episodes, 1):
+        stream.write(f"episode {number}/{len(episodes)}\n")
+        for index in range(len(episode.frames)):
+            text = frame_text(episode, index, colour=live_terminal)
+            if live_terminal and index:
+                stream.write(f"\x1b[{text.count(chr(10)) + 1}F\x1b[J")  # back to the frame's first line, clear below
+            stream.write(text + "\n" + ("" if live_terminal else "\n"))
+            stream.flush()
+            if live_terminal:
+                time.sleep(1.0 / fps)
+        stream.write(outcome(episode) + "\n")
+
+
+# ------------------------------------------------------------------------------------ TensorBoard
+
+def evaluation_views(learner: Learner, game: TreasureHuntGame, seed: int, evaluation: int
+                     ) -> tuple[np.ndarray, list[np.ndarray]]:
+    """What TensorBoard shows of an evaluation: its first episode (the same as the evaluation's own,
+    replayed from the same generator) as its last frame with every trail, ``[H, W, 3]`` uint8, and
+    per agent the Q-values of every observation it acted on in that episode."""
+    episode = record_episode(game, greedy_policy(learner), evaluation_rng(seed, evaluation, 0))
+    picture = frame_picture(episode, len(episode.frames) - 1, cell_px=TENSORBOARD_CELL_PX)
+    q_values = [[] for _ in range(game.num_agents)]
+    for obs, live in episode.observations:
+        values = learner.q_values(obs)
+        for agent in np.flatnonzero(live):
+            q_values[agent].append(values[agent])
+    return np.asarray(picture), [np.concatenate(q) if q else np.zeros(0) for q in q_values]

@@ -1,0 +1,128 @@
+"""TensorBoard at each evaluation: the first episode as a picture, each agent's Q-values as a histogram,
+and ``eval/trap_rate``; served by a real TensorBoard on loopback.
+
+The team is the always-right one of conftest, warm-started into a run that never updates (its first
+update would come after 1,000 steps), so its greedy evaluation episode is known by hand: agent 0
+takes the chest on step 2, agent 1 stands at the right edge until the 9th step truncates it; every
+observation's Q-values are ``[0, 0, 0, 1]``.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import re
+import subprocess
+import sys
+import time
+import urllib.request
+
+import numpy as np
+import pytest
+from PIL import Image
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from conftest import DOWN, always_acting_team
+from dqn_transfer.config import AgentConfig, TrainConfig, TransferConfig
+from dqn_transfer.envs.settings import EnvConfig
+from dqn_transfer.run_dir import RunDir
+from dqn_transfer.trainer import train
+
+CELL = 32  # TensorBoard's cell size in pixels
+BLUE, GREEN, GOLD, FREE = (31, 119, 180), (44, 160, 44), (255, 196, 0), (235, 235, 235)
+SERVER_TIMEOUT = 90  # seconds for TensorBoard to start and load the run
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory) -> RunDir:
+    base = tmp_path_factory.mktemp("tb")
+    source = always_acting_team(base / "source") / "checkpoints" / "agent_0.safetensors"
+    env = EnvConfig(layout="0.T\n1..\nX..", size=3, num_treasures=1, num_traps=1, num_agents=2, complexity=0.0)
+    config = TrainConfig(env=env, agent=AgentConfig(algorithm="dqn", hidden=[8]), total_steps=1, eval_every=1,
+                         eval_episodes=1, progress=False, transfer=TransferConfig(enabled=True, source=str(source)))
+    train(config, base / "run", sources=[source])
+    return RunDir(base / "run")
+
+
+def events(run: RunDir) -> EventAccumulator:
+    accumulator = EventAccumulator(str(run.tensorboard), size_guidance={"images": 0, "histograms": 0, "scalars": 0})
+    accumulator.Reload()
+    return accumulator
+
+
+def check_picture(png: bytes) -> None:
+    """The evaluation episode's last frame: 3 x 3 cells and a caption below; the chest emptied, each
+    agent's trail along its row in its colour."""
+    picture = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
+    assert picture.shape[1] == 3 * CELL and picture.shape[0] > 3 * CELL
+    near = lambda pixel, colour: np.abs(pixel - np.asarray(colour)).max() <= 3  # noqa: E731
+    assert near(picture[6, 2 * CELL + 6], FREE)  # inside the emptied chest's frame, clear of agent 0's ring
+    assert near(picture[CELL // 2 - 2, CELL], BLUE)  # agent 0's trail from cell (0, 0) to (0, 1)
+    assert near(picture[CELL + CELL // 2 + 2, CELL], GREEN)  # agent 1's from (1, 0) to (1, 1)
+
+
+def test_each_evaluation_logs_its_picture_q_values_and_trap_rate(run):
+    accumulator = events(run)
+    images = accumulator.Images("eval/episode")
+    assert [image.step for image in images] == [0, 1]  # the evaluations at step 0 and at the end
+    check_picture(images[0].encoded_image_string)
+    for agent, observations in ((0, 2), (1, 9)):  # agent 0 acted twice, agent 1 nine times
+        histogram = accumulator.Histograms(f"agent_{agent}/q_values")[0].histogram_value
+        assert histogram.num == 4 * observations and histogram.sum == observations
+        assert (histogram.min, histogram.max) == (0.0, 1.0)
+    assert [s.value for s in accumulator.Scalars("eval/trap_rate")] == [0.0, 0.0]
+
+
+def test_the_trap_rate_is_the_one_in_metrics_jsonl(tmp_path):
+    """A lone agent that starts above a trap and always moves down: trapped on step 1."""
+    layout = "0.T\nX..\n..."
+    file = always_acting_team(tmp_path / "source", DOWN, layout) / "checkpoints" / "agent_0.safetensors"
+    env = EnvConfig(layout=layout, size=3, num_treasures=1, num_traps=1, num_agents=1, complexity=0.0)
+    config = TrainConfig(env=env, agent=AgentConfig(algorithm="dqn", hidden=[8]), total_steps=1, eval_every=1,
+                         eval_episodes=1, progress=False, transfer=TransferConfig(enabled=True, source=str(file)))
+    train(config, tmp_path / "run", sources=[file])
+    metrics = [json.loads(line) for line in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
+    assert [m["trap_rate"] for m in metrics] == [1.0, 1.0]
+    assert [s.value for s in events(RunDir(tmp_path / "run")).Scalars("eval/trap_rate")] == [1.0, 1.0]
+
+
+def get(url: str) -> bytes:
+    with urllib.request.urlopen(url, timeout=10) as response:
+        return response.read()
+
+
+@pytest.mark.slow
+def test_a_tensorboard_server_on_loopback_serves_the_picture(run):
+    server = subprocess.Popen([sys.executable, "-m", "tensorboard.main", "--logdir", str(run.tensorboard),
+                               "--host", "127.0.0.1", "--port", "0", "--load_fast", "false", "--reload_interval", "1"],
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + SERVER_TIMEOUT
+        address = None
+        while address is None and time.monotonic() < deadline:
+            line = server.stdout.readline()
+            if not line and server.poll() is not None:
+                pytest.fail("tensorboard exited before serving")
+            address = re.search(r"http://127\.0\.0\.1:\d+", line)
+        assert address, "tensorboard did not say where it serves"
+        base = address.group(0)
+        tags: dict = {}
+        while "eval/episode" not in tags.get(".", {}) and time.monotonic() < deadline:
+            tags = json.loads(get(f"{base}/data/plugin/images/tags"))
+            time.sleep(0.5)
+        assert "eval/episode" in tags.get(".", {}), tags
+        entries = json.loads(get(f"{base}/data/plugin/images/images?run=.&tag=eval%2Fepisode"))
+        assert [entry["step"] for entry in entries] == [0, 1]
+        png = get(f"{base}/data/plugin/images/individualImage?{entries[0]['query']}")
+        assert png == events(run).Images("eval/episode")[0].encoded_image_string
+        check_picture(png)
+        histograms = json.loads(get(f"{base}/data/plugin/histograms/tags"))["."]
+        scalars = json.loads(get(f"{base}/data/plugin/scalars/tags"))["."]
+        assert {"agent_0/q_values", "agent_1/q_values"} <= set(histograms) and "eval/trap_rate" in scalars
+    finally:
+        server.terminate()
+        try:
+            server.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            server.kill()
+            server.wait()
