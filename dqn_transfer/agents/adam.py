@@ -20,12 +20,10 @@ from collections.abc import Sequence
 
 import torch
 
-
-SMALLEST_NORMAL = torch.finfo(torch.float32).tiny
-FLUSH_EVERY = 50  # Adam steps between flushes of subnormal moments (see FlatAdam._flush_subnormals)
+from dqn_transfer.agents.stacked import SMALLEST_NORMAL, AdamState
 
 
-class FlatAdam:
+class FlatAdam(AdamState):
     """Adam for the tensors ``spans[i] = (start, end)`` of ``flat``, whose gradient is ``flat_grad``.
 
     :param flat: the parameters, one 1-D tensor
@@ -38,44 +36,27 @@ class FlatAdam:
 
     def __init__(self, flat: torch.Tensor, flat_grad: torch.Tensor, spans: Sequence[tuple[int, int]],
                  lr: float, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8) -> None:
+        super().__init__(spans, torch.zeros_like(flat), torch.zeros_like(flat))
         self.flat, self.flat_grad = flat, flat_grad
-        self.spans = list(spans)
         self.lr, (self.beta1, self.beta2), self.eps = lr, betas, eps
-        self.exp_avg = torch.zeros_like(flat)
-        self.exp_avg_sq = torch.zeros_like(flat)
-        self.steps = [0] * len(self.spans)
-        self.has_state = [False] * len(self.spans)
         # Views of the stretches of the last step, reused while the same tensors step together at the
         # same step counts relative to each other (what decides how they merge).
         self._stretches: list[tuple[int, tuple[torch.Tensor, ...]]] = []
         self._stretches_key: tuple[tuple[int, int], ...] | None = None
 
-    def moments(self, i: int, shape: Sequence[int]) -> dict[str, torch.Tensor]:
-        """Tensor i's ``exp_avg`` and ``exp_avg_sq``, as views of shape ``shape`` (write through them)."""
-        a, b = self.spans[i]
-        return {"exp_avg": self.exp_avg[a:b].view(*shape), "exp_avg_sq": self.exp_avg_sq[a:b].view(*shape)}
-
-    def init_state(self, i: int) -> None:
-        """Give tensor i the state Adam creates at its first step (zero moments, step 0), if it has none."""
-        if not self.has_state[i]:
-            a, b = self.spans[i]
-            self.exp_avg[a:b] = 0.0
-            self.exp_avg_sq[a:b] = 0.0
-            self.steps[i] = 0
-            self.has_state[i] = True
-
     @torch.no_grad()
     def step(self, active: Sequence[int]) -> None:
         """One Adam step for the tensors ``active`` (the others got no gradient)."""
-        for i in active:
-            self.init_state(i)
-            self.steps[i] += 1
+        flush = self.count_step(active)
         key = tuple((i, self.steps[i] - self.steps[active[0]]) for i in active)
         if key != self._stretches_key:
-            self._stretches, self._stretches_key = self._views(sorted(active)), key
+            param = self.flat.detach()
+            self._stretches = [(i, (param[a:b], self.flat_grad[a:b], self.exp_avg[a:b], self.exp_avg_sq[a:b]))
+                               for a, b, i in self.stretches(active)]
+            self._stretches_key = key
         for index, views in self._stretches:
             self._update(*views, self.steps[index])
-        if active and self.steps[active[0]] % FLUSH_EVERY == 0:  # a saved count: resume flushes alike
+        if flush:
             self._flush_subnormals()
 
     def _flush_subnormals(self) -> None:
@@ -88,20 +69,6 @@ class FlatAdam:
         """
         for moment in (self.exp_avg, self.exp_avg_sq):
             moment.masked_fill_(moment.abs() < SMALLEST_NORMAL, 0.0)
-
-    def _views(self, active: list[int]) -> list[tuple[int, tuple[torch.Tensor, ...]]]:
-        """Neighbouring active tensors at the same step count merged into stretches: ``(a tensor of the
-        stretch, (param, grad, exp_avg, exp_avg_sq) views of it)``."""
-        merged: list[list[int]] = []  # [start, end, step, first index]
-        for i in active:
-            (a, b), step = self.spans[i], self.steps[i]
-            if merged and merged[-1][1] == a and merged[-1][2] == step:
-                merged[-1][1] = b
-            else:
-                merged.append([a, b, step, i])
-        param = self.flat.detach()
-        return [(i, (param[a:b], self.flat_grad[a:b], self.exp_avg[a:b], self.exp_avg_sq[a:b]))
-                for a, b, _, i in merged]
 
     def _update(self, param: torch.Tensor, grad: torch.Tensor, exp_avg: torch.Tensor, exp_avg_sq: torch.Tensor,
                 step: int) -> None:

@@ -82,15 +82,8 @@ class DQNLearner(BatchedDQN):
         seed: int | Sequence[int] = 0,
         device: torch.device | str = "cpu",
     ) -> None:
-        """
-        :param num_agents: K, the agents of the team (each its own network unless ``share_parameters``)
-        :param obs_layout: the observation's named segments ``[(name, size), ...]``
-        :param num_actions: A, the discrete actions
-        :param hp: the hyperparameters (:class:`~dqn_transfer.config.AgentConfig`)
-        :param seed: fixes the initial weights, exploration and replay sampling; a list of R seeds
-            makes R replicas, replica r exactly the team a lone learner of ``seed[r]`` would be
-        :param device: where the networks live (the replay stays on the host)
-        """
+        """The parameters are :class:`~dqn_transfer.agents.dqn_base.BatchedDQN`'s, and ``device``: where the
+        networks live (the replay stays on the host)."""
         super().__init__(num_agents, obs_layout, num_actions, hp, seed)
         self.device = torch.device(device)
         # Initial weights: torch's generator, on the CPU, so the seed gives the same weights on any device.

@@ -27,10 +27,10 @@ import numpy as np
 import torch
 from torch import nn
 
-from dqn_transfer.agents.base import check_tensor_shape
+from dqn_transfer.agents.stacked import StackedLayout
 
 
-class BatchedMLP(nn.Module):
+class BatchedMLP(nn.Module, StackedLayout):
     """``num_members`` ReLU MLPs ``in_dim -> hidden... -> out_dim`` with stacked parameters.
 
     Tensors ``weight_{l}`` ``[M, in, out]`` and ``bias_{l}`` ``[M, out]`` for each layer l are views of
@@ -52,24 +52,14 @@ class BatchedMLP(nn.Module):
         generators: Sequence[torch.Generator] | None = None,
         device: torch.device | str = "cpu",
     ) -> None:
-        super().__init__()
-        self.num_members = num_members
-        self.sizes = [in_dim, *hidden, out_dim]
-        self.tensor_names: list[str] = []
-        self.spans: list[tuple[int, int]] = []
-        self.shapes: list[tuple[int, ...]] = []
-        offset = 0
-        for l, (fan_in, fan_out) in enumerate(self.layer_shapes):
-            for kind, shape in (("weight", (num_members, fan_in, fan_out)), ("bias", (num_members, fan_out))):
-                self.tensor_names.append(f"{kind}_{l}")
-                self.shapes.append(shape)
-                self.spans.append((offset, offset + math.prod(shape)))
-                offset += math.prod(shape)
+        nn.Module.__init__(self)
+        StackedLayout.__init__(self, num_members, in_dim, hidden, out_dim)
+        offset = self.num_parameters
         self.flat = nn.Parameter(torch.zeros(offset, device=device))
         self.flat_grad = torch.zeros(offset, device=device)
         data = self.flat.detach()
-        self.tensors = [data[a:b].view(shape) for (a, b), shape in zip(self.spans, self.shapes)]
-        self.grads = [self.flat_grad[a:b].view(shape) for (a, b), shape in zip(self.spans, self.shapes)]
+        self.tensors = self.views(data)
+        self.grads = self.views(self.flat_grad)
         # For the per-member clip: squared gradients, each tensor's as [M, numel / M], and which member
         # every element of the flat buffer belongs to.
         self._squares = torch.zeros(offset, device=device)
@@ -91,29 +81,15 @@ class BatchedMLP(nn.Module):
     def _initialise(self, generators: Sequence[torch.Generator]) -> None:
         # nn.Linear's default init (kaiming_uniform(a=sqrt(5)) == U(-1/sqrt(in), 1/sqrt(in)) for the
         # weight, same bound for the bias), drawn on the CPU so a seed gives the same weights anywhere.
-        block = self.num_members // len(generators)
-        if block * len(generators) != self.num_members:
-            raise ValueError(f"{len(generators)} generators cannot split {self.num_members} members evenly")
-        for r, generator in enumerate(generators):
-            members = slice(r * block, (r + 1) * block)
-            for l, (fan_in, fan_out) in enumerate(self.layer_shapes):
-                weight, bias = self.layer(l)
-                bound = 1.0 / math.sqrt(fan_in)
-                weight[members] = (torch.rand(block, fan_in, fan_out, generator=generator) * 2 - 1) * bound
-                bias[members] = (torch.rand(block, fan_out, generator=generator) * 2 - 1) * bound
+        for r, members, l, fan_in, bound in self.initial_draws(len(generators)):
+            weight, bias = self.layer(l)
+            generator = generators[r]
+            weight[members] = (torch.rand(weight[members].shape, generator=generator) * 2 - 1) * bound
+            bias[members] = (torch.rand(bias[members].shape, generator=generator) * 2 - 1) * bound
 
     # ------------------------------------------------------------------------------ views
     def named_tensors(self) -> dict[str, torch.Tensor]:
         return dict(zip(self.tensor_names, self.tensors))
-
-    @property
-    def layer_shapes(self) -> list[tuple[int, int]]:
-        """``(in, out)`` of every layer."""
-        return list(zip(self.sizes[:-1], self.sizes[1:]))
-
-    @property
-    def num_layers(self) -> int:
-        return len(self.sizes) - 1
 
     def layer(self, l: int) -> tuple[torch.Tensor, torch.Tensor]:
         """Layer l's ``(weight [M, in, out], bias [M, out])``, views of ``flat``."""
@@ -202,15 +178,9 @@ class BatchedMLP(nn.Module):
     def load_member_state(self, m: int, state: dict[str, np.ndarray], name_prefix: str = "") -> None:
         """Overwrite member m from ``nn.Linear``-layout tensors (all layers must be present).
 
-        Everything is checked before anything is written; errors name tensors as ``name_prefix +
-        "layers.{l}.weight"``, the caller's naming.
+        Everything is checked before anything is written (:meth:`check_member_state`).
         """
-        for l, (fan_in, fan_out) in enumerate(self.layer_shapes):
-            for kind, shape in (("weight", (fan_out, fan_in)), ("bias", (fan_out,))):
-                name = f"layers.{l}.{kind}"
-                if name not in state:
-                    raise ValueError(f"tensor '{name_prefix}{name}' is missing")
-                check_tensor_shape(name_prefix + name, state[name], shape)
+        self.check_member_state(state, name_prefix)
         for l in range(self.num_layers):
             weight, bias = self.layer(l)
             weight[m].copy_(torch.as_tensor(state[f"layers.{l}.weight"]).t())

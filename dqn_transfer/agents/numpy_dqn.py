@@ -11,22 +11,20 @@ numbers). ``agent.engine`` is therefore part of what a run is (its config and ch
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import numpy as np
 
-from dqn_transfer.agents.base import ObsLayout, UpdateStats, check_tensor_shape
+from dqn_transfer.agents.base import ObsLayout, UpdateStats
 from dqn_transfer.agents.dqn_base import BatchedDQN
 from dqn_transfer.agents.replay import ReplayBatch
+from dqn_transfer.agents.stacked import SMALLEST_NORMAL, AdamState, StackedLayout
 from dqn_transfer.config import AgentConfig
 
-SMALLEST_NORMAL = np.finfo(np.float32).tiny
-FLUSH_EVERY = 50  # Adam steps between flushes of subnormal moments (they slow every kernel reading them)
 WEIGHT_STREAM = 2  # SeedSequence spawn key of the initial weights (0 and 1: exploration and replay)
 
 
-class NumpyMLP:
+class NumpyMLP(StackedLayout):
     """``num_members`` ReLU MLPs ``in_dim -> hidden... -> out_dim``, stacked: ``weight_l [M, in, out]``,
     ``bias_l [M, out]``, all views of one flat float32 buffer ``flat`` (gradients: ``flat_grad``).
 
@@ -40,47 +38,21 @@ class NumpyMLP:
 
     def __init__(self, num_members: int, in_dim: int, hidden: Sequence[int], out_dim: int,
                  rngs: Sequence[np.random.Generator] | None = None) -> None:
-        self.num_members = num_members
-        self.sizes = [in_dim, *hidden, out_dim]
-        self.tensor_names: list[str] = []
-        self.spans: list[tuple[int, int]] = []
-        self.shapes: list[tuple[int, ...]] = []
-        offset = 0
-        for l, (fan_in, fan_out) in enumerate(self.layer_shapes):
-            for kind, shape in (("weight", (num_members, fan_in, fan_out)), ("bias", (num_members, fan_out))):
-                self.tensor_names.append(f"{kind}_{l}")
-                self.shapes.append(shape)
-                self.spans.append((offset, offset + math.prod(shape)))
-                offset += math.prod(shape)
-        self.flat = np.zeros(offset, dtype=np.float32)
-        self.flat_grad = np.zeros(offset, dtype=np.float32)
-        self.tensors = [self.flat[a:b].reshape(shape) for (a, b), shape in zip(self.spans, self.shapes)]
-        self.grads = [self.flat_grad[a:b].reshape(shape) for (a, b), shape in zip(self.spans, self.shapes)]
+        super().__init__(num_members, in_dim, hidden, out_dim)
+        self.flat = np.zeros(self.num_parameters, dtype=np.float32)
+        self.flat_grad = np.zeros(self.num_parameters, dtype=np.float32)
+        self.tensors = self.views(self.flat)
+        self.grads = self.views(self.flat_grad)
         # Per layer: the weight and the bias as a [M, 1, out] row to broadcast over the batch.
         self._affine = [(self.tensors[2 * l], self.tensors[2 * l + 1][:, None, :]) for l in range(self.num_layers)]
         if rngs is not None:
             self._initialise(rngs)
 
     def _initialise(self, rngs: Sequence[np.random.Generator]) -> None:
-        block = self.num_members // len(rngs)
-        if block * len(rngs) != self.num_members:
-            raise ValueError(f"{len(rngs)} generators cannot split {self.num_members} members evenly")
-        for r, rng in enumerate(rngs):
-            members = slice(r * block, (r + 1) * block)
-            for l, (fan_in, fan_out) in enumerate(self.layer_shapes):
-                weight, bias = self.layer(l)
-                bound = 1.0 / math.sqrt(fan_in)
-                weight[members] = rng.uniform(-bound, bound, size=(block, fan_in, fan_out))
-                bias[members] = rng.uniform(-bound, bound, size=(block, fan_out))
-
-    @property
-    def layer_shapes(self) -> list[tuple[int, int]]:
-        """``(in, out)`` of every layer."""
-        return list(zip(self.sizes[:-1], self.sizes[1:]))
-
-    @property
-    def num_layers(self) -> int:
-        return len(self.sizes) - 1
+        for r, members, l, fan_in, bound in self.initial_draws(len(rngs)):
+            weight, bias = self.layer(l)
+            weight[members] = rngs[r].uniform(-bound, bound, size=weight[members].shape)
+            bias[members] = rngs[r].uniform(-bound, bound, size=bias[members].shape)
 
     def layer(self, l: int) -> tuple[np.ndarray, np.ndarray]:
         """Layer l's ``(weight [M, in, out], bias [M, out])``, views of ``flat``."""
@@ -146,13 +118,8 @@ class NumpyMLP:
 
     def load_member_state(self, m: int, state: dict[str, np.ndarray], name_prefix: str = "") -> None:
         """Overwrite member m from ``nn.Linear``-layout arrays (all layers must be present); everything
-        is checked before anything is written, errors naming ``name_prefix + "layers.{l}.weight"``."""
-        for l, (fan_in, fan_out) in enumerate(self.layer_shapes):
-            for kind, shape in (("weight", (fan_out, fan_in)), ("bias", (fan_out,))):
-                name = f"layers.{l}.{kind}"
-                if name not in state:
-                    raise ValueError(f"tensor '{name_prefix}{name}' is missing")
-                check_tensor_shape(name_prefix + name, state[name], shape)
+        is checked before anything is written (:meth:`check_member_state`)."""
+        self.check_member_state(state, name_prefix)
         for l in range(self.num_layers):
             weight, bias = self.layer(l)
             weight[m] = np.asarray(state[f"layers.{l}.weight"]).T
@@ -167,7 +134,7 @@ class NumpyMLP:
             self.flat += np.float32(tau) * (source.flat - self.flat)
 
 
-class NumpyAdam:
+class NumpyAdam(AdamState):
     """Adam (``torch.optim.Adam``'s defaults and arithmetic order) over the tensors ``spans`` of one flat
     buffer, one pass per stretch of neighbouring tensors at the same step count. A tensor that gets
     no gradient in a step (a frozen layer) is skipped: its moments and step count stay as they were.
@@ -182,43 +149,17 @@ class NumpyAdam:
 
     def __init__(self, flat: np.ndarray, flat_grad: np.ndarray, spans: Sequence[tuple[int, int]], lr: float,
                  betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8) -> None:
+        super().__init__(spans, np.zeros_like(flat), np.zeros_like(flat))
         self.flat, self.flat_grad = flat, flat_grad
-        self.spans = list(spans)
         self.lr, (self.beta1, self.beta2), self.eps = lr, betas, eps
-        self.exp_avg = np.zeros_like(flat)
-        self.exp_avg_sq = np.zeros_like(flat)
         self._scratch = np.zeros_like(flat)
-        self.steps = [0] * len(self.spans)
-        self.has_state = [False] * len(self.spans)
-
-    def moments(self, i: int, shape: Sequence[int]) -> dict[str, np.ndarray]:
-        """Tensor i's ``exp_avg`` and ``exp_avg_sq``, as views of shape ``shape`` (write through them)."""
-        a, b = self.spans[i]
-        return {"exp_avg": self.exp_avg[a:b].reshape(shape), "exp_avg_sq": self.exp_avg_sq[a:b].reshape(shape)}
-
-    def init_state(self, i: int) -> None:
-        """Give tensor i the state Adam creates at its first step (zero moments, step 0), if it has none."""
-        if not self.has_state[i]:
-            a, b = self.spans[i]
-            self.exp_avg[a:b] = 0.0
-            self.exp_avg_sq[a:b] = 0.0
-            self.steps[i] = 0
-            self.has_state[i] = True
 
     def step(self, active: Sequence[int]) -> None:
         """One Adam step for the tensors ``active`` (the others got no gradient)."""
-        stretches: list[list[int]] = []  # [start, end, step]
-        for i in sorted(active):
-            self.init_state(i)
-            self.steps[i] += 1
-            (a, b), step = self.spans[i], self.steps[i]
-            if stretches and stretches[-1][1] == a and stretches[-1][2] == step:
-                stretches[-1][1] = b
-            else:
-                stretches.append([a, b, step])
-        for a, b, step in stretches:
-            self._update(slice(a, b), step)
-        if active and self.steps[active[0]] % FLUSH_EVERY == 0:
+        flush = self.count_step(active)
+        for a, b, i in self.stretches(active):
+            self._update(slice(a, b), self.steps[i])
+        if flush:  # subnormal moments, too small to move any weight, slow every kernel reading them
             for moment in (self.exp_avg, self.exp_avg_sq):
                 moment[np.abs(moment) < SMALLEST_NORMAL] = 0.0
 
@@ -254,14 +195,7 @@ class NumpyDQNLearner(BatchedDQN):
         *,
         seed: int | Sequence[int] = 0,
     ) -> None:
-        """
-        :param num_agents: K, the agents of the team (each its own network unless ``share_parameters``)
-        :param obs_layout: the observation's named segments ``[(name, size), ...]``
-        :param num_actions: A, the discrete actions
-        :param hp: the hyperparameters (:class:`~dqn_transfer.config.AgentConfig`)
-        :param seed: fixes the initial weights, exploration and replay sampling; a list of R seeds
-            makes R replicas, replica r exactly the team a lone learner of ``seed[r]`` would be
-        """
+        """The parameters are :class:`~dqn_transfer.agents.dqn_base.BatchedDQN`'s."""
         super().__init__(num_agents, obs_layout, num_actions, hp, seed)
         weight_rngs = [np.random.default_rng(np.random.SeedSequence(s, spawn_key=(WEIGHT_STREAM,))) for s in self.seeds]
         self.q_network = NumpyMLP(self.num_members, self.obs_dim, self.hidden, num_actions, weight_rngs)
