@@ -200,6 +200,7 @@ class Replica:
         self.obs: np.ndarray | None = None
         self.episode_state: dict[str, Any] | None = None  # a mid-episode checkpoint's game, until the loop starts
         self.logger: RunLogger | None = None
+        self.plain_config = to_plain(config)  # as JSON data, for logs and checkpoint meta (a config never changes)
 
     @property
     def transferred(self) -> np.ndarray:
@@ -308,7 +309,7 @@ class Trainer:
             try:
                 for rep in self.replicas:
                     # Everything logged at the checkpoint's step came before it: purge only what came after.
-                    rep.logger = RunLogger(rep.run_dir.tensorboard, rep.game.num_agents, to_plain(rep.config),
+                    rep.logger = RunLogger(rep.run_dir.tensorboard, rep.game.num_agents, rep.plain_config,
                                            purge_step=rep.counters.step + 1 if self.config.resume else None)
                 return self._train(stop)
             finally:
@@ -513,7 +514,7 @@ class Trainer:
             state_files: dict[Path, bytes] = {}
             for rep in self.replicas:
                 rep.counters.env_rng_state = rep.env_rng.bit_generator.state
-                plain = to_plain(rep.config)
+                plain = rep.plain_config
                 arrays: dict[str, np.ndarray] = {}
                 for i in range(rep.game.num_agents):
                     tensors = rep.learner.agent_tensors(i)
