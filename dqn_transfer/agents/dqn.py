@@ -55,7 +55,6 @@ def double_dqn_targets(
 ACTION_MARGIN = 1e-4
 
 
-
 def resolve_device(device: Device | str, threads: int | None = None) -> str:
     """``device`` (cpu | cuda | auto) as torch's device name; torch then uses ``threads`` CPU threads
     (None: leave them as they are)."""
