@@ -70,10 +70,14 @@ def evaluation_rng(seed: int, evaluation: int, episode: int) -> np.random.Genera
     return np.random.default_rng([seed, EVALUATION_STREAM, evaluation, episode])
 
 
-def evaluate(learner: Learner, game: TreasureHuntGame, episodes: int, seed: int, evaluation: int) -> dict[str, float]:
-    """Greedy episodes, each seeded by :func:`evaluation_rng`."""
+def evaluate(learner: Learner, game: TreasureHuntGame, episodes: int, seed: int, evaluation: int,
+             first: EpisodeResult | None = None) -> dict[str, float]:
+    """Greedy episodes, each seeded by :func:`evaluation_rng`; ``first``: episode 0 as the caller already
+    played it (e.g. recorded for a picture), not played again."""
     policy = greedy_policy(learner)
-    results = [play_episode(game, policy, evaluation_rng(seed, evaluation, episode)) for episode in range(episodes)]
+    results = [] if first is None else [first]
+    results += [play_episode(game, policy, evaluation_rng(seed, evaluation, episode))
+                for episode in range(len(results), episodes)]
     return {
         "team_return": float(np.mean([r.team_return for r in results])),
         "success_rate": float(np.mean([r.success_rate for r in results])),

@@ -459,9 +459,10 @@ class Trainer:
     def run_evaluation(self, rep: Replica) -> None:
         with self.evaluation_time:
             step = rep.counters.step
+            picture, q_values, first = evaluation_views(rep.learner, rep.eval_game, rep.config.seed,
+                                                        rep.counters.evaluations)
             result = evaluate(rep.learner, rep.eval_game, rep.config.eval_episodes, rep.config.seed,
-                              rep.counters.evaluations)
-            views = evaluation_views(rep.learner, rep.eval_game, rep.config.seed, rep.counters.evaluations)
+                              rep.counters.evaluations, first=first)
             rep.counters.evaluations += 1
             rep.last_eval = result
             rep.last_eval_step = step
@@ -474,7 +475,7 @@ class Trainer:
             rep.logger.scalar("eval/team_return", result["team_return"], step)
             rep.logger.scalar("eval/success_rate", result["success_rate"], step)
             rep.logger.scalar("eval/trap_rate", result["trap_rate"], step)
-            rep.logger.evaluation_views(*views, step)
+            rep.logger.evaluation_views(picture, q_values, step)
         log.info("eval step %d%s: team_return %.1f success_rate %.2f trap_rate %.2f", step,
                  f" {rep.run_dir.path.name}" if len(self.replicas) > 1 else "",
                  result["team_return"], result["success_rate"], result["trap_rate"])

@@ -165,10 +165,11 @@ def replay_in_terminal(episodes: Sequence[RecordedEpisode], stream: TextIO | Non
 # ------------------------------------------------------------------------------------ TensorBoard
 
 def evaluation_views(learner: Learner, game: TreasureHuntGame, seed: int, evaluation: int
-                     ) -> tuple[np.ndarray, list[np.ndarray]]:
-    """What TensorBoard shows of an evaluation: its first episode (the same as the evaluation's own,
-    replayed from the same generator) as its last frame with every trail, ``[H, W, 3]`` uint8, and
-    per agent the Q-values of every observation it acted on in that episode."""
+                     ) -> tuple[np.ndarray, list[np.ndarray], EpisodeResult]:
+    """What TensorBoard shows of an evaluation: its first episode, played here from the evaluation's
+    own generator, as its last frame with every trail, ``[H, W, 3]`` uint8, and per agent the Q-values
+    of every observation it acted on in that episode; and the episode's result, for
+    :func:`~dqn_transfer.rollout.evaluate` (which then does not play it again)."""
     episode = record_episode(game, greedy_policy(learner), evaluation_rng(seed, evaluation, 0))
     picture = frame_picture(episode, len(episode.frames) - 1, cell_px=TENSORBOARD_CELL_PX)
     q_values = [[] for _ in range(game.num_agents)]
@@ -176,4 +177,4 @@ def evaluation_views(learner: Learner, game: TreasureHuntGame, seed: int, evalua
         values = learner.q_values(obs)
         for agent in np.flatnonzero(live):
             q_values[agent].append(values[agent])
-    return np.asarray(picture), [np.concatenate(q) if q else np.zeros(0) for q in q_values]
+    return np.asarray(picture), [np.concatenate(q) if q else np.zeros(0) for q in q_values], episode.result
