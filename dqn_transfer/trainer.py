@@ -39,7 +39,7 @@ from omegaconf import OmegaConf
 from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
-from dqn_transfer.agents import Learner, Transition, UpdateStats, linear_schedule, make_replicas
+from dqn_transfer.agents import Learner, Transition, UpdateStats, joined, linear_schedule, make_replicas
 from dqn_transfer.checkpoint import (
     CheckpointError,
     atomic_write,
@@ -580,11 +580,6 @@ class Trainer:
         lines = [line for line in rep.run_dir.metrics.read_text().splitlines() if line.strip()][:evaluations]
         atomic_write(rep.run_dir.metrics, "".join(line + "\n" for line in lines).encode())
         rep.last_eval_step = json.loads(lines[-1])["step"] if lines else None
-
-
-def joined(parts: list[np.ndarray]) -> np.ndarray:
-    """The replicas' rows as one array; a lone run's own array as it is (the game hands out copies)."""
-    return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
 
 def replica_name(replica: TrainConfig, config: TrainConfig) -> str:

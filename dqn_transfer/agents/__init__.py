@@ -18,7 +18,7 @@ from collections.abc import Sequence
 from importlib import import_module
 from typing import Any
 
-from dqn_transfer.agents.base import Learner, ObsLayout, Transition, UpdateStats, epsilon_greedy
+from dqn_transfer.agents.base import Learner, ObsLayout, Transition, UpdateStats, epsilon_greedy, joined
 from dqn_transfer.agents.dqn_base import BatchedDQN, DQNReplica
 from dqn_transfer.agents.replay import ReplayBatch, ReplayBuffer
 from dqn_transfer.agents.replicas import LearnerReplicas
@@ -50,6 +50,7 @@ __all__ = [
     "double_dqn_targets",
     "dqn_targets",
     "epsilon_greedy",
+    "joined",
     "linear_schedule",
     "make_learner",
     "make_replicas",

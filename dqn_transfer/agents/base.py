@@ -110,6 +110,12 @@ def epsilon_greedy_action(greedy_action: int, epsilon: float, num_actions: int, 
     return random_action if explore else greedy_action
 
 
+def joined(parts: Sequence[np.ndarray]) -> np.ndarray:
+    """The replicas' rows as one array; a lone replica's own array as it is (no copy: callers pass
+    fresh arrays that nothing else holds)."""
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+
 def check_tensor_shape(name: str, tensor: np.ndarray, shape: Sequence[int]) -> None:
     """Loading a tensor of the wrong shape must fail with the name, not deep inside a copy."""
     if tuple(tensor.shape) != tuple(shape):

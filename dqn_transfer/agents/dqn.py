@@ -91,7 +91,7 @@ class DQNLearner(BatchedDQN):
         self.target_network = BatchedMLP(self.num_members, self.obs_dim, self.hidden, num_actions, device=self.device)
         self.target_network.update_from(self.q_network, tau=1.0)
         self.optimizer = FlatAdam(self.q_network.flat, self.q_network.flat_grad, self.q_network.spans, lr=self.lr)
-        self._loss_weights_cache: tuple[bytes, torch.Tensor] | None = None
+        self._device_loss_weights: tuple[np.ndarray, torch.Tensor] | None = None  # (host array, its device copy)
 
     def _to_engine(self, array: np.ndarray) -> torch.Tensor:
         return torch.as_tensor(array, device=self.device)
@@ -138,11 +138,11 @@ class DQNLearner(BatchedDQN):
     # ---------------------------------------------------------------------------------- learning
 
     def _loss_weights(self, valid: np.ndarray) -> torch.Tensor:
-        """:meth:`loss_weights` on the device, cached while the same rows have data."""
-        key = valid.tobytes()
-        if self._loss_weights_cache is None or self._loss_weights_cache[0] != key:
-            self._loss_weights_cache = (key, torch.from_numpy(self.loss_weights(valid)).to(self.device))
-        return self._loss_weights_cache[1]
+        """:meth:`loss_weights` on the device, copied there once per new host array."""
+        weights = self.loss_weights(valid)
+        if self._device_loss_weights is None or self._device_loss_weights[0] is not weights:
+            self._device_loss_weights = (weights, torch.from_numpy(weights).to(self.device))
+        return self._device_loss_weights[1]
 
     def train_on(self, batch: ReplayBatch) -> UpdateStats:
         """One Adam step for all agents on ``batch`` (``[rows, B, ...]``, numpy on the host).

@@ -29,7 +29,15 @@ from typing import Any
 
 import numpy as np
 
-from dqn_transfer.agents.base import ObsLayout, TeamShape, Transition, UpdateStats, check_tensor_shape, epsilon_greedy
+from dqn_transfer.agents.base import (
+    ObsLayout,
+    TeamShape,
+    Transition,
+    UpdateStats,
+    check_tensor_shape,
+    epsilon_greedy,
+    joined,
+)
 from dqn_transfer.agents.replay import ReplayBatch, ReplayBuffer
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm
@@ -88,6 +96,7 @@ class BatchedDQN(TeamShape):
         self.num_gradient_steps = 0
         # What update returns when it does not train (read-only: the trainer only reads statistics).
         self._no_training = UpdateStats(np.full(self.num_rows, np.nan), np.full(self.num_rows, np.nan))
+        self._loss_weights_cache: tuple[bytes, np.ndarray] | None = None
 
     # ------------------------------------------------------------------------ engine hooks
     def q_values(self, obs: np.ndarray, replica: int | None = None) -> np.ndarray:
@@ -152,7 +161,7 @@ class BatchedDQN(TeamShape):
         undecided = np.full(k, -1, dtype=np.int64)
         draws = [epsilon_greedy(undecided, epsilon[i * k : (i + 1) * k], self.num_actions, self.rngs[r])
                  for i, r in enumerate(replicas)]
-        actions = draws[0] if len(draws) == 1 else np.concatenate(draws)
+        actions = joined(draws)
         exploit = actions < 0
         if exploit.any():
             np.copyto(actions, self._greedy_actions(obs, replica), where=exploit)
@@ -191,12 +200,16 @@ class BatchedDQN(TeamShape):
     def loss_weights(self, valid: np.ndarray) -> np.ndarray:
         """``[rows]`` weight of each row's mean loss in the total: 1 (each agent's gradient is its own
         loss's), with a shared network 1 / (its replica's agents with data), the usual batch mean;
-        0 for a row with no data yet (its batch is placeholders)."""
-        weights = valid.astype(np.float32)
-        if self.share_parameters:
-            counts = np.maximum(valid.reshape(-1, self.num_agents).sum(axis=1), 1).astype(np.float32)
-            weights = weights / np.repeat(counts, self.num_agents)
-        return weights
+        0 for a row with no data yet (its batch is placeholders). Cached while the same rows have data
+        (the same array is returned, so an engine may key its own copy on it)."""
+        key = valid.tobytes()
+        if self._loss_weights_cache is None or self._loss_weights_cache[0] != key:
+            weights = valid.astype(np.float32)
+            if self.share_parameters:
+                counts = np.maximum(valid.reshape(-1, self.num_agents).sum(axis=1), 1).astype(np.float32)
+                weights = weights / np.repeat(counts, self.num_agents)
+            self._loss_weights_cache = (key, weights)
+        return self._loss_weights_cache[1]
 
     # ------------------------------------------------------------------ transfer and exchange
     def freeze(self, layer_indices: Iterable[int]) -> None:

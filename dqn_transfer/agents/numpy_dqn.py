@@ -202,7 +202,6 @@ class NumpyDQNLearner(BatchedDQN):
         self.target_network = NumpyMLP(self.num_members, self.obs_dim, self.hidden, num_actions)
         self.target_network.update_from(self.q_network, tau=1.0)
         self.optimizer = NumpyAdam(self.q_network.flat, self.q_network.flat_grad, self.q_network.spans, lr=self.lr)
-        self._loss_weights_cache: tuple[bytes, np.ndarray] | None = None
         self._grid: tuple[np.ndarray, np.ndarray] | None = None
 
     def _to_engine(self, array: np.ndarray) -> np.ndarray:
@@ -248,7 +247,7 @@ class NumpyDQNLearner(BatchedDQN):
 
         # d loss / d Q: the Huber derivative (the error, clipped to [-1, 1]) through the weighted batch
         # mean, scattered onto the actions taken.
-        grad_taken = np.clip(error, -1.0, 1.0) * (self._loss_weights(valid)[:, None] / np.float32(q_taken.shape[1]))
+        grad_taken = np.clip(error, -1.0, 1.0) * (self.loss_weights(valid)[:, None] / np.float32(q_taken.shape[1]))
         grad_q = np.zeros_like(q_values)
         grad_q[rows, cols, actions] = grad_taken
         if self.share_parameters:
@@ -265,10 +264,3 @@ class NumpyDQNLearner(BatchedDQN):
         if self._grid is None or self._grid[0].shape[0] != shape[0] or self._grid[1].shape[1] != shape[1]:
             self._grid = (np.arange(shape[0])[:, None], np.arange(shape[1])[None, :])
         return self._grid
-
-    def _loss_weights(self, valid: np.ndarray) -> np.ndarray:
-        """:meth:`loss_weights`, cached while the same rows have data."""
-        key = valid.tobytes()
-        if self._loss_weights_cache is None or self._loss_weights_cache[0] != key:
-            self._loss_weights_cache = (key, self.loss_weights(valid))
-        return self._loss_weights_cache[1]
