@@ -17,10 +17,10 @@ from pathlib import Path
 from typing import Any, List, Optional
 
 from hydra.core.config_store import ConfigStore
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from dqn_transfer.documented import documented
-from dqn_transfer.enums import Algorithm, Device, Engine, Exchange
+from dqn_transfer.enums import Algorithm, Device, Engine, Exchange, Fill
 from dqn_transfer.envs.settings import EnvConfig
 
 # The config groups (conf/ beside the package: a checkout or an editable install).
@@ -80,10 +80,15 @@ class TransferConfig:
 
     enabled: bool = documented(False, "start the target agents from a source agent (the group transfer=on)")
     source: Optional[str] = documented(None, "checkpoint file, run directory or exported folder; null: pretrain on TreasureHunt-v0")
-    source_agent: int = documented(0, "which agent_{i}.safetensors of a directory")
+    source_agent: Any = documented(0, "which agent_{i}.safetensors of a directory: one index for every target, "
+                                      "or a list with one per target (another team size)")
     pretrain_steps: int = documented(20_000, "env steps of source-task pretraining when no source is given")
     cache_dir: Optional[str] = documented(None, "pretrained-source cache; null: <launch dir>/outputs/pretrained")
     targets: Optional[List[int]] = documented(None, "agents that receive the transfer; null: all")
+    offset: List[int] = documented(factory=lambda: [0, 0], doc="[row, col] of the source map's top-left cell in "
+                                                               "this run's (larger) map")
+    fill: Fill = documented(Fill.zero, "this run's cells outside the source map: zero (no input weights) | nearest "
+                                       "(the nearest source cell's)")
     reset_optimizer: bool = documented(True, "start Adam moments afresh (the source's belong to another task)")
     epsilon_start: float = documented(0.3, "transferred agents explore less than agent.eps_start")
     freeze: List[int] = documented(factory=list, doc="indices of layers kept fixed")
@@ -186,11 +191,27 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
            "agent.engine=numpy runs on the CPU: use device=cpu (or agent.engine=torch for device=cuda)")
     _check(cfg.replicas.maps == 1 or (env.layout is None and env.layout_file is None),
            f"replicas.maps={cfg.replicas.maps} needs a generated map; a layout fixes the map (use replicas.seeds)")
+    _check_offset("transfer.offset", transfer.offset)
+    _check_source_agent("transfer.source_agent", transfer.source_agent)
     if agent.share_parameters:
         _check(transfer.targets is None, "transfer.targets: with agent.share_parameters=true all agents share one "
                                          "network, so all of them are transferred (leave targets unset)")
         _check(transfer.exchange != Exchange.best, "transfer.exchange=best: with agent.share_parameters=true "
                                                     "there is only one network to exchange")
+
+
+def _check_offset(key: str, offset: Any) -> None:
+    _check(len(offset) == 2 and min(offset) >= 0, f"{key} must be [row, col] with both >= 0, got {list(offset)}")
+
+
+def _is_index(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def _check_source_agent(key: str, value: Any) -> None:
+    """One agent index, or a non-empty list of them (one per target agent)."""
+    is_list = isinstance(value, (list, tuple, ListConfig)) and len(value) > 0 and all(_is_index(v) for v in value)
+    _check(_is_index(value) or is_list, f"{key} must be an agent index or a non-empty list of them, got {value!r}")
 
 
 def replica_configs(cfg: TrainConfig) -> list[TrainConfig]:

@@ -70,6 +70,14 @@ class Engine(Enum):
     numpy = "numpy"
 
 
+class Fill(Enum):
+    """What a transferred network reads at target cells outside the embedded source map (``transfer.fill``)."""
+
+    zero = "zero"  # zero input weights: the cell is unknown to the source
+    nearest = "nearest"  # the weights of the nearest embedded cell (the source map's border, extended)
+
+
 def values(enum: type[Enum]) -> tuple[str, ...]:
     """The accepted spellings of an enum, in declaration order (for checks and messages)."""
     return tuple(member.value for member in enum)
+

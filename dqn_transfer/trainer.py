@@ -182,7 +182,7 @@ class Replica:
     batched learner. With no replicas the trainer has one, in the run directory itself."""
 
     def __init__(self, index: int, config: TrainConfig, run_dir: Path, game: TreasureHuntGame, learner: Learner,
-                 source: Path | None) -> None:
+                 source: Path | Sequence[Path] | None) -> None:
         self.index, self.config, self.run_dir = index, config, RunDir(run_dir)
         self.game, self.eval_game, self.learner, self.source = game, game.replica(), learner, source
         k = game.num_agents
@@ -230,12 +230,13 @@ class Trainer:
     With ``replicas.seeds`` x ``replicas.maps`` > 1, the run directory holds one complete run
     directory per replica (``seed_<s>`` or ``seed_<s>-map_<m>``), and one batched learner trains
     them all in lockstep. ``sources`` are the checkpoints a ``transfer.enabled`` run starts its target
-    agents from, one per replica (found or pretrained by :func:`dqn_transfer.sources.transfer_sources`);
+    agents from, per replica one for all targets or a list with one per target (found or pretrained by
+    :func:`dqn_transfer.sources.transfer_sources`);
     ``source_task`` trains the single-agent source task of the map instead of the team.
     """
 
-    def __init__(self, config: TrainConfig, run_dir: Path, *, sources: Sequence[Path] | None = None,
-                 source_task: bool = False):
+    def __init__(self, config: TrainConfig, run_dir: Path, *,
+                 sources: Sequence[Path | Sequence[Path]] | None = None, source_task: bool = False):
         validate(config)
         self.config = config
         self.run_dir = RunDir(run_dir)
@@ -587,7 +588,7 @@ def replica_name(replica: TrainConfig, config: TrainConfig) -> str:
     return f"seed_{replica.seed}" + (f"-map_{replica.env.map_seed}" if config.replicas.maps > 1 else "")
 
 
-def train(config: TrainConfig, run_dir: Path, *, sources: Sequence[Path] | None = None,
+def train(config: TrainConfig, run_dir: Path, *, sources: Sequence[Path | Sequence[Path]] | None = None,
           source_task: bool = False) -> dict[str, Any]:
     """Run (or resume) one training run (or batch of replicas) into ``run_dir``; returns a short summary."""
     return Trainer(config, run_dir, sources=sources, source_task=source_task).run()

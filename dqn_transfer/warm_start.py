@@ -1,15 +1,18 @@
 """The transfer hook: load a source agent's checkpoint into the target agents of a fresh run.
 
-The source is a path (:mod:`dqn_transfer.sources` finds or pretrains it); the mapping onto the
-target's observation is by segment name (:mod:`dqn_transfer.transfer_mapping`): segments only the
-target has get zero input weights, so at step 0 the transferred agents compute exactly the source's
-Q-values.
+The source is a path per target agent (:mod:`dqn_transfer.sources` finds or pretrains it); the
+mapping onto the target's observation and map is by segment name and by aligned cell
+(:mod:`dqn_transfer.transfer_mapping`): segments, cells and chests only the target has get zero
+input weights, so at step 0 the transferred agents compute the source's Q-values on every state of
+the source's map.
 """
 
 from __future__ import annotations
 
 import logging
 import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -17,12 +20,17 @@ import numpy as np
 
 from dqn_transfer.agents import BatchedDQN, Learner
 from dqn_transfer.checkpoint import CheckpointError, check_compatible, load_agent_checkpoint, load_training_state
-from dqn_transfer.config import TrainConfig
-from dqn_transfer.enums import Algorithm
-from dqn_transfer.envs.game import TreasureHuntGame
+from dqn_transfer.config import TrainConfig, TransferConfig
+from dqn_transfer.enums import Algorithm, Fill
+from dqn_transfer.envs.game import TreasureHuntGame, make_game
+from dqn_transfer.envs.settings import ENV_KEYS
 from dqn_transfer.run_dir import TRAINING_STATE_FILE
 from dqn_transfer.transfer_mapping import (
+    Embedding,
+    MapGeometry,
+    SegmentPlan,
     TransferError,
+    map_input_moments,
     plan_segment_mapping,
     transfer_dqn_tensors,
     transfer_tabular_tensors,
@@ -40,69 +48,138 @@ def transfer_targets(config: TrainConfig, num_agents: int) -> list[int]:
     return targets
 
 
-def apply_transfer(config: TrainConfig, learner: Learner, game: TreasureHuntGame, source: Path) -> dict[str, Any]:
-    """Load ``source`` into the target agents; returns what the run records about its source."""
-    transfer = config.transfer
-    targets = transfer_targets(config, game.num_agents)
-    tensors, meta = load_agent_checkpoint(source)
+def map_geometry(game: TreasureHuntGame) -> MapGeometry:
+    """What the transfer mapping reads of a game's map."""
+    return MapGeometry(game.size, game.map.chests, game.obs_encoding.value, game.position_codes())
+
+
+def source_embedding(meta: Mapping[str, Any], game: TreasureHuntGame, transfer: TransferConfig) -> Embedding | None:
+    """Where the source's map sits in ``game``'s (``transfer.offset``, ``transfer.fill``), from the map the
+    source recorded in its meta; None for a source that recorded none (then its map must be this one)."""
+    env = meta.get("env")
+    if not isinstance(env, Mapping) or env.get("layout") is None:
+        if list(transfer.offset) != [0, 0] or Fill(transfer.fill) is not Fill.zero:
+            raise TransferError("the source does not record its map, which transfer.offset and transfer.fill need")
+        check_compatible(meta, {"size": game.size})
+        return None
+    try:
+        source_game = make_game(**{key: value for key, value in env.items() if key in ENV_KEYS})
+    except ValueError as err:
+        raise TransferError(f"the source's recorded map is invalid: {err}") from None
+    return Embedding(map_geometry(source_game), map_geometry(game), (int(transfer.offset[0]), int(transfer.offset[1])),
+                     Fill(transfer.fill).value)
+
+
+@dataclass
+class MappedSource:
+    """One source checkpoint mapped onto this run's agents."""
+
+    path: Path
+    tensors: dict[str, np.ndarray]
+    meta: dict[str, Any]
+    plan: SegmentPlan
+    embedding: Embedding | None
+
+    def record(self) -> dict[str, Any]:
+        """What the run records about this source: the file, and the mapping onto this run's map."""
+        record = {"source": str(self.path.resolve()), "digest": self.meta["digest"],
+                  "source_agent": self.meta.get("agent_index"), "source_algorithm": self.meta.get("algorithm"),
+                  "source_obs_layout": self.meta["obs_layout"], "source_steps": self.meta.get("steps")}
+        if self.embedding is not None:
+            record["mapping"] = {"source_size": self.embedding.source.size, "offset": list(self.embedding.offset),
+                                 "fill": self.embedding.fill,
+                                 "dropped_chests": [list(cell) for cell in self.embedding.dropped_chests()]}
+        # The source's own origin, so a chain of warm starts (a curriculum) is recorded whole.
+        record["source_transfer"] = self.meta.get("transfer")
+        return record
+
+
+def map_source(config: TrainConfig, game: TreasureHuntGame, path: Path) -> MappedSource:
+    """Load ``path`` and map its tensors onto ``game``'s agents; every refusal is one TransferError line."""
+    tensors, meta = load_agent_checkpoint(path)
     algorithm = Algorithm(config.agent.algorithm)
     target_layout = game.obs_layout()
+    try:
+        check_compatible(meta, {"algorithm": algorithm.value, "num_actions": game.num_actions})
+        embedding = source_embedding(meta, game, config.transfer)
+        plan = plan_segment_mapping(meta["obs_layout"], target_layout, embedding)
+        if algorithm.is_tabular:
+            mapped = transfer_tabular_tensors(tensors, meta["obs_layout"], target_layout,
+                                              num_actions=game.num_actions, embedding=embedding)
+        else:
+            mapped = transfer_dqn_tensors(tensors, meta["obs_layout"], target_layout,
+                                          list(config.agent.hidden), game.num_actions, embedding)
+    except (CheckpointError, ValueError) as err:  # TransferError is a ValueError
+        raise TransferError(f"transfer source {path}: {err}") from None
+    except (KeyError, IndexError, TypeError) as err:  # a meta or tensor this format never writes
+        raise TransferError(f"transfer source {path}: malformed checkpoint ({type(err).__name__}: {err})") from None
+    return MappedSource(path, mapped, meta, plan, embedding)
+
+
+def apply_transfer(config: TrainConfig, learner: Learner, game: TreasureHuntGame,
+                   source: Path | Sequence[Path]) -> dict[str, Any]:
+    """Load ``source`` (one checkpoint for every target agent, or one per target) into the target
+    agents; returns what the run records about its sources."""
+    transfer = config.transfer
+    targets = transfer_targets(config, game.num_agents)
+    files = [source] * len(targets) if isinstance(source, Path) else list(source)
+    if len(files) != len(targets):
+        raise TransferError(f"{len(files)} source checkpoints for {len(targets)} target agents {targets}")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        try:
-            check_compatible(meta, {"algorithm": algorithm.value, "num_actions": game.num_actions, "size": game.size})
-            if algorithm.is_tabular:
-                mapped = transfer_tabular_tensors(tensors, meta["obs_layout"], target_layout,
-                                                  num_actions=game.num_actions)
-            else:
-                mapped = transfer_dqn_tensors(tensors, meta["obs_layout"], target_layout,
-                                              list(config.agent.hidden), game.num_actions)
-        except (CheckpointError, ValueError) as err:  # TransferError is a ValueError
-            raise TransferError(f"transfer source {source}: {err}") from None
-        except (KeyError, IndexError, TypeError) as err:  # a meta or tensor this format never writes
-            raise TransferError(f"transfer source {source}: malformed checkpoint ({type(err).__name__}: {err})") from None
+        mapped = {path: map_source(config, game, path) for path in dict.fromkeys(files)}
     for warning in caught:
         log.warning("transfer: %s", warning.message)
-    for i in targets:
-        learner.load_agent_tensors(i, mapped)
+    per_target = [mapped[path] for path in files]
+    for i, source_i in zip(targets, per_target):
+        learner.load_agent_tensors(i, source_i.tensors)
     if not transfer.reset_optimizer:
-        if algorithm.is_tabular:
+        if Algorithm(config.agent.algorithm).is_tabular:
             raise TransferError("transfer.reset_optimizer=false needs a DQN learner (tabular learners have no optimizer)")
         if len(targets) != game.num_agents:  # Adam keeps one step count per stacked parameter
             raise TransferError("transfer.reset_optimizer=false needs every agent as a target "
                                 f"(transfer.targets={targets}): the agents share Adam's step count")
-        carry_optimizer_state(learner, source, meta, target_layout, targets)
+        carry_optimizer_state(learner, per_target, targets)
     if transfer.freeze:  # indices were checked against agent.hidden by config.validate
         learner.freeze(transfer.freeze)
-    log.info("transfer: agents %s start from %s (digest %s...)", targets, source, meta["digest"][:12])
+    first = per_target[0]
+    log.info("transfer: agents %s start from %s (digest %s...)", targets,
+             first.path if len(mapped) == 1 else ", ".join(str(path) for path in files), first.meta["digest"][:12])
     return {
-        "source": str(source.resolve()),
-        "digest": meta["digest"],
-        "source_algorithm": meta.get("algorithm"),
-        "source_obs_layout": meta["obs_layout"],
-        "source_steps": meta.get("steps"),
+        **first.record(),
         "pretrained": transfer.source is None,
         "targets": targets,
+        # With another source agent per target (another team size): each target's own record.
+        "per_target": None if len(mapped) == 1 else [source_i.record() for source_i in per_target],
     }
 
 
-def carry_optimizer_state(learner: BatchedDQN, source: Path, meta: dict[str, Any], target_layout,
-                          targets: list[int]) -> None:
-    """``transfer.reset_optimizer=false``: start the targets' Adam moments from the source's.
+def carry_optimizer_state(learner: BatchedDQN, sources: list[MappedSource], targets: list[int]) -> None:
+    """``transfer.reset_optimizer=false``: start each target's Adam moments from its source's.
 
     The moments live in the source run's resume state beside the agent file; the first layer's rows
-    are mapped by segment like its weights (zero for target-only segments).
+    are mapped like its weights (:func:`~dqn_transfer.transfer_mapping.map_input_moments`).
     """
-    state_path = source.parent / TRAINING_STATE_FILE
+    states = {source.path: _source_moments(source) for source in sources}
+    steps = sorted({step for _, step in states.values()})
+    if len(steps) > 1:  # Adam keeps one step count per stacked parameter
+        raise TransferError(f"transfer.reset_optimizer=false: the sources' optimizers are at different steps "
+                            f"{steps}; use reset_optimizer=true")
+    for i, source in zip(targets, sources):
+        learner.set_member_optimizer_state(i, states[source.path][0], steps[0])
+
+
+def _source_moments(source: MappedSource) -> tuple[dict[str, dict[str, np.ndarray]], int]:
+    """The Adam moments of ``source``'s agent from its run's resume state, mapped onto this run, and their step."""
+    meta, state_path = source.meta, source.path.parent / TRAINING_STATE_FILE
     if not state_path.exists():
         raise TransferError(f"transfer.reset_optimizer=false needs the source's optimizer state, but {state_path} "
                             "does not exist (share the run's whole checkpoints/ directory, or use reset_optimizer=true)")
     arrays, state_meta = load_training_state(state_path)
     if state_meta.get("counters", {}).get("step") != meta.get("steps") or state_meta.get("obs_layout") != meta["obs_layout"]:
-        raise TransferError(f"{state_path} is not the resume state of {source.name} (other steps or obs layout); "
+        raise TransferError(f"{state_path} is not the resume state of {source.path.name} (other steps or obs layout); "
                             "use reset_optimizer=true")
     member = 0 if meta["network"].get("share_parameters") else int(meta["agent_index"])
-    plan = plan_segment_mapping(meta["obs_layout"], target_layout)
     moments: dict[str, dict[str, np.ndarray]] = {}
     step = 0
     for layer in range(len(meta["network"]["hidden"]) + 1):
@@ -111,13 +188,8 @@ def carry_optimizer_state(learner: BatchedDQN, source: Path, meta: dict[str, Any
             if prefix + "exp_avg" not in arrays:  # frozen in the source, or it never trained
                 continue
             step = int(np.asarray(arrays[prefix + "step"]).reshape(-1)[0])
-            moments[name] = {}
-            for key in ("exp_avg", "exp_avg_sq"):
-                value = arrays[prefix + key][member]
-                if name == "weight_0":  # [in, out]: rows are observation columns
-                    mapped = np.zeros((plan.target_dim, value.shape[1]), dtype=value.dtype)
-                    mapped[plan.projection] = value[plan.source_columns]
-                    value = mapped
-                moments[name][key] = value
-    for i in targets:
-        learner.set_member_optimizer_state(i, moments, step)
+            exp_avg, exp_avg_sq = arrays[prefix + "exp_avg"][member], arrays[prefix + "exp_avg_sq"][member]
+            if name == "weight_0":  # [in, out]: rows are observation columns
+                exp_avg, exp_avg_sq = map_input_moments(source.plan, source.embedding, exp_avg, exp_avg_sq)
+            moments[name] = {"exp_avg": exp_avg, "exp_avg_sq": exp_avg_sq}
+    return moments, step

@@ -103,7 +103,7 @@ def test_dead_agents_are_not_updated_and_get_nan():
 def test_fallback_initialises_unseen_entries_and_round_trips():
     agent = tabular("qlearning", 1)
     # Source table keyed on the target's column 1 only: key [1] -> (5, 7).
-    agent.set_fallback(np.array([[1.0]], np.float32), np.array([[5.0, 7.0]], np.float32), np.array([1]))
+    agent.add_fallback(np.array([[1.0]], np.float32), np.array([[5.0, 7.0]], np.float32), np.array([1]))
     assert agent.agent_q_values(0, S1).tolist() == [5.0, 7.0]  # S1[[1]] = [1] is in the fallback
     assert agent.agent_q_values(0, S0).tolist() == [0.0, 0.0]  # S0[[1]] = [0] is not: 0
     agent.update(Transition(S1[None], np.array([0]), np.array([0.0]), S0[None], *flags("term"), np.ones(1, bool)), step=1)

@@ -10,7 +10,7 @@ from omegaconf.errors import ValidationError
 
 from dqn_transfer.agents import make_learner
 from dqn_transfer.config import AgentConfig, ConfigError, TrainConfig, register_configs, validate
-from dqn_transfer.enums import Algorithm, Mode
+from dqn_transfer.enums import Algorithm, Fill, Mode
 
 CONF_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 register_configs()
@@ -42,6 +42,14 @@ def test_defaults_are_the_documented_ones():
     assert config.agent.hidden == [64, 64]
 
 
+def test_transfer_takes_an_offset_a_fill_and_a_source_agent_per_target():
+    config = compose_config("transfer=on", "transfer.offset=[2,1]", "transfer.fill=nearest", "transfer.source_agent=[1,0,1]")
+    assert config.transfer.offset == [2, 1] and config.transfer.fill is Fill.nearest
+    assert config.transfer.source_agent == [1, 0, 1]
+    validate(config)
+    assert compose_config("transfer.source_agent=2").transfer.source_agent == 2
+
+
 def test_mode_group_sets_the_env_mode_not_a_new_key():
     config = compose_config("mode=deliberative", "env=complex")
     assert config.env.mode is Mode.deliberative and config.env.size == 10
@@ -54,6 +62,7 @@ def test_mode_group_sets_the_env_mode_not_a_new_key():
     "total_steps=many",
     "env.mode=telepathic",  # not a Mode
     "agent=ppo",  # no such group option
+    "transfer.fill=far",  # not a Fill
 ])
 def test_bad_overrides_are_refused(override):
     with pytest.raises((ConfigCompositionException, ValidationError)):
@@ -71,6 +80,12 @@ def test_bad_overrides_are_refused(override):
     ("transfer.exchange_tau=1.5", "transfer.exchange_tau must be in \\(0, 1\\]"),
     ("agent.lr=0", "agent.lr must be > 0"),
     ("transfer.freeze=[0]", "transfer.freeze=\\[0\\] .* needs transfer=on"),
+    ("transfer.offset=[1]", "transfer.offset must be \\[row, col\\] with both >= 0, got \\[1\\]"),
+    ("transfer.offset=[0,-1]", "transfer.offset must be \\[row, col\\]"),
+    ("transfer.source_agent=-1", "transfer.source_agent must be an agent index or a non-empty list"),
+    ("transfer.source_agent=[0,x]", "transfer.source_agent must be"),
+    ("transfer.source_agent=[]", "transfer.source_agent must be"),
+    ("transfer.source_agent=true", "transfer.source_agent must be"),
 ])
 def test_out_of_range_values_name_the_key(override, message):
     config = compose_config(override)

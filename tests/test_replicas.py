@@ -134,7 +134,7 @@ def test_a_replica_directory_reads_like_a_lone_run(tmp_path):
         f"{name}/agent_{i}.safetensors" for name in ("seed_4-map_3", "seed_5-map_3", "seed_4-map_4", "seed_5-map_4")
         for i in range(2)]
     with pytest.raises(CheckpointError, match="is a run of 4 replicas: pass one replica's directory"):
-        resolve_source(TransferConfig(enabled=True, source=str(batch)), tmp_path)
+        resolve_source(TransferConfig(enabled=True, source=str(batch)), tmp_path, 1)
 
     source = batch / "seed_4-map_3"
     warm = config(seeds=2, total_steps=0, transfer=TransferConfig(enabled=True, source=str(source)))

@@ -222,9 +222,9 @@ def cli_refusals(work, dqn_source, tabular_source):
         "truncated": (bad / "truncated.safetensors", TEAM_CLI, ("truncated",)),
         "bit_flipped": (bad / "flipped.safetensors", TEAM_CLI, ("digest mismatch",)),
         "missing": (bad / "nowhere.safetensors", TEAM_CLI, ("no such file",)),
-        # the default env is a generated 6 x 6 map
-        "other_map_size": (dqn_source, ("agent=dqn", "agent.hidden=[32,32]", "transfer=on", "total_steps=0"),
-                           ("5x5", "6x6")),
+        # a generated 4 x 4 map: smaller than the source's 5 x 5 (a larger one would take it, at transfer.offset)
+        "larger_source_map": (dqn_source, ("agent=dqn", "agent.hidden=[32,32]", "transfer=on", "total_steps=0",
+                                           "env.size=4"), ("5x5 map does not fit in this run's 4x4 map",)),
         "tabular_for_dqn": (tabular_source, TEAM_CLI, ("tabular", "dqn")),
         "other_hidden": (other_hidden, TEAM_CLI, ("hidden layers differ", "[16]", "[32, 32]")),
     }
@@ -236,7 +236,7 @@ def cli_refusals(work, dqn_source, tabular_source):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("case", ["pickle_disguised", "torch_save_pt", "truncated", "bit_flipped", "missing",
-                                  "other_map_size", "tabular_for_dqn", "other_hidden"])
+                                  "larger_source_map", "tabular_for_dqn", "other_hidden"])
 def test_cli_refuses_bad_source_with_one_line(cli_refusals, case):
     results, _, _ = cli_refusals
     result, words = results[case]

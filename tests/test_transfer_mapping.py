@@ -13,6 +13,7 @@ from torch import nn
 
 from dqn_transfer.transfer_mapping import (
     TransferError,
+    input_map,
     plan_segment_mapping,
     segment_slices,
     transfer_dqn_tensors,
@@ -141,17 +142,19 @@ def test_plan_maps_columns_by_name():
     target = [("c", 1), ("d", 2), ("a", 2)]  # columns c: 0, d: 1-2, a: 3-4
     assert segment_slices(target) == {"c": slice(0, 1), "d": slice(1, 3), "a": slice(3, 5)}
     plan = plan_segment_mapping(source, target)
-    assert [(s.name, s.size, s.source, s.target) for s in plan.shared] == [
-        ("a", 2, slice(0, 2), slice(3, 5)),
-        ("c", 1, slice(5, 6), slice(0, 1)),
+    assert [(s.name, s.source, s.target) for s in plan.shared] == [
+        ("a", slice(0, 2), slice(3, 5)),
+        ("c", slice(5, 6), slice(0, 1)),
     ]
     assert (plan.source_dim, plan.target_dim) == (6, 5)
     assert plan.target_only == ("d",)
     assert plan.dropped == ("b",)
-    assert plan.source_columns.tolist() == [0, 1, 5]
-    assert plan.projection.tolist() == [3, 4, 0]
-    assert plan.projection.dtype == np.int64
-    assert plan.source_to_target().tolist() == [3, 4, -1, -1, -1, 0]
+    # source observation = M @ target observation: a: target 3-4 -> source 0-1, c: target 0 -> source 5
+    matrix, shift = input_map(plan)
+    expected = np.zeros((6, 5))
+    expected[0, 3] = expected[1, 4] = expected[5, 0] = 1.0
+    np.testing.assert_array_equal(matrix, expected)
+    np.testing.assert_array_equal(shift, np.zeros(6))
 
 
 def test_plan_accepts_layouts_read_back_from_json():
@@ -260,16 +263,22 @@ def test_tabular_transfer_composes_a_transferred_source_with_an_empty_table():
     assert out["keys"].shape == (0, 5)
 
 
-def test_tabular_chained_transfer_of_a_trained_source_is_an_error():
+def test_tabular_chained_transfer_keeps_the_sources_lookup_order():
+    # A transferred source that then learned: its own table first, then its fallback, each re-keyed.
     source = {
-        "keys": torch.tensor([[0.0, 1, 0, 0]]),
+        "keys": torch.tensor([[0.0, 1, 0, 0]]),  # treasures 0, position cell 0
         "values": torch.tensor([[9.0, 9]]),
-        "fallback_keys": torch.tensor([[1.0, 0, 0]]),
+        "fallback_keys": torch.tensor([[1.0, 0, 0]]),  # on the source's position columns 1-3
         "fallback_values": torch.tensor([[1.0, 2]]),
         "fallback_projection": torch.tensor([1, 2, 3]),
     }
-    with pytest.raises(TransferError, match="chained tabular transfer not supported"):
-        tabular_transfer(source, [("treasures", 1), ("position", 3)], [("position", 3)])
+    with pytest.warns(UserWarning, match="treasures"):
+        out = tabular_transfer(source, [("treasures", 1), ("position", 3)], [("position", 3)])
+    assert out["fallback_keys"].tolist() == [[1.0, 0, 0]] and out["fallback_values"].tolist() == [[9.0, 9]]
+    assert out["fallback_projection"].tolist() == [0, 1, 2]
+    assert out["fallback1_keys"].tolist() == [[1.0, 0, 0]] and out["fallback1_values"].tolist() == [[1.0, 2]]
+    assert out["fallback1_projection"].tolist() == [0, 1, 2]
+    assert "fallback2_keys" not in out
 
 
 def test_tabular_key_width_not_matching_layout_is_an_error():

@@ -3,7 +3,7 @@
 ``make_learner`` builds one from the ``agent`` config (:class:`~dqn_transfer.config.AgentConfig`, the
 one home of every hyperparameter's default). Every learner implements
 :class:`~dqn_transfer.agents.base.Learner`; the DQN family adds ``freeze``, ``set_member_optimizer_state``,
-``get_member_weights`` / ``set_member_weights`` and ``add_experience``, the tabular one ``set_fallback``.
+``get_member_weights`` / ``set_member_weights`` and ``add_experience``, the tabular one ``add_fallback``.
 
 The DQN family has two engines (``agent.engine``): ``torch`` (:mod:`~dqn_transfer.agents.dqn`) and
 ``numpy`` (:mod:`~dqn_transfer.agents.numpy_dqn`). An engine's module is imported when a learner of it

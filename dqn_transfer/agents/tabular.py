@@ -1,9 +1,9 @@
 """Tabular SARSA (the study's base learner) and Q-learning for K agents.
 
 Each agent has its own Q-table keyed by the exact observation (the bytes of its float32 vector).
-An unseen observation is worth 0 for every action, unless the agent has a *fallback*: a table
-from another agent (set by transfer) that is looked up on a projection of the observation and
-initialises the entry the first time it is updated.
+An unseen observation is worth 0 for every action, unless the agent has *fallbacks*: tables from
+another agent (set by transfer), each looked up on a projection of the observation, in turn; the
+first that knows it initialises the entry the first time it is updated.
 
 Update of agent i for a transition ``(s, a, r, s')``, learning rate ``alpha = lr``::
 
@@ -34,6 +34,7 @@ from dqn_transfer.agents.base import (
 )
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm
+from dqn_transfer.transfer_mapping import fallback_names, fallback_tables
 
 _NO_ACTION = -1  # empty slot of the SARSA next-action cache
 
@@ -103,7 +104,7 @@ class TabularLearner(TeamShape):
         self.gamma = hp.gamma
         self.rng = np.random.default_rng(seed)
         self.tables: list[dict[bytes, np.ndarray]] = [{} for _ in range(num_agents)]
-        self.fallbacks: list[_Fallback | None] = [None] * num_agents
+        self.fallbacks: list[list[_Fallback]] = [[] for _ in range(num_agents)]
         # SARSA: the action chosen for next_obs at the last update, and that observation.
         self.epsilon = np.zeros(num_agents)  # per agent: transferred agents may explore less
         self.next_action = np.full(num_agents, _NO_ACTION, dtype=np.int64)
@@ -119,9 +120,10 @@ class TabularLearner(TeamShape):
     def agent_q_values(self, i: int, obs: np.ndarray) -> np.ndarray:
         """Agent i's Q-values of one observation, without adding an entry (do not modify)."""
         row = self.tables[i].get(obs.tobytes())
-        if row is None:
-            fallback = self.fallbacks[i]
-            row = fallback.get(obs) if fallback is not None else None
+        for fallback in self.fallbacks[i]:
+            if row is not None:
+                break
+            row = fallback.get(obs)
         return row if row is not None else np.zeros(self.num_actions, dtype=np.float32)
 
     def _entry(self, i: int, obs: np.ndarray) -> np.ndarray:
@@ -140,13 +142,14 @@ class TabularLearner(TeamShape):
     def _epsilon_greedy(self, q: np.ndarray, epsilon: float) -> int:
         return epsilon_greedy_action(self._greedy(q), epsilon, self.num_actions, self.rng)
 
-    def set_fallback(
+    def add_fallback(
         self, keys: np.ndarray, values: np.ndarray, projection: np.ndarray, agent: int | None = None
     ) -> None:
-        """Initialise unseen entries from a table keyed on ``obs[projection]`` (all agents by default).
+        """Initialise unseen entries from a table keyed on ``obs[projection]`` (all agents by default),
+        looked up after the fallbacks added before it.
 
         ``keys [N, Ds]`` float32, ``values [N, A]`` float32, ``projection [Ds]``: the indices of the
-        observation columns that form a key. Observations not in it stay at 0.
+        observation columns that form a key. Observations no table knows stay at 0.
         """
         keys, values, projection = np.asarray(keys), np.asarray(values), np.asarray(projection)
         well_formed = keys.ndim == 2 and projection.shape == (keys.shape[1],)
@@ -159,7 +162,7 @@ class TabularLearner(TeamShape):
             raise ValueError(f"fallback projection points outside the {self.obs_dim} observation columns")
         agents = range(self.num_agents) if agent is None else [agent]
         for i in agents:
-            self.fallbacks[i] = _Fallback(keys, values, projection)
+            self.fallbacks[i].append(_Fallback(keys, values, projection))
 
     # ---------------------------------------------------------------------------------- acting
 
@@ -229,8 +232,8 @@ class TabularLearner(TeamShape):
     # ----------------------------------------------------------------------------- checkpoints
 
     def agent_tensors(self, i: int) -> dict[str, np.ndarray]:
-        """``keys [N, D]`` / ``values [N, A]`` float32 in insertion order, plus the fallback
-        (``fallback_keys``, ``fallback_values``, ``fallback_projection`` int64) if set."""
+        """``keys [N, D]`` / ``values [N, A]`` float32 in insertion order, plus the fallbacks in lookup
+        order (``fallback_keys``, ``fallback_values``, ``fallback_projection`` int64, then ``fallback1_*``...)."""
         table = self.tables[i]
         keys = np.zeros((len(table), self.obs_dim), dtype=np.float32)
         values = np.zeros((len(table), self.num_actions), dtype=np.float32)
@@ -238,23 +241,21 @@ class TabularLearner(TeamShape):
             keys[n] = np.frombuffer(key, dtype=np.float32)
             values[n] = row
         tensors = {"keys": keys, "values": values}
-        fallback = self.fallbacks[i]
-        if fallback is not None:
-            tensors["fallback_keys"] = fallback.keys.copy()
-            tensors["fallback_values"] = fallback.values.copy()
-            tensors["fallback_projection"] = fallback.projection.copy()
+        for level, fallback in enumerate(self.fallbacks[i]):
+            for name, array in zip(fallback_names(level), (fallback.keys, fallback.values, fallback.projection)):
+                tensors[name] = array.copy()
         return tensors
 
     def load_agent_tensors(self, i: int, tensors: dict[str, np.ndarray]) -> None:
-        """Replace agent i's table (and fallback: set if the tensors have one, cleared otherwise)."""
+        """Replace agent i's table and fallbacks (none if the tensors have none)."""
         keys = np.asarray(tensors["keys"], dtype=np.float32)
         check_tensor_shape("keys", keys, (keys.shape[0], self.obs_dim))
         check_tensor_shape("values", tensors["values"], (keys.shape[0], self.num_actions))
         values = np.asarray(tensors["values"], dtype=np.float32)
         self.tables[i] = {key.tobytes(): row.copy() for key, row in zip(keys, values)}
-        self.fallbacks[i] = None
-        if "fallback_keys" in tensors:
-            self.set_fallback(tensors["fallback_keys"], tensors["fallback_values"], tensors["fallback_projection"], agent=i)
+        self.fallbacks[i] = []
+        for table in fallback_tables(tensors):
+            self.add_fallback(*table, agent=i)
 
     def network_meta(self) -> dict[str, Any]:
         return {"obs_dim": self.obs_dim, "num_actions": self.num_actions}

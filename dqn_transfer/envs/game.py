@@ -291,6 +291,12 @@ class TreasureHuntGame:
         """Named observation segments, in order; the same for every agent."""
         return list(self._layout)
 
+    def position_codes(self) -> np.ndarray:
+        """The ``position`` segment of each cell, row-major: ``[n * n, width]`` float32."""
+        if self.obs_encoding is ObsEncoding.onehot:
+            return np.eye(self.size**2, dtype=np.float32)
+        return self._coords.copy()
+
     def _settings(self) -> dict:
         """The constructor arguments of this game, besides its map."""
         return dict(mode=self.mode, reward_mode=self.reward_mode, obs_encoding=self.obs_encoding,
