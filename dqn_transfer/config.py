@@ -14,14 +14,14 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, List, Optional
+from typing import Any, Dict, List, Optional
 
 from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from dqn_transfer.documented import documented
 from dqn_transfer.enums import Algorithm, Device, Engine, Exchange, Fill
-from dqn_transfer.envs.settings import EnvConfig
+from dqn_transfer.envs.settings import ENV_KEYS, EnvConfig
 
 # The config groups (conf/ beside the package: a checkout or an editable install).
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "conf"
@@ -107,11 +107,34 @@ class ReplicasConfig:
 
 
 @dataclass
+class StageConfig:
+    """One curriculum stage before the run: the run's env changed by ``env``, trained for ``steps``."""
+
+    env: Dict[str, Any] = documented(factory=dict, doc="env keys this stage changes, e.g. {size: 5, num_treasures: 1}")
+    steps: int = documented(10_000, "env steps of this stage")
+    offset: List[int] = documented(factory=lambda: [0, 0], doc="where the previous stage's map sits in this one "
+                                                               "(transfer.offset)")
+    source_agent: Any = documented(0, "the previous stage's agent(s) this stage's agents start from "
+                                      "(transfer.source_agent)")
+
+
+@dataclass
+class CurriculumConfig:
+    """Stages trained before the run, each warm-starting the next; the run is the last stage and
+    warm-starts from the one before (docs/curriculum.md)."""
+
+    stages: List[StageConfig] = documented(factory=list, doc="the stages before this run, easiest first; empty: "
+                                                             "no curriculum")
+    cache_dir: Optional[str] = documented(None, "finished stages are kept here; null: <launch dir>/outputs/curriculum")
+
+
+@dataclass
 class TrainConfig:
     env: EnvConfig = field(default_factory=EnvConfig)
     agent: AgentConfig = field(default_factory=AgentConfig)
     transfer: TransferConfig = field(default_factory=TransferConfig)
     replicas: ReplicasConfig = field(default_factory=ReplicasConfig)
+    curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
     seed: int = documented(0, "seeds the learners, exploration and episode resets")
     total_steps: int = documented(20_000, "joint env steps (every live agent acts once)")
     eval_every: int = documented(1_000, "env steps between greedy evaluations")
@@ -193,11 +216,27 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
            f"replicas.maps={cfg.replicas.maps} needs a generated map; a layout fixes the map (use replicas.seeds)")
     _check_offset("transfer.offset", transfer.offset)
     _check_source_agent("transfer.source_agent", transfer.source_agent)
+    _check_curriculum(cfg)
     if agent.share_parameters:
         _check(transfer.targets is None, "transfer.targets: with agent.share_parameters=true all agents share one "
                                          "network, so all of them are transferred (leave targets unset)")
         _check(transfer.exchange != Exchange.best, "transfer.exchange=best: with agent.share_parameters=true "
                                                     "there is only one network to exchange")
+
+
+def _check_curriculum(cfg: DictConfig | TrainConfig) -> None:
+    stages = cfg.curriculum.stages
+    if not stages:
+        return
+    _check(cfg.transfer.enabled, "curriculum: its last stage warm-starts this run, which needs transfer=on")
+    _check(cfg.transfer.source is None, f"curriculum: this run starts from its last stage, not from "
+                                        f"transfer.source={cfg.transfer.source} (leave it unset)")
+    for n, stage in enumerate(stages):
+        unknown = sorted(set(stage.env) - set(ENV_KEYS))
+        _check(not unknown, f"curriculum.stages[{n}].env: unknown env key(s) {unknown}")
+        _check(stage.steps >= 1, f"curriculum.stages[{n}].steps must be >= 1, got {stage.steps}")
+        _check_offset(f"curriculum.stages[{n}].offset", stage.offset)
+        _check_source_agent(f"curriculum.stages[{n}].source_agent", stage.source_agent)
 
 
 def _check_offset(key: str, offset: Any) -> None:

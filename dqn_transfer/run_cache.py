@@ -27,6 +27,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, TypeVar
 
+from dqn_transfer.checkpoint import load_agent_checkpoint
 from dqn_transfer.run_dir import RunDir
 from dqn_transfer.trainer import Interrupted
 from dqn_transfer.transfer_mapping import TransferError
@@ -49,6 +50,12 @@ class RunCache:
 
     def entry(self, key: str) -> RunDir:
         return RunDir(self.root / key)
+
+    @staticmethod
+    def finished(entry: RunDir, steps: int) -> bool:
+        """Whether ``entry`` holds a run that reached ``steps`` (as its agent 0 checkpoint says)."""
+        checkpoint = entry.agent_checkpoint(0)
+        return checkpoint.exists() and load_agent_checkpoint(checkpoint)[1].get("steps") == steps
 
     def fill(self, keys: list[str], complete: Callable[[RunDir], bool],
              train_into: Callable[[list[int], Path, bool], None]) -> list[int]:

@@ -19,7 +19,7 @@ import logging
 from pathlib import Path
 from typing import Any
 
-from dqn_transfer.checkpoint import CheckpointError, find_checkpoints, load_agent_checkpoint
+from dqn_transfer.checkpoint import CheckpointError, find_checkpoints
 from dqn_transfer.config import TrainConfig, TransferConfig, replica_configs, to_plain, validate
 from dqn_transfer.envs.settings import ENV_KEYS
 from dqn_transfer.run_cache import RunCache
@@ -81,16 +81,16 @@ def pretrained_sources(config: TrainConfig, layouts: list[str], launch_dir: Path
                  cache.entry(keys[indices[0]]) if len(indices) == 1 else cache.root)
         train(pretraining, work_dir, source_task=True)
 
-    for i in cache.fill(keys, lambda entry: _reuse(entry.agent_checkpoint(0), steps), pretrain):
+    for i in cache.fill(keys, lambda entry: _reuse(entry, steps), pretrain):
         log.info("transfer: the pretrained source is cached in %s", cache.entry(keys[i]))  # the trainer named the temp dir
     return [cache.entry(key).agent_checkpoint(0) for key in keys]
 
 
-def _reuse(checkpoint: Path, steps: int) -> bool:
-    """Whether the cache entry of ``checkpoint`` is complete (pretrained for ``steps``), logged if so."""
-    if not checkpoint.exists() or load_agent_checkpoint(checkpoint)[1].get("steps") != steps:
+def _reuse(entry: RunDir, steps: int) -> bool:
+    """Whether the cache ``entry`` is complete (pretrained for ``steps``), logged if so."""
+    if not RunCache.finished(entry, steps):
         return False
-    log.info("transfer: reusing the pretrained source %s", checkpoint)
+    log.info("transfer: reusing the pretrained source %s", entry.agent_checkpoint(0))
     return True
 
 

@@ -56,7 +56,7 @@ from dqn_transfer.logging import RunLogger
 from dqn_transfer.rollout import evaluate, team_return_of
 from dqn_transfer.run_dir import RunDir, existing_run_message
 from dqn_transfer.timing import Stopwatch
-from dqn_transfer.warm_start import apply_transfer
+from dqn_transfer.warm_start import apply_transfer, lineage_table
 from dqn_transfer.watch import evaluation_views
 
 log = logging.getLogger("dqn_transfer.train")
@@ -323,6 +323,7 @@ class Trainer:
         for rep in replicas:
             if rep.transfer_info is not None and not config.resume:
                 rep.logger.text("transfer/source", json.dumps(rep.transfer_info, indent=2))
+                rep.logger.text("transfer/lineage", lineage_table(rep.transfer_info))
         if config.total_steps == 0:
             self.save_checkpoint()
             log.info("total_steps=0: wrote the initial checkpoints to %s", self.run_dir)

@@ -147,11 +147,33 @@ def apply_transfer(config: TrainConfig, learner: Learner, game: TreasureHuntGame
              first.path if len(mapped) == 1 else ", ".join(str(path) for path in files), first.meta["digest"][:12])
     return {
         **first.record(),
-        "pretrained": transfer.source is None,
+        "pretrained": bool(first.meta.get("source_task")),  # trained on the single-agent source task
         "targets": targets,
-        # With another source agent per target (another team size): each target's own record.
-        "per_target": None if len(mapped) == 1 else [source_i.record() for source_i in per_target],
+        # With another source agent per target (another team size): which file each target took.
+        "per_target": None if len(mapped) == 1 else [
+            {"source": str(s.path.resolve()), "digest": s.meta["digest"], "source_agent": s.meta.get("agent_index")}
+            for s in per_target],
     }
+
+
+def lineage(record: Mapping[str, Any] | None) -> list[Mapping[str, Any]]:
+    """The chain of warm starts behind a run's transfer record, oldest first (a curriculum's stages)."""
+    chain = []
+    while record:
+        chain.append(record)
+        record = record.get("source_transfer")
+    return chain[::-1]
+
+
+def lineage_table(record: Mapping[str, Any]) -> str:
+    """The chain of warm starts as a Markdown table (TensorBoard's text tab renders it)."""
+    rows = ["| warm start | from checkpoint | its map | its steps | placed at | digest |", "|---|---|---|---|---|---|"]
+    for n, step in enumerate(lineage(record), start=1):
+        mapping = step.get("mapping") or {}
+        size = mapping.get("source_size")
+        rows.append(f"| {n} | {step['source']} | {f'{size}x{size}' if size else '-'} | {step.get('source_steps')} "
+                    f"| {mapping.get('offset', '-')} | {step['digest'][:12]} |")
+    return "\n".join(rows)
 
 
 def carry_optimizer_state(learner: BatchedDQN, sources: list[MappedSource], targets: list[int]) -> None:

@@ -72,6 +72,9 @@ FORBIDDEN = {
                               "dqn_transfer.experiments", "dqn_transfer.cli"),
     "dqn_transfer.experiments": ("dqn_transfer.trainer", "dqn_transfer.cli"),
     "dqn_transfer.watch": ("dqn_transfer.trainer", "dqn_transfer.checkpoint", "dqn_transfer.cli"),
+    "dqn_transfer.run_cache": ("dqn_transfer.sources", "dqn_transfer.curriculum", "dqn_transfer.cli"),
+    "dqn_transfer.sources": ("dqn_transfer.curriculum", "dqn_transfer.cli"),
+    "dqn_transfer.curriculum": ("dqn_transfer.cli", "dqn_transfer.experiments"),
     "dqn_transfer.team": ("dqn_transfer.trainer", "dqn_transfer.sources", "dqn_transfer.cli"),
     "dqn_transfer.model_card": ("dqn_transfer.trainer", "dqn_transfer.sources", "dqn_transfer.cli"),
 }

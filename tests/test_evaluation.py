@@ -243,6 +243,19 @@ def test_compare_runs_by_hand(runs):
     assert r["time_to_threshold/difference"]["n"] == 1
 
 
+def test_compare_runs_at_equal_total_steps_counts_the_transfer_runs_earlier_steps(runs):
+    transfer, baseline = runs
+    r = compare_runs(transfer, baseline, threshold=-5.0, transfer_offset=10)
+    # transfer evaluations now at total steps 10, 20, 30; the mean baseline [-50, -30, -10] at 0, 10, 20.
+    # jumpstart at the transfer runs' first evaluation (10): t0 -30 - (-30) = 0, t1 -10 - (-30) = 20
+    assert r["jumpstart"]["mean"] == 10.0
+    # threshold -5 reached at own steps 20 (t0) and 10 (t1): total steps 30 and 20
+    assert r["time_to_threshold/transfer"]["mean"] == 25.0
+    assert r["asymptotic_performance/transfer"]["mean"] == 5.0  # the end of each run, as before
+    with pytest.raises(ValueError, match="transfer offset"):
+        compare_runs(transfer, baseline, transfer_offset=-1)
+
+
 def test_compare_runs_without_threshold_and_with_unequal_counts(runs):
     transfer, baseline = runs
     with pytest.warns(UserWarning, match="2 transfer vs 1 baseline"):

@@ -52,7 +52,7 @@ def _pair_by_seed(transfer_dirs: Sequence[Path], baseline_dirs: Sequence[Path]) 
 
 def compare_runs(transfer_dirs: Sequence[str | os.PathLike], baseline_dirs: Sequence[str | os.PathLike],
                  metric: str = "team_return", threshold: float | None = None,
-                 seed: int = 0) -> dict[str, dict[str, float]]:
+                 seed: int = 0, transfer_offset: int = 0) -> dict[str, dict[str, float]]:
     """Each transfer metric as ``{"mean", "low", "high", "n"}`` with a 95% bootstrap CI over seeds.
 
     - ``jumpstart`` and ``transfer_ratio``: each transfer run against the *mean* baseline curve
@@ -61,13 +61,20 @@ def compare_runs(transfer_dirs: Sequence[str | os.PathLike], baseline_dirs: Sequ
       per condition (``/transfer``, ``/baseline``) and as paired differences transfer - baseline
       (``/difference``, see :func:`_pair_by_seed`); a negative time difference means transfer
       reached the threshold sooner.
+    ``transfer_offset``: the env steps the transfer runs spent before their own step 0 (a source's
+    pretraining, a curriculum's earlier stages). Their curves are shifted by it, so the two conditions
+    are compared at equal *total* steps: jumpstart at the transfer runs' first evaluation, areas over
+    the steps both cover, and asymptotic performance at the end of each (equal budgets when the
+    baseline ran ``offset`` steps longer).
     Non-finite per-run values (a run that never reaches the threshold, an infinite ratio) are left
     out of the statistics, so ``n`` says how many runs each row rests on. The directories are those of
     :func:`~dqn_transfer.analysis.runs.find_run_dirs`: unusable ones are skipped with a warning.
     """
     t_dirs = find_run_dirs(transfer_dirs, kind="transfer run")
     b_dirs = find_run_dirs(baseline_dirs, kind="baseline run")
-    t_curves = [learning_curve(d, metric) for d in t_dirs]
+    if transfer_offset < 0:
+        raise ValueError(f"the transfer offset counts steps spent before the runs: >= 0, got {transfer_offset}")
+    t_curves = [(steps + transfer_offset, values) for steps, values in (learning_curve(d, metric) for d in t_dirs)]
     b_curves = [learning_curve(d, metric) for d in b_dirs]
     b_mean = mean_curve(b_curves)
     pairs = _pair_by_seed(t_dirs, b_dirs)

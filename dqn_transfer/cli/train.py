@@ -9,10 +9,12 @@ before. SIGINT / SIGTERM stop the run after the step in progress, with a checkpo
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import json
 import logging
 import math
+import re
 import shutil
 import sys
 import warnings
@@ -31,8 +33,17 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from dqn_transfer.checkpoint import CheckpointError, load_training_state
-from dqn_transfer.config import CONFIG_DIR, SB3_NAMES, ConfigError, TrainConfig, register_configs, validate
+from dqn_transfer.config import (
+    CONFIG_DIR,
+    SB3_NAMES,
+    ConfigError,
+    StageConfig,
+    TrainConfig,
+    register_configs,
+    validate,
+)
 from dqn_transfer.config_help import config_groups, group_options, help_text
+from dqn_transfer.curriculum import curriculum_sources
 from dqn_transfer.documented import describe
 from dqn_transfer.run_dir import RunClaim, RunDir, RunDirError
 from dqn_transfer.sources import transfer_sources
@@ -45,6 +56,9 @@ USER_ERRORS = (ConfigError, CheckpointError, TransferError, RunDirError)
 # What a resumed run may change; everything else is the run's own saved config.
 RESUMABLE_KEYS = ("total_steps", "progress", "checkpoint_every", "device", "threads")
 CONFIG_GROUPS = config_groups()
+# An override of one curriculum stage's key, e.g. curriculum.stages.0.steps (group 1: the stage's key).
+STAGE_ELEMENT = re.compile(r"curriculum\.stages\.\d+\.([^.]+)(\..*)?")
+STAGE_KEYS = [f.name for f in dataclasses.fields(StageConfig)]
 # Other libraries' names for our agent keys (SB3's, and CleanRL's dqn.py where they differ), so a user
 # who types the name they know is pointed at ours.
 AGENT_ALIASES = {**{sb3: ours for ours, sb3 in SB3_NAMES.items()}, "net_arch": "hidden",
@@ -67,7 +81,11 @@ def check_overrides(argv: list[str]) -> None:
         key = override.key_or_group
         if key in CONFIG_GROUPS:
             check_group_option(key, override)
-        elif not key.startswith("hydra") and key not in keys:
+        elif (stage := STAGE_ELEMENT.fullmatch(key)) and stage.group(1) not in STAGE_KEYS:
+            raise ConfigError(f"unknown curriculum stage key '{stage.group(1)}' in '{override.input_line}' "
+                              f"(a stage has {', '.join(STAGE_KEYS)})")
+        elif not key.startswith("hydra") and key not in keys and not any(key.startswith(f"{k}.") for k in keys):
+            # (an element of a list key, like agent.hidden.0, is Hydra's to check)
             alias = AGENT_ALIASES.get(key.rsplit(".", 1)[-1])
             nearest = [f"agent.{alias}"] if alias else difflib.get_close_matches(key, keys, n=1)
             hint = f" (did you mean {nearest[0]}?)" if nearest else f"; the keys are listed by `{Path(sys.argv[0]).name} --cfg job`"
@@ -241,7 +259,9 @@ def app(cfg: DictConfig) -> float:
             config = OmegaConf.to_object(cfg)
         validate(config)
         log.info("run directory: %s", run)  # before a transfer source's pretraining, which can take minutes
-        sources = transfer_sources(config, Path(get_original_cwd()))
+        launch_dir = Path(get_original_cwd())
+        sources = (curriculum_sources(config, launch_dir) if config.curriculum.stages
+                   else transfer_sources(config, launch_dir))
         summary = train(config, run.path, sources=sources)
     except USER_ERRORS as err:
         report_user_error(err)
@@ -251,6 +271,10 @@ def app(cfg: DictConfig) -> float:
         if stop.run_dir.resolve() == run.path.resolve():
             log.warning("interrupted at step %d; resume with: python train.py resume=true hydra.run.dir=%s",
                         stop.step, run)
+        elif config.curriculum.stages:  # a stage before this run, which never started
+            log.warning("interrupted in a curriculum stage, kept at its last checkpoint in %s; run the command "
+                        "again to resume it", stop.run_dir)
+            leave_nothing_behind(claim)
         else:  # the source's pretraining was interrupted; it keeps nothing, and this run never started
             log.warning("interrupted while pretraining the transfer source (nothing kept); run the command again")
             leave_nothing_behind(claim)

@@ -1,0 +1,122 @@
+"""A curriculum: stages trained one after another, each warm-starting the next; the run is the last.
+
+``curriculum.stages`` (a ``conf/curriculum/`` option) lists the stages before the run, easiest first.
+Stage ``n`` is the run's own config with its env changed by the stage's ``env``, trained for the
+stage's ``steps``. Every stage after the first starts from the previous stage's agents through the
+transfer hook (the previous map placed at the stage's ``offset``, its agents picked by the stage's
+``source_agent``), with the run's other ``transfer.*`` settings; the run starts from the last stage
+at ``transfer.offset``. With replicas, every replica has its own chain of stages (its seed, its map).
+
+Finished stages are cached like the pretrained sources (:class:`~dqn_transfer.run_cache.RunCache`,
+``<launch dir>/outputs/curriculum/<hash>/``, each an ordinary run directory). A stage's hash covers
+its config and its predecessor's hash, so every run whose curriculum begins the same way reuses those
+stages, and a changed stage retrains itself and what follows. The cache is resumable: a stage that was
+interrupted or killed continues from its last checkpoint when the command runs again.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import json
+import logging
+from pathlib import Path
+
+from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from dqn_transfer.config import (
+    ConfigError,
+    CurriculumConfig,
+    TrainConfig,
+    TransferConfig,
+    replica_configs,
+    to_plain,
+    validate,
+)
+from dqn_transfer.run_cache import RunCache
+from dqn_transfer.sources import resolve_source
+from dqn_transfer.trainer import build_game, train
+from dqn_transfer.warm_start import transfer_targets
+
+log = logging.getLogger("dqn_transfer.curriculum")
+
+# Keys that change how a run is watched, not what it learns: left out of a stage's hash.
+NOT_IN_STAGE_HASH = ("progress", "resume")
+
+
+def stage_config(config: TrainConfig, n: int) -> TrainConfig:
+    """Stage ``n``'s config: ``config`` with the stage's env and steps, warm-started from stage ``n - 1``
+    (its checkpoints are passed to the trainer). Works for a lone run and for a batch of replicas."""
+    stage = config.curriculum.stages[n]
+    try:
+        env = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(config.env), dict(stage.env)))
+    except OmegaConfBaseException as err:
+        raise ConfigError(f"curriculum.stages[{n}].env: {str(err).splitlines()[0]}") from None
+    transfer = TransferConfig() if n == 0 else dataclasses.replace(
+        config.transfer, enabled=True, source=None, targets=None, source_agent=stage.source_agent,
+        offset=list(stage.offset))
+    staged = dataclasses.replace(config, env=env, total_steps=stage.steps, transfer=transfer,
+                                 curriculum=CurriculumConfig(), resume=False)
+    try:
+        validate(staged)
+        build_game(staged)
+    except ConfigError as err:
+        raise ConfigError(f"curriculum.stages[{n}] ({_describe(stage.env)}): {err}") from None
+    return staged
+
+
+def stage_hash(config: TrainConfig, previous: str | None) -> str:
+    """Hash of everything that shapes a stage's run: its config (the map by its actual layout) and the
+    hash of the stage it starts from."""
+    plain = {key: value for key, value in to_plain(config).items() if key not in NOT_IN_STAGE_HASH}
+    plain["env"] = {**plain["env"], "layout_file": None, "layout": build_game(config).map.layout}
+    key = {"config": plain, "previous": previous}
+    return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def curriculum_sources(config: TrainConfig, launch_dir: Path) -> list[list[Path]] | None:
+    """Train (or reuse) every stage before the run, for every replica; returns the checkpoints each
+    target agent of each replica starts from (None when resuming: the run has its agents already)."""
+    if config.resume:
+        return None
+    validate(config)
+    stages = config.curriculum.stages
+    cache = RunCache(launch_dir / Path(config.curriculum.cache_dir or "outputs/curriculum").expanduser(),
+                     "the curriculum cache", "curriculum.cache_dir", resumable=True)
+    keys: list[str | None] = [None] * len(replica_configs(config))
+    previous: list[Path] | None = None
+    for n, stage in enumerate(stages):
+        batch = stage_config(config, n)
+        configs = replica_configs(batch)
+        keys = [stage_hash(c, key) for c, key in zip(configs, keys)]
+        sources = None if previous is None else [
+            resolve_source(TransferConfig(source=str(run), source_agent=stage.source_agent), launch_dir,
+                           build_game(c).num_agents) for run, c in zip(previous, configs)]
+
+        label = f"stage {n + 1} of {len(stages) + 1} ({_describe(stage.env)})"
+        trained = cache.fill(keys, functools.partial(RunCache.finished, steps=stage.steps),
+                             functools.partial(_train_stage, label, batch, configs, sources))
+        previous = [cache.entry(key).path for key in keys]
+        for i, run in enumerate(previous):
+            log.info("curriculum: %s %s %s", label, "trained into" if i in trained else "reused from", run)
+    num_targets = len(transfer_targets(config, build_game(config).num_agents))
+    return [resolve_source(dataclasses.replace(config.transfer, source=str(run)), launch_dir, num_targets)
+            for run in previous]
+
+
+def _train_stage(label: str, batch: TrainConfig, configs: list[TrainConfig], sources: list[list[Path]] | None,
+                 indices: list[int], work_dir: Path, resume: bool) -> None:
+    """Train (or resume) a stage's replicas ``indices`` (all of ``batch``'s, or one) into ``work_dir``."""
+    run = batch if len(indices) > 1 else configs[indices[0]]
+    log.info("curriculum: %s %s, %d steps%s, in %s", "resuming" if resume else "training", label, run.total_steps,
+             f" for {len(indices)} replicas" if len(indices) > 1 else "", work_dir)
+    train(dataclasses.replace(run, resume=resume), work_dir,
+          sources=None if resume or sources is None else [sources[i] for i in indices])
+
+
+def _describe(env: dict) -> str:
+    """A stage's env changes in one short phrase (a layout by its size)."""
+    shown = {key: (f"{len(str(value).splitlines())} rows" if key == "layout" else value) for key, value in env.items()}
+    return ", ".join(f"{key}={value}" for key, value in shown.items()) or "the run's env"
