@@ -252,6 +252,10 @@ def test_compare_runs_at_equal_total_steps_counts_the_transfer_runs_earlier_step
     # threshold -5 reached at own steps 20 (t0) and 10 (t1): total steps 30 and 20
     assert r["time_to_threshold/transfer"]["mean"] == 25.0
     assert r["asymptotic_performance/transfer"]["mean"] == 5.0  # the end of each run, as before
+    # areas over the span every run covers, steps 10..20: t0 [-30, -10] -> -200, t1 [-10, 0] -> -50;
+    # b0 [-40, -20] -> -300, b1 [-20, 0] -> -100; paired by seed: 100 and 50
+    assert r["total_reward/transfer"]["mean"] == -125.0 and r["total_reward/baseline"]["mean"] == -200.0
+    assert r["total_reward/difference"]["mean"] == 75.0
     with pytest.raises(ValueError, match="transfer offset"):
         compare_runs(transfer, baseline, transfer_offset=-1)
 

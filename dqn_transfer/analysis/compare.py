@@ -50,6 +50,14 @@ def _pair_by_seed(transfer_dirs: Sequence[Path], baseline_dirs: Sequence[Path]) 
     return list(zip(_seed_order(transfer_dirs), _seed_order(baseline_dirs)))
 
 
+def _within(curve: Curve, start: float, end: float) -> Curve:
+    steps, values = curve
+    kept = (steps >= start) & (steps <= end)
+    if not kept.any():
+        raise ValueError(f"the runs share no span of evaluation steps (from {start:g} to {end:g})")
+    return steps[kept], values[kept]
+
+
 def compare_runs(transfer_dirs: Sequence[str | os.PathLike], baseline_dirs: Sequence[str | os.PathLike],
                  metric: str = "team_return", threshold: float | None = None,
                  seed: int = 0, transfer_offset: int = 0) -> dict[str, dict[str, float]]:
@@ -57,15 +65,16 @@ def compare_runs(transfer_dirs: Sequence[str | os.PathLike], baseline_dirs: Sequ
 
     - ``jumpstart`` and ``transfer_ratio``: each transfer run against the *mean* baseline curve
       (a per-run baseline would add the baseline's seed noise to every value);
-    - ``asymptotic_performance``, ``total_reward`` and (given ``threshold``) ``time_to_threshold``:
+    - ``asymptotic_performance``, ``total_reward`` (over the span of steps every run covers) and
+      (given ``threshold``) ``time_to_threshold``:
       per condition (``/transfer``, ``/baseline``) and as paired differences transfer - baseline
       (``/difference``, see :func:`_pair_by_seed`); a negative time difference means transfer
       reached the threshold sooner.
     ``transfer_offset``: the env steps the transfer runs spent before their own step 0 (a source's
     pretraining, a curriculum's earlier stages). Their curves are shifted by it, so the two conditions
     are compared at equal *total* steps: jumpstart at the transfer runs' first evaluation, areas over
-    the steps both cover, and asymptotic performance at the end of each (equal budgets when the
-    baseline ran ``offset`` steps longer).
+    the steps all runs cover, time to threshold in total steps, and asymptotic performance at the end
+    of each (equal budgets when the baseline ran ``offset`` steps longer).
     Non-finite per-run values (a run that never reaches the threshold, an infinite ratio) are left
     out of the statistics, so ``n`` says how many runs each row rests on. The directories are those of
     :func:`~dqn_transfer.analysis.runs.find_run_dirs`: unusable ones are skipped with a warning.
@@ -83,8 +92,12 @@ def compare_runs(transfer_dirs: Sequence[str | os.PathLike], baseline_dirs: Sequ
         "jumpstart": [jumpstart(c, b_mean) for c in t_curves],
         "transfer_ratio": [transfer_ratio(c, b_mean) for c in t_curves],
     }
+    # Areas over the steps every run covers: with an offset the transfer runs start later, and an area
+    # over a longer span is not comparable.
+    start, end = max(c[0][0] for c in t_curves + b_curves), min(c[0][-1] for c in t_curves + b_curves)
     per_curve_metrics: dict[str, Callable[[Curve], float]] = {
-        "asymptotic_performance": asymptotic_performance, "total_reward": total_reward}
+        "asymptotic_performance": asymptotic_performance,
+        "total_reward": lambda c: total_reward(_within(c, start, end))}
     if threshold is not None:
         per_curve_metrics["time_to_threshold"] = lambda c: time_to_threshold(c, threshold)
     for name, fn in per_curve_metrics.items():
