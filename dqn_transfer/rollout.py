@@ -37,9 +37,13 @@ def team_return_of(rewards: np.ndarray, reward_mode: RewardMode) -> float:
     return float(rewards.max() if reward_mode is RewardMode.team and rewards.size else rewards.sum())
 
 
-def greedy_policy(learner: Learner) -> Policy:
-    """The learner's greedy actions; consumes none of its random numbers."""
-    return lambda obs, live: learner.act(obs, live, epsilon=0.0, greedy=True)
+def greedy_policy(learner: Learner, episode_rng: np.random.Generator | None = None) -> Policy:
+    """The learner's greedy actions; consumes none of its random numbers. Ties between equal values are
+    drawn from a child of ``episode_rng`` (the generator the episode resets with, whose own stream a
+    child leaves untouched): two learners with equal values evaluated on the same episode play the
+    same moves. Without it, ties go to the first best action."""
+    ties = episode_rng.spawn(1)[0] if episode_rng is not None else None
+    return lambda obs, live: learner.act(obs, live, epsilon=0.0, greedy=True, ties=ties)
 
 
 def play_episode(game: TreasureHuntGame, policy: Policy, rng: np.random.Generator,
@@ -74,10 +78,10 @@ def evaluate(learner: Learner, game: TreasureHuntGame, episodes: int, seed: int,
              first: EpisodeResult | None = None) -> dict[str, float]:
     """Greedy episodes, each seeded by :func:`evaluation_rng`; ``first``: episode 0 as the caller already
     played it (e.g. recorded for a picture), not played again."""
-    policy = greedy_policy(learner)
     results = [] if first is None else [first]
-    results += [play_episode(game, policy, evaluation_rng(seed, evaluation, episode))
-                for episode in range(len(results), episodes)]
+    for episode in range(len(results), episodes):
+        rng = evaluation_rng(seed, evaluation, episode)
+        results.append(play_episode(game, greedy_policy(learner, rng), rng))
     return {
         "team_return": float(np.mean([r.team_return for r in results])),
         "success_rate": float(np.mean([r.success_rate for r in results])),

@@ -72,9 +72,9 @@ def record_episode(game: TreasureHuntGame, policy: Policy, rng: np.random.Genera
 
 
 def watch_team(game: TreasureHuntGame, learner: Learner, episodes: int, seed: int) -> list[RecordedEpisode]:
-    """``episodes`` greedy episodes; episode i draws its chest ties from ``(seed, i)``."""
-    policy = greedy_policy(learner)
-    return [record_episode(game, policy, np.random.default_rng([seed, i])) for i in range(episodes)]
+    """``episodes`` greedy episodes; episode i draws its chest ties and its greedy ties from ``(seed, i)``."""
+    rngs = [np.random.default_rng([seed, i]) for i in range(episodes)]
+    return [record_episode(game, greedy_policy(learner, rng), rng) for rng in rngs]
 
 
 def outcome(episode: RecordedEpisode) -> str:
@@ -170,7 +170,8 @@ def evaluation_views(learner: Learner, game: TreasureHuntGame, seed: int, evalua
     own generator, as its last frame with every trail, ``[H, W, 3]`` uint8, and per agent the Q-values
     of every observation it acted on in that episode; and the episode's result, for
     :func:`~dqn_transfer.rollout.evaluate` (which then does not play it again)."""
-    episode = record_episode(game, greedy_policy(learner), evaluation_rng(seed, evaluation, 0))
+    rng = evaluation_rng(seed, evaluation, 0)
+    episode = record_episode(game, greedy_policy(learner, rng), rng)
     picture = frame_picture(episode, len(episode.frames) - 1, cell_px=TENSORBOARD_CELL_PX)
     q_values = [[] for _ in range(game.num_agents)]
     for obs, live in episode.observations:

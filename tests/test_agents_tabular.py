@@ -5,7 +5,9 @@ import pytest
 
 from dqn_transfer.agents import TabularLearner, Transition
 from dqn_transfer.config import AgentConfig
-from dqn_transfer.enums import Algorithm
+from dqn_transfer.enums import Algorithm, Mode
+from dqn_transfer.envs.game import make_game
+from dqn_transfer.rollout import evaluate
 
 LAYOUT = [("position", 2)]
 S0 = np.array([1.0, 0.0], dtype=np.float32)
@@ -155,3 +157,33 @@ def test_q_values_of_the_team_are_each_agents_own():
                             *flags("term", "term", "term"), ALL_LIVE), step=1)
     # Each agent: y = 1 (terminated), Q(S0, a) = 0.5 * 1 for its own a; S1 = [2, 4] everywhere.
     np.testing.assert_allclose(agent.q_values(np.stack([S0, S0, S1])), [[0.5, 0.0], [0.0, 0.5], [2.0, 4.0]])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_untrained_agents_evaluate_alike_whatever_their_observation_encodes(seed):
+    """Greedy ties (every state of an untrained table) are drawn from the evaluation episode's generator,
+    not from the observation: with one agent, the three modes differ only in what the observation
+    holds (deliberative adds the coordinator's assignment), so their untrained step-0 evaluations must
+    be the same episodes. A rule keyed on the observation's bytes made them differ."""
+    layout = "0....\n.....\n..T..\n.....\nX...."
+    results = []
+    for mode in Mode:
+        game = make_game(layout=layout, mode=mode)
+        learner = TabularLearner(1, game.obs_layout(), game.num_actions, AgentConfig(algorithm=Algorithm.sarsa),
+                                 seed=seed)
+        state = learner.rng.bit_generator.state
+        results.append(evaluate(learner, game, episodes=5, seed=seed, evaluation=0))
+        assert learner.rng.bit_generator.state == state  # evaluation draws none of the learner's numbers
+    assert results[0] == results[1] == results[2]
+    assert len({game.obs_dim for game in [make_game(layout=layout, mode=m) for m in Mode]}) == 2
+
+
+def test_greedy_ties_go_to_a_drawn_best_action_and_never_to_a_worse_one():
+    learner = TabularLearner(1, [("position", 2)], 4, AgentConfig(algorithm=Algorithm.qlearning), seed=0)
+    obs = np.array([[1.0, 0.0]], dtype=np.float32)
+    learner.tables[0][obs[0].tobytes()] = np.array([5.0, 1.0, 5.0, 5.0], dtype=np.float32)
+    live = np.array([True])
+    ties = np.random.default_rng(7)
+    drawn = {int(learner.act(obs, live, 0.0, greedy=True, ties=ties)[0]) for _ in range(60)}
+    assert drawn == {0, 2, 3}  # each best action, in turn; never action 1
+    assert learner.act(obs, live, 0.0, greedy=True)[0] == 0  # without a generator: the first best

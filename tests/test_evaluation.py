@@ -14,7 +14,15 @@ import pytest
 
 from dqn_transfer.analysis.compare import compare_runs, format_table
 from dqn_transfer.analysis.runs import EvaluationError, learning_curve, read_metrics
-from dqn_transfer.analysis.stats import Estimate, bootstrap_ci, curve_band, difference
+from dqn_transfer.analysis.stats import (
+    Estimate,
+    bootstrap_ci,
+    curve_band,
+    difference,
+    improvement_probability,
+    iqm,
+    mean_intervals,
+)
 from dqn_transfer.analysis.transfer_metrics import asymptotic_performance, jumpstart, mean_curve
 from dqn_transfer.analysis.transfer_metrics import time_to_threshold, total_reward, transfer_ratio
 from dqn_transfer.cli import compare
@@ -241,6 +249,13 @@ def test_compare_runs_by_hand(runs):
     assert (baseline_ttt["mean"], baseline_ttt["n"]) == (20.0, 1) and math.isnan(baseline_ttt["low"])
     assert r["time_to_threshold/difference"]["mean"] == -10.0
     assert r["time_to_threshold/difference"]["n"] == 1
+    # every run counts for the probabilities: final values t [0, 10] vs b [-20, 0] -> pairs 0 > -20, 0 = 0
+    # (half), 10 > -20, 10 > 0 -> 3.5 / 4; times t [20, 10] vs b [never, 20] -> 20 < never, 20 = 20 (half),
+    # 10 < never, 10 < 20 -> 3.5 / 4. The IQM of two values trims none: their mean.
+    assert r["asymptotic_performance/P(transfer > baseline)"]["mean"] == 0.875
+    assert r["time_to_threshold/P(transfer sooner)"]["mean"] == 0.875
+    assert r["asymptotic_performance/transfer_iqm"]["mean"] == 5.0
+    assert r["asymptotic_performance/baseline_iqm"]["mean"] == -10.0
 
 
 def test_compare_runs_at_equal_total_steps_counts_the_transfer_runs_earlier_steps(runs):
@@ -335,3 +350,43 @@ def test_cli_with_no_usable_run_on_one_side_is_an_error(runs, tmp_path: Path, ca
         f"skipped {empty}: metrics.jsonl holds no evaluations yet",
         "error: no usable transfer run directory among the 2 given (2 skipped)",
     ]
+
+
+# ------------------------------------------------------------------ rliable's aggregates, known answers
+
+
+def test_a_clear_win_a_tie_and_an_overlap_have_the_probability_of_improvement_worked_by_hand():
+    rng = np.random.default_rng(0)
+    win = improvement_probability(np.arange(10, 20), np.arange(10), rng)
+    assert (win.mean, win.low, win.high, win.n) == (1.0, 1.0, 1.0, 10)  # every resample is a win too
+    tie = improvement_probability(np.arange(10), np.arange(10), rng)
+    assert tie.mean == 0.5 and tie.low < 0.5 < tie.high
+    # x 0..9 against y 5..14: x > y in 1 + 2 + 3 + 4 = 10 pairs, x = y in 5, of 100 -> (10 + 5 / 2) / 100
+    overlap = improvement_probability(np.arange(10), np.arange(5, 15), rng)
+    assert overlap.mean == pytest.approx(0.125) and overlap.high < 0.5
+
+
+def test_a_censored_run_counts_as_slower_than_every_run_that_reached_the_threshold():
+    # times to threshold 100, 200, never against 300, never, never (scores: minus the time, -inf for never):
+    # 100 and 200 beat all three (6 pairs); never ties never twice (2 halves) -> 7 / 9
+    sooner = improvement_probability([-100, -200, -math.inf], [-300, -math.inf, -math.inf], np.random.default_rng(0))
+    assert sooner.mean == pytest.approx(7 / 9)
+
+
+def test_iqm_is_the_mean_of_the_middle_half_stratified_by_task():
+    rng = np.random.default_rng(0)
+    assert iqm(np.arange(10, 20), rng).mean == 14.5  # 10 runs: the 2 lowest and 2 highest are cut, mean of 12..17
+    outlier = iqm([0, 1, 2, 3, 1000], rng)  # trims int(0.25 * 5) = 1 from each end: mean of 1, 2, 3
+    assert outlier.mean == 2.0 and outlier.low <= 2.0 <= outlier.high
+    two_maps = np.array([[0.0, 10.0], [1.0, 11.0], [2.0, 12.0], [3.0, 13.0]])  # runs x maps
+    assert iqm(two_maps, rng).mean == pytest.approx(np.mean([2, 3, 10, 11]))  # pooled: 8 scores, 2 cut each end
+
+
+def test_small_samples_get_t_and_bca_intervals_beside_the_percentile_one():
+    rng = np.random.default_rng(0)
+    intervals = mean_intervals(np.arange(1, 11), rng)
+    # t: 5.5 +- t(0.975, 9) * sd / sqrt(10), sd of 1..10 = 3.0277 -> 5.5 +- 2.2622 * 0.9574
+    assert intervals["t"].low == pytest.approx(5.5 - 2.2622 * 0.95743, abs=1e-3)
+    assert intervals["t"].high - intervals["t"].low > intervals["percentile"].high - intervals["percentile"].low
+    assert intervals["bca"].low < 5.5 < intervals["bca"].high
+    assert all(math.isnan(e.low) for e in mean_intervals([3.0, 3.0], rng).values())  # no spread, no interval

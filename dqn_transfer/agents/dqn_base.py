@@ -142,11 +142,11 @@ class BatchedDQN(TeamShape):
 
     # ------------------------------------------------------------------------------ acting
     def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, greedy: bool = False,
-            replica: int | None = None) -> np.ndarray:
+            ties: np.random.Generator | None = None, replica: int | None = None) -> np.ndarray:
         """Per-agent epsilon-greedy; one forward pass for every agent, skipped if everyone explores.
 
         Actions are returned for every row (of ``replica``, or of all); those of non-live agents are
-        ignored by the game.
+        ignored by the game. Greedy actions are the first best (``ties`` is for tables, whose values tie).
         """
         obs = np.asarray(obs, dtype=np.float32)
         if greedy:
@@ -356,7 +356,8 @@ class DQNReplica:
             raise IndexError(f"agent index {i} out of range for {self.num_agents} agents")
         return self.offset + i
 
-    def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, greedy: bool = False) -> np.ndarray:
+    def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, greedy: bool = False,
+            ties: np.random.Generator | None = None) -> np.ndarray:
         return self.learner.act(obs, live, epsilon, greedy, replica=self.index)
 
     def q_values(self, obs: np.ndarray) -> np.ndarray:

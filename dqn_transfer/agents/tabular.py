@@ -19,7 +19,6 @@ action, so the update follows the policy actually played (on-policy).
 
 from __future__ import annotations
 
-import zlib
 from typing import Any
 
 import numpy as np
@@ -56,17 +55,6 @@ class _Fallback:
 
     def get(self, obs: np.ndarray) -> np.ndarray | None:
         return self.table.get(obs[self.projection].tobytes())
-
-
-def _evaluation_argmax(q: np.ndarray, obs: np.ndarray) -> int:
-    """Greedy action with ties broken by a hash of the observation, not by taking the first.
-
-    Unvisited states are all ties; always taking action 0 ("up") would walk every such state into
-    the top wall and bias evaluation curves. The hash picks a per-state direction deterministically,
-    so evaluations stay reproducible and consume no random numbers.
-    """
-    best = _best_actions(q)
-    return best[zlib.crc32(obs.tobytes()) % len(best)]
 
 
 def _best_actions(q: np.ndarray) -> list[int]:
@@ -166,12 +154,16 @@ class TabularLearner(TeamShape):
 
     # ---------------------------------------------------------------------------------- acting
 
-    def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, greedy: bool = False) -> np.ndarray:
+    def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, greedy: bool = False,
+            ties: np.random.Generator | None = None) -> np.ndarray:
         """Epsilon-greedy per live agent; SARSA replays the action its last update chose for ``obs``.
 
-        ``greedy`` (evaluation) uses no cached action and draws no randomness, so evaluating does not
-        change the training run; ties between equal values go to an action fixed by the observation
-        (see ``_evaluation_argmax``). Non-live agents get action 0.
+        ``greedy`` (evaluation) uses no cached action and none of the learner's random numbers, so
+        evaluating does not change the training run. A tie between equal values (every unvisited state)
+        goes to a best action drawn from ``ties``, the evaluation episode's own generator: agents whose
+        values are equal then play the same moves whatever their observations encode, so an encoding
+        cannot make one condition's untrained agents walk differently from another's. Without
+        ``ties``, the first best action. Non-live agents get action 0.
         """
         obs = np.asarray(obs, dtype=np.float32)
         actions = np.zeros(self.num_agents, dtype=np.int64)
@@ -179,7 +171,8 @@ class TabularLearner(TeamShape):
             self.epsilon = np.array(epsilon, dtype=float) if np.ndim(epsilon) else np.full(self.num_agents, epsilon)
         for i in np.flatnonzero(live):
             if greedy:
-                actions[i] = _evaluation_argmax(self.agent_q_values(i, obs[i]), obs[i])
+                best = _best_actions(self.agent_q_values(i, obs[i]))
+                actions[i] = best[0] if len(best) == 1 or ties is None else best[int(ties.integers(len(best)))]
             elif self._cached(i, obs[i]):
                 actions[i] = self.next_action[i]
                 self.next_action[i] = _NO_ACTION

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from dqn_transfer.analysis.runs import find_run_dirs, learning_curve, run_seed
-from dqn_transfer.analysis.stats import estimate
+from dqn_transfer.analysis.stats import estimate, improvement_probability, iqm
 from dqn_transfer.analysis.transfer_metrics import (
     Curve,
     asymptotic_performance,
@@ -50,6 +50,11 @@ def _pair_by_seed(transfer_dirs: Sequence[Path], baseline_dirs: Sequence[Path]) 
     return list(zip(_seed_order(transfer_dirs), _seed_order(baseline_dirs)))
 
 
+def _sooner_is_higher(times: Sequence[float]) -> list[float]:
+    """Times to a threshold as scores where higher is better: minus the time, -inf for never (nan)."""
+    return [-math.inf if math.isnan(t) else -t for t in times]
+
+
 def _within(curve: Curve, start: float, end: float) -> Curve:
     steps, values = curve
     kept = (steps >= start) & (steps <= end)
@@ -76,7 +81,11 @@ def compare_runs(transfer_dirs: Sequence[str | os.PathLike], baseline_dirs: Sequ
     the steps all runs cover, time to threshold in total steps, and asymptotic performance at the end
     of each (equal budgets when the baseline ran ``offset`` steps longer).
     Non-finite per-run values (a run that never reaches the threshold, an infinite ratio) are left
-    out of the statistics, so ``n`` says how many runs each row rests on. The directories are those of
+    out of these means, so ``n`` says how many runs each row rests on. Beside them, with every run:
+    each condition's IQM of final performance (``/transfer_iqm``, ``/baseline_iqm``), the probability
+    that a transfer run ends above a baseline run (``/P(transfer > baseline)``) and, given a threshold,
+    that it gets there sooner (``time_to_threshold/P(transfer sooner)``, a run that never does counted
+    as slower than every run that did), each with rliable's bootstrap interval. The directories are those of
     :func:`~dqn_transfer.analysis.runs.find_run_dirs`: unusable ones are skipped with a warning.
     """
     t_dirs = find_run_dirs(transfer_dirs, kind="transfer run")
@@ -107,7 +116,17 @@ def compare_runs(transfer_dirs: Sequence[str | os.PathLike], baseline_dirs: Sequ
         per_run[f"{name}/difference"] = [t_values[i] - b_values[j] for i, j in pairs]
 
     rng = np.random.default_rng(seed)
-    return {name: asdict(estimate(values, rng)) for name, values in per_run.items()}
+    results = {name: asdict(estimate(values, rng)) for name, values in per_run.items()}
+    # The field's robust view of the same runs: the IQM of each condition's final performance, and the
+    # probability that a transfer run beats a baseline run (rliable, stratified bootstrap).
+    final_t, final_b = per_run["asymptotic_performance/transfer"], per_run["asymptotic_performance/baseline"]
+    results["asymptotic_performance/transfer_iqm"] = asdict(iqm(final_t, rng))
+    results["asymptotic_performance/baseline_iqm"] = asdict(iqm(final_b, rng))
+    results["asymptotic_performance/P(transfer > baseline)"] = asdict(improvement_probability(final_t, final_b, rng))
+    if threshold is not None:  # every run counts: one that never reached the threshold is slower than any that did
+        sooner_t, sooner_b = (_sooner_is_higher(per_run[f"time_to_threshold/{side}"]) for side in ("transfer", "baseline"))
+        results["time_to_threshold/P(transfer sooner)"] = asdict(improvement_probability(sooner_t, sooner_b, rng))
+    return results
 
 
 def format_table(results: dict[str, dict[str, float]]) -> str:

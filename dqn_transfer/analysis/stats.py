@@ -1,24 +1,34 @@
-"""Statistics over seeds: the percentile bootstrap, computed here and nowhere else.
+"""Statistics over runs, computed here and nowhere else.
 
-Every interval of the package is a 95% percentile bootstrap of a mean over seeds: resample the
-seeds with replacement, take the mean of each resample, and read the ``(1 - confidence)/2`` and
-``(1 + confidence)/2`` quantiles of those means. Runs of different conditions that share a seed
-share its map, initial weights and exploration noise, so differences between conditions are
-paired by seed where they can be (:func:`difference`).
+- Means over seeds with a 95% percentile bootstrap: resample the seeds with replacement, take the
+  mean of each resample, and read the ``(1 - confidence)/2`` and ``(1 + confidence)/2`` quantiles of
+  those means. Runs of different conditions that share a seed share its map, initial weights and
+  exploration noise, so differences between conditions are paired by seed where they can be
+  (:func:`difference`). At small n a percentile interval is too narrow, so :func:`mean_intervals`
+  gives the t and BCa intervals beside it.
+- The field's robust aggregates, from ``rliable`` (Agarwal et al. 2021, "Deep RL at the edge of the
+  statistical precipice"): the interquartile mean (:func:`iqm`) and the probability of improvement
+  (:func:`improvement_probability`), each with rliable's stratified bootstrap (runs resampled within
+  each task, i.e. map). Scores are ``[runs, tasks]``; a 1-D array is one task.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+import warnings
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.stats
+from rliable import library as rliable_library
+from rliable import metrics as rliable_metrics
 
 from dqn_transfer.analysis.transfer_metrics import Curve, common_steps
 
 N_RESAMPLES = 10000
 BAND_RESAMPLES = 2000  # a band is one interval per evaluation step: fewer resamples keep figures quick
+RLIABLE_RESAMPLES = 1000  # rliable's bootstrap (through `arch`) costs about 1 ms a resample here
 
 
 def _resampled_means(values: np.ndarray, rng: np.random.Generator, n_resamples: int) -> np.ndarray:
@@ -114,3 +124,67 @@ def curve_band(curves: Sequence[Curve], rng: np.random.Generator, confidence: fl
         return steps, mean, mean.copy(), mean.copy()
     low, high = _percentiles(_resampled_means(values, rng, n_resamples), confidence)
     return steps, mean, low, high
+
+
+def mean_intervals(values: Sequence[float], rng: np.random.Generator, confidence: float = 0.95) -> dict[str, Estimate]:
+    """The mean over runs with three 95% intervals: ``percentile`` (:func:`bootstrap_ci`), ``t`` (Student's
+    t, which holds at small n for roughly normal values) and ``bca`` (bias-corrected and accelerated
+    bootstrap, scipy's). Fewer than two values, or values all equal, give no interval (``nan``)."""
+    values = np.asarray([v for v in values if math.isfinite(v)], dtype=np.float64)
+    n = values.size
+    if n < 2 or np.all(values == values[0]):
+        mean = float(values.mean()) if n else math.nan
+        return {method: Estimate(mean, math.nan, math.nan, n) for method in ("percentile", "t", "bca")}
+    mean = float(values.mean())
+    t_low, t_high = scipy.stats.t.interval(confidence, n - 1, loc=mean, scale=scipy.stats.sem(values))
+    bca = scipy.stats.bootstrap((values,), np.mean, confidence_level=confidence, method="BCa",
+                                n_resamples=N_RESAMPLES, random_state=rng).confidence_interval
+    return {"percentile": Estimate(*bootstrap_ci(values, rng, confidence=confidence), n),
+            "t": Estimate(mean, float(t_low), float(t_high), n),
+            "bca": Estimate(mean, float(bca.low), float(bca.high), n)}
+
+
+def _as_runs_by_tasks(scores: Sequence[float] | np.ndarray) -> np.ndarray:
+    scores = np.asarray(scores, dtype=np.float64)
+    scores = scores[:, None] if scores.ndim == 1 else scores
+    if scores.ndim != 2 or scores.shape[0] == 0:
+        raise ValueError(f"scores are [runs, tasks] (or [runs]) with at least one run, got shape {list(scores.shape)}")
+    return scores
+
+
+def _stratified_interval(scores: tuple[np.ndarray, ...], statistic: Callable[..., float], rng: np.random.Generator,
+                         confidence: float) -> tuple[float, float, float]:
+    """``statistic`` of ``scores`` with rliable's stratified-bootstrap interval."""
+    random_state = np.random.RandomState(int(rng.integers(2**31)))  # rliable takes numpy's legacy generator
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FutureWarning)  # arch deprecates the RandomState rliable passes it
+        points, intervals = rliable_library.get_interval_estimates(
+            {"scores": scores if len(scores) > 1 else scores[0]}, lambda *s: np.array([statistic(*s)]),
+            reps=RLIABLE_RESAMPLES, confidence_interval_size=confidence, random_state=random_state)
+    return float(points["scores"][0]), float(intervals["scores"][0, 0]), float(intervals["scores"][1, 0])
+
+
+def iqm(scores: Sequence[float] | np.ndarray, rng: np.random.Generator, confidence: float = 0.95) -> Estimate:
+    """The interquartile mean (the mean of the middle 50% of all runs' scores, pooled over tasks; robust to
+    a few outlying runs, less noisy than the median) with a stratified-bootstrap interval. The
+    :class:`Estimate`'s ``mean`` holds the IQM; ``n`` counts the runs."""
+    scores = _as_runs_by_tasks(scores)
+    if scores.shape[0] < 2:
+        return Estimate(float(rliable_metrics.aggregate_iqm(scores)), math.nan, math.nan, scores.shape[0])
+    return Estimate(*_stratified_interval((scores,), rliable_metrics.aggregate_iqm, rng, confidence), scores.shape[0])
+
+
+def improvement_probability(x: Sequence[float] | np.ndarray, y: Sequence[float] | np.ndarray,
+                            rng: np.random.Generator, confidence: float = 0.95) -> Estimate:
+    """P(X > Y): the probability that a run of condition ``x`` scores higher than a run of ``y`` on the
+    same task (a tie counts one half; the Mann-Whitney U statistic over n_x * n_y), averaged over
+    tasks, with a stratified-bootstrap interval. 0.5 is no difference; an interval above 0.5 says x
+    is better. Ranks only: an ``inf`` score (a run that never reached a threshold, counted as slower
+    than every run that did) is fine. ``n`` counts the smaller condition's runs."""
+    x, y = _as_runs_by_tasks(x), _as_runs_by_tasks(y)
+    if x.shape[1] != y.shape[1]:
+        raise ValueError(f"x and y must have the same tasks: {x.shape[1]} and {y.shape[1]}")
+    n = min(x.shape[0], y.shape[0])
+    if n < 2:
+        return Estimate(float(rliable_metrics.probability_of_improvement(x, y)), math.nan, math.nan, n)
+    return Estimate(*_stratified_interval((x, y), rliable_metrics.probability_of_improvement, rng, confidence), n)
