@@ -225,9 +225,9 @@ def runs(tmp_path: Path) -> tuple[list[Path], list[Path]]:
 def test_compare_runs_by_hand(runs):
     transfer, baseline = runs
     r = compare_runs(transfer, baseline, threshold=-5.0)
+    # jumpstart paired by seed at step 0: t0 -30 - b0 -60 = 30, t1 -10 - b1 -40 = 30
+    assert (r["jumpstart"]["mean"], r["jumpstart"]["n"]) == (30.0, 2)
     # mean baseline curve: [-50, -30, -10]
-    # jumpstart: t0 -30 - (-50) = 20, t1 -10 - (-50) = 40 -> mean 30; 95% CI of 2 values [20, 40]
-    assert r["jumpstart"] == {"mean": 30.0, "low": 20.0, "high": 40.0, "n": 2}
     # transfer_ratio vs mean baseline, floor -50; baseline above it [0, 20, 40] -> area 100 + 300 = 400
     # t0 above floor [20, 40, 50] -> 300 + 450 = 750 -> 350/400 = 0.875
     # t1 above floor [40, 50, 60] -> 450 + 550 = 1000 -> 600/400 = 1.5;  mean (0.875 + 1.5) / 2 = 1.1875
@@ -262,7 +262,8 @@ def test_compare_runs_at_equal_total_steps_counts_the_transfer_runs_earlier_step
     transfer, baseline = runs
     r = compare_runs(transfer, baseline, threshold=-5.0, transfer_offset=10)
     # transfer evaluations now at total steps 10, 20, 30; the mean baseline [-50, -30, -10] at 0, 10, 20.
-    # jumpstart at the transfer runs' first evaluation (10): t0 -30 - (-30) = 0, t1 -10 - (-30) = 20
+    # jumpstart at the transfer runs' first evaluation (10), paired by seed: t0 -30 - b0 -40 = 10,
+    # t1 -10 - b1 -20 = 10
     assert r["jumpstart"]["mean"] == 10.0
     # threshold -5 reached at own steps 20 (t0) and 10 (t1): total steps 30 and 20
     assert r["time_to_threshold/transfer"]["mean"] == 25.0
@@ -287,11 +288,13 @@ def test_compare_runs_without_threshold_and_with_unequal_counts(runs):
 
 def test_format_table():
     results = {"jumpstart": {"mean": 30.0, "low": 20.0, "high": 40.0, "n": 2},
+               "transfer_ratio": {"mean": 0.5, "low": 0.5, "high": 0.5, "n": 3},
                "time_to_threshold/baseline": {"mean": 20.0, "low": math.nan, "high": math.nan, "n": 1}}
     assert format_table(results) == (
         "| metric | mean | 95% CI | n |\n"
         "|---|---:|---:|---:|\n"
         "| jumpstart | 30 | [20, 40] | 2 |\n"
+        "| transfer_ratio | 0.5 | no spread | 3 |\n"
         "| time_to_threshold/baseline | 20 | n/a | 1 |"
     )
 
@@ -302,7 +305,7 @@ def test_cli_prints_the_table(runs, capsys):
     assert compare.main(args) == 0
     out = capsys.readouterr().out
     assert out.startswith("| metric | mean | 95% CI | n |")
-    assert "| jumpstart | 30 | [20, 40] | 2 |" in out
+    assert "| jumpstart | 30 | no spread | 2 |" in out  # paired by seed, both pairs differ by 30
 
 
 def test_cli_missing_dir_is_one_error_line(tmp_path: Path):
@@ -332,7 +335,7 @@ def test_cli_skips_what_is_not_a_run_and_says_why(runs, tmp_path: Path, capsys):
     assert compare.main(args) == 0
     captured = capsys.readouterr()
     # The same numbers as without the two directories (test_compare_runs_by_hand): nothing mixed in.
-    assert "| jumpstart | 30 | [20, 40] | 2 |" in captured.out
+    assert "| jumpstart | 30 | no spread | 2 |" in captured.out
     assert "| total_reward/difference | 475 |" in captured.out
     assert captured.err.splitlines() == [
         f"skipped {started}: no metrics.jsonl (the run has not evaluated)",

@@ -68,8 +68,11 @@ def compare_runs(transfer_dirs: Sequence[str | os.PathLike], baseline_dirs: Sequ
                  seed: int = 0, transfer_offset: int = 0) -> dict[str, dict[str, float]]:
     """Each transfer metric as ``{"mean", "low", "high", "n"}`` with a 95% bootstrap CI over seeds.
 
-    - ``jumpstart`` and ``transfer_ratio``: each transfer run against the *mean* baseline curve
-      (a per-run baseline would add the baseline's seed noise to every value);
+    - ``jumpstart``: paired by seed (see :func:`_pair_by_seed`), each transfer run against the
+      baseline run of its seed at their first common step: at step 0 a seed's two runs share their map
+      and initial exploration, so the pair's difference is the transfer alone;
+    - ``transfer_ratio``: each transfer run against the *mean* baseline curve (the ratio of one run's
+      area to another's would carry the baseline run's noise twice);
     - ``asymptotic_performance``, ``total_reward`` (over the span of steps every run covers) and
       (given ``threshold``) ``time_to_threshold``:
       per condition (``/transfer``, ``/baseline``) and as paired differences transfer - baseline
@@ -98,7 +101,7 @@ def compare_runs(transfer_dirs: Sequence[str | os.PathLike], baseline_dirs: Sequ
     pairs = _pair_by_seed(t_dirs, b_dirs)
 
     per_run: dict[str, list[float]] = {
-        "jumpstart": [jumpstart(c, b_mean) for c in t_curves],
+        "jumpstart": [jumpstart(t_curves[i], b_curves[j]) for i, j in pairs],
         "transfer_ratio": [transfer_ratio(c, b_mean) for c in t_curves],
     }
     # Areas over the steps every run covers: with an offset the transfer runs start later, and an area
@@ -130,13 +133,17 @@ def compare_runs(transfer_dirs: Sequence[str | os.PathLike], baseline_dirs: Sequ
 
 
 def format_table(results: dict[str, dict[str, float]]) -> str:
-    """Markdown table of :func:`compare_runs` results (``n/a`` where a value is undefined)."""
+    """Markdown table of :func:`compare_runs` results (``n/a`` where a value is undefined; ``no spread``
+    where every resample gave the same value, e.g. every paired difference is equal: a zero-width
+    interval is not a measured certainty)."""
     def fmt(x: float) -> str:
         return "n/a" if not math.isfinite(x) else f"{x:.4g}"
 
     lines = ["| metric | mean | 95% CI | n |", "|---|---:|---:|---:|"]
     for name, r in results.items():
-        ci = "n/a" if not (math.isfinite(r["low"]) and math.isfinite(r["high"])) \
-            else f"[{fmt(r['low'])}, {fmt(r['high'])}]"
+        if not (math.isfinite(r["low"]) and math.isfinite(r["high"])):
+            ci = "n/a"
+        else:
+            ci = "no spread" if r["low"] == r["high"] else f"[{fmt(r['low'])}, {fmt(r['high'])}]"
         lines.append(f"| {name} | {fmt(r['mean'])} | {ci} | {r['n']} |")
     return "\n".join(lines)

@@ -347,7 +347,7 @@ def section_transfer(out: Path, runs: list[Run], rng: np.random.Generator) -> Se
             f"{len(on)} transfer / {len(off)} baseline seeds; {describe_runs(on + off)}; {origin}; transferred "
             f"agents start exploring at epsilon {eps[0]} (baseline: {off[0].config['agent'].get('eps_start')}).", "",
             "Taylor & Stone (2009) metrics on eval team return, mean [95% bootstrap CI] "
-            "(jumpstart and transfer ratio against the mean baseline curve; `/difference` paired by seed; "
+            "(jumpstart and `/difference` paired by seed; transfer ratio against the mean baseline curve; "
             f"{thr}):", "",
             format_table(results), "",
             f"Verdict for {algorithm}: {_verdict(verdict)} — {why}.",
