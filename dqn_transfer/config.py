@@ -202,8 +202,6 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
            f"transfer.freeze={list(transfer.freeze)} keeps transferred layers fixed: it needs transfer=on")
     is_tabular = Algorithm(agent.algorithm).is_tabular
     if is_tabular:
-        _check(transfer.exchange == Exchange.none,
-               f"transfer.exchange={Exchange(transfer.exchange).value} needs a DQN learner, not {Algorithm(agent.algorithm).value}")
         _check(not transfer.freeze, "transfer.freeze applies to network layers; tabular learners have none")
         _check(not agent.share_parameters, "agent.share_parameters applies to the DQN learners only")
     else:

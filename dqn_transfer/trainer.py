@@ -453,7 +453,7 @@ class Trainer:
             best = exchange_best(rep.learner, np.asarray(rep.window_returns), transfer.exchange_tau)
             rep.logger.scalar("team/exchange_best_agent", best, rep.counters.step)
         else:
-            exchange_replay(rep.learner, rep.shared_transitions)
+            exchange_replay(rep.learner, rep.shared_transitions, rep.counters.step)
             rep.shared_transitions.clear()
         rep.window_returns.clear()
 

@@ -7,6 +7,7 @@ from dqn_transfer.agents import TabularLearner, Transition
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm, Mode
 from dqn_transfer.envs.game import make_game
+from dqn_transfer.exchange import exchange_best, exchange_replay
 from dqn_transfer.rollout import evaluate
 
 LAYOUT = [("position", 2)]
@@ -187,3 +188,34 @@ def test_greedy_ties_go_to_a_drawn_best_action_and_never_to_a_worse_one():
     drawn = {int(learner.act(obs, live, 0.0, greedy=True, ties=ties)[0]) for _ in range(60)}
     assert drawn == {0, 2, 3}  # each best action, in turn; never action 1
     assert learner.act(obs, live, 0.0, greedy=True)[0] == 0  # without a generator: the first best
+
+
+def test_exchange_best_moves_every_other_table_towards_the_best_agents_over_both_tables_states():
+    learner = TabularLearner(3, [("position", 2)], 4, AgentConfig(algorithm=Algorithm.qlearning), seed=0)
+    s1, s2 = np.array([1.0, 0.0], np.float32).tobytes(), np.array([0.0, 1.0], np.float32).tobytes()
+    learner.tables[0] = {s1: np.array([4.0, 0, 0, 0], np.float32)}
+    learner.tables[1] = {s1: np.array([2.0, 2, 0, 0], np.float32), s2: np.array([8.0, 0, 0, 0], np.float32)}
+    best_before = {key: row.copy() for key, row in learner.tables[1].items()}
+    window_returns = np.array([[0.0, 10.0, 1.0], [2.0, 6.0, 1.0]])  # agent 1 has the best mean, 8
+    assert exchange_best(learner, window_returns, tau=0.5) == 1
+    np.testing.assert_array_equal(learner.tables[0][s1], [3, 1, 0, 0])  # (4 + 2) / 2, (0 + 2) / 2
+    np.testing.assert_array_equal(learner.tables[0][s2], [4, 0, 0, 0])  # unseen by agent 0: 0 -> halfway to 8
+    np.testing.assert_array_equal(learner.tables[2][s2], [4, 0, 0, 0])
+    assert learner.tables[1].keys() == best_before.keys()
+    assert all(np.array_equal(learner.tables[1][key], best_before[key]) for key in best_before)
+
+
+@pytest.mark.parametrize("algorithm", [Algorithm.qlearning, Algorithm.sarsa])
+def test_exchange_replay_updates_each_table_on_its_team_mates_transitions(algorithm):
+    learner = TabularLearner(2, [("position", 2)], 4, AgentConfig(algorithm=algorithm, lr=0.5, gamma=0.9), seed=0)
+    s1, s2 = np.array([1.0, 0.0], np.float32), np.array([0.0, 1.0], np.float32)
+    learner.tables[1][s2.tobytes()] = np.array([0.0, 5.0, 5.0, 5.0], np.float32)  # every action worth 5 at s2
+    # agent 0 moved s1 -> s2 with action 2 and reward 1; agent 1 was already done
+    step = Transition(np.stack([s1, s1]), np.array([2, 0]), np.array([1.0, 0.0], np.float32), np.stack([s2, s2]),
+                      np.array([False, False]), np.array([False, False]), np.array([True, False]))
+    exchange_replay(learner, [step], step=10)
+    # agent 1: Q(s1, 2) = 0 + 0.5 * (1 + 0.9 * Q(s2, a') - 0); Q-learning a' = argmax (5), SARSA a' is
+    # epsilon-greedy with epsilon 0 (no act yet): a greedy one, also 5
+    np.testing.assert_allclose(learner.tables[1][s1.tobytes()], [0, 0, 2.75, 0])
+    assert s1.tobytes() not in learner.tables[0]  # agent 0 learns only from team-mates (none were live)
+    assert (learner.next_action == -1).all()  # SARSA's cached next action belongs to the agent's own steps

@@ -94,9 +94,10 @@ def test_out_of_range_values_name_the_key(override, message):
 
 
 def test_tabular_learners_refuse_network_only_options():
-    config = compose_config("agent=sarsa", "transfer=on", "transfer.exchange=best")
-    with pytest.raises(ConfigError, match="needs a DQN learner"):
+    config = compose_config("agent=sarsa", "transfer=on", "transfer.freeze=[0]")
+    with pytest.raises(ConfigError, match="transfer.freeze applies to network layers"):
         validate(config)
+    validate(compose_config("agent=sarsa", "transfer.exchange=best"))  # tables exchange too
 
 
 @pytest.mark.parametrize("option, algorithm", [("dqn", Algorithm.dqn), ("double_dqn", Algorithm.double_dqn),

@@ -488,10 +488,11 @@ def test_resume_continues_with_the_runs_own_config(tmp_path):
 
 
 @pytest.mark.filterwarnings("ignore:a layout fixes the map")
+@pytest.mark.parametrize("algorithm", ["dqn", "sarsa"])
 @pytest.mark.parametrize("exchange", ["best", "shared_replay"])
-def test_kill_mid_exchange_window_resumes_exactly(tmp_path, monkeypatch, exchange):
+def test_kill_mid_exchange_window_resumes_exactly(tmp_path, monkeypatch, exchange, algorithm):
     """The exchange window in progress (returns, pending shared transitions) is checkpointed, so a run
-    killed between two exchanges and resumed matches the uninterrupted run."""
+    killed between two exchanges and resumed matches the uninterrupted run, networks and tables alike."""
     from dqn_transfer.config import AgentConfig, TrainConfig, TransferConfig
     from dqn_transfer.enums import Algorithm, Exchange
     from dqn_transfer.envs.settings import EnvConfig
@@ -500,7 +501,7 @@ def test_kill_mid_exchange_window_resumes_exactly(tmp_path, monkeypatch, exchang
         return TrainConfig(
             env=EnvConfig(layout=MAP), seed=0, total_steps=240, eval_every=40, eval_episodes=1,
             checkpoint_every=30, progress=False, resume=resume,
-            agent=AgentConfig(algorithm=Algorithm.dqn, hidden=[16], batch_size=8, learning_starts=30),
+            agent=AgentConfig(algorithm=Algorithm(algorithm), hidden=[16], batch_size=8, learning_starts=30),
             transfer=TransferConfig(exchange=Exchange(exchange), exchange_every=5))
 
     mid_window = lambda trainer: bool(trainer.replicas[0].window_returns)  # noqa: E731

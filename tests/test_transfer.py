@@ -502,10 +502,10 @@ def test_shared_replay_gives_each_agent_its_teammates_transitions(work, dqn_sour
     real = trainer_module.exchange_replay
     calls = []
 
-    def spy(team, transitions):
+    def spy(team, transitions, step):
         replay = trainer.learner.replay  # the team's rows (one replica: all of them)
         size_before = replay.size.copy()
-        real(team, transitions)
+        real(team, transitions, step)
         calls.append((size_before, replay.size.copy(), list(transitions), replay.ptr.copy(),
                       torch.from_numpy(replay.state_dict()["obs"])))
 
