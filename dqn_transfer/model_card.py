@@ -207,9 +207,10 @@ FOLDER=path/to/this/folder
 {warm_start_command(team)}
 ```
 
-`transfer.source_agent=1` starts them from agent 1 instead, `transfer.targets=[0]` warm-starts agent 0
-only; another mode or a map of the same size works too (segments only the new run has start at zero
-weight). Watch the team: `dqn-transfer-play $FOLDER`; check the files: `dqn-transfer-ckpt verify $FOLDER`.
+`transfer.source_agent=1` starts them from agent 1 instead (a list gives each new agent its own, for
+another team size), `transfer.targets=[0]` warm-starts agent 0 only. Another mode works too, and so
+does a larger map holding this one at `transfer.offset=[row, col]`: inputs only the new run has start
+at zero weight. Watch the team: `dqn-transfer-play $FOLDER`; check the files: `dqn-transfer-ckpt verify $FOLDER`.
 
 ## Files
 
