@@ -117,6 +117,8 @@ def _train_stage(label: str, batch: TrainConfig, configs: list[TrainConfig], sou
 
 
 def _describe(env: dict) -> str:
-    """A stage's env changes in one short phrase (a layout by its size)."""
-    shown = {key: (f"{len(str(value).splitlines())} rows" if key == "layout" else value) for key, value in env.items()}
-    return ", ".join(f"{key}={value}" for key, value in shown.items()) or "the run's env"
+    """A stage's env changes in one short phrase (a layout by its side alone: it fixes the map's counts)."""
+    if env.get("layout"):
+        side = len(str(env["layout"]).splitlines())
+        return f"{side}x{side} layout"
+    return ", ".join(f"{key}={value}" for key, value in env.items()) or "the run's env"
