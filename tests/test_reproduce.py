@@ -166,6 +166,24 @@ def test_plot_groups_runs_by_their_config_differences(tmp_path, capsys):
     assert capsys.readouterr().err.splitlines() == [f"error: {tmp_path / 'nowhere'}: no such directory"]
 
 
+def test_a_band_shows_each_run_beside_the_mean_and_its_axes_say_what_they_measure():
+    import matplotlib.pyplot as plt
+
+    from dqn_transfer.analysis.plots import _band_panel
+
+    steps = np.array([0.0, 10.0, 20.0])
+    bimodal = [(steps, np.array([0.0, 90.0, 100.0])), (steps, np.array([0.0, -90.0, -100.0])),
+               (steps, np.array([0.0, 95.0, 100.0]))]
+    fig, ax = plt.subplots()
+    _band_panel(ax, "team_return", {"cooperative": bimodal}, np.random.default_rng(0), None, "environment steps", "best")
+    assert len(ax.lines) == 1 + 3  # the mean, then each run
+    np.testing.assert_array_equal(ax.lines[2].get_ydata(), [0.0, -90.0, -100.0])  # the run the mean hides
+    assert ax.lines[1].get_linewidth() < ax.lines[0].get_linewidth()
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["cooperative (n=3)"]
+    assert ax.get_ylabel() == "greedy evaluation team return"
+    plt.close(fig)
+
+
 REFUSED = "error: unknown config key 'agent.lrr' in 'agent.lrr=0.1' (did you mean agent.lr?)"
 
 

@@ -1,8 +1,8 @@
 """Learning-curve figures of run directories (matplotlib, written to files).
 
 A group of runs (one condition, several seeds) is drawn as its mean curve over seeds with a 95%
-percentile-bootstrap band (:func:`dqn_transfer.analysis.stats.curve_band`); a group of one run is
-one line. :func:`group_runs` finds the groups of a set of runs by what differs between their configs,
+percentile-bootstrap band (:func:`dqn_transfer.analysis.stats.curve_band`) and each run as a thin
+line; a group of one run is one line. Axes say in words what they measure (:data:`METRIC_LABELS`). :func:`group_runs` finds the groups of a set of runs by what differs between their configs,
 ignoring the seed.
 """
 
@@ -81,14 +81,30 @@ def group_runs(run_dirs: Sequence[Path]) -> dict[str, list[Path]]:
 # ------------------------------------------------------------------------------------ figures
 
 
+# What a metrics.jsonl key measures, for axis labels a reader understands without the code.
+METRIC_LABELS = {
+    "team_return": "greedy evaluation team return",
+    "success_rate": "fraction of the map's chests collected (greedy evaluation)",
+    "trap_rate": "fraction of agents that end in a trap (greedy evaluation)",
+    "episode_length": "greedy evaluation episode length (joint steps)",
+}
+
+
+def metric_label(metric: str) -> str:
+    return METRIC_LABELS.get(metric, f"eval {metric}")
+
+
 def plot_band(ax, curves: Sequence[Curve], label: str, rng: np.random.Generator, color=None,
               linestyle: str = "-") -> None:
-    """Mean curve with its 95% CI band; the legend says how many runs it rests on."""
+    """Mean curve with its 95% CI band, and each run as a thin line (so bimodal outcomes show, which a
+    mean hides); the legend says how many runs it rests on."""
     steps, mean, low, high = curve_band(curves, rng)
     n = len(curves)
     line, = ax.plot(steps, mean, label=f"{label} (n={n})", color=color, lw=1.8, ls=linestyle)
     if n > 1:
         ax.fill_between(steps, low, high, color=line.get_color(), alpha=0.2, lw=0)
+        for run_steps, run_values in curves:
+            ax.plot(run_steps, run_values, color=line.get_color(), lw=0.6, alpha=0.35, zorder=line.get_zorder() - 1)
 
 
 def _band_panel(ax, metric: str, groups: dict[str, list[Curve]], rng: np.random.Generator,
@@ -98,7 +114,7 @@ def _band_panel(ax, metric: str, groups: dict[str, list[Curve]], rng: np.random.
         plot_band(ax, curves, label, rng, color=color_of(label) if color_of else None,
                   linestyle=LINESTYLES[index % len(LINESTYLES)])
     ax.set_xlabel(xlabel)
-    ax.set_ylabel(f"eval {metric}")
+    ax.set_ylabel(metric_label(metric))
     ax.grid(alpha=0.3)
     ax.legend(fontsize="small", loc=legend_loc)
 
@@ -117,7 +133,7 @@ def plot_groups(groups: dict[str, list[Path]], metric: str, out: Path, title: st
     fig, ax = plt.subplots(figsize=(7.5, 4.5), constrained_layout=True)
     curves = {label: [learning_curve(d, metric) for d in dirs] for label, dirs in groups.items()}
     _band_panel(ax, metric, curves, rng, None, "environment steps", "best")
-    ax.set_title(title or f"eval {metric}: mean and 95% bootstrap CI over seeds")
+    ax.set_title(title or f"{metric_label(metric)}: mean, 95% bootstrap CI and each run")
     return _save(fig, out, dpi=120)
 
 
@@ -129,7 +145,7 @@ def curves_figure(path: Path, panels: list[tuple[str, dict[str, list[Curve]]]], 
     for ax, (metric, groups) in zip(axes[0], panels):
         _band_panel(ax, metric, groups, rng, color_of, "environment steps" + (f"\n{note}" if note else ""),
                     "lower right")
-    fig.suptitle(title + " — mean, 95% bootstrap CI over seeds")
+    fig.suptitle(title + " — mean, 95% bootstrap CI over seeds, and each run (thin)")
     return _save(fig, path, dpi=110)
 
 
