@@ -184,6 +184,23 @@ def test_a_band_shows_each_run_beside_the_mean_and_its_axes_say_what_they_measur
     plt.close(fig)
 
 
+def test_total_steps_count_every_warm_start_behind_a_run(tmp_path, capsys):
+    from dqn_transfer.analysis.runs import steps_before
+
+    stage_two = {"source_steps": 400, "source_transfer": {"source_steps": 300, "source_transfer": None}}
+    chained = tmp_path / "chained"
+    RunDir(chained).metrics.parent.mkdir(parents=True)
+    RunDir(chained).metrics.write_text(json.dumps({"step": 0, "team_return": 1.0, "transfer_source": stage_two})
+                                       + "\n" + json.dumps({"step": 10, "team_return": 2.0}) + "\n")
+    plain = tmp_path / "plain"
+    RunDir(plain).metrics.parent.mkdir(parents=True)
+    RunDir(plain).metrics.write_text(json.dumps({"step": 0, "team_return": 0.0}) + "\n")
+    assert steps_before(chained) == 700 and steps_before(plain) == 0
+    out = tmp_path / "total.png"
+    assert plot.main([str(chained), str(plain), "--out", str(out), "--total-steps"]) == 0
+    assert out.read_bytes()[:8] == PNG_MAGIC
+
+
 REFUSED = "error: unknown config key 'agent.lrr' in 'agent.lrr=0.1' (did you mean agent.lr?)"
 
 

@@ -18,7 +18,7 @@ matplotlib.use("Agg")  # files only: works on clusters and in CI without a displ
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from dqn_transfer.analysis.runs import learning_curve, load_config  # noqa: E402
+from dqn_transfer.analysis.runs import learning_curve, load_config, steps_before  # noqa: E402
 from dqn_transfer.analysis.stats import Estimate, curve_band  # noqa: E402
 from dqn_transfer.analysis.transfer_metrics import Curve  # noqa: E402
 
@@ -127,14 +127,28 @@ def _save(fig, path: Path, dpi: int) -> Path:
 
 
 def plot_groups(groups: dict[str, list[Path]], metric: str, out: Path, title: str | None = None,
-                seed: int = 0) -> Path:
-    """One figure: every group's mean curve and band for ``metric``."""
+                seed: int = 0, total_steps: bool = False) -> Path:
+    """One figure: every group's mean curve and band for ``metric``. With ``total_steps``, each run's
+    curve starts at the steps spent before it (:func:`~dqn_transfer.analysis.runs.steps_before`: its
+    source's pretraining, a curriculum's stages), marked by a dotted line, so conditions compare at
+    equal total budgets."""
     rng = np.random.default_rng(seed)
     fig, ax = plt.subplots(figsize=(7.5, 4.5), constrained_layout=True)
-    curves = {label: [learning_curve(d, metric) for d in dirs] for label, dirs in groups.items()}
-    _band_panel(ax, metric, curves, rng, None, "environment steps", "best")
+    offsets = {d: steps_before(d) if total_steps else 0 for dirs in groups.values() for d in dirs}
+    curves = {label: [_shifted(learning_curve(d, metric), offsets[d]) for d in dirs] for label, dirs in groups.items()}
+    xlabel = "environment steps, counting those spent before each run" if total_steps else "environment steps"
+    _band_panel(ax, metric, curves, rng, None, xlabel, "best")
+    for offset in sorted(set(offsets.values()) - {0}):
+        ax.axvline(offset, color="grey", ls=":", lw=1)
+        ax.annotate(f"{offset:,} steps before", (offset, 1), xycoords=("data", "axes fraction"), fontsize="x-small",
+                    rotation=90, va="top", ha="right", color="grey")
     ax.set_title(title or f"{metric_label(metric)}: mean, 95% bootstrap CI and each run")
     return _save(fig, out, dpi=120)
+
+
+def _shifted(curve: Curve, offset: int) -> Curve:
+    steps, values = curve
+    return steps + offset, values
 
 
 def curves_figure(path: Path, panels: list[tuple[str, dict[str, list[Curve]]]], title: str,

@@ -207,6 +207,19 @@ def skipped_runs_on_stderr() -> Iterator[None]:
         yield
 
 
+def steps_before(run_dir: str | os.PathLike) -> int:
+    """The env steps spent before a run's own step 0 on what it warm-started from: its source's steps,
+    and those of the source's own source, down the chain a curriculum records (0 without transfer).
+    Read from the first evaluation's ``transfer_source`` record."""
+    records = read_metrics(run_dir)
+    record = records[0].get("transfer_source") if records else None
+    total = 0
+    while isinstance(record, dict):
+        total += int(record.get("source_steps") or 0)
+        record = record.get("source_transfer")
+    return total
+
+
 def load_config(run_dir: str | os.PathLike) -> dict[str, Any] | None:
     """The run's composed Hydra config (``.hydra/config.yaml``), or None if unreadable."""
     try:

@@ -5,7 +5,9 @@
 A RUN_DIR is a Hydra run directory (it holds ``metrics.jsonl``) or any directory above some, e.g. a
 multirun sweep directory: every run below it is used. Runs are grouped by what differs between their
 configs (``.hydra/config.yaml``), ignoring the seed: each group is drawn as its mean over seeds with a
-95% percentile-bootstrap band (one line when the group has one run). Runs without a readable config
+95% percentile-bootstrap band and each run as a thin line (one line when the group has one run);
+``--total-steps`` starts each run at the steps spent before it (a pretrained source, a curriculum's
+stages). Runs without a readable config
 get one line each. A directory that is not a usable run (no ``metrics.jsonl``, no evaluations yet: a
 refused run's stub) is skipped with a ``skipped DIR: REASON`` line on stderr; only when none is left
 is it an error. The reproduction report draws its figures with the same helpers.
@@ -30,12 +32,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--metric", default="team_return",
                         help="metrics.jsonl key: team_return (default), success_rate, trap_rate, episode_length")
     parser.add_argument("--title", default=None)
+    parser.add_argument("--total-steps", action="store_true",
+                        help="start each run's curve at the steps spent before it (its source's pretraining, "
+                             "a curriculum's stages): conditions compare at equal total budgets")
     args = parser.parse_args(argv)
     try:
         with skipped_runs_on_stderr():
             run_dirs = find_run_dirs(args.runs)
             groups = group_runs(run_dirs)
-            path = plot_groups(groups, args.metric, args.out, args.title)
+            path = plot_groups(groups, args.metric, args.out, args.title, total_steps=args.total_steps)
     except (EvaluationError, ValueError, OSError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 1
