@@ -213,6 +213,9 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
     _check(cfg.replicas.maps == 1 or (env.layout is None and env.layout_file is None),
            f"replicas.maps={cfg.replicas.maps} needs a generated map; a layout fixes the map (use replicas.seeds)")
     _check_offset("transfer.offset", transfer.offset)
+    _check(transfer.enabled or (list(transfer.offset) == [0, 0] and Fill(transfer.fill) is Fill.zero),
+           f"transfer.offset={list(transfer.offset)} / transfer.fill={Fill(transfer.fill).value} place a source's "
+           "map in this run's: they need transfer=on")
     _check_source_agent("transfer.source_agent", transfer.source_agent)
     _check_curriculum(cfg)
     if agent.share_parameters:

@@ -81,6 +81,7 @@ def test_bad_overrides_are_refused(override):
     ("agent.lr=0", "agent.lr must be > 0"),
     ("transfer.freeze=[0]", "transfer.freeze=\\[0\\] .* needs transfer=on"),
     ("transfer.offset=[1]", "transfer.offset must be \\[row, col\\] with both >= 0, got \\[1\\]"),
+    ("transfer.offset=[1,1]", "transfer.offset=\\[1, 1\\] / transfer.fill=zero place a source's map .* need transfer=on"),
     ("transfer.offset=[0,-1]", "transfer.offset must be \\[row, col\\]"),
     ("transfer.source_agent=-1", "transfer.source_agent must be an agent index or a non-empty list"),
     ("transfer.source_agent=[0,x]", "transfer.source_agent must be"),
