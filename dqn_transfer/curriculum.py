@@ -67,11 +67,11 @@ def stage_config(config: TrainConfig, n: int) -> TrainConfig:
     return staged
 
 
-def stage_hash(config: TrainConfig, previous: str | None) -> str:
-    """Hash of everything that shapes a stage's run: its config (the map by its actual layout) and the
-    hash of the stage it starts from."""
+def stage_hash(config: TrainConfig, layout: str, previous: str | None) -> str:
+    """Hash of everything that shapes a stage's run: its config (the map by its actual ``layout``) and
+    the hash of the stage it starts from."""
     plain = {key: value for key, value in to_plain(config).items() if key not in NOT_IN_STAGE_HASH}
-    plain["env"] = {**plain["env"], "layout_file": None, "layout": build_game(config).map.layout}
+    plain["env"] = {**plain["env"], "layout_file": None, "layout": layout}
     key = {"config": plain, "previous": previous}
     return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
 
@@ -90,10 +90,11 @@ def curriculum_sources(config: TrainConfig, launch_dir: Path) -> list[list[Path]
     for n, stage in enumerate(stages):
         batch = stage_config(config, n)
         configs = replica_configs(batch)
-        keys = [stage_hash(c, key) for c, key in zip(configs, keys)]
+        games = [build_game(c) for c in configs]
+        keys = [stage_hash(c, game.map.layout, key) for c, game, key in zip(configs, games, keys)]
         sources = None if previous is None else [
             resolve_source(TransferConfig(source=str(run), source_agent=stage.source_agent), launch_dir,
-                           build_game(c).num_agents) for run, c in zip(previous, configs)]
+                           game.num_agents) for run, game in zip(previous, games)]
 
         label = f"stage {n + 1} of {len(stages) + 1} ({_describe(stage.env)})"
         trained = cache.fill(keys, functools.partial(RunCache.finished, steps=stage.steps),
