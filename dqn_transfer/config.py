@@ -20,7 +20,7 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from dqn_transfer.documented import documented
-from dqn_transfer.enums import Algorithm, Device, Engine, Exchange, Fill
+from dqn_transfer.enums import Algorithm, Device, Engine, Exchange, Fill, SourceTask
 from dqn_transfer.envs.settings import ENV_KEYS, EnvConfig
 
 # The config groups (conf/ beside the package: a checkout or an editable install).
@@ -79,10 +79,15 @@ class TransferConfig:
     """Warm start from a pretrained agent, and knowledge exchange inside the team (docs/transfer.md)."""
 
     enabled: bool = documented(False, "start the target agents from a source agent (the group transfer=on)")
-    source: Optional[str] = documented(None, "checkpoint file, run directory or exported folder; null: pretrain on TreasureHunt-v0")
-    source_agent: Any = documented(0, "which agent_{i}.safetensors of a directory: one index for every target, "
-                                      "or a list with one per target (another team size)")
+    source: Optional[str] = documented(None, "checkpoint file, run directory or exported folder; null: pretrain one "
+                                             "(transfer.source_task)")
+    source_agent: Any = documented(0, "which agent_{i}.safetensors of a directory (or member of a team source): one "
+                                      "index for every target, or a list with one per target (another team size)")
     pretrain_steps: int = documented(20_000, "env steps of source-task pretraining when no source is given")
+    source_task: SourceTask = documented(SourceTask.single, "what a pretrained source learns: single (TreasureHunt-v0, "
+                                                            "agent 0 alone) | team (this run's own game; targets "
+                                                            "start from member source_agent)")
+    source_map_shift: int = documented(0, "pretrain on the generated map of env.map_seed + this; 0: this run's map")
     cache_dir: Optional[str] = documented(None, "pretrained-source cache; null: <launch dir>/outputs/pretrained")
     targets: Optional[List[int]] = documented(None, "agents that receive the transfer; null: all")
     offset: List[int] = documented(factory=lambda: [0, 0], doc="[row, col] of the source map's top-left cell in "
@@ -217,12 +222,35 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
            f"transfer.offset={list(transfer.offset)} / transfer.fill={Fill(transfer.fill).value} place a source's "
            "map in this run's: they need transfer=on")
     _check_source_agent("transfer.source_agent", transfer.source_agent)
+    _check_pretraining(cfg)
     _check_curriculum(cfg)
     if agent.share_parameters:
         _check(transfer.targets is None, "transfer.targets: with agent.share_parameters=true all agents share one "
                                          "network, so all of them are transferred (leave targets unset)")
         _check(transfer.exchange != Exchange.best, "transfer.exchange=best: with agent.share_parameters=true "
                                                     "there is only one network to exchange")
+
+
+def _check_pretraining(cfg: DictConfig | TrainConfig) -> None:
+    """``transfer.source_task`` / ``transfer.source_map_shift`` say how a source is pretrained: they need
+    transfer=on and no transfer.source (a given source is not pretrained); a shift needs a generated map."""
+    env, transfer = cfg.env, cfg.transfer
+    task, shift = SourceTask(transfer.source_task), transfer.source_map_shift
+    given = [f"transfer.source_task={task.value}"] * (task is not SourceTask.single)
+    given += [f"transfer.source_map_shift={shift}"] * (shift != 0)
+    if not given:
+        return
+    what = " / ".join(given) + (" says" if len(given) == 1 else " say")
+    _check(transfer.enabled, f"{what} how the transfer source is pretrained: {'it needs' if len(given) == 1 else 'they need'} "
+                             "transfer=on")
+    _check(transfer.source is None, f"{what} how the transfer source is pretrained, but transfer.source="
+                                    f"{transfer.source} is not pretrained: leave one of them unset")
+    if shift != 0:
+        _check(env.layout is None and env.layout_file is None,
+               f"transfer.source_map_shift={shift} shifts env.map_seed, which needs a generated map; "
+               "env.layout / env.layout_file fix the map")
+        _check(env.map_seed + shift >= 0, f"transfer.source_map_shift={shift}: the source's map seed "
+                                          f"env.map_seed + shift = {env.map_seed + shift} must be >= 0")
 
 
 def _check_curriculum(cfg: DictConfig | TrainConfig) -> None:
@@ -232,6 +260,9 @@ def _check_curriculum(cfg: DictConfig | TrainConfig) -> None:
     _check(cfg.transfer.enabled, "curriculum: its last stage warm-starts this run, which needs transfer=on")
     _check(cfg.transfer.source is None, f"curriculum: this run starts from its last stage, not from "
                                         f"transfer.source={cfg.transfer.source} (leave it unset)")
+    _check(SourceTask(cfg.transfer.source_task) is SourceTask.single and cfg.transfer.source_map_shift == 0,
+           "curriculum: this run starts from its last stage, not from a pretrained source (leave "
+           "transfer.source_task and transfer.source_map_shift unset)")
     for n, stage in enumerate(stages):
         unknown = sorted(set(stage.env) - set(ENV_KEYS))
         _check(not unknown, f"curriculum.stages[{n}].env: unknown env key(s) {unknown}")

@@ -24,8 +24,9 @@ def config_groups(config_dir: Path = CONFIG_DIR) -> tuple[str, ...]:
 
 
 def group_options(group: str, config_dir: Path = CONFIG_DIR) -> list[str]:
-    """The options of a group: its YAML files' names."""
-    return sorted(p.stem for p in (config_dir / group).glob("*.yaml"))
+    """The options of a group: its YAML files' names, with their folder below the group (``study/m2``)."""
+    root = config_dir / group
+    return sorted(p.relative_to(root).with_suffix("").as_posix() for p in root.rglob("*.yaml"))
 
 
 def default_options(config_dir: Path = CONFIG_DIR) -> dict[str, str | None]:

@@ -44,6 +44,9 @@ log = logging.getLogger("dqn_transfer.curriculum")
 
 # Keys that change how a run is watched, not what it learns: left out of a stage's hash.
 NOT_IN_STAGE_HASH = ("progress", "resume")
+# transfer.* keys a curriculum refuses (at their defaults in every stage), left out of a stage's hash so
+# that the stages cached before they existed stay valid.
+NOT_IN_STAGE_TRANSFER_HASH = ("source_task", "source_map_shift")
 
 
 def stage_config(config: TrainConfig, n: int) -> TrainConfig:
@@ -72,6 +75,7 @@ def stage_hash(config: TrainConfig, layout: str, previous: str | None) -> str:
     the hash of the stage it starts from."""
     plain = {key: value for key, value in to_plain(config).items() if key not in NOT_IN_STAGE_HASH}
     plain["env"] = {**plain["env"], "layout_file": None, "layout": layout}
+    plain["transfer"] = {key: value for key, value in plain["transfer"].items() if key not in NOT_IN_STAGE_TRANSFER_HASH}
     key = {"config": plain, "previous": previous}
     return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
 

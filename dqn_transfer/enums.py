@@ -77,6 +77,13 @@ class Fill(Enum):
     nearest = "nearest"  # the weights of the nearest embedded cell (the source map's border, extended)
 
 
+class SourceTask(Enum):
+    """What a pretrained transfer source is trained on (``transfer.source_task``)."""
+
+    single = "single"  # TreasureHunt-v0: the single-agent MDP of the map (agent 0 alone)
+    team = "team"  # the run's own multi-agent game; the targets start from one of its members
+
+
 def values(enum: type[Enum]) -> tuple[str, ...]:
     """The accepted spellings of an enum, in declaration order (for checks and messages)."""
     return tuple(member.value for member in enum)

@@ -29,6 +29,11 @@ class EpisodeResult(NamedTuple):
     treasures_collected: int
     success_rate: float  # treasures collected / chests on the map
     trap_rate: float  # agents that ended in a trap / agents
+    # Joint steps played after the step that emptied the map's last full chest, and the team return of
+    # those steps: only there could an announcement of a taken chest still reach a playing agent. 0 when
+    # the episode ended with that step or never emptied every chest.
+    steps_after_clear: int = 0
+    return_after_clear: float = 0.0
 
 
 def team_return_of(rewards: np.ndarray, reward_mode: RewardMode) -> float:
@@ -54,6 +59,8 @@ def play_episode(game: TreasureHuntGame, policy: Policy, rng: np.random.Generato
     if on_reset is not None:
         on_reset()
     team_return, length, trapped = 0.0, 0, 0
+    chests = game.num_treasures
+    cleared_at, return_after_clear = -1, 0.0  # the joint step that emptied the last full chest
     while not game.done:
         live = game.live
         actions = policy(obs, live)
@@ -61,11 +68,18 @@ def play_episode(game: TreasureHuntGame, policy: Policy, rng: np.random.Generato
         if on_step is not None:
             on_step(Transition(obs, actions, rewards, next_obs, terminated, truncated, live), info)
         obs = next_obs
-        team_return += team_return_of(rewards[live], game.reward_mode)
+        step_return = team_return_of(rewards[live], game.reward_mode)
+        team_return += step_return
         trapped += int(np.sum(info["trap"]))
         length += 1
+        if cleared_at >= 0:
+            return_after_clear += step_return
+        elif game.treasures_collected == chests:
+            cleared_at = length
+    steps_after_clear = length - cleared_at if cleared_at >= 0 else 0
     return EpisodeResult(team_return, length, game.treasures_collected,
-                         game.treasures_collected / game.num_treasures, trapped / game.num_agents)
+                         game.treasures_collected / game.num_treasures, trapped / game.num_agents,
+                         steps_after_clear, return_after_clear)
 
 
 def evaluation_rng(seed: int, evaluation: int, episode: int) -> np.random.Generator:
@@ -87,4 +101,8 @@ def evaluate(learner: Learner, game: TreasureHuntGame, episodes: int, seed: int,
         "success_rate": float(np.mean([r.success_rate for r in results])),
         "trap_rate": float(np.mean([r.trap_rate for r in results])),
         "episode_length": float(np.mean([r.length for r in results])),
+        # Episodes still played after the last full chest was emptied (see EpisodeResult), and the
+        # team return of those steps per episode (0 for the others).
+        "after_clear_rate": float(np.mean([r.steps_after_clear > 0 for r in results])),
+        "return_after_clear": float(np.mean([r.return_after_clear for r in results])),
     }

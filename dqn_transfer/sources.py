@@ -1,8 +1,10 @@
 """Where a ``transfer=on`` run's source checkpoint comes from; this module sits above the trainer.
 
 - ``transfer.source`` is a checkpoint file, or a run directory (then ``transfer.source_agent``);
-- unset, a source agent is pretrained on the source task — ``TreasureHunt-v0``, the single-agent MDP
-  of the same map — for ``transfer.pretrain_steps`` and cached under
+- unset, a source is pretrained for ``transfer.pretrain_steps`` on ``transfer.source_task``:
+  ``single``, ``TreasureHunt-v0`` (the single-agent MDP of the map), or ``team``, the run's own
+  multi-agent game, whose member ``transfer.source_agent`` each target starts from; on the run's map,
+  or on the generated map ``transfer.source_map_shift`` map seeds further. It is cached under
   ``outputs/pretrained/<hash of the source config>/``, so the next run with the same source config
   reuses it. The entry appears whole or not at all, and a file lock makes parallel sweep jobs
   pretrain it once (:func:`pretrained_sources`).
@@ -21,6 +23,7 @@ from typing import Any
 
 from dqn_transfer.checkpoint import CheckpointError, find_checkpoints
 from dqn_transfer.config import TrainConfig, TransferConfig, replica_configs, to_plain, validate
+from dqn_transfer.enums import Mode, SourceTask
 from dqn_transfer.envs.settings import ENV_KEYS
 from dqn_transfer.run_cache import RunCache
 from dqn_transfer.run_dir import RunDir, agent_file_name
@@ -33,13 +36,27 @@ log = logging.getLogger("dqn_transfer.transfer")
 # The env keys a lone agent's task does not depend on: nobody to talk to or share rewards with, and
 # rendering changes nothing learned. Every other env key (a new one included) enters the cache key.
 NOT_IN_SOURCE_TASK = ("mode", "reward_mode", "render_mode")
+# A team source plays the run's own game (``transfer.source_task=team``): only rendering is left out.
+NOT_IN_TEAM_TASK = ("render_mode",)
+
+
+def source_map(config: TrainConfig) -> TrainConfig:
+    """``config`` on the map its source is pretrained on: ``env.map_seed`` moved by
+    ``transfer.source_map_shift`` (``config`` itself for no shift). For a batch of replicas, each
+    replica's map seed moves by the shift."""
+    shift = config.transfer.source_map_shift
+    if shift == 0:
+        return config
+    return dataclasses.replace(config, env=dataclasses.replace(config.env, map_seed=config.env.map_seed + shift))
 
 
 def source_config(config: TrainConfig) -> TrainConfig:
-    """The config of the source-task pretraining run: same map and learner, no transfer."""
+    """The config of the source pretraining run: the same learner and seed, on the source's map
+    (:func:`source_map`), with no transfer. ``transfer.source_task`` says which game of it is played
+    (the trainer's ``source_task`` flag): TreasureHunt-v0, or the run's own team game."""
     pretrain_steps = config.transfer.pretrain_steps
     return dataclasses.replace(
-        config,
+        source_map(config),
         transfer=TransferConfig(),
         total_steps=pretrain_steps,
         eval_every=max(1, pretrain_steps // 10),
@@ -48,19 +65,29 @@ def source_config(config: TrainConfig) -> TrainConfig:
     )
 
 
-def source_hash(plain: dict[str, Any], layout: str) -> str:
-    """Hash of everything that shapes the pretrained source; the map enters by its actual layout."""
-    env = {key: plain["env"][key] for key in ENV_KEYS if key not in NOT_IN_SOURCE_TASK}
+def source_hash(plain: dict[str, Any], layout: str, task: SourceTask | str = SourceTask.single) -> str:
+    """Hash of everything that shapes the pretrained source; the map enters by its actual layout.
+
+    ``plain`` is the run's config on the source's map (:func:`source_map`), as JSON data. A ``single``
+    source's key is what it has always been, so existing cache entries stay valid; a ``team`` source's
+    key names its task and keeps the env keys a team depends on (mode, reward_mode)."""
+    team = SourceTask(task) is SourceTask.team
+    left_out = NOT_IN_TEAM_TASK if team else NOT_IN_SOURCE_TASK
+    env = {key: plain["env"][key] for key in ENV_KEYS if key not in left_out}
     env["layout_file"] = None  # the layout text below identifies the map, wherever the file lives
     env["layout"] = layout
     key = {"env": env, "agent": plain["agent"], "seed": plain["seed"],
            "pretrain_steps": plain["transfer"]["pretrain_steps"]}
+    if team:
+        key["source_task"] = SourceTask.team.value
     return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def pretrained_sources(config: TrainConfig, layouts: list[str], launch_dir: Path) -> list[Path]:
-    """Pretrain on TreasureHunt-v0 (of each replica's map, ``layouts``) once per source config; later
-    runs reuse the cached checkpoints. One source per replica of ``config`` (one for a lone run).
+def pretrained_sources(config: TrainConfig, layouts: list[str], launch_dir: Path) -> list[RunDir]:
+    """Pretrain on ``transfer.source_task`` of each replica's source map (``layouts``: the maps of
+    :func:`source_map`) once per source config; later runs reuse the cached runs. One source per
+    replica of ``config`` (one for a lone run): the run directory of its cache entry, whose
+    ``agent_0.safetensors`` is the single-agent source and whose agent files are the team source.
 
     The cache (:class:`~dqn_transfer.run_cache.RunCache`) holds one entry ``<cache_root>/<hash>/`` per
     source config, whole or not at all, and makes parallel jobs pretrain each source once. When every
@@ -71,19 +98,28 @@ def pretrained_sources(config: TrainConfig, layouts: list[str], launch_dir: Path
     cache = RunCache(launch_dir / Path(config.transfer.cache_dir or "outputs/pretrained").expanduser(),
                      "the pretraining cache", "transfer.cache_dir")
     replicas = replica_configs(config)
-    keys = [source_hash(to_plain(c), layout) for c, layout in zip(replicas, layouts)]
+    task = SourceTask(config.transfer.source_task)
+    keys = [source_hash(to_plain(source_map(c)), layout, task) for c, layout in zip(replicas, layouts)]
     steps = config.transfer.pretrain_steps
+    shift = config.transfer.source_map_shift
 
     def pretrain(indices: list[int], work_dir: Path, resume: bool) -> None:
         pretraining = source_config(config if len(indices) > 1 else replicas[indices[0]])
-        what = "a source agent" if len(indices) == 1 else f"{len(indices)} source agents, one per replica,"
-        log.info("transfer: pretraining %s on TreasureHunt-v0 for %d steps into %s", what, steps,
-                 cache.entry(keys[indices[0]]) if len(indices) == 1 else cache.root)
-        train(pretraining, work_dir, source_task=True)
+        where = cache.entry(keys[indices[0]]) if len(indices) == 1 else cache.root
+        on_map = (f" on map seed {pretraining.env.map_seed} (env.map_seed {'+' if shift > 0 else '-'} {abs(shift)})"
+                  if shift else "")
+        if task is SourceTask.team:
+            what = "a source team" if len(indices) == 1 else f"{len(indices)} source teams, one per replica,"
+            log.info("transfer: pretraining %s on this run's game%s (mode %s) for %d steps into %s", what, on_map,
+                     Mode(pretraining.env.mode).value, steps, where)
+        else:
+            what = "a source agent" if len(indices) == 1 else f"{len(indices)} source agents, one per replica,"
+            log.info("transfer: pretraining %s on TreasureHunt-v0%s for %d steps into %s", what, on_map, steps, where)
+        train(pretraining, work_dir, source_task=task is SourceTask.single)
 
     for i in cache.fill(keys, lambda entry: _reuse(entry, steps), pretrain):
         log.info("transfer: the pretrained source is cached in %s", cache.entry(keys[i]))  # the trainer named the temp dir
-    return [cache.entry(key).agent_checkpoint(0) for key in keys]
+    return [cache.entry(key) for key in keys]
 
 
 def _reuse(entry: RunDir, steps: int) -> bool:
@@ -92,6 +128,22 @@ def _reuse(entry: RunDir, steps: int) -> bool:
         return False
     log.info("transfer: reusing the pretrained source %s", entry.agent_checkpoint(0))
     return True
+
+
+def team_members(transfer: TransferConfig, num_agents: int, num_targets: int) -> list[int]:
+    """The member of a pretrained source team each target agent starts from (``transfer.source_agent``:
+    one index for every target, or one per target), checked against the team's ``num_agents``."""
+    wanted = transfer.source_agent
+    per_target = [wanted] * num_targets if isinstance(wanted, int) else list(wanted)
+    if len(per_target) != num_targets:
+        raise TransferError(f"transfer.source_agent lists {len(per_target)} source agents for {num_targets} target "
+                            "agents: give one per target (transfer.targets, default all), or one index for all")
+    bad = sorted({index for index in per_target if index >= num_agents})
+    if bad:
+        raise TransferError(f"transfer.source_agent={wanted if isinstance(wanted, int) else list(wanted)}: the "
+                            f"source team (transfer.source_task=team) is this run's team of {num_agents} agents "
+                            f"(0..{num_agents - 1}), which has no agent {', '.join(map(str, bad))}")
+    return per_target
 
 
 def resolve_source(transfer: TransferConfig, launch_dir: Path, num_targets: int) -> list[Path]:
@@ -126,7 +178,9 @@ def resolve_source(transfer: TransferConfig, launch_dir: Path, num_targets: int)
 def transfer_sources(config: TrainConfig, launch_dir: Path) -> list[list[Path]] | None:
     """The checkpoint of each target agent of each replica (one list for a lone run): None without
     transfer (or when resuming, which has its agents already), ``transfer.source`` resolved against
-    ``launch_dir`` for every replica, else a source pretrained on each replica's own map and seed."""
+    ``launch_dir`` for every replica, else a source pretrained with each replica's own seed on its own
+    map (or on the map ``transfer.source_map_shift`` map seeds further): the one single-agent source
+    for every target, or the team source's member ``transfer.source_agent`` (one per target)."""
     if not config.transfer.enabled or config.resume:
         return None
     validate(config)
@@ -136,8 +190,14 @@ def transfer_sources(config: TrainConfig, launch_dir: Path) -> list[list[Path]] 
     num_targets = len(transfer_targets(config, games[0].num_agents))
     if config.transfer.source is not None:
         return [resolve_source(config.transfer, launch_dir, num_targets)] * len(replicas)
-    if not isinstance(config.transfer.source_agent, int):
+    if SourceTask(config.transfer.source_task) is SourceTask.team:
+        members = team_members(config.transfer, games[0].num_agents, num_targets)
+    elif not isinstance(config.transfer.source_agent, int):
         raise TransferError(f"transfer.source_agent={list(config.transfer.source_agent)} picks agents of "
-                            "transfer.source; the pretrained source is one agent (set transfer.source)")
-    return [[checkpoint] * num_targets
-            for checkpoint in pretrained_sources(config, [game.map.layout for game in games], launch_dir)]
+                            "transfer.source or of a team source; the pretrained source is one agent (set "
+                            "transfer.source, or transfer.source_task=team)")
+    else:
+        members = [0] * num_targets
+    source_games = games if config.transfer.source_map_shift == 0 else [build_game(source_map(c)) for c in replicas]
+    entries = pretrained_sources(config, [game.map.layout for game in source_games], launch_dir)
+    return [[entry.agent_checkpoint(i) for i in members] for entry in entries]

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from rliable import library as rly
+from rliable import metrics as rlm
 
 from dqn_transfer.analysis.compare import compare_runs, format_table
 from dqn_transfer.analysis.runs import EvaluationError, learning_curve, read_metrics
@@ -383,6 +385,24 @@ def test_iqm_is_the_mean_of_the_middle_half_stratified_by_task():
     assert outlier.mean == 2.0 and outlier.low <= 2.0 <= outlier.high
     two_maps = np.array([[0.0, 10.0], [1.0, 11.0], [2.0, 12.0], [3.0, 13.0]])  # runs x maps
     assert iqm(two_maps, rng).mean == pytest.approx(np.mean([2, 3, 10, 11]))  # pooled: 8 scores, 2 cut each end
+
+
+@pytest.mark.filterwarnings("ignore::FutureWarning")  # arch deprecates the RandomState rliable passes it
+def test_the_vectorised_stratified_bootstrap_gives_rliables_own_intervals():
+    # Same statistic, same resampling scheme (runs within each map; the two conditions independently):
+    # the intervals of rliable's get_interval_estimates and ours differ only by Monte Carlo noise.
+    data = np.random.default_rng(7)
+    x, y = data.normal(0.3, 1.0, size=(6, 3)), data.normal(0.0, 1.0, size=(6, 3))  # 6 runs x 3 maps
+    ours = improvement_probability(x, y, np.random.default_rng(1))
+    point, ci = rly.get_interval_estimates({"p": (x, y)}, lambda a, b: np.array([rlm.probability_of_improvement(a, b)]),
+                                           reps=2000, random_state=np.random.RandomState(1))
+    assert ours.mean == pytest.approx(point["p"][0])
+    assert (ours.low, ours.high) == pytest.approx((ci["p"][0, 0], ci["p"][1, 0]), abs=0.03)
+    ours = iqm(x, np.random.default_rng(2))
+    point, ci = rly.get_interval_estimates({"i": x}, lambda a: np.array([rlm.aggregate_iqm(a)]), reps=2000,
+                                           random_state=np.random.RandomState(2))
+    assert ours.mean == pytest.approx(point["i"][0])
+    assert (ours.low, ours.high) == pytest.approx((ci["i"][0, 0], ci["i"][1, 0]), abs=0.06)
 
 
 def test_small_samples_get_t_and_bca_intervals_beside_the_percentile_one():

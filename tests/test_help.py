@@ -37,7 +37,8 @@ def key_line(page: str, key: str) -> str:
 def test_help_names_every_schema_key_with_its_own_description():
     page = help_text("python train.py")
     keys = schema_fields(TrainConfig)
-    assert len(keys) == 61 and {"agent.lr", "agent.engine", "env.size", "transfer.source", "replicas.seeds", "threads"} <= set(keys)
+    assert len(keys) == 63 and {"agent.lr", "agent.engine", "env.size", "transfer.source", "transfer.source_task",
+                                "transfer.source_map_shift", "replicas.seeds", "threads"} <= set(keys)
     for key, f in keys.items():
         line = key_line(page, key)
         assert f.metadata["help"] in line, line

@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import functools
 import itertools
+import math
 import time
 import warnings
 
 import numpy as np
 import pytest
 
-from dqn_transfer.envs.maps import generate_layout, parse_layout, resolve_map
+from dqn_transfer.envs.maps import GridMap, generate_layout, optimal_team_return, parse_layout, resolve_map
 
 
 # ---------------------------------------------------------------- an independent rule checker
@@ -227,3 +229,109 @@ def test_generated_maps_spread_objects():
         for r, c in parse_layout(generate_layout(5, 1, 0, 1, seed=seed)).chests:
             hits[r, c] += 1
     assert (hits > 0).all()
+
+
+# ---------------------------------------------------------------- the map's optimal team return
+def test_optimal_return_one_agent_three_moves_from_a_chest():
+    # 2 ordinary moves, then the move into the chest: -1 - 1 + 100 = 98
+    assert optimal_team_return(parse_layout("0..T\n....\n....\n...."), 1) == 98.0
+    # other rewards: 10 + 2 * (-0.5) = 9
+    assert optimal_team_return(parse_layout("0..T\n....\n....\n...."), 1, 10.0, -0.5) == 9.0
+
+
+def test_optimal_return_matches_agents_to_chests_not_greedily():
+    # chest 0 at (0,0), chest 1 at (0,3); agent 0 at (0,2), agent 1 at (0,5); open grid: Manhattan
+    #   d(a0, c0) = 2, d(a0, c1) = 1, d(a1, c0) = 5, d(a1, c1) = 2
+    #   greedy (a0 takes its nearest c1, a1 gets c0): 1 + 5 = 6 moves -> 200 - 4 = 196
+    #   optimal (a0 -> c0, a1 -> c1): 2 + 2 = 4 moves -> 2 * 100 + (4 - 2) * (-1) = 198
+    layout = "T.0T.1\n......\n......\n......\n......\n......"
+    assert optimal_team_return(parse_layout(layout), 2) == 198.0
+    assert optimal_team_return(parse_layout(layout), 1) == 100.0  # agent 0 alone: next to chest 1
+
+
+def test_optimal_return_detours_around_a_trap_and_obstacles():
+    # the straight path (0,0)->(0,4) is 4 moves but crosses the trap at (0,1); the detour through
+    # row 1 is 6 moves: (1,0)(1,1)(1,2)(1,3)(1,4)(0,4) -> 100 - 5 = 95
+    assert optimal_team_return(parse_layout("0X..T\n.....\n.....\n.....\n....."), 1) == 95.0
+    # and with a wall on row 1 the detour goes down to row 2: 8 moves -> 100 - 7 = 93
+    layout = "0X..T\n.###.\n.....\n.....\n....."
+    assert optimal_team_return(parse_layout(layout), 1) == 93.0
+
+
+def test_optimal_return_is_none_with_more_agents_than_chests():
+    grid_map = parse_layout("0.T\n...\n..1")
+    assert optimal_team_return(grid_map, 2) is None
+    assert optimal_team_return(grid_map, 1) == 99.0  # only agent 0: 2 moves
+    with pytest.raises(ValueError, match="num_agents must be between 1 and the map's 2 starts"):
+        optimal_team_return(grid_map, 3)
+
+
+def test_optimal_return_is_none_when_a_chest_cannot_be_reached():
+    # not a valid map (parse_layout refuses it): the chest at (0,2) is walled off from the start
+    walled = GridMap(size=3, rows=("0#T", ".##", "..."), chests=((0, 2),), traps=(), starts=((0, 0),),
+                     obstacles=frozenset({(0, 1), (1, 1), (1, 2)}))
+    assert optimal_team_return(walled, 1) is None
+
+
+ACTIONS4 = ((-1, 0), (1, 0), (0, -1), (0, 1))
+
+
+def exhaustive_optimum(text: str, num_agents: int, max_steps: int) -> float:
+    """Best expected team return over all joint policies, by dynamic programming over every state,
+    written from the rules of docs/game.md (ties for a chest: each contender wins equally often)."""
+    rows = text.split("\n")
+    n = len(rows)
+    starts = sorted((rows[r][c], (r, c)) for r in range(n) for c in range(n) if rows[r][c].isdigit())
+    starts = [cell for _, cell in starts][:num_agents]
+    chests = [(r, c) for r in range(n) for c in range(n) if rows[r][c] == "T"]
+
+    def move(agent, cell, action):
+        r, c = cell[0] + ACTIONS4[action][0], cell[1] + ACTIONS4[action][1]
+        if not (0 <= r < n and 0 <= c < n):
+            return cell
+        return starts[agent] if rows[r][c] == "#" else (r, c)
+
+    @functools.lru_cache(maxsize=None)
+    def value(t, pos, live, full):
+        if not any(live) or t == max_steps:
+            return 0.0
+        movers = [a for a in range(num_agents) if live[a]]
+        best = -math.inf
+        for acts in itertools.product(range(4), repeat=len(movers)):
+            new = list(pos)
+            for agent, action in zip(movers, acts):
+                new[agent] = move(agent, pos[agent], action)
+            reward, ended, now_full = 0.0, set(), list(full)
+            contenders: dict[int, list[int]] = {}
+            for agent in movers:
+                cell = new[agent]
+                if rows[cell[0]][cell[1]] == "X":
+                    reward -= 100.0
+                    ended.add(agent)
+                elif cell in chests and full[chests.index(cell)]:
+                    contenders.setdefault(chests.index(cell), []).append(agent)
+                else:
+                    reward -= 1.0
+            for chest, group in contenders.items():
+                now_full[chest] = False
+                reward += 100.0 - (len(group) - 1)  # the winner's +100, every loser's -1
+            outcomes = [()]
+            for group in contenders.values():
+                outcomes = [o + (w,) for o in outcomes for w in group]
+            total = 0.0
+            for winners in outcomes:
+                done = ended | set(winners)
+                next_live = tuple(live[a] and a not in done for a in range(num_agents))
+                total += value(t + 1, tuple(new), next_live, tuple(now_full))
+            best = max(best, reward + total / len(outcomes))
+        return best
+
+    return value(0, tuple(starts), (True,) * num_agents, (True,) * len(chests))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_optimal_return_equals_an_exhaustive_search_on_small_maps(seed):
+    text = generate_layout(4, num_treasures=2, num_traps=1, num_agents=2, complexity=0.15, seed=seed)
+    grid_map = parse_layout(text)
+    for agents in (1, 2):
+        assert optimal_team_return(grid_map, agents) == exhaustive_optimum(text, agents, 16), text

@@ -8,6 +8,7 @@ ignoring the seed.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -17,6 +18,7 @@ import matplotlib
 matplotlib.use("Agg")  # files only: works on clusters and in CI without a display
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from rliable import library as rliable_library  # noqa: E402
 
 from dqn_transfer.analysis.runs import learning_curve, load_config, steps_before  # noqa: E402
 from dqn_transfer.analysis.stats import Estimate, curve_band  # noqa: E402
@@ -26,7 +28,8 @@ from dqn_transfer.analysis.transfer_metrics import Curve  # noqa: E402
 IGNORED_KEYS = ("seed", "progress", "resume", "device", "checkpoint_every", "transfer.cache_dir")
 # Keys that name a condition, preferred as labels over what they imply (agent=sarsa implies agent.lr).
 PRIMARY_KEYS = ("agent.algorithm", "env.mode", "transfer.enabled", "env.num_agents", "env.layout_file", "env.layout")
-LINESTYLES = ("-", "--", ":", "-.")  # besides colours: identical curves stay visible
+LINESTYLES = ("-", "--", ":", "-.")
+PROFILE_RESAMPLES = 200  # rliable's bootstrap of a performance profile costs about 1 ms a resample  # besides colours: identical curves stay visible
 ColorOf = Callable[[str], "str | None"]
 
 
@@ -84,6 +87,7 @@ def group_runs(run_dirs: Sequence[Path]) -> dict[str, list[Path]]:
 # What a metrics.jsonl key measures, for axis labels a reader understands without the code.
 METRIC_LABELS = {
     "team_return": "greedy evaluation team return",
+    "score": "team return / the map's optimal return (greedy evaluation)",
     "success_rate": "fraction of the map's chests collected (greedy evaluation)",
     "trap_rate": "fraction of agents that end in a trap (greedy evaluation)",
     "episode_length": "greedy evaluation episode length (joint steps)",
@@ -119,9 +123,13 @@ def _band_panel(ax, metric: str, groups: dict[str, list[Curve]], rng: np.random.
     ax.legend(fontsize="small", loc=legend_loc)
 
 
-def _save(fig, path: Path, dpi: int) -> Path:
+def _save(fig, path: Path, dpi: int, watermark: str | None = None) -> Path:
+    """Write the figure; a ``watermark`` (e.g. a smoke run's "not evidence") is printed across it."""
+    if watermark:
+        fig.text(0.5, 0.5, watermark, fontsize=28, color="red", alpha=0.25, ha="center", va="center", rotation=20,
+                 transform=fig.transFigure, zorder=10)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi)
+    fig.savefig(path, dpi=dpi, metadata={"Software": None})  # no version stamp: regenerated files stay identical
     plt.close(fig)
     return path
 
@@ -151,28 +159,39 @@ def _shifted(curve: Curve, offset: int) -> Curve:
     return steps + offset, values
 
 
+def _grid(panels: int, width: float, height: float):
+    """Figure and axes for ``panels`` panels, at most 3 a row."""
+    cols = min(panels, 3)
+    rows = -(-panels // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(width * cols, height * rows), constrained_layout=True, squeeze=False)
+    for ax in axes.flat[panels:]:
+        ax.set_visible(False)
+    return fig, axes.flat
+
+
 def curves_figure(path: Path, panels: list[tuple[str, dict[str, list[Curve]]]], title: str,
-                  rng: np.random.Generator, color_of: ColorOf | None = None, note: str | None = None) -> Path:
-    """Panels side by side of learning curves (mean and 95% band per group), one per ``(metric, groups)``."""
-    fig, axes = plt.subplots(1, len(panels), figsize=(6.2 * len(panels), 4.3), constrained_layout=True,
-                             squeeze=False)
-    for ax, (metric, groups) in zip(axes[0], panels):
-        _band_panel(ax, metric, groups, rng, color_of, "environment steps" + (f"\n{note}" if note else ""),
-                    "lower right")
-    fig.suptitle(title + " — mean, 95% bootstrap CI over seeds, and each run (thin)")
-    return _save(fig, path, dpi=110)
+                  rng: np.random.Generator, color_of: ColorOf | None = None, note: str | None = None,
+                  xlabel: str = "environment steps", watermark: str | None = None) -> Path:
+    """Panels of learning curves (mean and 95% band per group, each run thin), one per ``(metric, groups)``."""
+    fig, axes = _grid(len(panels), 6.2, 4.3)
+    for ax, (metric, groups) in zip(axes, panels):
+        _band_panel(ax, metric, groups, rng, color_of, xlabel + (f"\n{note}" if note else ""), "lower right")
+    fig.suptitle(title + " — mean, 95% bootstrap CI over runs, and each run (thin)")
+    return _save(fig, path, dpi=110, watermark=watermark)
 
 
 def errorbar_figure(path: Path, panels: list[tuple[str, dict[str, dict[int, Estimate]]]], xlabel: str,
-                    title: str, color_of: ColorOf | None = None) -> Path:
+                    title: str, color_of: ColorOf | None = None, watermark: str | None = None,
+                    zero_line: bool = False) -> Path:
     """Panels side by side of estimates against an integer x, one per ``(ylabel, {series: {x: estimate}})``.
 
     Each series is a line with its 95% CIs as error bars, shifted sideways by its position so the
     bars of equal x stay apart; an empty series keeps its position (and line style) but is not drawn.
     """
-    fig, axes = plt.subplots(1, len(panels), figsize=(17 / 3 * len(panels), 4.5), constrained_layout=True,
-                             squeeze=False)
-    for ax, (ylabel, series) in zip(axes[0], panels):
+    fig, axes = _grid(len(panels), 17 / 3, 4.5)
+    for ax, (ylabel, series) in zip(axes, panels):
+        if zero_line:
+            ax.axhline(0.0, color="grey", lw=1)
         for index, (label, points) in enumerate(series.items()):
             if not points:
                 continue
@@ -191,4 +210,30 @@ def errorbar_figure(path: Path, panels: list[tuple[str, dict[str, dict[int, Esti
         ax.grid(alpha=0.3)
         ax.legend(fontsize="small")
     fig.suptitle(title)
-    return _save(fig, path, dpi=110)
+    return _save(fig, path, dpi=110, watermark=watermark)
+
+
+def profile_figure(path: Path, panels: list[tuple[str, dict[str, np.ndarray]]], title: str,
+                   color_of: ColorOf | None = None, watermark: str | None = None) -> Path:
+    """rliable's performance profiles: per panel, for each condition (scores ``[runs, maps]``), the fraction
+    of runs scoring above tau, for every tau, with a 95% stratified-bootstrap band."""
+    fig, axes = _grid(len(panels), 5.5, 4.0)
+    for ax, (label, scores) in zip(axes, panels):
+        low = min(float(np.min(s)) for s in scores.values())
+        high = max(float(np.max(s)) for s in scores.values())
+        taus = np.linspace(low, high, 61)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", FutureWarning)  # arch deprecates the RandomState rliable passes it
+            profiles, bands = rliable_library.create_performance_profile(scores, taus, reps=PROFILE_RESAMPLES)
+        for index, name in enumerate(scores):
+            color = color_of(name) if color_of else None
+            line, = ax.plot(taus, profiles[name], label=f"{name} (n={scores[name].size})", color=color,
+                            ls=LINESTYLES[index % len(LINESTYLES)])
+            ax.fill_between(taus, bands[name][0], bands[name][1], color=line.get_color(), alpha=0.15, lw=0)
+        ax.set_title(label, fontsize="medium")
+        ax.set_xlabel("final score tau (team return / optimal return)")
+        ax.set_ylabel("fraction of runs with score > tau")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize="small")
+    fig.suptitle(title)
+    return _save(fig, path, dpi=110, watermark=watermark)

@@ -1,30 +1,28 @@
-"""Reproduce the study's three claims: run the sweeps, then write ``OUT/REPORT.md`` and figures.
+"""The study: run its experiments, keep their raw data, and write ``REPORT.md`` with its figures.
 
-    python scripts/reproduce.py --profile quick --out /tmp/repro_quick   # smoke run: minutes, 2-3 seeds
-    python scripts/reproduce.py --profile full --out results/            # the evidence: >= 10 seeds, ~30 min on 2 cores
-    python scripts/reproduce.py --profile full --out results/ --launcher submitit_slurm \\
-        --extra hydra.launcher.partition=PART --extra hydra.launcher.timeout_min=120
-    python scripts/reproduce.py --out results/ --report-only             # re-analyse runs already there
-    python scripts/reproduce.py --write-maps maps/                        # only the Figure 2 team maps
+    python scripts/reproduce.py --profile quick --out /tmp/study      # smoke run: minutes, NOT evidence
+    python scripts/reproduce.py --profile full --out results          # the evidence: about 30 min on 2 cores
+    dqn-transfer-report results --out /tmp/report                     # the report again from results/data/,
+                                                                      # no training, under a minute
+    python scripts/reproduce.py --out results --report-only           # re-export OUT/runs/ and report
+    python scripts/reproduce.py --profile full --out results --launcher submitit_slurm \\
+        --extra hydra.launcher.partition=PART --extra hydra.launcher.timeout_min=60
 
-(``python -m dqn_transfer.cli.report`` takes the same arguments.) Each experiment is one Hydra
-multirun of ``python -m dqn_transfer.cli.train -m experiment=<name>`` (``conf/experiment/``) into
-``OUT/<name>/`` (a subprocess; ``--launcher joblib``, the default, runs ``--n-jobs`` jobs at a time;
-without the ``sweep`` extra the default is Hydra's basic launcher, one job at a time). The ``full``
-profile uses the experiment files' own step counts; ``quick`` shrinks them and the seeds. Then the
-run directories are read back (``.hydra/config.yaml`` + ``metrics.jsonl``, never live objects) and
-the report says, for each claim, whether the data support it, by a rule fixed in advance:
+(``dqn-transfer-report`` and ``python -m dqn_transfer.cli.report`` are the same program.) Each
+experiment is one Hydra multirun of ``python -m dqn_transfer.cli.train -m experiment=<name>``
+(``conf/experiment/``) into ``OUT/runs/<name>/``; ``--launcher joblib`` (the default, from the
+``sweep`` extra) runs ``--n-jobs`` jobs at a time. The runs' evaluations are then exported to
+``OUT/data/<name>.jsonl`` (one JSON line per run, with its config) and the report is computed from
+those files alone, by the rules of ``results/VERDICT_RULES.md``:
 
-1. one treasure: cooperation gives no advantage over competition (``fig1``);
-2. complex map, growing team: deliberative > cooperative > competitive (``fig2``);
-3. transfer from a trained agent speeds up learning (``transfer``).
+- hypothesis, hypothesis_shared: a group that exchanges knowledge learns better than the same group without;
+- claim1: with one treasure, cooperation gives no advantage over competition;
+- claim2: as the team grows, deliberative > cooperative > competitive;
+- transfer: starting from a trained agent speeds up learning (with exploration-matched baselines and
+  the source's cost).
 
-Figure 2 compares team sizes on the SAME map: the 4-agent map is generated once and its m-agent
-versions drop the start digits >= m (``OUT/maps/fig2_m{m}.txt``); changing ``env.num_agents``
-instead would generate a different map for every team size.
-
-A sweep directory already complete for the same settings is reused (so a failed report or a second
-``--only`` does not rerun it); one holding other or unfinished runs is an error, never overwritten.
+A sweep directory already complete for the same settings is reused; one holding other or unfinished
+runs is an error, never overwritten.
 """
 
 from __future__ import annotations
@@ -35,9 +33,9 @@ import time
 from pathlib import Path
 
 from dqn_transfer.analysis.runs import skipped_runs_on_stderr
-from dqn_transfer.experiments.report import write_report
+from dqn_transfer.experiments.raw_data import DATA_DIR, DataError
+from dqn_transfer.experiments.report import export_data, write_report
 from dqn_transfer.experiments.sweeps import EXPERIMENTS, PROFILES, ReproduceError, choose_launcher, run_experiment
-from dqn_transfer.experiments.team_maps import write_team_maps
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -45,8 +43,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter,
                                      epilog=__doc__.split("\n\n", 1)[1])
+    parser.add_argument("results", nargs="?", type=Path,
+                        help="a results directory holding data/: only write its report (into --out, default itself)")
     parser.add_argument("--profile", choices=sorted(PROFILES), default="quick")
-    parser.add_argument("--out", type=Path, help="output directory (sweeps, figures, REPORT.md)")
+    parser.add_argument("--out", type=Path, help="output directory (runs/, data/, figures, REPORT.md)")
     parser.add_argument("--only", default=",".join(EXPERIMENTS),
                         help=f"comma-separated subset of {','.join(EXPERIMENTS)} (default: all)")
     parser.add_argument("--launcher", default=None,
@@ -55,34 +55,37 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--n-jobs", type=int, default=2, help="parallel jobs with --launcher joblib (default 2)")
     parser.add_argument("--extra", action="append", default=[], metavar="OVERRIDE",
                         help="extra Hydra override for every sweep, e.g. hydra.launcher.partition=PART (repeatable)")
-    parser.add_argument("--report-only", action="store_true", help="do not run anything; analyse OUT as it is")
-    parser.add_argument("--write-maps", type=Path, metavar="DIR",
-                        help="only write the Figure 2 team-size maps (fig2_m1..4.txt) into DIR")
+    parser.add_argument("--report-only", action="store_true",
+                        help="run nothing: export the runs already in OUT/runs/ and write the report")
     args = parser.parse_args(argv)
+    start = time.perf_counter()
     try:
-        if args.write_maps is not None:
-            for path in write_team_maps(args.write_maps):
-                print(path)
-            return 0
-        if args.out is None:
-            parser.error("--out is required")
-        only = [name.strip() for name in args.only.split(",") if name.strip()]
-        unknown = [name for name in only if name not in EXPERIMENTS]
-        if unknown:
-            raise ReproduceError(f"--only: unknown experiment(s) {', '.join(unknown)} (choose from {', '.join(EXPERIMENTS)})")
-        if args.n_jobs < 1:
-            raise ReproduceError(f"--n-jobs must be >= 1, got {args.n_jobs}")
-        launcher = None if args.report_only else choose_launcher(args.launcher)  # refused before anything runs
-        out = args.out.expanduser().resolve()
-        out.mkdir(parents=True, exist_ok=True)
-        start = time.perf_counter()
-        if not args.report_only:
-            print(f"profile {args.profile}: {PROFILES[args.profile].description}", flush=True)
-            for name in only:
-                run_experiment(name, args.profile, out, launcher, args.n_jobs, args.extra)
-        with skipped_runs_on_stderr():
-            report = write_report(out, None if args.report_only else args.profile)
-    except ReproduceError as err:
+        if args.results is not None:
+            data = args.results.expanduser() / DATA_DIR
+            if not data.is_dir():
+                raise ReproduceError(f"{args.results} has no {DATA_DIR}/ directory of run data")
+            report = write_report(data, (args.out or args.results).expanduser())
+        else:
+            if args.out is None:
+                parser.error("give a results directory to report on, or --out to run the study into")
+            only = [name.strip() for name in args.only.split(",") if name.strip()]
+            unknown = [name for name in only if name not in EXPERIMENTS]
+            if unknown:
+                raise ReproduceError(f"--only: unknown experiment(s) {', '.join(unknown)} "
+                                     f"(choose from {', '.join(EXPERIMENTS)})")
+            if args.n_jobs < 1:
+                raise ReproduceError(f"--n-jobs must be >= 1, got {args.n_jobs}")
+            launcher = None if args.report_only else choose_launcher(args.launcher)  # refused before anything runs
+            out = args.out.expanduser().resolve()
+            out.mkdir(parents=True, exist_ok=True)
+            if not args.report_only:
+                print(f"profile {args.profile}: {PROFILES[args.profile].description}", flush=True)
+                for name in only:
+                    run_experiment(name, args.profile, out, launcher, args.n_jobs, args.extra)
+            with skipped_runs_on_stderr():
+                data = export_data(out)
+            report = write_report(data, out)
+    except (ReproduceError, DataError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

@@ -200,6 +200,49 @@ def parse_layout(text: str) -> GridMap:
     )
 
 
+def optimal_team_return(
+    grid_map: GridMap,
+    num_agents: int,
+    treasure_reward: float = 100.0,
+    step_reward: float = -1.0,
+) -> float | None:
+    """The best team return any policy can get on ``grid_map`` with its first ``num_agents`` starts.
+
+    Every agent walks a shortest path (around obstacles and traps) to a chest of its own, the agents
+    matched to the chests so that the total distance is smallest (``linear_sum_assignment`` on the
+    BFS distances of :meth:`GridMap.distances_from`). An agent ``d`` moves from its chest earns
+    ``treasure_reward + (d - 1) * step_reward``: ``d - 1`` ordinary moves, then the move into the
+    chest. This is the optimum under the default rewards (``step_reward <= 0``, and taking a chest
+    beats ending any other way) and horizon (``max_steps = n * n`` exceeds every BFS distance);
+    agents may share cells, so they never get in each other's way. The team return counts each
+    reward once, so it is the same in both reward modes.
+
+    ``None`` when there are more agents than chests: the agents left without a chest then wander
+    until the horizon or a trap, which is no clean optimum. Also ``None`` if the agents cannot all
+    reach chests of their own (impossible on a valid map, where every start reaches every chest).
+    """
+    if isinstance(num_agents, bool) or not isinstance(num_agents, (int, np.integer)) or not (
+        1 <= num_agents <= grid_map.num_agents
+    ):
+        raise ValueError(
+            f"num_agents must be between 1 and the map's {grid_map.num_agents} starts, "
+            f"got {num_agents!r}"
+        )
+    if num_agents > grid_map.num_treasures:
+        return None
+    # Imported here, as in the deliberative coordinator: scipy.optimize is slow to import.
+    from scipy.optimize import linear_sum_assignment
+
+    rows, cols = np.array(grid_map.starts[:num_agents]).T
+    dist = np.stack([grid_map.distances_from(chest)[rows, cols] for chest in grid_map.chests], axis=1)
+    unreachable = grid_map.size**2 * num_agents + 1  # more than any matching of reachable pairs
+    agents, chests = linear_sum_assignment(np.where(dist < 0, unreachable, dist))
+    picked = dist[agents, chests]
+    if (picked < 0).any():
+        return None
+    return float(num_agents * treasure_reward + (int(picked.sum()) - num_agents) * step_reward)
+
+
 def _check_int(name: str, value: object, low: int, high: int | None = None) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
         raise ValueError(f"{name} must be an integer, got {value!r}")

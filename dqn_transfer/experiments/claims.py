@@ -1,378 +1,488 @@
-"""One report section per claim of the study, each with a verdict by a rule fixed in advance.
+"""The study's questions, one report section each, with a verdict by the rules of ``results/VERDICT_RULES.md``.
 
-1. one treasure: cooperation gives no advantage over competition (``fig1``);
-2. complex map, growing team: deliberative > cooperative > competitive (``fig2``);
-3. transfer from a trained agent speeds up learning (``transfer``).
+- the main hypothesis: a group that exchanges knowledge learns better than the same group without
+  (experiments ``hypothesis`` and ``hypothesis_shared``);
+- claim 1, one treasure: cooperation gives no advantage over competition (``claim1``);
+- claim 2, as the team grows: deliberative > cooperative > competitive (``claim2``);
+- claim 3, starting from a trained agent speeds up learning (``transfer``).
 
-A section reads the runs of its experiment (their configs tell the conditions apart), computes its
-statistics with :mod:`dqn_transfer.analysis` (95% percentile bootstraps over seeds; differences
-between conditions paired by seed), draws its figures into ``OUT`` and states its verdict by the
-rule in ``RULES``, which the report prints beside it. The section functions share one random
-generator, in a fixed order of calls, so the same runs always give the same digits.
-
-Figure 2 compares team sizes on the same map (:mod:`dqn_transfer.experiments.team_maps`); a run's
-team size is read from its map, not from ``env.num_agents``.
+Each section reads its runs' raw data (:mod:`~dqn_transfer.experiments.raw_data`), never run
+directories. A run's **score** is its mean greedy-evaluation team return over training (the area under
+its learning curve divided by its steps: how well the team does while it learns), as a fraction of its
+map's optimal team return where the map has one (every agent taking its own chest by a shortest path),
+so maps of different sizes share a scale. Runs of two conditions with the same (map seed, seed) share
+their map, initial values and exploration noise: differences are paired by that unit. rliable's IQM and
+probability of improvement are stratified by map. Each section names ONE primary comparison, whose
+verdict the summary reports; everything else is exploratory. All sections draw from one generator in
+a fixed order, so the same data always give the same digits.
 """
 
 from __future__ import annotations
 
-import warnings
-from collections.abc import Sequence
+import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import scipy.stats
 
-from dqn_transfer.analysis.compare import compare_runs, format_table
-from dqn_transfer.analysis.plots import curves_figure, errorbar_figure
-from dqn_transfer.analysis.runs import Run, group, per_seed
-from dqn_transfer.analysis.stats import Estimate, curve_band, difference, estimate
-from dqn_transfer.analysis.transfer_metrics import Curve, asymptotic_performance, mean_curve, mean_over_training
+from dqn_transfer.analysis.plots import curves_figure, errorbar_figure, profile_figure
+from dqn_transfer.analysis.stats import Estimate, estimate, improvement_probability, iqm, mean_intervals
+from dqn_transfer.analysis.transfer_metrics import asymptotic_performance, mean_over_training, time_to_threshold
 from dqn_transfer.enums import Algorithm, Mode
-from dqn_transfer.enums import values as enum_values
-from dqn_transfer.experiments.sweeps import ReproduceError
+from dqn_transfer.experiments.raw_data import RunData
 
-FINAL_TAIL = 0.2  # "final performance" = mean of the last 20% of a run's evaluations
-THRESHOLD_FRACTION = 0.9  # time to threshold: reach 90% of the baseline's improvement
-EQUIVALENCE_MARGIN = 0.05  # claim 1: a cooperative advantage below 5% of the learning range is negligible
-MODES = enum_values(Mode)
-COMPETITIVE, COOPERATIVE, DELIBERATIVE = MODES
-# One colour per condition across figures; transfer curves are labelled "<learner> transfer=off|on".
-COLORS = {COMPETITIVE: "tab:red", COOPERATIVE: "tab:blue", DELIBERATIVE: "tab:green",
-          "off": "tab:gray", "on": "tab:purple"}
-
-RULES = {
-    "claim1": ("An equivalence (non-superiority) test on the paired (same-seed) difference D = cooperative - "
-               "competitive in mean evaluation team return over training (area under the curve / steps), with "
-               f"margin delta = {EQUIVALENCE_MARGIN:.0%} of the competitive mean curve's range (max - min: the "
-               "improvement learning brings). SUPPORTED if the 95% bootstrap CI of D lies below +delta (any "
-               "advantage of cooperation is negligible); NOT SUPPORTED if it lies above +delta; INCONCLUSIVE if it "
-               "straddles +delta (more seeds needed). The bare test 'the CI contains 0' is reported beside it: "
-               "with many seeds it flags differences too small to matter, with few it passes anything."),
-    "claim2": ("At the largest team size: SUPPORTED if the 95% bootstrap CIs of the paired (same-seed) "
-               "differences deliberative - cooperative and cooperative - competitive in mean evaluation team return "
-               "over training (area under the curve / steps: how well the team does while it learns) both lie "
-               "above 0; NOT SUPPORTED otherwise. Final performance is reported beside it."),
-    "claim3": ("Per learner: SUPPORTED if the 95% bootstrap CIs of the jumpstart and of the paired "
-               "total-reward difference (transfer - baseline, area under the team-return curve) both "
-               "lie above 0; NOT SUPPORTED otherwise. The claim as a whole is SUPPORTED if it holds for "
-               "every learner tested, PARTLY SUPPORTED if for some."),
-}
+PRIMARY_LEARNER = Algorithm.sarsa.value  # the study's own learner; Double DQN is run beside it, exploratory
+CLAIM1_MARGIN = 5.0  # return units (5% of a treasure's reward): a smaller cooperative advantage is negligible
+THRESHOLD = 0.8  # time to threshold: steps until the score curve first reaches 80% of the optimal return
+FINAL_TAIL = 0.2  # final performance: the mean of the last 20% of a run's evaluations
+SLOPE_RESAMPLES = 10_000
+COMPETITIVE, COOPERATIVE, DELIBERATIVE = (m.value for m in Mode)
+NO_EXCHANGE, SHARED_NETWORK = "none", "shared network"
+SCRATCH, MATCHED = "scratch", "scratch_matched"
+TRANSFER_CONDITIONS = ("same_map", "same_map_one", "other_map", "team_member")
+COLORS = {COMPETITIVE: "tab:red", COOPERATIVE: "tab:blue", DELIBERATIVE: "tab:green", NO_EXCHANGE: "tab:gray",
+          "best": "tab:purple", "shared_replay": "tab:orange", SHARED_NETWORK: "tab:brown", SCRATCH: "tab:gray",
+          MATCHED: "black", "same_map": "tab:purple", "same_map_one": "tab:pink", "other_map": "tab:olive",
+          "team_member": "tab:cyan", "sarsa": "tab:blue", "double_dqn": "tab:red"}
+SUPPORTED, NOT_SUPPORTED, CONTRADICTED, INCONCLUSIVE = "SUPPORTED", "NOT SUPPORTED", "CONTRADICTED", "INCONCLUSIVE"
+SCORE_LABEL = "team return / the map's optimal return"  # the score's axis label (plots.METRIC_LABELS["score"])
 
 
-def team_size(config: dict[str, Any], out: Path | None = None) -> int:
-    """Number of agents of a run's map: the start digits of its layout, else ``env.num_agents``."""
-    env = config.get("env", {})
-    layout = env.get("layout")
-    if layout is None and env.get("layout_file"):
-        path = Path(env["layout_file"])
-        candidates = [path] + ([out / "maps" / path.name] if out is not None else [])  # OUT moved since
-        for candidate in candidates:
-            if candidate.is_file():
-                layout = candidate.read_text()
-                break
-        else:
-            raise ReproduceError(f"layout file {path} of a run is missing: cannot tell the team size")
-    if layout is not None:
-        return sum(ch.isdigit() for ch in layout)
-    return int(env.get("num_agents") or env.get("num_treasures") or 1)
+@dataclass
+class Context:
+    """What every section shares: where figures go, the generator, and the smoke-run mark."""
 
-
-def final_performance(curve: Curve) -> float:
-    return asymptotic_performance(curve, FINAL_TAIL)
-
-
-def describe_runs(runs: Sequence[Run]) -> str:
-    """How much evidence: seeds per condition, steps per run, evaluations."""
-    steps = sorted({int(r.config.get("total_steps", 0)) for r in runs})
-    every = sorted({int(r.config.get("eval_every", 0)) for r in runs})
-    episodes = sorted({int(r.config.get("eval_episodes", 0)) for r in runs})
-    fmt = lambda xs: "/".join(f"{x:,}" for x in xs)  # noqa: E731
-    return (f"{fmt(steps)} environment steps per run, a greedy evaluation of {fmt(episodes)} episodes "
-            f"every {fmt(every)} steps")
-
-
-def seeds_of(groups: dict[Any, list[Run]]) -> str:
-    counts = sorted({len(v) for v in groups.values()})
-    return "/".join(map(str, counts))
+    out: Path
+    rng: np.random.Generator
+    watermark: str | None = None
 
 
 @dataclass
 class Section:
-    """One claim's part of the report: its summary row (verdict, headline, evidence) and its Markdown."""
+    """One question's part of the report: its summary row and its Markdown."""
 
-    claim: str
+    question: str
+    primary: str
+    result: str
     verdict: str
-    headline: str
-    evidence: str
     markdown: str
     figures: list[str] = field(default_factory=list)
 
 
-def _verdict(text: str) -> str:
-    return f"**{text}**"
+# ------------------------------------------------------------------------------------ runs and scores
 
 
-def _fig_path(out: Path, name: str) -> Path:
-    return out / f"{name}.png"
+def learner(run: RunData) -> str:
+    return run.config["agent"]["algorithm"]
+
+
+def mode(run: RunData) -> str:
+    return run.config["env"]["mode"]
+
+
+def team_size(run: RunData) -> int:
+    return int(run.config["env"]["num_agents"])
+
+
+def score(run: RunData) -> float:
+    return mean_over_training(run.score_curve())
+
+
+def raw_score(run: RunData) -> float:
+    """Mean evaluation team return over training, in return units."""
+    return mean_over_training(run.curve())
+
+
+def final_score(run: RunData) -> float:
+    return asymptotic_performance(run.score_curve(), FINAL_TAIL)
+
+
+def group(runs: Sequence[RunData], key: Callable[[RunData], Any]) -> dict[Any, list[RunData]]:
+    """Runs by ``key``, each group in unit order (so groups of the same units line up)."""
+    groups: dict[Any, list[RunData]] = {}
+    for run in runs:
+        groups.setdefault(key(run), []).append(run)
+    return {k: sorted(v, key=lambda r: r.unit) for k, v in groups.items()}
+
+
+def paired(a: Sequence[RunData], b: Sequence[RunData], fn: Callable[[RunData], float]) -> np.ndarray:
+    """``fn(a) - fn(b)`` for every unit both conditions ran."""
+    by_unit = {r.unit: fn(r) for r in b}
+    return np.array([fn(r) - by_unit[r.unit] for r in a if r.unit in by_unit])
+
+
+def by_map(runs: Sequence[RunData], fn: Callable[[RunData], float]) -> np.ndarray:
+    """``[runs per map, maps]``, the layout rliable stratifies by; one column when the maps hold unequal
+    numbers of runs."""
+    maps = group(runs, lambda r: r.map_seed)
+    counts = {len(v) for v in maps.values()}
+    if len(counts) != 1:
+        return np.array([[fn(r)] for r in runs])
+    return np.array([[fn(r) for r in maps[m]] for m in sorted(maps)]).T
+
+
+def improvement(a: Sequence[RunData], b: Sequence[RunData], fn: Callable[[RunData], float],
+                rng: np.random.Generator) -> Estimate:
+    """P(a run of ``a`` scores higher than a run of ``b`` on the same map), rliable's, stratified by map."""
+    return improvement_probability(by_map(a, fn), by_map(b, fn), rng)
+
+
+def poi_verdict(p: Estimate) -> str:
+    if not p.has_ci:
+        return INCONCLUSIVE
+    return SUPPORTED if p.low > 0.5 else CONTRADICTED if p.high < 0.5 else NOT_SUPPORTED
+
+
+def fmt(e: Estimate, digits: int = 3) -> str:
+    if not math.isfinite(e.mean):
+        return "n/a"
+    if not e.has_ci:
+        return f"{e.mean:.{digits}g} [no interval]"
+    if e.low == e.high:
+        return f"{e.mean:.{digits}g} [no spread]"
+    return f"{e.mean:.{digits}g} [{e.low:.{digits}g}, {e.high:.{digits}g}]"
+
+
+def interval_text(values: np.ndarray, rng: np.random.Generator) -> tuple[str, dict[str, Estimate]]:
+    """A paired difference's mean with its t, BCa and percentile 95% intervals, as one cell."""
+    intervals = mean_intervals(values, rng)
+    t = intervals["t"]
+    if not t.has_ci:
+        return fmt(t), intervals
+    return (f"{t.mean:+.3g}, t [{t.low:+.3g}, {t.high:+.3g}], BCa [{intervals['bca'].low:+.3g}, "
+            f"{intervals['bca'].high:+.3g}], pct [{intervals['percentile'].low:+.3g}, "
+            f"{intervals['percentile'].high:+.3g}] (n={t.n})"), intervals
+
+
+def t_text(intervals: dict[str, Estimate]) -> str:
+    """The paired difference's mean with its t interval: the summary's short form."""
+    t = intervals["t"]
+    return f"{t.mean:+.3g}, t [{t.low:+.3g}, {t.high:+.3g}]" if t.has_ci else fmt(t)
+
+
+def describe(runs: Sequence[RunData]) -> str:
+    """How much evidence: steps per run, evaluations, maps and seeds."""
+    def values(key: Callable[[dict], Any]) -> str:
+        return "/".join(f"{v:,}" for v in sorted({key(r.config) for r in runs}))
+    maps = len({r.map_seed for r in runs})
+    seeds = len({r.seed for r in runs})
+    return (f"{values(lambda c: c['total_steps'])} env steps per run, a greedy evaluation of "
+            f"{values(lambda c: c['eval_episodes'])} episodes every {values(lambda c: c['eval_every'])} steps; "
+            f"{maps} generated maps x {seeds} seeds per condition")
 
 
 def _color(label: str) -> str | None:
-    return COLORS.get(label.split(" ")[-1].replace("transfer=", ""))
+    return COLORS.get(label.split(" (")[0].split(", ")[-1])
 
 
-def _curves_figure(out: Path, name: str, panels: list[tuple[str, dict[str, list[Run]]]], title: str,
-                   rng: np.random.Generator, note: str | None = None) -> Path:
-    """Learning curves of groups of runs, one panel per ``(metric, {label: runs})``."""
-    curves = [(metric, {label: [r.curve(metric) for r in members] for label, members in groups.items()})
-              for metric, groups in panels]
-    return curves_figure(_fig_path(out, name), curves, title, rng, color_of=_color, note=note)
+def _learners(runs: Sequence[RunData]) -> list[str]:
+    """The learners present, the primary one first."""
+    present = {learner(r) for r in runs}
+    return sorted(present, key=lambda a: (a != PRIMARY_LEARNER, a))
 
 
-def section_fig1(out: Path, runs: list[Run], rng: np.random.Generator) -> Section:
-    by_mode = group(runs, lambda r: r.config["env"]["mode"])
-    missing = [m for m in (COMPETITIVE, COOPERATIVE) if m not in by_mode]
-    claim = "1. One treasure: cooperation gives no advantage over competition"
-    if missing:
-        return Section(claim, _verdict("INCONCLUSIVE"), f"no {', '.join(missing)} runs", "", f"No {', '.join(missing)} runs in {out / 'fig1'}.")
-    comp, coop = by_mode[COMPETITIVE], by_mode[COOPERATIVE]
-    sample = comp[0].config["env"]
-    setting = (f"{comp[0].config['agent']['algorithm']} on a {sample.get('size')}x{sample.get('size')} map with "
-               f"{sample.get('num_treasures')} treasure, {sample.get('num_traps')} trap(s) and "
-               f"{team_size(comp[0].config, out)} agents")
-    modes = {COMPETITIVE: comp, COOPERATIVE: coop}
-    fig = _curves_figure(out, "fig1", [("team_return", modes), ("success_rate", modes)],
-                         "Figure 1: one treasure, competitive vs cooperative", rng)
-    auc = {m: per_seed(g, mean_over_training) for m, g in modes.items()}
-    fin = {m: per_seed(g, final_performance) for m, g in modes.items()}
-    succ = {m: per_seed(g, final_performance, "success_rate") for m, g in modes.items()}
-    d_auc = difference(auc[COOPERATIVE], auc[COMPETITIVE], rng)
-    d_fin = difference(fin[COOPERATIVE], fin[COMPETITIVE], rng)
-    d_succ = difference(succ[COOPERATIVE], succ[COMPETITIVE], rng)
-    # Only the mean is used; the band's one resample still draws from rng, as the report always has,
-    # so the same runs keep giving the same intervals below.
-    _, comp_mean, _, _ = curve_band([r.curve() for r in comp], rng, n_resamples=1)
-    delta = EQUIVALENCE_MARGIN * float(comp_mean.max() - comp_mean.min())
-    bare = ("contains 0" if d_auc.contains_zero() else "excludes 0") if d_auc.has_ci else "is undefined"
-    if not d_auc.has_ci:
-        verdict, why = "INCONCLUSIVE", "fewer than 2 seeds: no confidence interval"
-    elif d_auc.high < delta:
-        verdict = "SUPPORTED"
-        why = (f"the 95% CI of cooperative - competitive, {d_auc}, lies below the margin +{delta:.3g} "
-               f"(the CI {bare}): any advantage of cooperation is at most {max(d_auc.high, 0):.3g} return units")
-    elif d_auc.low > delta:
-        verdict = "NOT SUPPORTED"
-        why = f"the 95% CI of cooperative - competitive, {d_auc}, lies above the margin +{delta:.3g}: cooperation helps"
-    else:
-        verdict = "INCONCLUSIVE"
-        why = (f"the 95% CI of cooperative - competitive, {d_auc}, straddles the margin +{delta:.3g} (the CI {bare}): "
-               "run more seeds")
-    table = ["| metric (per run) | competitive | cooperative | cooperative - competitive (paired) |",
-             "|---|---:|---:|---:|"]
-    for label, values, diff in (("mean eval team return over training (AUC / steps)", auc, d_auc),
-                                (f"final team return (last {FINAL_TAIL:.0%} of evals)", fin, d_fin),
-                                (f"final success rate (last {FINAL_TAIL:.0%} of evals)", succ, d_succ)):
-        table.append(f"| {label} | {estimate(list(values[COMPETITIVE].values()), rng)} | "
-                     f"{estimate(list(values[COOPERATIVE].values()), rng)} | {diff} |")
-    evidence = f"{seeds_of(by_mode)} seeds per mode; {describe_runs(runs)}"
-    md = "\n".join([
-        f"Setting: {setting}. Evidence: {evidence}.", "",
-        f"![Figure 1]({fig.name})", "",
-        "Means with 95% percentile-bootstrap CIs over seeds:", "", *table, "",
-        f"Rule: {RULES['claim1']}", "",
-        f"Verdict: {_verdict(verdict)} — {why}.",
-    ])
-    return Section(claim, _verdict(verdict), f"coop - comp mean return {d_auc} (margin +{delta:.3g})", evidence, md,
-                   [fig.name])
+# ------------------------------------------------------------------------------------ main hypothesis
 
 
-def _mode_differences(values: dict[tuple[str, int], dict[int, float]], m: int, rng: np.random.Generator):
-    """(coop - comp, delib - coop) at team size m, paired by seed; None where a mode is missing."""
-    def diff(a: str, b: str) -> Estimate | None:
-        return difference(values[(a, m)], values[(b, m)], rng) if (a, m) in values and (b, m) in values else None
-    return diff(COOPERATIVE, COMPETITIVE), diff(DELIBERATIVE, COOPERATIVE)
+def exchange_condition(run: RunData) -> str:
+    if run.config["agent"].get("share_parameters"):
+        return SHARED_NETWORK
+    return run.config["transfer"]["exchange"]
 
 
-def _mode_table(values: dict[tuple[str, int], dict[int, float]], sizes: list[int], rng: np.random.Generator,
-                with_differences: bool = True) -> tuple[list[str], dict[int, tuple]]:
-    """Markdown rows: per team size, each mode's mean [CI] and the two paired differences."""
-    head = "| team size | competitive | cooperative | deliberative |"
-    rows = [head + (" coop - comp | delib - coop |" if with_differences else ""),
-            "|---:|---:|---:|---:|" + ("---:|---:|" if with_differences else "")]
-    diffs = {}
-    for m in sizes:
-        cells = " | ".join(str(estimate(list(values[(mode, m)].values()), rng)) if (mode, m) in values else "—"
-                           for mode in MODES)
-        diffs[m] = _mode_differences(values, m, rng)
-        extra = f" {diffs[m][0] or '—'} | {diffs[m][1] or '—'} |" if with_differences else ""
-        rows.append(f"| {m} | {cells} |{extra}")
-    return rows, diffs
-
-
-def section_fig2(out: Path, runs: list[Run], rng: np.random.Generator) -> Section:
-    claim = "2. Complex map, growing team: deliberative > cooperative > competitive"
-    cells = group(runs, lambda r: (r.config["env"]["mode"], team_size(r.config, out)))
-    sizes = sorted({m for _, m in cells})
-    if not sizes:
-        return Section(claim, _verdict("INCONCLUSIVE"), "no runs", "", "No runs.")
-    metrics = {  # per (mode, team size): {seed: value}
-        "mean_return": {k: per_seed(g, mean_over_training) for k, g in cells.items()},
-        "final_return": {k: per_seed(g, final_performance) for k, g in cells.items()},
-        "final_success": {k: per_seed(g, final_performance, "success_rate") for k, g in cells.items()},
-    }
-    labels = {"mean_return": "mean eval team return over training (AUC / steps)",
-              "final_return": f"final eval team return (last {FINAL_TAIL:.0%} of evals)",
-              "final_success": f"final eval success rate (last {FINAL_TAIL:.0%})"}
-
-    # Figure 2: each metric against team size, one line per mode.
-    points = [(labels[name], {mode: {m: estimate(list(values[(mode, m)].values()), rng) for m in sizes
-                                     if (mode, m) in values} for mode in MODES})
-              for name, values in metrics.items()]
-    fig2 = errorbar_figure(_fig_path(out, "fig2"), points, "team size (agents, same map)",
-                           "Figure 2: complex map — performance vs team size (mean, 95% bootstrap CI over seeds)",
-                           color_of=_color)
-    largest = sizes[-1]
-    curves = _curves_figure(out, "fig2_curves", [(metric, {mode: cells[(mode, largest)] for mode in MODES
-                                                           if (mode, largest) in cells})
-                                                 for metric in ("team_return", "success_rate")],
-                            f"Complex map, team of {largest}", rng)
-
-    rows_primary, diffs = _mode_table(metrics["mean_return"], sizes, rng)
-    rows_final, diffs_final = _mode_table(metrics["final_return"], sizes, rng)
-    rows_success, _ = _mode_table(metrics["final_success"], sizes, rng, with_differences=False)
-    d_cc, d_dc = diffs[largest]
-    if d_cc is None or d_dc is None:
-        verdict, why = "INCONCLUSIVE", f"a mode is missing at team size {largest}"
-    elif not (d_cc.has_ci and d_dc.has_ci):
-        verdict, why = "INCONCLUSIVE", "fewer than 2 seeds: no confidence interval"
-    elif largest < 2:
-        verdict, why = "INCONCLUSIVE", "only single-agent teams were run"
-    elif d_cc.excludes_zero_above() and d_dc.excludes_zero_above():
-        verdict = "SUPPORTED"
-        why = f"at team size {largest}, deliberative - cooperative = {d_dc} and cooperative - competitive = {d_cc}, both CIs above 0"
-    else:
-        verdict = "NOT SUPPORTED"
-        failed = [name for name, d in (("deliberative > cooperative", d_dc), ("cooperative > competitive", d_cc))
-                  if not d.excludes_zero_above()]
-        why = (f"at team size {largest}, deliberative - cooperative = {d_dc} and cooperative - competitive = "
-               f"{d_cc}; not established: {' and '.join(failed)}")
-    f_cc, f_dc = diffs_final[largest]
-    secondary = (f"On final team return instead (secondary, not the rule): deliberative - cooperative = {f_dc}, "
-                 f"cooperative - competitive = {f_cc} at team size {largest}." if f_cc and f_dc else "")
-    trend = ", ".join(f"m={m}: {diffs[m][1].mean:+.3g} / {diffs[m][0].mean:+.3g}" for m in sizes
-                      if diffs[m][0] is not None and diffs[m][1] is not None)
-    sample = runs[0].config
-    evidence = f"{seeds_of(cells)} seeds per (mode, team size); {describe_runs(runs)}"
-    notes = []
-    if 1 in sizes and diffs[1][0] is not None and diffs[1][0].has_ci and diffs[1][0].low == diffs[1][0].high == 0:
-        notes.append("Sanity check passed: with one agent, competitive and cooperative runs of the same seed are "
-                     "identical (there is nobody to announce anything), so their difference is exactly 0.")
-    maps = sorted({Path(r.config["env"]["layout_file"]).name if r.config["env"].get("layout_file") else "generated"
-                   for r in runs})
-    md = "\n".join([
-        f"Setting: {sample['agent']['algorithm']} on the complex map ({', '.join(f'`{m}`' for m in maps)}: the same "
-        "map for every team size, start digits >= m removed; `maps/` beside this report). An agent is done after "
-        "taking one treasure, so a team of m collects at most m of the map's chests. Evidence: " + evidence + ".", "",
-        f"![Figure 2]({fig2.name})", "",
-        f"![Learning curves at team size {largest}]({curves.name})", "",
-        "Primary metric — mean evaluation team return over training (area under the curve / steps), "
-        "mean [95% CI]; differences paired by seed:", "", *rows_primary, "",
-        f"Final team return (mean of the last {FINAL_TAIL:.0%} of evaluations):", "", *rows_final, "",
-        "Final success rate (fraction of the map's chests collected):", "", *rows_success, "",
-        f"Differences delib - coop / coop - comp in the primary metric by team size (does the gap grow?): {trend}.",
-        "", *(n + "\n" for n in notes),
-        f"Rule: {RULES['claim2']}", "",
-        f"Verdict: {_verdict(verdict)} — {why}. {secondary}",
-    ])
-    headline = f"m={largest}: delib - coop {d_dc}, coop - comp {d_cc}" if d_cc and d_dc else "—"
-    return Section(claim, _verdict(verdict), headline, evidence, md, [fig2.name, curves.name])
-
-
-def transfer_threshold(baseline: Sequence[Run]) -> float | None:
-    """``THRESHOLD_FRACTION`` of the way from the mean baseline curve's lowest value to its final value."""
-    steps, mean = mean_curve([r.curve() for r in baseline])
-    final = asymptotic_performance((steps, mean), 0.1)
-    low = float(mean.min())
-    if final <= low:
-        return None
-    return low + THRESHOLD_FRACTION * (final - low)
-
-
-def section_transfer(out: Path, runs: list[Run], rng: np.random.Generator) -> Section:
-    claim = "3. Transfer from an already trained agent speeds up learning"
-    cells = group(runs, lambda r: (r.config["agent"]["algorithm"], bool(r.config["transfer"]["enabled"])))
-    algorithms = sorted({a for a, _ in cells}, key=lambda a: (a != Algorithm.double_dqn.value, a))
-    parts, verdicts, headlines, figs = [], {}, [], []
-    panels = []
-    for algorithm in algorithms:
-        on, off = cells.get((algorithm, True)), cells.get((algorithm, False))
-        if not on or not off:
-            verdicts[algorithm] = "INCONCLUSIVE"
-            parts.append(f"### {algorithm}\n\nMissing the transfer={'on' if not on else 'off'} runs.")
-            continue
-        panels.append((algorithm, {f"{algorithm} transfer=off": off, f"{algorithm} transfer=on": on}))
-        threshold = transfer_threshold(off)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)
-            results = compare_runs([r.dir for r in on], [r.dir for r in off], threshold=threshold,
-                                   seed=int(rng.integers(2**31)))
-        js, tr = Estimate(**results["jumpstart"]), Estimate(**results["total_reward/difference"])
-        if not (js.has_ci and tr.has_ci):
-            verdict, why = "INCONCLUSIVE", "fewer than 2 seeds: no confidence interval"
-        elif js.excludes_zero_above() and tr.excludes_zero_above():
-            verdict, why = "SUPPORTED", f"jumpstart {js} and total-reward difference {tr} both have CIs above 0"
-        else:
-            verdict = "NOT SUPPORTED"
-            failed = [n for n, e in (("jumpstart", js), ("total reward", tr)) if not e.excludes_zero_above()]
-            why = f"jumpstart {js}, total-reward difference {tr}; CI not above 0 for: {', '.join(failed)}"
-        verdicts[algorithm] = verdict
-        headlines.append(f"{algorithm}: jumpstart {js}, ΔAUC {tr}")
-        pre = sorted({int(r.config["transfer"].get("pretrain_steps", 0)) for r in on})
-        source = on[0].config["transfer"].get("source")
-        origin = (f"the source agent was pretrained on TreasureHunt-v0 (the single-agent MDP of the same map) for "
-                  f"{'/'.join(f'{p:,}' for p in pre)} steps per seed; those steps are not on the curves"
-                  if source is None else f"source: {source}")
-        eps = sorted({on[0].config["transfer"].get("epsilon_start")})
-        if threshold is not None:
-            reached_on = results["time_to_threshold/transfer"]["n"]
-            reached_off = results["time_to_threshold/baseline"]["n"]
-            thr = (f"time to threshold: first evaluation reaching {threshold:.4g}, {THRESHOLD_FRACTION:.0%} of the way "
-                   f"from the mean baseline curve's lowest to its final value; {reached_on} of {len(on)} transfer and "
-                   f"{reached_off} of {len(off)} baseline runs reach it, the others are left out of its rows")
-        else:
-            thr = "time to threshold: not computed (the baseline curve never improves)"
-        parts.append("\n".join([
-            f"### {algorithm}", "",
-            f"{len(on)} transfer / {len(off)} baseline seeds; {describe_runs(on + off)}; {origin}; transferred "
-            f"agents start exploring at epsilon {eps[0]} (baseline: {off[0].config['agent'].get('eps_start')}).", "",
-            "Taylor & Stone (2009) metrics on eval team return, mean [95% bootstrap CI] "
-            "(jumpstart and `/difference` paired by seed; transfer ratio against the mean baseline curve; "
-            f"{thr}):", "",
-            format_table(results), "",
-            f"Verdict for {algorithm}: {_verdict(verdict)} — {why}.",
-        ]))
+def section_hypothesis(runs: Sequence[RunData], ctx: Context) -> Section:
+    question = "Main hypothesis: a group that exchanges knowledge learns better than the same group without"
+    primary = f"{PRIMARY_LEARNER}, cooperative: P(exchange=best > none) in score"
+    cells = group(runs, lambda r: (learner(r), mode(r), exchange_condition(r)))
+    rows = ["| learner | mode | condition | score, mean [95% CI] | final score IQM [95% CI] | "
+            "paired difference from none (t, BCa, percentile) | P(condition > none) [95% CI] |",
+            "|---|---|---|---:|---:|---:|---:|"]
+    panels, profiles = [], []
+    verdict, result = INCONCLUSIVE, "no runs of the primary comparison"
+    for algorithm in _learners(runs):
+        for team_mode in (COOPERATIVE, DELIBERATIVE):
+            conditions = {c: cells[(algorithm, team_mode, c)] for c in (NO_EXCHANGE, "best", "shared_replay", SHARED_NETWORK)
+                          if (algorithm, team_mode, c) in cells}
+            if NO_EXCHANGE not in conditions:
+                continue
+            control = conditions[NO_EXCHANGE]
+            for condition, members in conditions.items():
+                cell_score = fmt(estimate([score(r) for r in members], ctx.rng))
+                final = fmt(iqm(by_map(members, final_score), ctx.rng))
+                if condition == NO_EXCHANGE:
+                    rows.append(f"| {algorithm} | {team_mode} | {condition} | {cell_score} | {final} | — | — |")
+                    continue
+                diff, intervals = interval_text(paired(members, control, score), ctx.rng)
+                p = improvement(members, control, score, ctx.rng)
+                rows.append(f"| {algorithm} | {team_mode} | {condition} | {cell_score} | {final} | {diff} | {fmt(p)} |")
+                if (algorithm, team_mode, condition) == (PRIMARY_LEARNER, COOPERATIVE, "best"):
+                    verdict, result = poi_verdict(p), f"P = {fmt(p)}; score difference {t_text(intervals)}"
+            panels.append(("score", {f"{algorithm}, {team_mode}, {c}": [r.score_curve() for r in members]
+                                     for c, members in conditions.items()}))
+            profiles.append((f"{algorithm}, {team_mode}", {c: by_map(members, final_score)
+                                                           for c, members in conditions.items()}))
+    figures = []
     if panels:
-        fig = _curves_figure(out, "transfer", [("team_return", groups) for _, groups in panels],
-                             "Transfer on vs off", rng, note="(source pretraining steps not shown)")
-        figs.append(fig.name)
-    values = list(verdicts.values())
-    if not values or all(v == "INCONCLUSIVE" for v in values):
-        overall = "INCONCLUSIVE"
-    elif all(v == "SUPPORTED" for v in values):
-        overall = "SUPPORTED"
-    elif any(v == "SUPPORTED" for v in values):
-        overall = "PARTLY SUPPORTED"
-    else:
-        overall = "NOT SUPPORTED"
-    evidence = f"{seeds_of(cells)} seeds per (learner, transfer); {describe_runs(runs)}"
-    md = "\n".join([
-        *(f"![Transfer learning curves]({f})\n" for f in figs),
-        "\n\n".join(parts), "",
-        f"Rule: {RULES['claim3']}", "",
-        f"Verdict: {_verdict(overall)} — " + "; ".join(f"{a}: {v.lower()}" for a, v in verdicts.items()) + ".",
-    ])
-    return Section(claim, _verdict(overall), "; ".join(headlines) or "—", evidence, md, figs)
+        figures.append(curves_figure(ctx.out / "hypothesis.png", panels, "Knowledge exchange in a team of 4", ctx.rng,
+                                     color_of=_color, watermark=ctx.watermark).name)
+        figures.append(profile_figure(ctx.out / "hypothesis_profiles.png", profiles,
+                                      "Performance profiles of the final score (rliable)", color_of=_color,
+                                      watermark=ctx.watermark).name)
+    md = [f"Setting: teams of 4 on claim 2's 8x8 maps, cooperative and deliberative, at the same env-step budget; "
+          f"{describe(runs)}. `best`: every 20 episodes the best agent's values are soft-copied (weight 0.5) into the "
+          "others; `shared_replay`: every agent also learns from its teammates' transitions; `shared network`: one "
+          "Double DQN network for the team (parameter sharing, the standard multi-agent baseline).", "",
+          *(f"![{f}]({f})\n" for f in figures), *rows, "",
+          f"Primary comparison: {primary}. Verdict: **{verdict}** ({result}).",
+          "Everything else in the table is exploratory."]
+    return Section(question, primary, result, verdict, "\n".join(md), figures)
 
 
-SECTIONS = {"fig1": section_fig1, "fig2": section_fig2, "transfer": section_transfer}
+# ------------------------------------------------------------------------------------ claim 1
+
+
+def _after_clear(members: Sequence[RunData], metric: str) -> float:
+    return float(np.mean([asymptotic_performance(r.curve(metric), FINAL_TAIL) for r in members]))
+
+
+def section_claim1(runs: Sequence[RunData], ctx: Context) -> Section:
+    question = "Claim 1: with one treasure, cooperation gives no advantage over competition"
+    primary = (f"{PRIMARY_LEARNER}: paired difference cooperative - competitive in mean team return over training, "
+               f"t interval, against a margin of +{CLAIM1_MARGIN:g}")
+    cells = group(runs, lambda r: (learner(r), mode(r)))
+    rows = ["| learner | competitive | cooperative | cooperative - competitive (t, BCa, percentile) | "
+            "P(cooperative > competitive) | after the chest is taken: episodes with an agent still playing, "
+            "comp / coop | its return after it, comp / coop |", "|---|---:|---:|---:|---:|---:|---:|"]
+    verdict, result, panels = INCONCLUSIVE, "no runs of the primary comparison", []
+    for algorithm in _learners(runs):
+        comp, coop = cells.get((algorithm, COMPETITIVE)), cells.get((algorithm, COOPERATIVE))
+        if not comp or not coop:
+            continue
+        diff, intervals = interval_text(paired(coop, comp, raw_score), ctx.rng)
+        p = improvement(coop, comp, raw_score, ctx.rng)
+        after = [f"{_after_clear(g, 'after_clear_rate'):.2f}" for g in (comp, coop)]
+        after_return = [f"{_after_clear(g, 'return_after_clear'):.1f}" for g in (comp, coop)]
+        rows.append(f"| {algorithm} | {fmt(estimate([raw_score(r) for r in comp], ctx.rng))} | "
+                    f"{fmt(estimate([raw_score(r) for r in coop], ctx.rng))} | {diff} | {fmt(p)} | "
+                    f"{' / '.join(after)} | {' / '.join(after_return)} |")
+        panels.append(("team_return", {f"{algorithm}, {m}": [r.curve() for r in g]
+                                       for m, g in ((COMPETITIVE, comp), (COOPERATIVE, coop))}))
+        if algorithm == PRIMARY_LEARNER:
+            t = intervals["t"]
+            if not t.has_ci:
+                verdict = INCONCLUSIVE
+            elif t.high < CLAIM1_MARGIN:
+                verdict = SUPPORTED
+            elif t.low > CLAIM1_MARGIN:
+                verdict = NOT_SUPPORTED
+            else:
+                verdict = INCONCLUSIVE
+            result = f"difference {t_text(intervals)} return units"
+    figures = []
+    if panels:
+        figures.append(curves_figure(ctx.out / "claim1.png", panels, "One treasure: competitive vs cooperative",
+                                     ctx.rng, color_of=_color, watermark=ctx.watermark).name)
+    md = [f"Setting: 2 agents, 1 chest, 1 trap on generated 6x6 maps; {describe(runs)}.", "",
+          *(f"![{f}]({f})\n" for f in figures), *rows, "",
+          "Does the announcement have any decision value here? Once the only chest is taken nothing is left to "
+          "find: every further move costs 1 wherever the agent goes, and the episode ends only at the horizon or "
+          "in a trap (-100). Knowing that the chest is gone therefore cannot raise the team's return; it could only "
+          "change where the remaining agent wanders. The last two columns measure how often that situation arises "
+          f"in the final {FINAL_TAIL:.0%} of evaluations and what it costs in each mode. By the game's rules, "
+          "claim 1 holds by construction on one-chest maps, whatever the learner.", "",
+          f"Primary comparison: {primary}. Rule: SUPPORTED if the interval lies below +{CLAIM1_MARGIN:g}, NOT "
+          f"SUPPORTED if it lies above, INCONCLUSIVE otherwise. Verdict: **{verdict}** ({result}).",
+          "Everything else in the table is exploratory."]
+    return Section(question, primary, result, verdict, "\n".join(md), figures)
+
+
+# ------------------------------------------------------------------------------------ claim 2
+
+
+def slope(diffs: dict[int, np.ndarray], rng: np.random.Generator) -> tuple[float, Estimate, Estimate]:
+    """``(slope, bootstrap, t)`` of a paired difference against team size m: the least-squares slope of
+    the per-m mean differences, with a percentile interval resampling the units within each m, and the
+    classic t interval of the regression of every unit's difference on m."""
+    sizes = np.array(sorted(diffs), dtype=np.float64)
+    means = np.array([diffs[int(m)].mean() for m in sizes])
+    centred = sizes - sizes.mean()
+    point = float(centred @ means / (centred @ centred))
+    resampled = np.stack([d[rng.integers(0, d.size, size=(SLOPE_RESAMPLES, d.size))].mean(axis=1)
+                          for d in (diffs[int(m)] for m in sizes)], axis=1)  # [resamples, sizes]
+    slopes = (resampled - resampled.mean(axis=1, keepdims=True)) @ centred / (centred @ centred)
+    low, high = np.quantile(slopes, [0.025, 0.975])
+    x = np.concatenate([np.full(diffs[int(m)].size, m) for m in sizes])
+    y = np.concatenate([diffs[int(m)] for m in sizes])
+    fit = scipy.stats.linregress(x, y)
+    half = scipy.stats.t.ppf(0.975, x.size - 2) * fit.stderr
+    n = int(x.size)
+    return point, Estimate(point, float(low), float(high), n), Estimate(float(fit.slope), fit.slope - half,
+                                                                        fit.slope + half, n)
+
+
+def trend_verdict(slopes: Sequence[Estimate]) -> str:
+    if not all(s.has_ci for s in slopes):
+        return INCONCLUSIVE
+    if all(s.low > 0 for s in slopes):
+        return SUPPORTED
+    return CONTRADICTED if any(s.high < 0 for s in slopes) else NOT_SUPPORTED
+
+
+def section_claim2(runs: Sequence[RunData], ctx: Context) -> Section:
+    question = "Claim 2: as the team grows, deliberative > cooperative > competitive"
+    primary = (f"{PRIMARY_LEARNER}: slopes over team size of the paired differences deliberative - cooperative "
+               "and cooperative - competitive in score, bootstrap CIs")
+    cells = group(runs, lambda r: (learner(r), team_size(r), mode(r)))
+    sizes = sorted({m for _, m, _ in cells})
+    rows = ["| learner | m | competitive | cooperative | deliberative | coop - comp | delib - coop |",
+            "|---|---:|---:|---:|---:|---:|---:|"]
+    trend_rows = ["| learner | difference | slope per extra agent, bootstrap [95% CI] | t [95% CI] | verdict |",
+                  "|---|---|---:|---:|---|"]
+    level_panels, trend_series = [], {"deliberative - cooperative": {}, "cooperative - competitive": {}}
+    verdict, result = INCONCLUSIVE, "no runs of the primary comparison"
+    for algorithm in _learners(runs):
+        level = {m_: {} for m_ in (COMPETITIVE, COOPERATIVE, DELIBERATIVE)}
+        diffs: dict[str, dict[int, np.ndarray]] = {"deliberative - cooperative": {}, "cooperative - competitive": {}}
+        for m in sizes:
+            modes = {team_mode: cells.get((algorithm, m, team_mode)) for team_mode in level}
+            if not all(modes.values()):
+                continue
+            for team_mode, members in modes.items():
+                level[team_mode][m] = estimate([score(r) for r in members], ctx.rng)
+            diffs["cooperative - competitive"][m] = paired(modes[COOPERATIVE], modes[COMPETITIVE], score)
+            diffs["deliberative - cooperative"][m] = paired(modes[DELIBERATIVE], modes[COOPERATIVE], score)
+            cc, dc = (interval_text(diffs[k][m], ctx.rng)[0] for k in ("cooperative - competitive",
+                                                                         "deliberative - cooperative"))
+            rows.append(f"| {algorithm} | {m} | " + " | ".join(fmt(level[t][m]) for t in level) + f" | {cc} | {dc} |")
+        if len(diffs["cooperative - competitive"]) < 2:
+            continue
+        level_panels.append((f"{algorithm}: {SCORE_LABEL}", level))
+        slopes = []
+        for name, by_size in diffs.items():
+            _, boot, t = slope(by_size, ctx.rng)
+            slopes.append(boot)
+            trend_series[name][algorithm] = {m: estimate(d, ctx.rng) for m, d in by_size.items()}
+            trend_rows.append(f"| {algorithm} | {name} | {fmt(boot)} | {fmt(t)} | |")
+        learner_verdict = trend_verdict(slopes)
+        trend_rows[-1] = trend_rows[-1][:-2] + f" {learner_verdict} |"
+        largest = max(diffs["cooperative - competitive"])
+        for a, b in ((DELIBERATIVE, COOPERATIVE), (COOPERATIVE, COMPETITIVE)):
+            p = improvement(cells[(algorithm, largest, a)], cells[(algorithm, largest, b)], score, ctx.rng)
+            trend_rows.append(f"| {algorithm} | P({a} > {b}) at m = {largest} | {fmt(p)} | | exploratory |")
+        if algorithm == PRIMARY_LEARNER:
+            verdict = learner_verdict
+            result = "; ".join(f"{name} slope {fmt(s)}" for name, s in zip(diffs, slopes))
+    figures = []
+    if level_panels:
+        figures.append(errorbar_figure(ctx.out / "claim2.png", level_panels, "team size m (agents = chests = traps; "
+                                       "the map grows with m)", "Score by team size and mode (mean, 95% bootstrap CI)",
+                                       color_of=_color, watermark=ctx.watermark).name)
+        figures.append(errorbar_figure(ctx.out / "claim2_trend.png",
+                                       [(f"{name} (score)", series) for name, series in trend_series.items()],
+                                       "team size m", "Gaps between modes by team size (paired by map and seed)",
+                                       color_of=_color, watermark=ctx.watermark, zero_line=True).name)
+    md = [f"Setting: teams of m = {', '.join(map(str, sizes))} agents with as many chests and traps on generated maps "
+          f"that grow with the team (6x6, 7x7, 8x8, 10x10); {describe(runs)}. Score = {SCORE_LABEL}, averaged over "
+          "training.", "", *(f"![{f}]({f})\n" for f in figures), *rows, "", *trend_rows, "",
+          f"Primary comparison: {primary}. Rule: SUPPORTED if both slopes' intervals lie above 0, CONTRADICTED if "
+          f"either lies below 0, NOT SUPPORTED otherwise. Verdict: **{verdict}** ({result}). The same rule applied "
+          "to Double DQN is exploratory."]
+    return Section(question, primary, result, verdict, "\n".join(md), figures)
+
+
+# ------------------------------------------------------------------------------------ claim 3: transfer
+
+
+def _infer_condition(config: dict[str, Any]) -> str:
+    """The transfer experiment's condition of a run, from its transfer and exploration settings."""
+    transfer = config["transfer"]
+    if not transfer["enabled"]:
+        return MATCHED if config["agent"]["eps_start"] == transfer["epsilon_start"] else SCRATCH
+    if transfer.get("source_task") == "team":
+        return "team_member"
+    if transfer.get("source_map_shift"):
+        return "other_map"
+    return "same_map_one" if transfer.get("targets") else "same_map"
+
+
+def _time_to_threshold(run: RunData) -> float:
+    return time_to_threshold(run.score_curve(), THRESHOLD)
+
+
+def _budgeted_time(run: RunData) -> float:
+    """Steps to the threshold, the run's budget for a run that never got there (a lower bound)."""
+    t = _time_to_threshold(run)
+    return float(run.config["total_steps"]) if math.isnan(t) else t
+
+
+def _sooner(run: RunData) -> float:
+    t = _time_to_threshold(run)
+    return -math.inf if math.isnan(t) else -t
+
+
+def section_transfer(runs: Sequence[RunData], ctx: Context) -> Section:
+    question = "Claim 3: starting from a trained agent speeds up learning"
+    primary = f"{PRIMARY_LEARNER}: P(same_map > scratch_matched) in score"
+    cells = group(runs, lambda r: (learner(r), _infer_condition(r.config)))
+    rows = ["| learner | condition | source cost (steps) | score | jumpstart (first evaluation) | "
+            "score difference (t, BCa, percentile) | P(condition > baseline) | reached 80% | P(sooner) | "
+            "break-even reuses |", "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    verdict, result, panels, total_panels = INCONCLUSIVE, "no runs of the primary comparison", [], []
+    for algorithm in _learners(runs):
+        baseline = cells.get((algorithm, MATCHED))
+        if not baseline:
+            continue
+        order = [SCRATCH, *TRANSFER_CONDITIONS]
+        rows.append(f"| {algorithm} | {MATCHED} (the baseline) | 0 | {fmt(estimate([score(r) for r in baseline], ctx.rng))} "
+                    f"| — | — | — | {sum(not math.isnan(_time_to_threshold(r)) for r in baseline)}/{len(baseline)} | — | — |")
+        for condition in order:
+            members = cells.get((algorithm, condition))
+            if not members:
+                continue
+            cost = int(np.mean([r.steps_before for r in members]))
+            jump = estimate(paired(members, baseline, lambda r: r.score_curve()[1][0]), ctx.rng)
+            diff, intervals = interval_text(paired(members, baseline, score), ctx.rng)
+            p = improvement(members, baseline, score, ctx.rng)
+            sooner = improvement(members, baseline, _sooner, ctx.rng)
+            saved = float(np.mean(paired(baseline, members, _budgeted_time)))
+            reuses = "—" if cost == 0 else (f"{cost / saved:.1f}" if saved > 0 else "never")
+            reached = sum(not math.isnan(_time_to_threshold(r)) for r in members)
+            rows.append(f"| {algorithm} | {condition} | {cost:,} | {fmt(estimate([score(r) for r in members], ctx.rng))} "
+                        f"| {fmt(jump)} | {diff} | {fmt(p)} | {reached}/{len(members)} | {fmt(sooner)} | {reuses} |")
+            if (algorithm, condition) == (PRIMARY_LEARNER, "same_map"):
+                verdict, result = poi_verdict(p), f"P = {fmt(p)}; score difference {t_text(intervals)}"
+        groups = {c: cells[(algorithm, c)] for c in [MATCHED, *order] if (algorithm, c) in cells}
+        panels.append(("score", {f"{algorithm}, {c}": [r.score_curve() for r in g] for c, g in groups.items()}))
+        total_panels.append(("score", {f"{algorithm}, {c}": [(r.score_curve()[0] + r.steps_before, r.score_curve()[1])
+                                                              for r in g] for c, g in groups.items()}))
+    figures = []
+    if panels:
+        figures.append(curves_figure(ctx.out / "transfer.png", panels, "Transfer: target-task steps", ctx.rng,
+                                     color_of=_color, watermark=ctx.watermark).name)
+        figures.append(curves_figure(ctx.out / "transfer_total_steps.png", total_panels,
+                                     "Transfer: total steps (each run starts after its source's pretraining)", ctx.rng,
+                                     color_of=_color, watermark=ctx.watermark,
+                                     xlabel="environment steps, the source's pretraining included").name)
+    md = [f"Setting: teams of 2 on claim 2's 6x6 maps; {describe(runs)}. The baseline is `{MATCHED}`: random start "
+          "with the transferred agents' exploration (epsilon from 0.3), so exploration alone cannot pass for "
+          "transfer; `scratch` (epsilon from 1.0) is shown against it too. Jumpstart and score differences are "
+          "paired by map and seed. Time to threshold: steps until the score first reaches "
+          f"{THRESHOLD:.0%} of the optimal return; P(sooner) counts a run that never gets there as slower than "
+          "every run that does. Break-even reuses: the source's cost divided by the mean steps to threshold it "
+          "saves a target run (a run that never gets there counted at its budget): how many runs must start from "
+          "one source before it has paid for itself.", "", *(f"![{f}]({f})\n" for f in figures), *rows, "",
+          f"Primary comparison: {primary}. Rule: SUPPORTED if the interval lies above 0.5, CONTRADICTED if below, "
+          f"NOT SUPPORTED otherwise. Verdict: **{verdict}** ({result}). Everything else is exploratory."]
+    return Section(question, primary, result, verdict, "\n".join(md), figures)
+
+
+# (section function, the experiments whose data it reads), in report order
+SECTIONS = {
+    "hypothesis": (section_hypothesis, ("hypothesis", "hypothesis_shared")),
+    "claim1": (section_claim1, ("claim1",)),
+    "claim2": (section_claim2, ("claim2",)),
+    "transfer": (section_transfer, ("transfer",)),
+}

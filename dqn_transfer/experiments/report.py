@@ -1,11 +1,10 @@
-"""``OUT/REPORT.md``: the study's reproduction report, from the sweeps under ``OUT``.
+"""``REPORT.md`` and its figures, from the study's raw data alone.
 
-The runs of ``OUT/{fig1,fig2,transfer}`` (whichever exist) are read back from their run
-directories, never live objects; a directory that is not a usable run (a job that never evaluated,
-one without a readable config) is skipped with a :class:`~dqn_transfer.analysis.runs.SkippedRun`
-warning. Each experiment becomes a section of :mod:`dqn_transfer.experiments.claims` with its
-verdict, figures beside the report. A summary table comes first; a ``quick`` profile's report says in
-its first lines that it is not evidence.
+:func:`export_data` turns the sweeps under ``OUT/runs/`` into ``OUT/data/`` (:mod:`raw_data`) with a
+manifest of how they were made; :func:`write_report` reads ``DATA/`` and writes the report: a summary
+of the primary comparisons and their verdicts, then one section per question
+(:mod:`~dqn_transfer.experiments.claims`). The report depends on the data and nothing else (no clock,
+no checkout state), so regenerating it from committed data gives the committed file byte for byte.
 """
 
 from __future__ import annotations
@@ -14,83 +13,124 @@ import datetime as _dt
 import json
 import subprocess
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from dqn_transfer.analysis.runs import EvaluationError, load_runs
-from dqn_transfer.experiments.claims import SECTIONS, Section
-from dqn_transfer.experiments.sweeps import EXPERIMENTS, PROFILES, STAMP_FILE, ReproduceError
+from dqn_transfer.experiments.claims import SECTIONS, Context, Section
+from dqn_transfer.experiments.raw_data import (
+    DATA_DIR,
+    DataError,
+    export_sweep,
+    machine,
+    read_data,
+    read_manifest,
+    write_data,
+    write_manifest,
+)
+from dqn_transfer.experiments.sweeps import EXPERIMENTS, PROFILES, RUNS_DIR, STAMP_FILE, ReproduceError
 
 PACKAGE_DIR = Path(__file__).resolve().parent
+REPO_DIR = PACKAGE_DIR.parents[1]
+RULES_FILE = Path("results") / "VERDICT_RULES.md"  # in the repository: the rules, committed before the runs
+SMOKE_MARK = "SMOKE RUN - not evidence"
 
 
-def _git_describe() -> str:
+def _git(*args: str) -> str:
     try:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=PACKAGE_DIR, capture_output=True,
-                                text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain"], cwd=PACKAGE_DIR, capture_output=True,
-                               text=True).stdout.strip()
+        return subprocess.run(["git", *args], cwd=REPO_DIR, capture_output=True, text=True, check=True).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-    return commit + (" (with uncommitted changes)" if dirty else "")
+        return ""
 
 
-def write_report(out: Path, profile: str | None = None, seed: int = 0) -> Path:
-    """Analyse ``OUT/{fig1,fig2,transfer}`` (whichever exist) into ``OUT/REPORT.md`` and PNG figures."""
-    out = Path(out)
-    rng = np.random.default_rng(seed)
-    sections: dict[str, Section] = {}
-    stamps, run_counts = {}, {}
+def code_state() -> dict[str, str]:
+    """The commit the runs are made with, and the last commit of the verdict rules before them."""
+    commit = _git("rev-parse", "--short", "HEAD") or "unknown"
+    dirty = bool(_git("status", "--porcelain", "--", "dqn_transfer", "conf"))
+    rules = _git("log", "-1", "--format=%h %cs", "--", str(RULES_FILE)) or "not committed"
+    return {"commit": commit + (" (with uncommitted changes)" if dirty else ""), "rules_commit": rules}
+
+
+def _stamp(out: Path, name: str) -> dict[str, Any]:
+    try:
+        return json.loads((out / RUNS_DIR / name / STAMP_FILE).read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def export_data(out: Path) -> Path:
+    """``OUT/data/``: every experiment's runs under ``OUT/runs/`` as raw data, and the manifest (the
+    profile and wall time each sweep's stamp recorded)."""
+    data_dir = out / DATA_DIR
+    exported, profiles, walls = {}, set(), {}
     for name in EXPERIMENTS:
-        runs = load_runs(out / name)  # unusable runs are skipped, each with a warning
-        if not runs:
+        sweep = out / RUNS_DIR / name
+        if not sweep.is_dir():
             continue
-        run_counts[name] = len(runs)
-        stamp_path = out / name / STAMP_FILE
-        stamps[name] = json.loads(stamp_path.read_text()) if stamp_path.exists() else {}
-        try:
-            sections[name] = SECTIONS[name](out, runs, rng)
-        except (EvaluationError, ValueError, KeyError) as err:
-            raise ReproduceError(f"cannot analyse {out / name}: {err}") from err
-    if not sections:
-        raise ReproduceError(f"{out} holds no runs of {', '.join(EXPERIMENTS)}: run the experiments first")
-    profiles = {s.get("profile") for s in stamps.values()} - {None}
-    if profile is not None:
-        profiles.add(profile)
-    smoke = "quick" in profiles
-    lines = ["# Reproduction report: Transfer Learning Approach for Autonomous Agents in Collective Games", ""]
+        runs = export_sweep(sweep, name)
+        if runs:
+            write_data(data_dir / f"{name}.jsonl", runs)
+            exported[name] = len(runs)
+            stamp = _stamp(out, name)
+            profiles.add(stamp.get("profile", "unknown"))
+            if stamp.get("wall_seconds"):
+                walls[name] = stamp["wall_seconds"]
+    if not exported:
+        raise ReproduceError(f"{out / RUNS_DIR} holds no runs of {', '.join(EXPERIMENTS)}: run the experiments first")
+    write_manifest(data_dir, {"profile": "/".join(sorted(profiles)), **code_state(), "machine": machine(),
+                              "runs": exported, "wall_seconds": walls, "date": _dt.date.today().isoformat()})
+    return data_dir
+
+
+def _header(manifest: dict[str, Any], smoke: bool) -> list[str]:
+    lines = ["# The study answered: knowledge exchange, cooperation and transfer in the treasure hunt", ""]
     if smoke:
-        lines += [f"> **{PROFILES['quick'].description}** Run `python scripts/reproduce.py --profile full` "
-                  "for evidence.", ""]
-    lines += [f"Generated {_dt.datetime.now().isoformat(timespec='seconds')} from the runs under `{out}`; "
-              f"profile: {', '.join(sorted(profiles)) or 'unknown'}; code: {_git_describe()}.", ""]
-    walls = {n: s.get("wall_seconds") for n, s in stamps.items() if s.get("wall_seconds")}
+        lines += [f"> **{PROFILES['quick'].description}** Run `python scripts/reproduce.py --profile full` for "
+                  "evidence.", ""]
+    walls = manifest.get("wall_seconds", {})
+    total = sum(walls.values())
+    lines += [f"Data: `{DATA_DIR}/` beside this report (one JSON line per run: its config and every evaluation), "
+              f"made on {manifest.get('date', '?')} with the `{manifest.get('profile', '?')}` profile by code "
+              f"{manifest.get('commit', '?')} on {manifest.get('machine', '?')}. Verdict rules: `{RULES_FILE}`, "
+              f"committed at {manifest.get('rules_commit', '?')}, before these runs.", ""]
     if walls:
-        lines += ["Sweep wall times: " + ", ".join(f"{n} {w:.0f} s" for n, w in walls.items()) + ".", ""]
-    lines += ["## Summary", "", "| claim | verdict | key numbers: mean [95% CI] | evidence |", "|---|---|---|---|"]
-    for name in EXPERIMENTS:
-        if name in sections:
-            s = sections[name]
-            lines.append(f"| {s.claim} | {s.verdict} | {s.headline} | {s.evidence} |")
-        else:
-            lines.append(f"| (experiment `{name}`) | not run | — | — |")
-    lines += ["", "Verdicts follow the rules stated under each claim, fixed before looking at the data. A CI that "
-              "contains 0 means no difference was detected with this many seeds, not that there is none. "
-              "Intervals are 95% percentile bootstraps over seeds (10,000 resamples); differences between "
-              "conditions pair runs of the same seed.", ""]
-    if any(count < 10 for count in run_counts.values()) and not smoke:
-        lines += ["> Some conditions rest on fewer than 10 seeds: treat their verdicts as preliminary.", ""]
-    for name, s in sections.items():
-        lines += [f"## Claim {s.claim}", "", s.markdown, ""]
-    lines += ["## How to reproduce", "",
-              "```bash",
-              "python scripts/reproduce.py --profile quick --out /tmp/repro_quick   # smoke run, minutes",
-              "python scripts/reproduce.py --profile full --out results             # evidence, ~30 min on 2 cores",
-              "python scripts/reproduce.py --profile full --out results --launcher submitit_slurm \\",
-              "    --extra hydra.launcher.partition=PART --extra hydra.launcher.timeout_min=120",
-              "```", "",
-              "The exact command of every sweep is the first line of `logs/<experiment>.log`; each run's "
-              "config is in its `.hydra/` directory.", ""]
+        lines += ["Wall time of the sweeps (2 jobs at a time): " + ", ".join(f"{n} {w:.0f} s" for n, w in walls.items())
+                  + f"; {total / 60:.1f} min in all.", ""]
+    return lines
+
+
+def write_report(data_dir: Path, out: Path, seed: int = 0) -> Path:
+    """``OUT/REPORT.md`` and its figures from the raw data in ``data_dir``."""
+    data_dir, out = Path(data_dir), Path(out)
+    manifest = read_manifest(data_dir)
+    smoke = "quick" in manifest.get("profile", "")
+    ctx = Context(out, np.random.default_rng(seed), SMOKE_MARK if smoke else None)
+    sections: list[Section] = []
+    for function, experiments in SECTIONS.values():
+        runs = [run for name in experiments if (data_dir / f"{name}.jsonl").exists()
+                for run in read_data(data_dir / f"{name}.jsonl")]
+        if runs:
+            try:
+                sections.append(function(runs, ctx))
+            except (KeyError, ValueError, DataError) as err:
+                raise ReproduceError(f"cannot analyse the {'/'.join(experiments)} data in {data_dir}: {err}") from err
+    if not sections:
+        raise ReproduceError(f"{data_dir} holds no run data ({', '.join(f'{n}.jsonl' for n in EXPERIMENTS)})")
+    lines = _header(manifest, smoke)
+    lines += ["## Summary", "", "| question | primary comparison | result | verdict |", "|---|---|---|---|"]
+    lines += [f"| {s.question} | {s.primary} | {s.result} | **{s.verdict}** |" for s in sections]
+    lines += ["", "Each question has one primary comparison, fixed in the verdict rules before the runs; every other "
+              "number is exploratory. An interval that contains the null value means no difference was detected "
+              "with this many runs, not that there is none. Intervals are 95%: paired differences by map and seed "
+              "with t, BCa and percentile-bootstrap intervals; IQM and probability of improvement (P) from rliable's "
+              "stratified bootstrap over maps.", ""]
+    for s in sections:
+        lines += [f"## {s.question}", "", s.markdown, ""]
+    lines += ["## How to reproduce", "", "```bash",
+              "python scripts/reproduce.py --profile full --out results        # the runs, the data, this report",
+              "dqn-transfer-report results --out /tmp/report                  # this report again, from results/data/",
+              "```", ""]
+    out.mkdir(parents=True, exist_ok=True)
     report = out / "REPORT.md"
     report.write_text("\n".join(lines))
     return report

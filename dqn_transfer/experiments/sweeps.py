@@ -1,4 +1,4 @@
-"""Running the study's experiments: one Hydra multirun per experiment, into ``OUT/<name>/``.
+"""Running the study's experiments: one Hydra multirun per experiment, into ``OUT/runs/<name>/``.
 
 Each experiment is ``python -m dqn_transfer.cli.train -m experiment=<name>`` (``conf/experiment/``)
 in a subprocess, with the profile's overrides: one job per condition, its seeds batched inside the
@@ -33,12 +33,10 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 
 from dqn_transfer.analysis.runs import EvaluationError, load_config, read_metrics
 from dqn_transfer.config import CONFIG_DIR, register_configs
-from dqn_transfer.enums import Algorithm, Mode, values
-from dqn_transfer.experiments.team_maps import write_team_maps
 from dqn_transfer.run_dir import RunDir
 
-EXPERIMENTS = ("fig1", "fig2", "transfer")
-TRANSFER_LEARNERS = (Algorithm.double_dqn, Algorithm.sarsa)  # a deep learner and the study's tabular one
+EXPERIMENTS = ("hypothesis", "hypothesis_shared", "claim1", "claim2", "transfer")
+RUNS_DIR = "runs"  # OUT/runs/<experiment>/: the sweeps' run directories (checkpoints, logs; not committed)
 STAMP_FILE = "reproduce.json"  # in OUT/<name>/: the settings the sweep ran with, and its wall time
 DEFAULT_LAUNCHER = "joblib"
 # The pyproject extra that installs each launcher plugin (basic is Hydra's own).
@@ -51,27 +49,27 @@ class ReproduceError(Exception):
 
 @dataclass(frozen=True)
 class Profile:
-    """Seeds per experiment, and overrides of the experiment file's settings (none: the file's own)."""
+    """Overrides of each experiment file's settings (none: the file's own)."""
 
-    seeds: dict[str, int]
     overrides: dict[str, list[str]] = field(default_factory=dict)
     description: str = ""
 
 
+_SHORT = ["agent.learning_starts=200", "replicas.seeds=1", "replicas.maps=2"]
 PROFILES = {
     "quick": Profile(
-        seeds={"fig1": 3, "fig2": 2, "transfer": 3},
         overrides={
-            "fig1": ["total_steps=2000", "eval_every=100"],
-            "fig2": ["total_steps=30000", "eval_every=2000", "eval_episodes=5"],
-            "transfer": ["total_steps=2000", "eval_every=100", "transfer.pretrain_steps=2000",
-                         "agent.learning_starts=200"],
+            "hypothesis": ["total_steps=1500", "eval_every=500", *_SHORT],
+            "hypothesis_shared": ["total_steps=1500", "eval_every=500", *_SHORT],
+            "claim1": ["total_steps=600", "eval_every=100", "replicas.seeds=1", "replicas.maps=3"],
+            "claim2": ["env=study/m2,study/m3", "total_steps=1500", "eval_every=500", *_SHORT],
+            "transfer": ["total_steps=1500", "eval_every=250", "transfer.pretrain_steps=1000", *_SHORT],
         },
-        description="SMOKE RUN: 2-3 seeds and a few thousand steps per run; it checks that the pipeline "
-                    "works end to end and is NOT evidence for or against any claim."),
+        description="SMOKE RUN: 2-3 maps, one seed and 1,500 steps per run, claim 2 at two team sizes; it checks "
+                    "that the pipeline works end to end and is NOT evidence for or against any claim."),
     "full": Profile(
-        seeds={"fig1": 20, "fig2": 10, "transfer": 10},
-        description="the evidence: >= 10 seeds per condition, step counts of conf/experiment/*.yaml."),
+        description="the evidence: the maps, seeds and step counts of conf/experiment/*.yaml (10 to 20 runs per "
+                    "condition)."),
 }
 
 
@@ -84,21 +82,11 @@ def _quote(value: str | Path) -> str:
 
 
 def sweep_overrides(name: str, profile: str, out: Path) -> list[str]:
-    """The command-line overrides of one experiment's multirun (they replace the file's sweep keys)."""
-    prof = PROFILES[profile]
-    seeds = [f"replicas.seeds={prof.seeds[name]}"]  # seeds 0..N-1, as replicas inside each job
-    if name == "fig1":
-        sweep = [f"mode={Mode.competitive.value},{Mode.cooperative.value}"]
-    elif name == "fig2":
-        maps = write_team_maps(out / "maps")
-        sweep = ["mode=" + ",".join(values(Mode)), "env.num_agents=null",
-                 "env.layout_file=" + ",".join(_quote(p) for p in maps)]
-    elif name == "transfer":
-        sweep = ["transfer=off,on", "agent=" + ",".join(a.value for a in TRANSFER_LEARNERS),
-                 f"transfer.cache_dir={_quote(out / 'pretrained')}"]
-    else:
+    """The command-line overrides of one experiment's multirun (a swept key replaces the file's sweep)."""
+    if name not in EXPERIMENTS:
         raise ReproduceError(f"unknown experiment {name!r} (choose from {', '.join(EXPERIMENTS)})")
-    return sweep + seeds + prof.overrides.get(name, [])
+    shared = [f"transfer.cache_dir={_quote(out / 'pretrained')}"] if name == "transfer" else []
+    return shared + PROFILES[profile].overrides.get(name, [])
 
 
 def count_jobs(name: str, overrides: Sequence[str]) -> int:
@@ -206,8 +194,8 @@ def failure_message(name: str, sweep_dir: Path, log_path: Path, expected: int, r
 
 def run_experiment(name: str, profile: str, out: Path, launcher: str, n_jobs: int,
                    extra: Sequence[str] = (), poll_seconds: float = 2.0) -> float:
-    """One Hydra multirun into ``OUT/<name>``; returns its wall time (0 when reused)."""
-    sweep_dir = out / name
+    """One Hydra multirun into ``OUT/runs/<name>``; returns its wall time (0 when reused)."""
+    sweep_dir = out / RUNS_DIR / name
     overrides = sweep_overrides(name, profile, out)
     expected = count_jobs(name, overrides)
     stamp_path = sweep_dir / STAMP_FILE

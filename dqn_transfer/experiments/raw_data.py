@@ -1,0 +1,169 @@
+"""The study's raw data: every run's evaluations, compact, one JSON line per run.
+
+``OUT/data/<experiment>.jsonl`` holds one record per run (a replica of a sweep job is a run): its name
+in the sweep (``<job>/<replica>``), its composed config, every evaluation step with the metrics the
+report uses, the env steps spent before its step 0 on what it warm-started from, and its map's optimal
+team return (:func:`~dqn_transfer.envs.maps.optimal_team_return`). ``OUT/data/manifest.json`` says how
+the data were made (profile, code commit, the commit of the verdict rules, machine, wall times).
+
+The report (:mod:`dqn_transfer.experiments.report`) reads these files and nothing else, so the
+committed report can be regenerated, and every number in it recomputed, without the run directories
+(checkpoints, TensorBoard logs), which stay out of the repository.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dqn_transfer.analysis.runs import IncompleteLastLine, load_runs, read_metrics, steps_before
+from dqn_transfer.analysis.transfer_metrics import Curve
+from dqn_transfer.envs.maps import optimal_team_return, resolve_map
+from dqn_transfer.run_dir import natural_key
+
+DATA_DIR = "data"
+MANIFEST = "manifest.json"
+# The evaluation metrics kept per step (metrics.jsonl has more: episode lengths, wall times, epsilon).
+METRICS = ("team_return", "success_rate", "trap_rate", "after_clear_rate", "return_after_clear")
+DIGITS = 6  # significant digits kept: evaluations are means of a few episodes' integer returns
+
+
+class DataError(Exception):
+    """Raw data that cannot be read or used; the message is one user-facing line."""
+
+
+@dataclass(frozen=True)
+class RunData:
+    """One run's evaluations and the config that tells its condition."""
+
+    experiment: str
+    name: str  # <job>/<replica> in the sweep directory
+    config: dict[str, Any]
+    steps: tuple[int, ...]
+    metrics: dict[str, tuple[float, ...]]
+    steps_before: int  # env steps spent on its transfer source(s) before its own step 0
+    optimal_return: float | None  # None: more agents than chests (no clean optimum)
+
+    @property
+    def seed(self) -> int:
+        return int(self.config["seed"])
+
+    @property
+    def map_seed(self) -> int:
+        return int(self.config["env"].get("map_seed") or 0)
+
+    @property
+    def unit(self) -> tuple[int, int]:
+        """(map seed, seed): runs of two conditions with the same unit share their map, initial values
+        and exploration noise, so differences between conditions are paired by it."""
+        return self.map_seed, self.seed
+
+    def curve(self, metric: str = "team_return") -> Curve:
+        if metric not in self.metrics:
+            raise DataError(f"run {self.experiment}/{self.name} has no {metric!r} evaluations")
+        return np.asarray(self.steps, dtype=np.float64), np.asarray(self.metrics[metric], dtype=np.float64)
+
+    def score_curve(self) -> Curve:
+        """Team return as a fraction of the map's optimal return (1 = every agent took its own chest by
+        a shortest path); the raw team return where the map has no clean optimum."""
+        steps, values = self.curve()
+        return (steps, values / self.optimal_return) if self.optimal_return else (steps, values)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"experiment": self.experiment, "name": self.name, "steps_before": self.steps_before,
+                "optimal_return": self.optimal_return, "steps": list(self.steps),
+                "metrics": {k: list(v) for k, v in self.metrics.items()}, "config": self.config}
+
+
+def _rounded(value: float) -> float:
+    return float(f"{value:.{DIGITS}g}") if math.isfinite(value) else value
+
+
+def map_optimum(config: dict[str, Any]) -> float | None:
+    """The optimal team return of a run's map, from its config (the map rebuilt as the trainer did)."""
+    env = config["env"]
+    keys = ("size", "num_treasures", "num_traps", "num_agents", "complexity", "map_seed", "layout", "layout_file")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a layout overriding generation keys: the trainer already said so
+        grid = resolve_map(**{key: env.get(key) for key in keys})
+    return optimal_team_return(grid, grid.num_agents, float(env.get("treasure_reward", 100.0)),
+                               float(env.get("step_reward", -1.0)))
+
+
+def export_sweep(sweep_dir: Path, experiment: str) -> list[RunData]:
+    """Every usable run below ``sweep_dir`` as :class:`RunData` (unusable ones are skipped with a
+    warning); a step evaluated twice (a resumed run) keeps its later record."""
+    runs = []
+    for run in load_runs(sweep_dir):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", IncompleteLastLine)
+            records = read_metrics(run.dir)
+        by_step = {int(r["step"]): r for r in records if "step" in r}
+        steps = tuple(sorted(by_step))
+        metrics = {m: tuple(_rounded(float(by_step[s][m])) for s in steps) for m in METRICS
+                   if all(m in by_step[s] for s in steps)}
+        runs.append(RunData(experiment, run.dir.relative_to(sweep_dir).as_posix(), run.config, steps, metrics,
+                            steps_before(run.dir), map_optimum(run.config)))
+    return sorted(runs, key=lambda r: natural_key(Path(r.name)))
+
+
+def write_data(path: Path, runs: list[RunData]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text("".join(json.dumps(r.to_json(), separators=(",", ":"), sort_keys=True) + "\n" for r in runs))
+    tmp.replace(path)
+
+
+def read_data(path: Path) -> list[RunData]:
+    """The runs of one experiment's data file."""
+    runs = []
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as err:
+        raise DataError(f"cannot read {path}: {err.strerror}") from None
+    for number, line in enumerate(lines, start=1):
+        try:
+            r = json.loads(line)
+            runs.append(RunData(r["experiment"], r["name"], r["config"], tuple(r["steps"]),
+                                {k: tuple(v) for k, v in r["metrics"].items()}, int(r["steps_before"]),
+                                r["optimal_return"]))
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError):
+            raise DataError(f"{path}: line {number} is not a run record") from None
+    return runs
+
+
+def machine() -> str:
+    """This machine, for the report: CPU model and count, Python."""
+    model = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return f"{model}, {cores} cores, Python {platform.python_version()}"
+
+
+def read_manifest(data_dir: Path) -> dict[str, Any]:
+    path = data_dir / MANIFEST
+    try:
+        return json.loads(path.read_text())
+    except OSError:
+        return {}
+    except json.JSONDecodeError:
+        raise DataError(f"{path} is not valid JSON") from None
+
+
+def write_manifest(data_dir: Path, manifest: dict[str, Any]) -> None:
+    data_dir.mkdir(parents=True, exist_ok=True)
+    (data_dir / MANIFEST).write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")

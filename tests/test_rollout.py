@@ -1,0 +1,119 @@
+"""What happens after the last full chest is taken: ``EpisodeResult.steps_after_clear`` and
+``return_after_clear`` of :func:`dqn_transfer.rollout.play_episode`, and the ``after_clear_rate`` and
+``return_after_clear`` keys of :func:`~dqn_transfer.rollout.evaluate` (values worked out by hand from
+the rules of docs/game.md).
+
+Actions: 0 up, 1 down, 2 left, 3 right.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dqn_transfer.envs.game import TreasureHuntGame
+from dqn_transfer.envs.maps import parse_layout
+from dqn_transfer.rollout import EpisodeResult, evaluate, play_episode
+
+UP, DOWN, LEFT, RIGHT = 0, 1, 2, 3
+
+# One chest at (0,2). Agent 0 at (0,0) takes it with RIGHT, RIGHT (k = 2 joint steps); agent 1 at
+# (2,0) moving DOWN bumps the bottom edge and stays there, never ending before the horizon.
+ONE_CHEST = """
+0.T
+...
+1..
+"""
+
+
+def scripted(*columns: list[int]):
+    """A policy playing ``columns[agent][t]`` at joint step t (the last entry once the list runs out)."""
+    t = [0]
+
+    def policy(obs: np.ndarray, live: np.ndarray) -> np.ndarray:
+        step = t[0]
+        t[0] += 1
+        return np.array([column[min(step, len(column) - 1)] for column in columns])
+
+    return policy
+
+
+def game_of(layout: str, **kwargs) -> TreasureHuntGame:
+    return TreasureHuntGame(parse_layout(layout), mode=kwargs.pop("mode", "cooperative"), **kwargs)
+
+
+@pytest.mark.parametrize("reward_mode", ["individual", "team"])
+@pytest.mark.parametrize(("max_steps", "horizon"), [(None, 9), (5, 5)])  # None: n * n = 9
+def test_an_agent_playing_on_after_the_last_chest(reward_mode, max_steps, horizon):
+    game = game_of(ONE_CHEST, reward_mode=reward_mode, max_steps=max_steps)
+    result = play_episode(game, scripted([RIGHT], [DOWN]), np.random.default_rng(0))
+    k = 2  # agent 0 enters the chest on joint step 2
+    assert result.length == horizon and result.treasures_collected == 1
+    # agent 0: -1 + 100; agent 1: -1 on each of the horizon's steps (in team mode each step's sum
+    # is counted once, so the team return is the same)
+    assert result.team_return == 99.0 - horizon
+    assert result.steps_after_clear == horizon - k
+    assert result.return_after_clear == -(horizon - k)
+
+
+def test_the_last_of_several_chests_counts():
+    # chests at (0,2) and (2,2); agent 0 takes (0,2) on step 2; agent 1 at (3,0) goes RIGHT (3,1),
+    # RIGHT (3,2), UP (2,2) and takes the last chest on step 3; agent 2 at (3,3) bumps the bottom
+    # edge until the horizon 4 * 4 = 16
+    game = game_of("0.T.\n....\n..T.\n1..2")
+    result = play_episode(game, scripted([RIGHT], [RIGHT, RIGHT, UP], [DOWN]), np.random.default_rng(0))
+    assert result.length == 16 and result.treasures_collected == 2
+    assert result.steps_after_clear == 16 - 3
+    assert result.return_after_clear == -(16 - 3)
+    assert result.team_return == 99.0 + 98.0 - 16
+
+
+def test_an_episode_that_ends_with_the_last_chest():
+    # agent 0 takes the chest on step 2 while agent 1 walks RIGHT, RIGHT into the trap at (2,2) on
+    # step 2 too: the episode ends with the chest (team return 99 + (-1 - 100))
+    game = game_of("0.T\n...\n1.X")
+    result = play_episode(game, scripted([RIGHT], [RIGHT]), np.random.default_rng(0))
+    assert result.length == 2 and result.team_return == 99.0 - 1.0 - 100.0
+    assert (result.steps_after_clear, result.return_after_clear) == (0, 0.0)
+    # a lone agent: the last chest always ends the episode
+    lone = game_of("0.T\n...\n...")
+    result = play_episode(lone, scripted([RIGHT]), np.random.default_rng(0))
+    assert result == EpisodeResult(99.0, 2, 1, 1.0, 0.0, 0, 0.0)
+
+
+def test_a_chest_left_full_is_never_cleared():
+    # two chests, agent 0 takes (0,2) on step 2, agent 1 bumps the bottom edge until the horizon 9
+    # without taking (2,2): chests remain, so nothing is "after the clear"
+    game = game_of("0.T\n...\n1.T")
+    result = play_episode(game, scripted([RIGHT], [DOWN]), np.random.default_rng(0))
+    assert result.length == 9 and result.treasures_collected == 1
+    assert (result.steps_after_clear, result.return_after_clear) == (0, 0.0)
+
+
+def test_episode_result_keeps_its_five_positional_fields():
+    result = EpisodeResult(1.0, 2, 3, 0.5, 0.25)
+    assert (result.steps_after_clear, result.return_after_clear) == (0, 0.0)
+    team_return, length, collected, success, trap = result[:5]
+    assert (team_return, length, collected, success, trap) == (1.0, 2, 3, 0.5, 0.25)
+
+
+class StubLearner:
+    """Greedy actions without a network: agent 0 always RIGHT, agent 1 always DOWN (ONE_CHEST's script)."""
+
+    def act(self, obs, live, epsilon=0.0, greedy=True, ties=None):
+        return np.array([RIGHT, DOWN])
+
+
+def test_evaluate_appends_the_after_clear_keys():
+    game = game_of(ONE_CHEST)
+    result = evaluate(StubLearner(), game, episodes=3, seed=0, evaluation=0)
+    assert list(result) == ["team_return", "success_rate", "trap_rate", "episode_length",
+                            "after_clear_rate", "return_after_clear"]
+    assert result == {"team_return": 90.0, "success_rate": 1.0, "trap_rate": 0.0, "episode_length": 9.0,
+                      "after_clear_rate": 1.0, "return_after_clear": -7.0}
+    # with a first episode that ended with the chest: means over 1 + 3 = 4 episodes, 0 for it
+    first = EpisodeResult(99.0, 2, 1, 1.0, 0.0, 0, 0.0)
+    result = evaluate(StubLearner(), game, episodes=4, seed=0, evaluation=0, first=first)
+    assert result["after_clear_rate"] == 0.75
+    assert result["return_after_clear"] == -7.0 * 3 / 4
+    assert result["team_return"] == (99.0 + 3 * 90.0) / 4
