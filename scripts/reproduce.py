@@ -1,9 +1,9 @@
 #!/usr/bin/env python
-"""Reproduce the study's three claims: run the sweeps, then write ``OUT/REPORT.md`` and figures.
+"""The study: run its sweeps, keep their raw data in ``OUT/data/``, write ``OUT/REPORT.md`` and figures.
 
-    python scripts/reproduce.py --profile quick --out /tmp/repro_quick   # smoke run: minutes, 2-3 seeds
-    python scripts/reproduce.py --profile full --out results/            # the evidence: >= 10 seeds
-    python scripts/reproduce.py --out results/ --report-only             # re-analyse runs already there
+    python scripts/reproduce.py --profile quick --out /tmp/study     # smoke run: about a minute, NOT evidence
+    python scripts/reproduce.py --profile full --out results         # the evidence, about 30 min on 2 cores
+    python scripts/reproduce.py results --out /tmp/report             # the report again from results/data/
 
 ``--help`` lists every option. The code is :mod:`dqn_transfer.cli.report` (also
 ``python -m dqn_transfer.cli.report``), :mod:`dqn_transfer.experiments` and :mod:`dqn_transfer.analysis`.

@@ -19,18 +19,18 @@ from dqn_transfer.experiments import sweeps
 from dqn_transfer.config import CONFIG_DIR, register_configs, validate
 from dqn_transfer.enums import Algorithm, Mode
 from dqn_transfer.enums import values as enum_values
-from dqn_transfer.experiments.claims import team_size
+from dqn_transfer.experiments import claims
+from dqn_transfer.experiments.claims import slope
+from dqn_transfer.experiments.raw_data import RunData, export_sweep, read_data, write_data, write_manifest
 from dqn_transfer.experiments.report import write_report
 from dqn_transfer.experiments.sweeps import (
     EXPERIMENTS,
-    PROFILES,
     ReproduceError,
     count_jobs,
     installed_launchers,
     launcher_overrides,
     sweep_overrides,
 )
-from dqn_transfer.experiments.team_maps import write_team_maps
 from dqn_transfer.run_dir import RunDir
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -66,95 +66,177 @@ def _write_run(run_dir: Path, values: np.ndarray, *, seed: int, mode: str = COMP
     files.metrics.write_text("\n".join(lines) + "\n")
 
 
-def _make_results(out: Path, *, coop_bonus: float, delib_bonus: float) -> None:
-    """fig1, fig2 and transfer sweeps; ``*_bonus`` sets the true effect of each mode."""
-    ramp = np.linspace(-50.0, 50.0, STEPS.size)
+# ------------------------------------------------------------------------------------ the report, from raw data
+
+MAPS, RUN_SEEDS = range(5), range(2)
+
+
+def _record(experiment: str, name: str, values: np.ndarray, *, map_seed: int, seed: int, algorithm: str = "sarsa",
+            mode: str = COOPERATIVE, agents: int = 2, exchange: str = "none", share: bool = False,
+            transfer: bool = False, eps_start: float = 1.0, steps_before: int = 0, optimum: float | None = 100.0,
+            curriculum: dict | None = None, **transfer_keys) -> RunData:
+    """One run's raw data as the export writes it (only the config keys the report reads)."""
+    config = {"seed": seed, "total_steps": int(STEPS[-1]), "eval_every": 100, "eval_episodes": 5,
+              "env": {"map_seed": map_seed, "mode": mode, "num_agents": agents},
+              "agent": {"algorithm": algorithm, "eps_start": eps_start, "share_parameters": share},
+              "transfer": {"enabled": transfer, "exchange": exchange, "epsilon_start": 0.3, **transfer_keys},
+              "curriculum": curriculum or {"stages": []}}
+    zeros = tuple(0.0 for _ in STEPS)
+    metrics = {"team_return": tuple(float(v) for v in values), "success_rate": zeros, "trap_rate": zeros,
+               "after_clear_rate": zeros, "return_after_clear": zeros}
+    return RunData(experiment, name, config, tuple(int(s) for s in STEPS), metrics, steps_before, optimum)
+
+
+def _noise(map_seed: int, seed: int) -> np.ndarray:
+    """A unit's wiggle, shared by every condition of that (map, seed): paired differences cancel it."""
+    return np.random.default_rng([map_seed, seed]).normal(0.0, 2.0, size=STEPS.size)
+
+
+def _study_data(data: Path, *, exchange_gain: float, coop_gain: float, trend: float, transfer_gain: float,
+                profile: str = "full") -> None:
+    """Raw data of every experiment with effects known by construction (the optimum is 100, so a score
+    point is a return unit):
+
+    - hypothesis: exchange=best adds ``exchange_gain`` to every evaluation;
+    - claim1: cooperative adds ``coop_gain`` return units, plus up to +-1 that differs between units;
+    - claim2: at team size m, cooperative adds ``trend * m`` over competitive and deliberative as much again;
+    - transfer: same_map adds ``transfer_gain`` over the exploration-matched baseline.
+    """
+    ramp = np.linspace(10.0, 60.0, STEPS.size)
+    units = [(m, s) for m in MAPS for s in RUN_SEEDS]
+    jitter = {u: np.random.default_rng(list(u)).uniform(-1.0, 1.0) for u in units}
+    runs: dict[str, list[RunData]] = {"hypothesis": [], "claim1": [], "claim2": [], "transfer": []}
+    for job, (algorithm, mode, exchange) in enumerate((a, m, e) for a in ("sarsa", "double_dqn")
+                                                      for m in (COOPERATIVE, DELIBERATIVE) for e in ("none", "best")):
+        gain = exchange_gain if exchange == "best" else 0.0
+        runs["hypothesis"] += [_record("hypothesis", f"{job}/{u}", ramp + gain + _noise(*u), map_seed=u[0], seed=u[1],
+                                       algorithm=algorithm, mode=mode, agents=4, exchange=exchange) for u in units]
+    for job, mode in enumerate((COMPETITIVE, COOPERATIVE)):
+        runs["claim1"] += [_record("claim1", f"{job}/{u}", ramp + _noise(*u) + (coop_gain + jitter[u] if job else 0.0),
+                                   map_seed=u[0], seed=u[1], mode=mode, optimum=None) for u in units]
     job = 0
-    for mode, bonus in ((COMPETITIVE, 0.0), (COOPERATIVE, coop_bonus)):
-        for seed in SEEDS:
-            _write_run(out / "fig1" / str(job), ramp + bonus + _seed_noise(seed), seed=seed, mode=mode)
-            job += 1
-    job = 0
-    for m in (1, 2, 3):
-        for mode, per_agent in ((COMPETITIVE, 0.0), (COOPERATIVE, coop_bonus), (DELIBERATIVE, delib_bonus)):
-            for seed in SEEDS:
-                values = 10.0 * m + ramp + per_agent * (m - 1) + _seed_noise(seed)
-                _write_run(out / "fig2" / str(job), values, seed=seed, mode=mode, agents=m, treasures=3)
+    for algorithm in ("sarsa", "double_dqn"):
+        for m in (2, 3, 4, 6):
+            for k, mode in enumerate((COMPETITIVE, COOPERATIVE, DELIBERATIVE)):
+                runs["claim2"] += [_record("claim2", f"{job}/{u}", ramp + k * trend * m + _noise(*u) + jitter[u] * k,
+                                           map_seed=u[0], seed=u[1], algorithm=algorithm, mode=mode, agents=m)
+                                   for u in units]
                 job += 1
-    job = 0
-    # double_dqn: transfer shifts the whole curve up by 20 (jumpstart and area > 0): SUPPORTED.
-    # sarsa: transfer shifts it down by 10: NOT SUPPORTED.  So the claim is PARTLY SUPPORTED.
-    for algorithm, shift in ((Algorithm.double_dqn.value, 20.0), (Algorithm.sarsa.value, -10.0)):
-        for enabled in (False, True):
-            for seed in SEEDS:
-                values = ramp + (shift if enabled else 0.0) + _seed_noise(seed)
-                _write_run(out / "transfer" / str(job), values, seed=seed, algorithm=algorithm, transfer=enabled)
-                job += 1
+    conditions = {"scratch_matched": ({"transfer": False, "eps_start": 0.3}, 0.0),
+                  "scratch": ({"transfer": False}, -5.0),
+                  "same_map": ({"transfer": True, "steps_before": 500}, transfer_gain),
+                  "team_member": ({"transfer": True, "steps_before": 500, "source_task": "team"}, 0.0)}
+    for job, (algorithm, (keys, gain)) in enumerate((a, c) for a in ("sarsa", "double_dqn") for c in conditions.values()):
+        runs["transfer"] += [_record("transfer", f"{job}/{u}", ramp + gain + _noise(*u), map_seed=u[0], seed=u[1],
+                                     algorithm=algorithm, **keys) for u in units]
+    # curriculum: 300 steps on a room, then the map for the last 700; scratch 1,000 on the map
+    room = {"stages": [{"env": {"size": 5}, "steps": 300}]}
+    runs["curriculum"] = [
+        _record("curriculum", f"{job}/{s}", values, map_seed=0, seed=s, algorithm=algorithm, steps_before=before,
+                **({"curriculum": room} if before else {}))
+        for job, (algorithm, before) in enumerate((a, b) for a in ("sarsa", "double_dqn") for b in (0, 300))
+        for s in range(10) for values in [ramp + _noise(0, s)]]
+    for name, records in runs.items():
+        write_data(data / f"{name}.jsonl", records)
+    write_manifest(data, {"profile": profile, "commit": "abc1234", "rules_commit": "def5678 2026-12-02",
+                          "machine": "test machine", "runs": {k: len(v) for k, v in runs.items()},
+                          "wall_seconds": {"claim1": 10.0}, "date": "2026-12-02"})
 
 
-def _check_pngs(out: Path, text: str) -> None:
-    for name in ("fig1.png", "fig2.png", "fig2_curves.png", "transfer.png"):
-        path = out / name
-        assert path.read_bytes()[:8] == PNG_MAGIC, f"{name} is not a PNG"
-        assert path.stat().st_size > 5000
-        assert f"]({name})" in text  # the report shows it
-
-
-def _claim_rows(text: str) -> dict[str, str]:
+def _verdicts(text: str) -> dict[str, str]:
     rows = [line for line in text.splitlines() if line.startswith("| ") and "**" in line]
-    return {row.split("|")[1].strip()[:1]: row.split("|")[2].strip() for row in rows}
+    return {row.split("|")[1].strip().split(":")[0]: row.split("|")[4].strip() for row in rows}
 
 
-def test_report_states_the_verdicts_known_by_construction(tmp_path):
-    _make_results(tmp_path, coop_bonus=0.0, delib_bonus=15.0)
-    report_path = write_report(tmp_path, profile="full")
-    text = report_path.read_text()
-    verdicts = _claim_rows(text)
-    # claim 1: cooperation = competition exactly -> difference 0, CI [0, 0] inside the margin
-    assert verdicts["1"] == "**SUPPORTED**"
-    # claim 2: coop = comp at every size -> "cooperative > competitive" fails although delib > coop
-    assert verdicts["2"] == "**NOT SUPPORTED**"
-    assert "not established: cooperative > competitive" in text
-    # claim 3: supported for double_dqn, not for sarsa
-    assert verdicts["3"] == "**PARTLY SUPPORTED**"
-    assert "Verdict for double_dqn: **SUPPORTED**" in text
-    assert "Verdict for sarsa: **NOT SUPPORTED**" in text
-    assert "5 seeds per mode" in text and "1,000 environment steps per run" in text
-    assert "Sanity check passed" in text  # team of 1: competitive == cooperative
-    assert "SMOKE RUN" not in text
-    assert "| jumpstart |" in text and "time_to_threshold/difference" in text
-    _check_pngs(tmp_path, text)
+def test_the_report_states_the_verdicts_known_by_construction(tmp_path):
+    _study_data(tmp_path / "data", exchange_gain=20.0, coop_gain=0.0, trend=3.0, transfer_gain=15.0)
+    text = write_report(tmp_path / "data", tmp_path).read_text()
+    assert _verdicts(text) == {"Main hypothesis": "**SUPPORTED**",  # best beats none on every map: P = 1
+                               "Claim 1": "**SUPPORTED**",  # coop - comp within +-1 return unit, margin +5
+                               "Claim 2": "**SUPPORTED**",  # both gaps grow by 3 points per agent
+                               "Claim 3": "**SUPPORTED**",  # same_map 15 points above the matched baseline
+                               "Curriculum": "**EXPLORATORY**"}  # no rule, no verdict
+    assert "committed at def5678 2026-12-02" in text and "SMOKE RUN" not in text
+    # the team-member source is no better than the baseline: it never pays for its 500 steps
+    row = next(line for line in text.splitlines() if line.startswith("| sarsa | team_member |"))
+    assert "| 500 |" in row and row.endswith("| never |")
+    for figure in ("hypothesis.png", "hypothesis_profiles.png", "claim1.png", "claim2.png", "claim2_trend.png",
+                   "transfer.png", "transfer_total_steps.png", "curriculum.png"):
+        assert (tmp_path / figure).read_bytes()[:8] == PNG_MAGIC and f"]({figure})" in text
 
 
-def test_report_when_cooperation_and_deliberation_help(tmp_path):
-    _make_results(tmp_path, coop_bonus=30.0, delib_bonus=60.0)
-    text = write_report(tmp_path, profile="quick").read_text()
-    verdicts = _claim_rows(text)
-    assert verdicts["1"] == "**NOT SUPPORTED**"  # cooperation is 30 better: far above the 5% margin
-    assert verdicts["2"] == "**SUPPORTED**"  # delib > coop > comp at team size 3
+def test_the_report_says_when_the_data_contradict_or_do_not_support_a_claim(tmp_path):
+    _study_data(tmp_path / "data", exchange_gain=-20.0, coop_gain=30.0, trend=-3.0, transfer_gain=0.0,
+                profile="quick")
+    text = write_report(tmp_path / "data", tmp_path).read_text()
+    assert _verdicts(text) == {"Main hypothesis": "**CONTRADICTED**",  # exchange hurts on every map
+                               "Claim 1": "**NOT SUPPORTED**",  # cooperation is 30 better, far above +5
+                               "Claim 2": "**CONTRADICTED**",  # the gaps shrink with the team
+                               "Claim 3": "**NOT SUPPORTED**",  # identical curves: P = 0.5
+                               "Curriculum": "**EXPLORATORY**"}
     assert "SMOKE RUN" in text and "NOT evidence" in text  # a quick profile is never evidence
 
 
-def test_report_without_runs_is_a_clear_error(tmp_path, capsys):
-    with pytest.raises(ReproduceError, match="holds no runs"):
-        write_report(tmp_path)
+def test_the_curriculum_is_compared_on_total_steps():
+    # The curriculum run's curve is the scratch run's, shifted 300 steps later (same seed, same ramp): on
+    # total steps it starts at the scratch run's step-0 value, 300 steps after the scratch run was there.
+    ramp = np.linspace(10.0, 60.0, STEPS.size)  # +5 per 100 steps
+    scratch = _record("curriculum", "0/0", ramp, map_seed=0, seed=0)
+    curriculum = _record("curriculum", "1/0", ramp, map_seed=0, seed=0, steps_before=300,
+                         curriculum={"stages": [{"steps": 300}]})
+    section = claims.section_curriculum([scratch, curriculum], claims.Context(Path("/nonexistent"),
+                                                                             np.random.default_rng(0)))
+    row = next(line for line in section.markdown.splitlines() if line.startswith("| sarsa |"))
+    # at total step 300: curriculum 10 (its step 0) - scratch 25 (its step 300) = -0.15 of the optimum 100
+    assert row.split("|")[3].strip().startswith("-0.15")
+
+
+def test_the_slope_of_a_gap_over_team_size_has_the_regression_t_interval_worked_by_hand():
+    rng = np.random.default_rng(0)
+    # per-m means 1, 2, 3 -> slope 1; regression of the 6 points: residuals +-1, SSE 6, s^2 = 6 / 4,
+    # Sxx = 4 -> stderr sqrt(1.5 / 4) = 0.6124, t(0.975, 4) = 2.7764 -> 1 +- 1.700
+    point, boot, t = slope({2: np.array([0.0, 2.0]), 3: np.array([1.0, 3.0]), 4: np.array([2.0, 4.0])}, rng)
+    assert point == pytest.approx(1.0) and boot.low <= 1.0 <= boot.high
+    assert (t.low, t.high) == pytest.approx((1 - 1.7004, 1 + 1.7004), abs=1e-3)
+    flat, boot, _ = slope({2: np.array([5.0, 5.0]), 3: np.array([5.0, 5.0]), 6: np.array([5.0, 5.0])}, rng)
+    assert flat == pytest.approx(0.0) and boot.low == pytest.approx(0.0) and boot.high == pytest.approx(0.0)
+
+
+def test_the_report_is_regenerated_from_its_data_byte_for_byte(tmp_path):
+    _study_data(tmp_path / "results" / "data", exchange_gain=5.0, coop_gain=1.0, trend=1.0, transfer_gain=5.0)
+    assert report.main([str(tmp_path / "results")]) == 0
+    assert report.main([str(tmp_path / "results"), "--out", str(tmp_path / "again")]) == 0
+    assert (tmp_path / "again" / "REPORT.md").read_bytes() == (tmp_path / "results" / "REPORT.md").read_bytes()
+    assert (tmp_path / "again" / "claim2.png").read_bytes() == (tmp_path / "results" / "claim2.png").read_bytes()
+
+
+def test_report_without_data_is_a_clear_error(tmp_path, capsys):
+    assert report.main([str(tmp_path)]) == 1
+    assert capsys.readouterr().err.splitlines() == [f"error: {tmp_path} has no data/ directory of run data"]
     assert report.main(["--out", str(tmp_path), "--report-only"]) == 1
     assert capsys.readouterr().err.splitlines() == [
-        f"error: {tmp_path.resolve()} holds no runs of fig1, fig2, transfer: run the experiments first"]
+        f"error: {tmp_path.resolve()}/runs holds no runs of {', '.join(EXPERIMENTS)}: run the experiments first"]
 
 
-def test_team_maps_share_one_map(tmp_path):
-    paths = write_team_maps(tmp_path)
-    layouts = [p.read_text().strip() for p in paths]
-    assert [sum(ch.isdigit() for ch in layout) for layout in layouts] == list(range(1, len(layouts) + 1))
-    strip = [layout.translate(str.maketrans("0123456789", ".........." )) for layout in layouts]
-    assert len(set(strip)) == 1  # the same obstacles, chests and traps for every team size
-    config = {"env": {"layout_file": str(paths[1]), "num_agents": None}}
-    assert team_size(config) == 2
+def test_exported_runs_keep_their_config_evaluations_and_map_optimum(tmp_path):
+    sweep = tmp_path / "runs" / "claim2"
+    layout = "0T.\n...\n.T1"  # each agent is 1 move from a chest: the optimum is 2 x 100
+    for job, seed in enumerate((3, 4)):
+        _write_run(sweep / str(job), STEPS * 0.1, seed=seed)
+        config = yaml.safe_load(RunDir(sweep / str(job)).config.read_text())
+        config["env"].update(layout=layout, num_treasures=2, num_traps=0, num_agents=2, size=3, map_seed=0)
+        RunDir(sweep / str(job)).config.write_text(yaml.safe_dump(config))
+    runs = export_sweep(sweep, "claim2")
+    assert [r.name for r in runs] == ["0", "1"] and [r.seed for r in runs] == [3, 4]
+    assert runs[0].optimal_return == 200.0
+    assert runs[0].curve()[1][-1] == pytest.approx(100.0) and runs[0].score_curve()[1][-1] == pytest.approx(0.5)
+    write_data(tmp_path / "claim2.jsonl", runs)
+    assert read_data(tmp_path / "claim2.jsonl") == runs
 
 
 def test_plot_groups_runs_by_their_config_differences(tmp_path, capsys):
-    _make_results(tmp_path, coop_bonus=0.0, delib_bonus=0.0)
+    for job, (mode, seed) in enumerate((m, s) for m in (COMPETITIVE, COOPERATIVE) for s in SEEDS):
+        _write_run(tmp_path / "fig1" / str(job), STEPS * 0.1 + seed, seed=seed, mode=mode)
     runs = find_run_dirs([tmp_path / "fig1"])
     groups = group_runs(runs)
     assert sorted(groups) == [f"mode={COMPETITIVE}", f"mode={COOPERATIVE}"]
@@ -255,18 +337,20 @@ def test_plot_of_nothing_usable_is_an_error(tmp_path, capsys):
     assert not out.exists()
 
 
-def test_report_skips_unusable_runs_and_keeps_its_verdicts(tmp_path, capsys):
-    _make_results(tmp_path, coop_bonus=0.0, delib_bonus=15.0)  # the data of the first report test
-    stub = _write_stub(tmp_path / "fig1" / "10")
-    no_config = tmp_path / "fig2" / "45"  # evaluations, but which condition is it?
+def test_the_export_skips_unusable_runs_and_says_why(tmp_path, capsys):
+    sweep = tmp_path / "runs" / "claim1"
+    for job, (mode, seed) in enumerate((m, s) for m in (COMPETITIVE, COOPERATIVE) for s in SEEDS):
+        _write_run(sweep / str(job), STEPS * 0.1 + seed, seed=seed, mode=mode)
+    stub = _write_stub(sweep / "10")
+    no_config = sweep / "11"  # evaluations, but which condition is it?
     no_config.mkdir()
     RunDir(no_config).metrics.write_text('{"step": 0, "team_return": 1000.0}\n')
     assert report.main(["--out", str(tmp_path), "--report-only"]) == 0
     assert capsys.readouterr().err.splitlines() == [
         _stub_line(stub), f"skipped {no_config}: no readable .hydra/config.yaml (cannot tell its condition)"]
-    verdicts = _claim_rows((tmp_path / "REPORT.md").read_text())
-    assert verdicts == {"1": "**SUPPORTED**", "2": "**NOT SUPPORTED**", "3": "**PARTLY SUPPORTED**"}
-    assert "5 seeds per mode" in (tmp_path / "REPORT.md").read_text()
+    assert len(read_data(tmp_path / "data" / "claim1.jsonl")) == 10
+    text = (tmp_path / "REPORT.md").read_text()
+    assert "5 seeds per condition" in text and "## Claim 1" in text and "## Claim 2" not in text
 
 
 # ------------------------------------------------------------------------------------ the launcher
@@ -278,7 +362,8 @@ def no_sweeps(monkeypatch, tmp_path):
     monkeypatch.setattr(report, "run_experiment", lambda name, profile, out, launcher, *rest: calls.append(
         (name, launcher)))
     (tmp_path / "REPORT.md").write_text("# report\n")
-    monkeypatch.setattr(report, "write_report", lambda out, profile: tmp_path / "REPORT.md")
+    monkeypatch.setattr(report, "export_data", lambda out: tmp_path / "data")
+    monkeypatch.setattr(report, "write_report", lambda data, out: tmp_path / "REPORT.md")
     return calls
 
 
@@ -324,9 +409,11 @@ def _compose(*overrides: str, hydra: bool = False):
 
 
 @pytest.mark.parametrize("experiment, algorithm, size, treasures, swept", [
-    ("fig1", Algorithm.sarsa, 6, 1, {"mode"}),
-    ("fig2", Algorithm.sarsa, 10, 4, {"mode", "env.num_agents"}),
-    ("transfer", Algorithm.double_dqn, 6, 2, {"transfer"}),
+    ("hypothesis", Algorithm.double_dqn, 8, 4, {"transfer.exchange", "mode", "agent"}),
+    ("hypothesis_shared", Algorithm.double_dqn, 8, 4, {"transfer.exchange", "mode", "agent"}),
+    ("claim1", Algorithm.sarsa, 6, 1, {"mode"}),
+    ("claim2", Algorithm.double_dqn, 6, 2, {"env", "mode", "agent"}),
+    ("transfer", Algorithm.double_dqn, 6, 2, {"condition", "agent"}),
 ])
 def test_experiment_configs_compose(experiment, algorithm, size, treasures, swept):
     cfg = _compose(f"experiment={experiment}", hydra=True)
@@ -336,28 +423,37 @@ def test_experiment_configs_compose(experiment, algorithm, size, treasures, swep
     assert config.agent.algorithm.value == algorithm.value  # an enum member, not a string
     assert config.env.size == size and config.env.num_treasures == treasures
     assert config.progress is False and config.total_steps > config.eval_every
-    assert config.replicas.seeds >= 10  # the seeds are replicas inside each job
+    assert config.replicas.seeds * config.replicas.maps >= 10  # maps x seeds as replicas inside each job
     validate(config)
     # every point of the sweep composes too (one job per value, the others at their first value)
     for key, values in cfg.hydra.sweeper.params.items():
-        for value in str(values).replace("range(0,", "").rstrip(")").split(",")[:3]:
-            job = OmegaConf.to_object(_compose(f"experiment={experiment}", f"{key}={value}"))
-            validate(job)
+        for value in str(values).split(","):
+            validate(OmegaConf.to_object(_compose(f"experiment={experiment}", f"{key}={value}")))
 
 
-def test_fig1_is_one_treasure_and_the_experiment_overrides_the_defaults():
-    config = OmegaConf.to_object(_compose("experiment=fig1", f"mode={COOPERATIVE}"))
-    assert config.env.num_treasures == 1 and config.env.num_traps == 1 and config.env.num_agents == 2
-    assert config.env.mode.value == Mode.cooperative.value
-    assert config.total_steps != OmegaConf.to_object(_compose()).total_steps  # experiment wins over config.yaml
+def test_claim2_teams_have_as_many_chests_and_traps_as_agents_on_maps_that_grow():
+    sizes = {}
+    for m in (2, 3, 4, 6):
+        env = OmegaConf.to_object(_compose("experiment=claim2", f"env=study/m{m}")).env
+        assert env.num_agents == env.num_treasures == env.num_traps == m
+        sizes[m] = env.size
+    assert sizes == {2: 6, 3: 7, 4: 8, 6: 10}
 
 
-def test_profiles_seed_counts_and_job_counts(tmp_path):
-    assert all(n >= 10 for n in PROFILES["full"].seeds.values())
-    assert all(2 <= n <= 3 for n in PROFILES["quick"].seeds.values())
-    overrides = sweep_overrides("fig2", "quick", tmp_path)
-    assert count_jobs("fig2", overrides) == 3 * 4  # one job per condition, its seeds as replicas
-    assert f"replicas.seeds={PROFILES['quick'].seeds['fig2']}" in overrides
-    assert (tmp_path / "maps" / "fig2_m4.txt").exists()
-    overrides = sweep_overrides("transfer", "full", tmp_path)
-    assert count_jobs("transfer", overrides) == 2 * 2
+def test_the_transfer_conditions_differ_only_in_what_they_name():
+    def job(condition: str):
+        return OmegaConf.to_object(_compose("experiment=transfer", f"condition={condition}"))
+    matched, scratch, same, one = job("scratch_matched"), job("scratch"), job("same_map"), job("same_map_one")
+    assert matched.agent.eps_start == same.transfer.epsilon_start == 0.3 and scratch.agent.eps_start == 1.0
+    assert not matched.transfer.enabled and same.transfer.enabled and one.transfer.targets == [0]
+    assert job("other_map").transfer.source_map_shift == 1000
+    assert job("team_member").transfer.source_task.value == "team"
+
+
+def test_profiles_and_job_counts(tmp_path):
+    assert {name: count_jobs(name, sweep_overrides(name, "full", tmp_path)) for name in EXPERIMENTS} == {
+        "hypothesis": 3 * 2 * 2, "hypothesis_shared": 2, "claim1": 2, "claim2": 4 * 3 * 2, "transfer": 6 * 2}
+    assert count_jobs("claim2", sweep_overrides("claim2", "quick", tmp_path)) == 2 * 3 * 2  # two team sizes
+    assert f"transfer.cache_dir='{tmp_path / 'pretrained'}'" in sweep_overrides("transfer", "full", tmp_path)
+    with pytest.raises(ReproduceError, match="unknown experiment"):
+        sweep_overrides("fig1", "full", tmp_path)

@@ -136,8 +136,10 @@ def mean_intervals(values: Sequence[float], rng: np.random.Generator, confidence
         return {method: Estimate(mean, math.nan, math.nan, n) for method in ("percentile", "t", "bca")}
     mean = float(values.mean())
     t_low, t_high = scipy.stats.t.interval(confidence, n - 1, loc=mean, scale=scipy.stats.sem(values))
-    bca = scipy.stats.bootstrap((values,), np.mean, confidence_level=confidence, method="BCa",
-                                n_resamples=N_RESAMPLES, random_state=rng).confidence_interval
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # near-degenerate samples: scipy warns and returns nan, shown as "n/a"
+        bca = scipy.stats.bootstrap((values,), np.mean, confidence_level=confidence, method="BCa",
+                                    n_resamples=N_RESAMPLES, random_state=rng).confidence_interval
     return {"percentile": Estimate(*bootstrap_ci(values, rng, confidence=confidence), n),
             "t": Estimate(mean, float(t_low), float(t_high), n),
             "bca": Estimate(mean, float(bca.low), float(bca.high), n)}

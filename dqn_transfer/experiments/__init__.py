@@ -1,17 +1,19 @@
-"""The study's experiments and its reproduction report.
+"""The study's experiments, their raw data and their report.
 
-The study claims three things, each tested by one experiment (a Hydra multirun of
-``conf/experiment/<name>.yaml``):
+The study's questions, each answered by experiments (Hydra multiruns of ``conf/experiment/<name>.yaml``):
 
-1. one treasure: cooperation gives no advantage over competition (``fig1``);
-2. complex map, growing team: deliberative > cooperative > competitive (``fig2``);
-3. transfer from a trained agent speeds up learning (``transfer``).
+- the main hypothesis, a group that exchanges knowledge learns better than the same group without
+  (``hypothesis``, ``hypothesis_shared``);
+- claim 1, with one treasure cooperation gives no advantage over competition (``claim1``);
+- claim 2, as the team grows deliberative > cooperative > competitive (``claim2``);
+- claim 3, starting from a trained agent speeds up learning (``transfer``).
 
-- :mod:`~dqn_transfer.experiments.sweeps`: profiles (how many seeds and steps), the sweeps' overrides,
-  running a multirun and checking that it finished;
-- :mod:`~dqn_transfer.experiments.team_maps`: Figure 2's maps, one map for every team size;
-- :mod:`~dqn_transfer.experiments.claims`: one report section per claim, with its verdict rule;
-- :mod:`~dqn_transfer.experiments.report`: ``OUT/REPORT.md`` from the sections.
+- :mod:`~dqn_transfer.experiments.sweeps`: profiles (quick / full), the sweeps' overrides, running a
+  multirun and checking that it finished;
+- :mod:`~dqn_transfer.experiments.raw_data`: every run's evaluations as compact JSON lines, and reading them back;
+- :mod:`~dqn_transfer.experiments.claims`: one report section per question, with its primary comparison
+  and verdict (the rules: ``results/VERDICT_RULES.md``);
+- :mod:`~dqn_transfer.experiments.report`: ``REPORT.md`` and its figures from the raw data alone.
 
-All numbers and figures come from :mod:`dqn_transfer.analysis`.
+All statistics come from :mod:`dqn_transfer.analysis`.
 """

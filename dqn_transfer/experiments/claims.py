@@ -4,7 +4,8 @@
   (experiments ``hypothesis`` and ``hypothesis_shared``);
 - claim 1, one treasure: cooperation gives no advantage over competition (``claim1``);
 - claim 2, as the team grows: deliberative > cooperative > competitive (``claim2``);
-- claim 3, starting from a trained agent speeds up learning (``transfer``).
+- claim 3, starting from a trained agent speeds up learning (``transfer``), and a curriculum from a small
+  map to a large one (``curriculum``, exploratory).
 
 Each section reads its runs' raw data (:mod:`~dqn_transfer.experiments.raw_data`), never run
 directories. A run's **score** is its mean greedy-evaluation team return over training (the area under
@@ -46,7 +47,7 @@ TRANSFER_CONDITIONS = ("same_map", "same_map_one", "other_map", "team_member")
 COLORS = {COMPETITIVE: "tab:red", COOPERATIVE: "tab:blue", DELIBERATIVE: "tab:green", NO_EXCHANGE: "tab:gray",
           "best": "tab:purple", "shared_replay": "tab:orange", SHARED_NETWORK: "tab:brown", SCRATCH: "tab:gray",
           MATCHED: "black", "same_map": "tab:purple", "same_map_one": "tab:pink", "other_map": "tab:olive",
-          "team_member": "tab:cyan", "sarsa": "tab:blue", "double_dqn": "tab:red"}
+          "team_member": "tab:cyan", "room_scratch": "tab:gray", "room_curriculum": "tab:purple", "sarsa": "tab:blue", "double_dqn": "tab:red"}
 SUPPORTED, NOT_SUPPORTED, CONTRADICTED, INCONCLUSIVE = "SUPPORTED", "NOT SUPPORTED", "CONTRADICTED", "INCONCLUSIVE"
 SCORE_LABEL = "team return / the map's optimal return"  # the score's axis label (plots.METRIC_LABELS["score"])
 
@@ -171,7 +172,7 @@ def describe(runs: Sequence[RunData]) -> str:
     seeds = len({r.seed for r in runs})
     return (f"{values(lambda c: c['total_steps'])} env steps per run, a greedy evaluation of "
             f"{values(lambda c: c['eval_episodes'])} episodes every {values(lambda c: c['eval_every'])} steps; "
-            f"{maps} generated maps x {seeds} seeds per condition")
+            f"{maps} map{'s' if maps > 1 else ''} x {seeds} seed{'s' if seeds > 1 else ''} per condition")
 
 
 def _color(label: str) -> str | None:
@@ -244,8 +245,11 @@ def section_hypothesis(runs: Sequence[RunData], ctx: Context) -> Section:
 # ------------------------------------------------------------------------------------ claim 1
 
 
-def _after_clear(members: Sequence[RunData], metric: str) -> float:
-    return float(np.mean([asymptotic_performance(r.curve(metric), FINAL_TAIL) for r in members]))
+def _after_clear(members: Sequence[RunData], metric: str, digits: str) -> str:
+    """A metric's final value averaged over runs; n/a for runs made before it was recorded."""
+    if not all(metric in r.metrics for r in members):
+        return "n/a"
+    return f"{np.mean([asymptotic_performance(r.curve(metric), FINAL_TAIL) for r in members]):{digits}}"
 
 
 def section_claim1(runs: Sequence[RunData], ctx: Context) -> Section:
@@ -263,8 +267,8 @@ def section_claim1(runs: Sequence[RunData], ctx: Context) -> Section:
             continue
         diff, intervals = interval_text(paired(coop, comp, raw_score), ctx.rng)
         p = improvement(coop, comp, raw_score, ctx.rng)
-        after = [f"{_after_clear(g, 'after_clear_rate'):.2f}" for g in (comp, coop)]
-        after_return = [f"{_after_clear(g, 'return_after_clear'):.1f}" for g in (comp, coop)]
+        after = [_after_clear(g, "after_clear_rate", ".2f") for g in (comp, coop)]
+        after_return = [_after_clear(g, "return_after_clear", ".1f") for g in (comp, coop)]
         rows.append(f"| {algorithm} | {fmt(estimate([raw_score(r) for r in comp], ctx.rng))} | "
                     f"{fmt(estimate([raw_score(r) for r in coop], ctx.rng))} | {diff} | {fmt(p)} | "
                     f"{' / '.join(after)} | {' / '.join(after_return)} |")
@@ -479,10 +483,64 @@ def section_transfer(runs: Sequence[RunData], ctx: Context) -> Section:
     return Section(question, primary, result, verdict, "\n".join(md), figures)
 
 
+# ------------------------------------------------------------------------------------ curriculum
+
+
+def _on_total_steps(run: RunData) -> tuple[np.ndarray, np.ndarray]:
+    """The score curve against total env steps: a curriculum run's starts after its stages."""
+    steps, values = run.score_curve()
+    return steps + run.steps_before, values
+
+
+def _mean_between(run: RunData, start: float, end: float) -> float:
+    steps, values = _on_total_steps(run)
+    kept = (steps >= start) & (steps <= end)
+    return mean_over_training((steps[kept], values[kept]))
+
+
+def section_curriculum(runs: Sequence[RunData], ctx: Context) -> Section:
+    question = "Curriculum: a small map first beats the large map from scratch at the same total steps"
+    primary = "none (exploratory: not in the verdict rules)"
+    cells = group(runs, lambda r: (learner(r), "room_curriculum" if r.config.get("curriculum", {}).get("stages")
+                                   else "room_scratch"))
+    rows = ["| learner | steps before (room) | score at the curriculum's start: curriculum - scratch | score over the "
+            "shared steps: curriculum - scratch (t, BCa, percentile) | final score (equal budget): curriculum / "
+            "scratch | P(curriculum > scratch), final |", "|---|---:|---:|---:|---:|---:|"]
+    panels, results = [], []
+    for algorithm in _learners(runs):
+        curriculum, scratch = cells.get((algorithm, "room_curriculum")), cells.get((algorithm, "room_scratch"))
+        if not curriculum or not scratch:
+            continue
+        start = max(r.steps_before for r in curriculum)
+        end = min(float(_on_total_steps(r)[0][-1]) for r in curriculum + scratch)
+        at_start = {r.unit: float(np.interp(start, *_on_total_steps(r))) for r in scratch}
+        jump = estimate([_on_total_steps(r)[1][0] - at_start[r.unit] for r in curriculum if r.unit in at_start], ctx.rng)
+        diff = (interval_text(paired(curriculum, scratch, lambda r: _mean_between(r, start, end)), ctx.rng)[0]
+                if end > start else "no shared steps (unequal budgets)")
+        p = improvement(curriculum, scratch, final_score, ctx.rng)
+        finals = " / ".join(fmt(estimate([final_score(r) for r in g], ctx.rng)) for g in (curriculum, scratch))
+        rows.append(f"| {algorithm} | {start:,} | {fmt(jump)} | {diff} | {finals} | {fmt(p)} |")
+        results.append(f"{algorithm}: P = {fmt(p)}")
+        panels.append(("score", {f"{algorithm}, {c}": [_on_total_steps(r) for r in g]
+                                 for c, g in (("room_scratch", scratch), ("room_curriculum", curriculum))}))
+    figures = []
+    if panels:
+        figures.append(curves_figure(ctx.out / "curriculum.png", panels, "Curriculum vs scratch at equal total steps",
+                                     ctx.rng, color_of=_color, watermark=ctx.watermark,
+                                     xlabel="environment steps, the room stage's included").name)
+    md = [f"Setting: an 8x8 map with 2 chests, 2 traps and 2 agents; the curriculum first trains one agent on the "
+          f"5x5 room it contains (at (1, 1)), then both agents start from it; {describe(runs)} (the curriculum's "
+          "own steps exclude the room's). Both conditions spend the same total env steps.", "",
+          *(f"![{f}]({f})\n" for f in figures), *rows, "",
+          "This comparison was added after the main rules and is exploratory: no verdict."]
+    return Section(question, primary, "; ".join(results) or "no runs", "EXPLORATORY", "\n".join(md), figures)
+
+
 # (section function, the experiments whose data it reads), in report order
 SECTIONS = {
     "hypothesis": (section_hypothesis, ("hypothesis", "hypothesis_shared")),
     "claim1": (section_claim1, ("claim1",)),
     "claim2": (section_claim2, ("claim2",)),
     "transfer": (section_transfer, ("transfer",)),
+    "curriculum": (section_curriculum, ("curriculum",)),
 }

@@ -35,7 +35,7 @@ from dqn_transfer.analysis.runs import EvaluationError, load_config, read_metric
 from dqn_transfer.config import CONFIG_DIR, register_configs
 from dqn_transfer.run_dir import RunDir
 
-EXPERIMENTS = ("hypothesis", "hypothesis_shared", "claim1", "claim2", "transfer")
+EXPERIMENTS = ("hypothesis", "hypothesis_shared", "claim1", "claim2", "transfer", "curriculum")
 RUNS_DIR = "runs"  # OUT/runs/<experiment>/: the sweeps' run directories (checkpoints, logs; not committed)
 STAMP_FILE = "reproduce.json"  # in OUT/<name>/: the settings the sweep ran with, and its wall time
 DEFAULT_LAUNCHER = "joblib"
@@ -64,6 +64,8 @@ PROFILES = {
             "claim1": ["total_steps=600", "eval_every=100", "replicas.seeds=1", "replicas.maps=3"],
             "claim2": ["env=study/m2,study/m3", "total_steps=1500", "eval_every=500", *_SHORT],
             "transfer": ["total_steps=1500", "eval_every=250", "transfer.pretrain_steps=1000", *_SHORT],
+            "curriculum": ["total_steps=1500", "eval_every=250",
+                           "agent.learning_starts=200", "replicas.seeds=2"],
         },
         description="SMOKE RUN: 2-3 maps, one seed and 1,500 steps per run, claim 2 at two team sizes; it checks "
                     "that the pipeline works end to end and is NOT evidence for or against any claim."),
@@ -85,7 +87,9 @@ def sweep_overrides(name: str, profile: str, out: Path) -> list[str]:
     """The command-line overrides of one experiment's multirun (a swept key replaces the file's sweep)."""
     if name not in EXPERIMENTS:
         raise ReproduceError(f"unknown experiment {name!r} (choose from {', '.join(EXPERIMENTS)})")
-    shared = [f"transfer.cache_dir={_quote(out / 'pretrained')}"] if name == "transfer" else []
+    # Sources and stages cached once for every job of the sweep, inside OUT.
+    shared = {"transfer": [f"transfer.cache_dir={_quote(out / 'pretrained')}"],
+              "curriculum": [f"curriculum.cache_dir={_quote(out / 'curriculum_stages')}"]}.get(name, [])
     return shared + PROFILES[profile].overrides.get(name, [])
 
 
