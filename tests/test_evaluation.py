@@ -24,6 +24,7 @@ from dqn_transfer.analysis.stats import (
     improvement_probability,
     iqm,
     mean_intervals,
+    performance_profile,
 )
 from dqn_transfer.analysis.transfer_metrics import asymptotic_performance, jumpstart, mean_curve
 from dqn_transfer.analysis.transfer_metrics import time_to_threshold, total_reward, transfer_ratio
@@ -403,6 +404,14 @@ def test_the_vectorised_stratified_bootstrap_gives_rliables_own_intervals():
                                            random_state=np.random.RandomState(2))
     assert ours.mean == pytest.approx(point["i"][0])
     assert (ours.low, ours.high) == pytest.approx((ci["i"][0, 0], ci["i"][1, 0]), abs=0.06)
+
+
+def test_a_performance_profile_is_the_fraction_of_runs_above_each_tau():
+    scores = np.array([[0.0, 2.0], [1.0, 3.0]])  # 2 runs x 2 maps: 4 scores
+    profile, low, high = performance_profile(scores, np.array([-1.0, 0.5, 2.5, 3.0]), np.random.default_rng(0))
+    assert profile.tolist() == [1.0, 0.75, 0.25, 0.0]  # above 0.5: 1, 2, 3; above 2.5: 3; nothing above 3
+    assert low[0] == high[0] == 1.0 and low[-1] == high[-1] == 0.0  # every resample agrees at the ends
+    assert low[1] <= 0.75 <= high[1] and low[1] < high[1]
 
 
 def test_small_samples_get_t_and_bca_intervals_beside_the_percentile_one():

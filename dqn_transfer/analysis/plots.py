@@ -8,7 +8,6 @@ ignoring the seed.
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -18,18 +17,16 @@ import matplotlib
 matplotlib.use("Agg")  # files only: works on clusters and in CI without a display
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from rliable import library as rliable_library  # noqa: E402
 
 from dqn_transfer.analysis.runs import learning_curve, load_config, steps_before  # noqa: E402
-from dqn_transfer.analysis.stats import Estimate, curve_band  # noqa: E402
+from dqn_transfer.analysis.stats import Estimate, curve_band, performance_profile  # noqa: E402
 from dqn_transfer.analysis.transfer_metrics import Curve  # noqa: E402
 
 # Keys that differ between runs of one condition without making it another condition.
 IGNORED_KEYS = ("seed", "progress", "resume", "device", "checkpoint_every", "transfer.cache_dir")
 # Keys that name a condition, preferred as labels over what they imply (agent=sarsa implies agent.lr).
 PRIMARY_KEYS = ("agent.algorithm", "env.mode", "transfer.enabled", "env.num_agents", "env.layout_file", "env.layout")
-LINESTYLES = ("-", "--", ":", "-.")
-PROFILE_RESAMPLES = 200  # rliable's bootstrap of a performance profile costs about 1 ms a resample  # besides colours: identical curves stay visible
+LINESTYLES = ("-", "--", ":", "-.")  # besides colours: identical curves stay visible
 ColorOf = Callable[[str], "str | None"]
 
 
@@ -118,7 +115,7 @@ def _band_panel(ax, metric: str, groups: dict[str, list[Curve]], rng: np.random.
         plot_band(ax, curves, label, rng, color=color_of(label) if color_of else None,
                   linestyle=LINESTYLES[index % len(LINESTYLES)])
     ax.set_xlabel(xlabel)
-    ax.set_ylabel(metric_label(metric))
+    ax.set_ylabel(metric_label(metric), fontsize="small")
     ax.grid(alpha=0.3)
     ax.legend(fontsize="small", loc=legend_loc)
 
@@ -147,11 +144,16 @@ def plot_groups(groups: dict[str, list[Path]], metric: str, out: Path, title: st
     xlabel = "environment steps, counting those spent before each run" if total_steps else "environment steps"
     _band_panel(ax, metric, curves, rng, None, xlabel, "best")
     for offset in sorted(set(offsets.values()) - {0}):
-        ax.axvline(offset, color="grey", ls=":", lw=1)
-        ax.annotate(f"{offset:,} steps before", (offset, 1), xycoords=("data", "axes fraction"), fontsize="x-small",
-                    rotation=90, va="top", ha="right", color="grey")
+        _mark(ax, offset, f"{offset:,} steps before")
     ax.set_title(title or f"{metric_label(metric)}: mean, 95% bootstrap CI and each run")
     return _save(fig, out, dpi=120)
+
+
+def _mark(ax, x: float, text: str) -> None:
+    """A dotted vertical line at ``x`` with its label along it."""
+    ax.axvline(x, color="grey", ls=":", lw=1)
+    ax.annotate(text, (x, 1), xycoords=("data", "axes fraction"), fontsize="x-small", rotation=90, va="top",
+                ha="right", color="grey")
 
 
 def _shifted(curve: Curve, offset: int) -> Curve:
@@ -160,8 +162,8 @@ def _shifted(curve: Curve, offset: int) -> Curve:
 
 
 def _grid(panels: int, width: float, height: float):
-    """Figure and axes for ``panels`` panels, at most 3 a row."""
-    cols = min(panels, 3)
+    """Figure and axes for ``panels`` panels, at most 3 a row (4 as 2 x 2)."""
+    cols = 2 if panels == 4 else min(panels, 3)
     rows = -(-panels // cols)
     fig, axes = plt.subplots(rows, cols, figsize=(width * cols, height * rows), constrained_layout=True, squeeze=False)
     for ax in axes.flat[panels:]:
@@ -171,12 +173,16 @@ def _grid(panels: int, width: float, height: float):
 
 def curves_figure(path: Path, panels: list[tuple[str, dict[str, list[Curve]]]], title: str,
                   rng: np.random.Generator, color_of: ColorOf | None = None, note: str | None = None,
-                  xlabel: str = "environment steps", watermark: str | None = None) -> Path:
-    """Panels of learning curves (mean and 95% band per group, each run thin), one per ``(metric, groups)``."""
+                  xlabel: str = "environment steps", watermark: str | None = None,
+                  marks: Sequence[tuple[float, str]] = ()) -> Path:
+    """Panels of learning curves (mean and 95% band per group, each run thin), one per ``(metric, groups)``;
+    ``marks``: ``(x, label)`` dotted vertical lines on every panel."""
     fig, axes = _grid(len(panels), 6.2, 4.3)
     for ax, (metric, groups) in zip(axes, panels):
         _band_panel(ax, metric, groups, rng, color_of, xlabel + (f"\n{note}" if note else ""), "lower right")
-    fig.suptitle(title + " — mean, 95% bootstrap CI over runs, and each run (thin)")
+        for x, text in marks:
+            _mark(ax, x, text)
+    fig.suptitle(title + "\nmean, 95% bootstrap CI over runs, and each run (thin)")
     return _save(fig, path, dpi=110, watermark=watermark)
 
 
@@ -214,22 +220,20 @@ def errorbar_figure(path: Path, panels: list[tuple[str, dict[str, dict[int, Esti
 
 
 def profile_figure(path: Path, panels: list[tuple[str, dict[str, np.ndarray]]], title: str,
-                   color_of: ColorOf | None = None, watermark: str | None = None) -> Path:
-    """rliable's performance profiles: per panel, for each condition (scores ``[runs, maps]``), the fraction
-    of runs scoring above tau, for every tau, with a 95% stratified-bootstrap band."""
+                   rng: np.random.Generator, color_of: ColorOf | None = None, watermark: str | None = None) -> Path:
+    """Performance profiles (rliable's score distributions): per panel, for each condition (scores
+    ``[runs, maps]``), the fraction of runs scoring above tau, for every tau, with a 95%
+    stratified-bootstrap band (:func:`~dqn_transfer.analysis.stats.performance_profile`)."""
     fig, axes = _grid(len(panels), 5.5, 4.0)
     for ax, (label, scores) in zip(axes, panels):
         low = min(float(np.min(s)) for s in scores.values())
         high = max(float(np.max(s)) for s in scores.values())
         taus = np.linspace(low, high, 61)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", FutureWarning)  # arch deprecates the RandomState rliable passes it
-            profiles, bands = rliable_library.create_performance_profile(scores, taus, reps=PROFILE_RESAMPLES)
-        for index, name in enumerate(scores):
-            color = color_of(name) if color_of else None
-            line, = ax.plot(taus, profiles[name], label=f"{name} (n={scores[name].size})", color=color,
-                            ls=LINESTYLES[index % len(LINESTYLES)])
-            ax.fill_between(taus, bands[name][0], bands[name][1], color=line.get_color(), alpha=0.15, lw=0)
+        for index, (name, condition) in enumerate(scores.items()):
+            profile, band_low, band_high = performance_profile(condition, taus, rng)
+            line, = ax.plot(taus, profile, label=f"{name} (n={condition.size})", ls=LINESTYLES[index % len(LINESTYLES)],
+                            color=color_of(name) if color_of else None)
+            ax.fill_between(taus, band_low, band_high, color=line.get_color(), alpha=0.15, lw=0)
         ax.set_title(label, fontsize="medium")
         ax.set_xlabel("final score tau (team return / optimal return)")
         ax.set_ylabel("fraction of runs with score > tau")

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.stats
+from rliable import library as rliable_library
 from rliable import metrics as rliable_metrics
 
 from dqn_transfer.analysis.transfer_metrics import Curve, common_steps
@@ -209,3 +210,17 @@ def improvement_probability(x: Sequence[float] | np.ndarray, y: Sequence[float] 
         return Estimate(point, math.nan, math.nan, n)
     resampled = _improvement_per_task(_stratified_resample(x, rng), _stratified_resample(y, rng)).mean(axis=-1)
     return _percentile_estimate(point, resampled, confidence, n)
+
+
+def performance_profile(scores: Sequence[float] | np.ndarray, taus: np.ndarray, rng: np.random.Generator,
+                        confidence: float = 0.95) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(profile, low, high)``: the fraction of runs (over every task) scoring above each ``tau``
+    (rliable's ``score_distributions``), with a stratified-bootstrap percentile band, resampled as
+    :func:`iqm` does (rliable's own bootstrap seeds itself and differs in the last bits from call to call,
+    so a regenerated figure would not be identical)."""
+    scores = _as_runs_by_tasks(scores)
+    profile = np.asarray(rliable_library.score_distributions(scores, taus), dtype=np.float64)
+    resampled = _stratified_resample(scores, rng).reshape(RLIABLE_RESAMPLES, -1)
+    fractions = (resampled[:, :, None] > taus[None, None, :]).mean(axis=1)  # [resamples, taus]
+    low, high = _percentiles(fractions, confidence)
+    return profile, low, high

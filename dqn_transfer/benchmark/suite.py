@@ -31,7 +31,6 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from importlib.metadata import PackageNotFoundError, version
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -46,6 +45,7 @@ from dqn_transfer.benchmark.whole_process import (LONE_CONTENDERS, measure_lone,
                                                   measure_sb3_parallel)
 from dqn_transfer.config import AgentConfig, to_plain
 from dqn_transfer.enums import Engine
+from dqn_transfer.timing import cpu_model, cpus_available
 
 SECTIONS = ("env", "training", "team", "update", "lone", "replicas")
 NEEDS_SB3 = ("training", "update", "lone", "replicas")
@@ -138,22 +138,9 @@ def _loadavg() -> list[float] | None:
     return list(os.getloadavg()) if hasattr(os, "getloadavg") else None
 
 
-def cpus_available() -> int:
-    """The cores this process may run on (its affinity mask), else the machine's count."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-
-
 def machine_info(threads_used: list[int]) -> dict[str, Any]:
-    cpu_model = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu_model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
     return {
-        "cpu_model": cpu_model,
+        "cpu_model": cpu_model(),
         "cpu_count": os.cpu_count(),
         "cpus_available": cpus_available(),
         "platform": platform.platform(),

@@ -230,7 +230,7 @@ def section_hypothesis(runs: Sequence[RunData], ctx: Context) -> Section:
         figures.append(curves_figure(ctx.out / "hypothesis.png", panels, "Knowledge exchange in a team of 4", ctx.rng,
                                      color_of=_color, watermark=ctx.watermark).name)
         figures.append(profile_figure(ctx.out / "hypothesis_profiles.png", profiles,
-                                      "Performance profiles of the final score (rliable)", color_of=_color,
+                                      "Performance profiles of the final score (rliable)", ctx.rng, color_of=_color,
                                       watermark=ctx.watermark).name)
     md = [f"Setting: teams of 4 on claim 2's 8x8 maps, cooperative and deliberative, at the same env-step budget; "
           f"{describe(runs)}. `best`: every 20 episodes the best agent's values are soft-copied (weight 0.5) into the "
@@ -343,6 +343,8 @@ def section_claim2(runs: Sequence[RunData], ctx: Context) -> Section:
     sizes = sorted({m for _, m, _ in cells})
     rows = ["| learner | m | competitive | cooperative | deliberative | coop - comp | delib - coop |",
             "|---|---:|---:|---:|---:|---:|---:|"]
+    final_rows = [f"| learner | m | final score (last {FINAL_TAIL:.0%} of evaluations), IQM [95% CI]: competitive | "
+                  "cooperative | deliberative |", "|---|---:|---:|---:|---:|"]
     trend_rows = ["| learner | difference | slope per extra agent, bootstrap [95% CI] | t [95% CI] | verdict |",
                   "|---|---|---:|---:|---|"]
     level_panels, trend_series = [], {"deliberative - cooperative": {}, "cooperative - competitive": {}}
@@ -361,6 +363,8 @@ def section_claim2(runs: Sequence[RunData], ctx: Context) -> Section:
             cc, dc = (interval_text(diffs[k][m], ctx.rng)[0] for k in ("cooperative - competitive",
                                                                          "deliberative - cooperative"))
             rows.append(f"| {algorithm} | {m} | " + " | ".join(fmt(level[t][m]) for t in level) + f" | {cc} | {dc} |")
+            final_rows.append(f"| {algorithm} | {m} | " + " | ".join(fmt(iqm(by_map(modes[t], final_score), ctx.rng))
+                                                                 for t in level) + " |")
         if len(diffs["cooperative - competitive"]) < 2:
             continue
         level_panels.append((f"{algorithm}: {SCORE_LABEL}", level))
@@ -391,6 +395,9 @@ def section_claim2(runs: Sequence[RunData], ctx: Context) -> Section:
     md = [f"Setting: teams of m = {', '.join(map(str, sizes))} agents with as many chests and traps on generated maps "
           f"that grow with the team (6x6, 7x7, 8x8, 10x10); {describe(runs)}. Score = {SCORE_LABEL}, averaged over "
           "training.", "", *(f"![{f}]({f})\n" for f in figures), *rows, "", *trend_rows, "",
+          "Every run has the same env-step budget, so larger teams on larger maps end further from convergence "
+          "(final scores below): a gap's trend over m mixes the modes' effect with how far learning got.", "",
+          *final_rows, "",
           f"Primary comparison: {primary}. Rule: SUPPORTED if both slopes' intervals lie above 0, CONTRADICTED if "
           f"either lies below 0, NOT SUPPORTED otherwise. Verdict: **{verdict}** ({result}). The same rule applied "
           "to Double DQN is exploratory."]
@@ -469,7 +476,9 @@ def section_transfer(runs: Sequence[RunData], ctx: Context) -> Section:
         figures.append(curves_figure(ctx.out / "transfer_total_steps.png", total_panels,
                                      "Transfer: total steps (each run starts after its source's pretraining)", ctx.rng,
                                      color_of=_color, watermark=ctx.watermark,
-                                     xlabel="environment steps, the source's pretraining included").name)
+                                     xlabel="environment steps, the source's pretraining included",
+                                     marks=[(c, "sources pretrained") for c in sorted({r.steps_before for r in runs} - {0})]
+                                     ).name)
     md = [f"Setting: teams of 2 on claim 2's 6x6 maps; {describe(runs)}. The baseline is `{MATCHED}`: random start "
           "with the transferred agents' exploration (epsilon from 0.3), so exploration alone cannot pass for "
           "transfer; `scratch` (epsilon from 1.0) is shown against it too. Jumpstart and score differences are "
@@ -527,7 +536,9 @@ def section_curriculum(runs: Sequence[RunData], ctx: Context) -> Section:
     if panels:
         figures.append(curves_figure(ctx.out / "curriculum.png", panels, "Curriculum vs scratch at equal total steps",
                                      ctx.rng, color_of=_color, watermark=ctx.watermark,
-                                     xlabel="environment steps, the room stage's included").name)
+                                     xlabel="environment steps, the room stage's included",
+                                     marks=[(c, "room stage ends") for c in sorted({r.steps_before for r in runs} - {0})]
+                                     ).name)
     md = [f"Setting: an 8x8 map with 2 chests, 2 traps and 2 agents; the curriculum first trains one agent on the "
           f"5x5 room it contains (at (1, 1)), then both agents start from it; {describe(runs)} (the curriculum's "
           "own steps exclude the room's). Both conditions spend the same total env steps.", "",

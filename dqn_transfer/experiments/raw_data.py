@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import platform
 import warnings
 from dataclasses import dataclass
@@ -28,6 +27,7 @@ from dqn_transfer.analysis.runs import IncompleteLastLine, load_runs, read_metri
 from dqn_transfer.analysis.transfer_metrics import Curve
 from dqn_transfer.envs.maps import optimal_team_return, resolve_map
 from dqn_transfer.run_dir import natural_key
+from dqn_transfer.timing import cpu_model, cpus_available
 
 DATA_DIR = "data"
 MANIFEST = "manifest.json"
@@ -141,17 +141,8 @@ def read_data(path: Path) -> list[RunData]:
 
 
 def machine() -> str:
-    """This machine, for the report: CPU model and count, Python."""
-    model = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return f"{model}, {cores} cores, Python {platform.python_version()}"
+    """This machine, for the report: CPU model and cores, Python."""
+    return f"{cpu_model()}, {cpus_available()} cores, Python {platform.python_version()}"
 
 
 def read_manifest(data_dir: Path) -> dict[str, Any]:
