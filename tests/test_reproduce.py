@@ -453,7 +453,8 @@ def test_the_transfer_conditions_differ_only_in_what_they_name():
 
 def test_profiles_and_job_counts(tmp_path):
     assert {name: count_jobs(name, sweep_overrides(name, "full", tmp_path)) for name in EXPERIMENTS} == {
-        "hypothesis": 3 * 2 * 2, "hypothesis_shared": 2, "claim1": 2, "claim2": 4 * 3 * 2, "transfer": 6 * 2}
+        "hypothesis": 3 * 2 * 2, "hypothesis_shared": 2, "claim1": 2, "claim2": 4 * 3 * 2, "transfer": 6 * 2,
+        "curriculum": 2 * 2}
     assert count_jobs("claim2", sweep_overrides("claim2", "quick", tmp_path)) == 2 * 3 * 2  # two team sizes
     assert f"transfer.cache_dir='{tmp_path / 'pretrained'}'" in sweep_overrides("transfer", "full", tmp_path)
     with pytest.raises(ReproduceError, match="unknown experiment"):
@@ -469,3 +470,17 @@ def test_the_committed_report_is_regenerated_from_the_committed_data(tmp_path):
     assert report.main([str(REPO / "results"), "--out", str(tmp_path)]) == 0
     assert (tmp_path / "REPORT.md").read_text() == (REPO / "results" / "REPORT.md").read_text()
     assert sum(p.stat().st_size for p in (REPO / "results" / "data").iterdir()) < 20 * 2**20  # compact
+
+
+@pytest.mark.slow
+def test_the_quick_study_runs_end_to_end_from_the_command_line(tmp_path, capsys):
+    # Real sweeps (Hydra multirun subprocess, Hydra's basic launcher), the export and the report.
+    assert report.main(["--profile", "quick", "--out", str(tmp_path), "--only", "claim1", "--launcher", "basic"]) == 0
+    runs = read_data(tmp_path / "data" / "claim1.jsonl")
+    assert len(runs) == 2 * 3  # 2 modes x 3 maps x 1 seed, each a replica of its mode's job
+    assert {r.unit for r in runs} == {(m, 0) for m in range(3)}
+    assert {"after_clear_rate", "return_after_clear"} <= set(runs[0].metrics) and runs[0].steps[-1] == 600
+    text = (tmp_path / "REPORT.md").read_text()
+    assert "SMOKE RUN" in text and "## Claim 1" in text and "with the `quick` profile" in text
+    assert report.main(["--profile", "quick", "--out", str(tmp_path), "--only", "claim1", "--launcher", "basic"]) == 0
+    assert "[claim1] reusing the 2 complete runs" in capsys.readouterr().out  # a finished sweep is not rerun
