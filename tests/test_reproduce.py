@@ -484,3 +484,12 @@ def test_the_quick_study_runs_end_to_end_from_the_command_line(tmp_path, capsys)
     assert "SMOKE RUN" in text and "## Claim 1" in text and "with the `quick` profile" in text
     assert report.main(["--profile", "quick", "--out", str(tmp_path), "--only", "claim1", "--launcher", "basic"]) == 0
     assert "[claim1] reusing the 2 complete runs" in capsys.readouterr().out  # a finished sweep is not rerun
+
+
+def test_the_probability_of_improvement_compares_runs_on_the_same_maps_only():
+    def runs(scores: dict[int, float]) -> list[RunData]:
+        return [_record("x", f"{m}", np.full(STEPS.size, v), map_seed=m, seed=0) for m, v in scores.items()]
+    better = runs({0: 0.0, 1: 90.0, 2: 90.0})
+    worse = runs({1: 10.0, 2: 10.0, 3: 100.0})
+    # maps 1 and 2 only: better wins both (maps 0 and 3 have nothing to be compared with)
+    assert claims.improvement(better, worse, claims.score, np.random.default_rng(0)).mean == 1.0

@@ -127,7 +127,10 @@ def by_map(runs: Sequence[RunData], fn: Callable[[RunData], float]) -> np.ndarra
 
 def improvement(a: Sequence[RunData], b: Sequence[RunData], fn: Callable[[RunData], float],
                 rng: np.random.Generator) -> Estimate:
-    """P(a run of ``a`` scores higher than a run of ``b`` on the same map), rliable's, stratified by map."""
+    """P(a run of ``a`` scores higher than a run of ``b`` on the same map), rliable's, stratified by map;
+    over the maps both conditions ran, so that the two score tables' columns are the same maps."""
+    shared = {r.map_seed for r in a} & {r.map_seed for r in b}
+    a, b = ([r for r in runs if r.map_seed in shared] for runs in (a, b))
     return improvement_probability(by_map(a, fn), by_map(b, fn), rng)
 
 
