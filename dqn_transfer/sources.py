@@ -130,14 +130,22 @@ def _reuse(entry: RunDir, steps: int) -> bool:
     return True
 
 
-def team_members(transfer: TransferConfig, num_agents: int, num_targets: int) -> list[int]:
-    """The member of a pretrained source team each target agent starts from (``transfer.source_agent``:
-    one index for every target, or one per target), checked against the team's ``num_agents``."""
+def source_agents(transfer: TransferConfig, num_targets: int) -> list[int]:
+    """``transfer.source_agent`` as one source agent index per target agent: one index for every target,
+    or a list with one per target (refused if its length is not ``num_targets``)."""
     wanted = transfer.source_agent
     per_target = [wanted] * num_targets if isinstance(wanted, int) else list(wanted)
     if len(per_target) != num_targets:
         raise TransferError(f"transfer.source_agent lists {len(per_target)} source agents for {num_targets} target "
                             "agents: give one per target (transfer.targets, default all), or one index for all")
+    return per_target
+
+
+def team_members(transfer: TransferConfig, num_agents: int, num_targets: int) -> list[int]:
+    """The member of a pretrained source team each target agent starts from (``transfer.source_agent``:
+    one index for every target, or one per target), checked against the team's ``num_agents``."""
+    wanted = transfer.source_agent
+    per_target = source_agents(transfer, num_targets)
     bad = sorted({index for index in per_target if index >= num_agents})
     if bad:
         raise TransferError(f"transfer.source_agent={wanted if isinstance(wanted, int) else list(wanted)}: the "
@@ -163,10 +171,7 @@ def resolve_source(transfer: TransferConfig, launch_dir: Path, num_targets: int)
     if replicas:
         raise CheckpointError(f"{path} is a run of {len(replicas)} replicas: pass one replica's directory as "
                               f"transfer.source (e.g. {replicas[0]})")
-    per_target = [wanted] * num_targets if isinstance(wanted, int) else list(wanted)
-    if len(per_target) != num_targets:
-        raise TransferError(f"transfer.source_agent lists {len(per_target)} source agents for {num_targets} target "
-                            "agents: give one per target (transfer.targets, default all), or one index for all")
+    per_target = source_agents(transfer, num_targets)
     by_name = {file.name: file for file in files}
     missing = sorted({index for index in per_target if agent_file_name(index) not in by_name})
     if missing:

@@ -211,7 +211,11 @@ def steps_before(run_dir: str | os.PathLike) -> int:
     """The env steps spent before a run's own step 0 on what it warm-started from: its source's steps,
     and those of the source's own source, down the chain a curriculum records (0 without transfer).
     Read from the first evaluation's ``transfer_source`` record."""
-    records = read_metrics(run_dir)
+    return source_steps(read_metrics(run_dir))
+
+
+def source_steps(records: Sequence[dict[str, Any]]) -> int:
+    """:func:`steps_before` from a run's evaluation records already read."""
     record = records[0].get("transfer_source") if records else None
     total = 0
     while isinstance(record, dict):

@@ -92,6 +92,13 @@ def score(run: RunData) -> float:
     return mean_over_training(run.score_curve())
 
 
+def on_total_steps(run: RunData) -> tuple[np.ndarray, np.ndarray]:
+    """The score curve against total env steps: a warm-started run's starts after the steps spent on what it
+    started from (its source's pretraining, a curriculum's stages)."""
+    steps, values = run.score_curve()
+    return steps + run.steps_before, values
+
+
 def raw_score(run: RunData) -> float:
     """Mean evaluation team return over training, in return units."""
     return mean_over_training(run.curve())
@@ -470,8 +477,7 @@ def section_transfer(runs: Sequence[RunData], ctx: Context) -> Section:
                 verdict, result = poi_verdict(p), f"P = {fmt(p)}; score difference {t_text(intervals)}"
         groups = {c: cells[(algorithm, c)] for c in [MATCHED, *order] if (algorithm, c) in cells}
         panels.append(("score", {f"{algorithm}, {c}": [r.score_curve() for r in g] for c, g in groups.items()}))
-        total_panels.append(("score", {f"{algorithm}, {c}": [(r.score_curve()[0] + r.steps_before, r.score_curve()[1])
-                                                              for r in g] for c, g in groups.items()}))
+        total_panels.append(("score", {f"{algorithm}, {c}": [on_total_steps(r) for r in g] for c, g in groups.items()}))
     figures = []
     if panels:
         figures.append(curves_figure(ctx.out / "transfer.png", panels, "Transfer: target-task steps", ctx.rng,
@@ -498,14 +504,8 @@ def section_transfer(runs: Sequence[RunData], ctx: Context) -> Section:
 # ------------------------------------------------------------------------------------ curriculum
 
 
-def _on_total_steps(run: RunData) -> tuple[np.ndarray, np.ndarray]:
-    """The score curve against total env steps: a curriculum run's starts after its stages."""
-    steps, values = run.score_curve()
-    return steps + run.steps_before, values
-
-
 def _mean_between(run: RunData, start: float, end: float) -> float:
-    steps, values = _on_total_steps(run)
+    steps, values = on_total_steps(run)
     kept = (steps >= start) & (steps <= end)
     return mean_over_training((steps[kept], values[kept]))
 
@@ -524,16 +524,16 @@ def section_curriculum(runs: Sequence[RunData], ctx: Context) -> Section:
         if not curriculum or not scratch:
             continue
         start = max(r.steps_before for r in curriculum)
-        end = min(float(_on_total_steps(r)[0][-1]) for r in curriculum + scratch)
-        at_start = {r.unit: float(np.interp(start, *_on_total_steps(r))) for r in scratch}
-        jump = estimate([_on_total_steps(r)[1][0] - at_start[r.unit] for r in curriculum if r.unit in at_start], ctx.rng)
+        end = min(float(on_total_steps(r)[0][-1]) for r in curriculum + scratch)
+        at_start = {r.unit: float(np.interp(start, *on_total_steps(r))) for r in scratch}
+        jump = estimate([on_total_steps(r)[1][0] - at_start[r.unit] for r in curriculum if r.unit in at_start], ctx.rng)
         diff = (interval_text(paired(curriculum, scratch, lambda r: _mean_between(r, start, end)), ctx.rng)[0]
                 if end > start else "no shared steps (unequal budgets)")
         p = improvement(curriculum, scratch, final_score, ctx.rng)
         finals = " / ".join(fmt(estimate([final_score(r) for r in g], ctx.rng)) for g in (curriculum, scratch))
         rows.append(f"| {algorithm} | {start:,} | {fmt(jump)} | {diff} | {finals} | {fmt(p)} |")
         results.append(f"{algorithm}: P = {fmt(p)}")
-        panels.append(("score", {f"{algorithm}, {c}": [_on_total_steps(r) for r in g]
+        panels.append(("score", {f"{algorithm}, {c}": [on_total_steps(r) for r in g]
                                  for c, g in (("room_scratch", scratch), ("room_curriculum", curriculum))}))
     figures = []
     if panels:

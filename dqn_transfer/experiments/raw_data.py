@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from dqn_transfer.analysis.runs import IncompleteLastLine, load_runs, read_metrics, steps_before
+from dqn_transfer.analysis.runs import IncompleteLastLine, load_runs, read_metrics, source_steps
 from dqn_transfer.analysis.transfer_metrics import Curve
 from dqn_transfer.envs.maps import optimal_team_return, resolve_map
 from dqn_transfer.run_dir import natural_key
@@ -111,7 +111,7 @@ def export_sweep(sweep_dir: Path, experiment: str) -> list[RunData]:
         metrics = {m: tuple(_rounded(float(by_step[s][m])) for s in steps) for m in METRICS
                    if all(m in by_step[s] for s in steps)}
         runs.append(RunData(experiment, run.dir.relative_to(sweep_dir).as_posix(), run.config, steps, metrics,
-                            steps_before(run.dir), map_optimum(run.config)))
+                            source_steps(records), map_optimum(run.config)))
     return sorted(runs, key=lambda r: natural_key(Path(r.name)))
 
 

@@ -10,7 +10,6 @@ no checkout state), so regenerating it from committed data gives the committed f
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import subprocess
 from pathlib import Path
 from typing import Any
@@ -28,7 +27,7 @@ from dqn_transfer.experiments.raw_data import (
     write_data,
     write_manifest,
 )
-from dqn_transfer.experiments.sweeps import EXPERIMENTS, PROFILES, RUNS_DIR, STAMP_FILE, ReproduceError
+from dqn_transfer.experiments.sweeps import EXPERIMENTS, PROFILES, RUNS_DIR, ReproduceError, read_stamp
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 REPO_DIR = PACKAGE_DIR.parents[1]
@@ -51,13 +50,6 @@ def code_state() -> dict[str, str]:
     return {"commit": commit + (" (with uncommitted changes)" if dirty else ""), "rules_commit": rules}
 
 
-def _stamp(out: Path, name: str) -> dict[str, Any]:
-    try:
-        return json.loads((out / RUNS_DIR / name / STAMP_FILE).read_text())
-    except (OSError, ValueError):
-        return {}
-
-
 def export_data(out: Path) -> Path:
     """``OUT/data/``: every experiment's runs under ``OUT/runs/`` as raw data, and the manifest (the
     profile and wall time each sweep's stamp recorded)."""
@@ -71,7 +63,7 @@ def export_data(out: Path) -> Path:
         if runs:
             write_data(data_dir / f"{name}.jsonl", runs)
             exported[name] = len(runs)
-            stamp = _stamp(out, name)
+            stamp = read_stamp(sweep) or {}
             profiles.add(stamp.get("profile", "unknown"))
             if stamp.get("wall_seconds"):
                 walls[name] = stamp["wall_seconds"]

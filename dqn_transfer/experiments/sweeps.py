@@ -196,6 +196,14 @@ def failure_message(name: str, sweep_dir: Path, log_path: Path, expected: int, r
     return "\n".join(parts)
 
 
+def read_stamp(sweep_dir: Path) -> dict | None:
+    """The settings and wall time a finished sweep recorded (``STAMP_FILE``), None if it has none."""
+    try:
+        return json.loads((sweep_dir / STAMP_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+
+
 def run_experiment(name: str, profile: str, out: Path, launcher: str, n_jobs: int,
                    extra: Sequence[str] = (), poll_seconds: float = 2.0) -> float:
     """One Hydra multirun into ``OUT/runs/<name>``; returns its wall time (0 when reused)."""
@@ -205,7 +213,7 @@ def run_experiment(name: str, profile: str, out: Path, launcher: str, n_jobs: in
     stamp_path = sweep_dir / STAMP_FILE
     stamp = {"experiment": name, "profile": profile, "overrides": overrides, "jobs": expected}
     if sweep_dir.exists() and any(sweep_dir.iterdir()):
-        previous = json.loads(stamp_path.read_text()) if stamp_path.exists() else None
+        previous = read_stamp(sweep_dir)
         same = previous is not None and {k: previous.get(k) for k in stamp} == stamp
         if same and len(job_dirs(sweep_dir)) == expected and all(run_is_complete(d) for d in job_dirs(sweep_dir)):
             print(f"[{name}] reusing the {expected} complete runs in {sweep_dir}", flush=True)
