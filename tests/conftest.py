@@ -162,11 +162,11 @@ def always_acting_team(run_dir: Path, action: int = RIGHT, layout: str = ALWAYS_
     (-1 + 100) and agent 1 walks to the right edge and stays there until the 9th step truncates it
     (9 x -1): 9 steps, team return 90. The run is ``total_steps=0``; its agent files are then rewritten
     with zero weights and an output bias of 1 for ``action``, 0 for the others."""
-    from dqn_transfer.checkpoint import load_agent_checkpoint, save_agent_checkpoint
+    from dqn_transfer.storage.checkpoint import load_agent_checkpoint, save_agent_checkpoint
     from dqn_transfer.config import AgentConfig, TrainConfig
     from dqn_transfer.envs.settings import EnvConfig
-    from dqn_transfer.run_dir import RunDir
-    from dqn_transfer.trainer import train
+    from dqn_transfer.storage.run_dir import RunDir
+    from dqn_transfer.training.trainer import train
 
     env = EnvConfig(layout=layout, size=3, num_treasures=layout.count("T"), num_traps=layout.count("X"),
                     num_agents=sum(ch.isdigit() for ch in layout), complexity=0.0)

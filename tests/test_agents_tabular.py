@@ -7,8 +7,8 @@ from dqn_transfer.agents import TabularLearner, Transition
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm, Mode
 from dqn_transfer.envs.game import make_game
-from dqn_transfer.exchange import exchange_best, exchange_replay
-from dqn_transfer.rollout import evaluate
+from dqn_transfer.transfer.exchange import exchange_best, exchange_replay
+from dqn_transfer.evaluation.rollout import evaluate
 
 LAYOUT = [("position", 2)]
 S0 = np.array([1.0, 0.0], dtype=np.float32)

@@ -14,9 +14,9 @@ import pytest
 import safetensors.torch
 import torch
 
-from dqn_transfer import checkpoint
+from dqn_transfer.storage import checkpoint
 from dqn_transfer.cli import ckpt as ckpt_cli
-from dqn_transfer.checkpoint import (
+from dqn_transfer.storage.checkpoint import (
     FORMAT_VERSION,
     CheckpointError,
     check_compatible,
@@ -30,8 +30,8 @@ from dqn_transfer.checkpoint import (
 from dqn_transfer.config import AgentConfig, TrainConfig
 from dqn_transfer.enums import Algorithm
 from dqn_transfer.envs.settings import EnvConfig
-from dqn_transfer.run_dir import RunDir
-from dqn_transfer.trainer import Trainer
+from dqn_transfer.storage.run_dir import RunDir
+from dqn_transfer.training.trainer import Trainer
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -9,10 +9,10 @@ from omegaconf import OmegaConf
 from omegaconf.errors import ValidationError
 
 from dqn_transfer.agents import make_learner
-from dqn_transfer.config import AgentConfig, ConfigError, TrainConfig, register_configs, validate
+from dqn_transfer.config import CONFIG_DIR, AgentConfig, ConfigError, TrainConfig, register_configs, validate
 from dqn_transfer.enums import Algorithm, Fill, Mode
 
-CONF_DIR = str(Path(__file__).resolve().parent.parent / "conf")
+CONF_DIR = str(CONFIG_DIR)
 register_configs()
 
 

@@ -13,13 +13,13 @@ import pytest
 import torch
 from conftest import reference_mlp
 
-from dqn_transfer.checkpoint import CheckpointError, load_agent_checkpoint
+from dqn_transfer.storage.checkpoint import CheckpointError, load_agent_checkpoint
 from dqn_transfer.config import AgentConfig, TrainConfig, TransferConfig
 from dqn_transfer.enums import Algorithm, Engine, Fill, ObsEncoding
 from dqn_transfer.envs.settings import EnvConfig
-from dqn_transfer.sources import resolve_source
-from dqn_transfer.trainer import Trainer, train
-from dqn_transfer.transfer_mapping import TransferError
+from dqn_transfer.sources.resolve import resolve_source
+from dqn_transfer.training.trainer import Trainer, train
+from dqn_transfer.transfer.mapping import TransferError
 
 SOURCE_MAP = "0....\n.....\n..T..\n.....\nX...."  # chest (2, 2), trap (4, 0), start (0, 0)
 OFFSET = (2, 1)

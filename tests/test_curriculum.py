@@ -15,8 +15,9 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 from safetensors.numpy import load_file
 
-import dqn_transfer.curriculum
+import dqn_transfer.sources.curriculum
 from dqn_transfer.config import (
+    CONFIG_DIR,
     AgentConfig,
     ConfigError,
     CurriculumConfig,
@@ -27,12 +28,12 @@ from dqn_transfer.config import (
     register_configs,
     validate,
 )
-from dqn_transfer.curriculum import curriculum_sources
+from dqn_transfer.sources.curriculum import curriculum_sources
 from dqn_transfer.enums import Algorithm, Engine
 from dqn_transfer.envs.settings import EnvConfig
-from dqn_transfer.warm_start import lineage
+from dqn_transfer.transfer.warm_start import lineage
 
-CONF_DIR = str(Path(__file__).resolve().parent.parent / "conf")
+CONF_DIR = str(CONFIG_DIR)
 register_configs()
 # The shipped example with short stages: 5x5 (300 steps) -> 8x8 (3000 steps) -> this run's 12x12.
 NESTED = ("curriculum=nested", "curriculum.stages.0.steps=300", "curriculum.stages.1.steps=3000",
@@ -84,13 +85,13 @@ def lone_config(cache: Path, first_steps: int = 30, *, replicas: int = 1) -> Tra
 def counted_stages(monkeypatch):
     """The steps of every stage run the curriculum trains (reused stages train nothing)."""
     runs: list[int] = []
-    real = dqn_transfer.curriculum.train
+    real = dqn_transfer.sources.curriculum.train
 
     def counted(config, *args, **kwargs):
         runs.append(config.total_steps)
         return real(config, *args, **kwargs)
 
-    monkeypatch.setattr(dqn_transfer.curriculum, "train", counted)
+    monkeypatch.setattr(dqn_transfer.sources.curriculum, "train", counted)
     return runs
 
 

@@ -29,7 +29,7 @@ from dqn_transfer.analysis.stats import (
 from dqn_transfer.analysis.transfer_metrics import asymptotic_performance, jumpstart, mean_curve
 from dqn_transfer.analysis.transfer_metrics import time_to_threshold, total_reward, transfer_ratio
 from dqn_transfer.cli import compare
-from dqn_transfer.run_dir import RunDir
+from dqn_transfer.storage.run_dir import RunDir
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -16,15 +16,15 @@ import torch
 import yaml
 
 from conftest import reference_mlp, run_train
-from dqn_transfer import model_card
-from dqn_transfer.checkpoint import load_agent_checkpoint
+from dqn_transfer.sharing import model_card
+from dqn_transfer.storage.checkpoint import load_agent_checkpoint
 from dqn_transfer.cli.ckpt import main as ckpt
 from dqn_transfer.cli.play import main as play
 from dqn_transfer.config import AgentConfig, TrainConfig, TransferConfig
 from dqn_transfer.envs import generate_layout
 from dqn_transfer.envs.settings import EnvConfig
-from dqn_transfer.sources import transfer_sources
-from dqn_transfer.trainer import train
+from dqn_transfer.sources.resolve import transfer_sources
+from dqn_transfer.training.trainer import train
 
 ENV = EnvConfig(size=4, num_treasures=1, num_traps=1, num_agents=2, complexity=0.0, map_seed=0)
 EXPORTED = {"README.md", "agent_0.safetensors", "agent_1.safetensors", "map.txt", "replay.gif"}

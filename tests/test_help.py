@@ -13,7 +13,7 @@ import pytest
 
 from conftest import TRAIN_PY, train_env
 from dqn_transfer.config import TrainConfig
-from dqn_transfer.config_help import help_text
+from dqn_transfer.config.help import help_text
 from dqn_transfer.documented import describe, documented
 
 

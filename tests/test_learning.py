@@ -19,11 +19,11 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from dqn_transfer.config import register_configs
+from dqn_transfer.config import CONFIG_DIR, register_configs
 from dqn_transfer.analysis.runs import read_metrics
-from dqn_transfer.trainer import train
+from dqn_transfer.training.trainer import train
 
-CONF_DIR = str(Path(__file__).resolve().parent.parent / "conf")
+CONF_DIR = str(CONFIG_DIR)
 LAYOUT = "0....\n.#...\n...X.\n.....\n....T"
 OPTIMAL_RETURN = 93.0
 register_configs()

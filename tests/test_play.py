@@ -14,7 +14,7 @@ from PIL import Image
 from conftest import always_acting_team, train_env
 from dqn_transfer.cli.play import main as play
 from dqn_transfer.envs import make_game
-from dqn_transfer.watch import map_picture
+from dqn_transfer.evaluation.watch import map_picture
 
 CELL = 40  # the GIF's cell size in pixels
 BLUE, GREEN = (31, 119, 180), (44, 160, 44)  # agents 0 and 1

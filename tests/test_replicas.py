@@ -15,12 +15,12 @@ from safetensors.numpy import load_file
 
 from dqn_transfer.agents import DQNLearner, Transition
 from dqn_transfer.analysis.runs import find_run_dirs, load_config
-from dqn_transfer.checkpoint import CheckpointError, find_checkpoints
+from dqn_transfer.storage.checkpoint import CheckpointError, find_checkpoints
 from dqn_transfer.config import AgentConfig, ConfigError, ReplicasConfig, TrainConfig, TransferConfig, validate
 from dqn_transfer.enums import Algorithm, Mode
 from dqn_transfer.envs.settings import EnvConfig
-from dqn_transfer.sources import resolve_source
-from dqn_transfer.trainer import Trainer
+from dqn_transfer.sources.resolve import resolve_source
+from dqn_transfer.training.trainer import Trainer
 
 ENV = EnvConfig(size=5, num_treasures=2, complexity=0.1, map_seed=3, mode=Mode.cooperative)
 DQN = AgentConfig(algorithm=Algorithm.double_dqn, hidden=[16], batch_size=8, learning_starts=40, buffer_size=500,

@@ -31,7 +31,7 @@ from dqn_transfer.experiments.sweeps import (
     launcher_overrides,
     sweep_overrides,
 )
-from dqn_transfer.run_dir import RunDir
+from dqn_transfer.storage.run_dir import RunDir
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 COMPETITIVE, COOPERATIVE, DELIBERATIVE = enum_values(Mode)

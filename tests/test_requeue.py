@@ -11,7 +11,7 @@ from omegaconf import OmegaConf
 
 from dqn_transfer.cli.train import ClaimRunDir, resume_config
 from dqn_transfer.config import ConfigError
-from dqn_transfer.run_dir import RunDir
+from dqn_transfer.storage.run_dir import RunDir
 
 
 def job_start(job_dir: Path) -> ClaimRunDir:

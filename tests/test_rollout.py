@@ -1,6 +1,6 @@
 """What happens after the last full chest is taken: ``EpisodeResult.steps_after_clear`` and
-``return_after_clear`` of :func:`dqn_transfer.rollout.play_episode`, and the ``after_clear_rate`` and
-``return_after_clear`` keys of :func:`~dqn_transfer.rollout.evaluate` (values worked out by hand from
+``return_after_clear`` of :func:`dqn_transfer.evaluation.rollout.play_episode`, and the ``after_clear_rate`` and
+``return_after_clear`` keys of :func:`~dqn_transfer.evaluation.rollout.evaluate` (values worked out by hand from
 the rules of docs/game.md).
 
 Actions: 0 up, 1 down, 2 left, 3 right.
@@ -13,7 +13,7 @@ import pytest
 
 from dqn_transfer.envs.game import TreasureHuntGame
 from dqn_transfer.envs.maps import parse_layout
-from dqn_transfer.rollout import EpisodeResult, evaluate, play_episode
+from dqn_transfer.evaluation.rollout import EpisodeResult, evaluate, play_episode
 
 UP, DOWN, LEFT, RIGHT = 0, 1, 2, 3
 

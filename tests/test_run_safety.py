@@ -15,7 +15,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 from conftest import TRAIN_PY, TRAIN_TIMEOUT, agent_meta, read_metrics, run_train, start_train, train_env, without_timing
 
-from dqn_transfer.checkpoint import load_training_state
+from dqn_transfer.storage.checkpoint import load_training_state
 
 pytestmark = pytest.mark.slow
 

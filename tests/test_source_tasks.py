@@ -23,15 +23,15 @@ import pytest
 from conftest import agent_meta, read_metrics, run_many
 from safetensors.numpy import load_file
 
-import dqn_transfer.sources
+import dqn_transfer.sources.resolve
 from dqn_transfer.config import AgentConfig, ConfigError, CurriculumConfig, ReplicasConfig, StageConfig, TrainConfig
 from dqn_transfer.config import TransferConfig, to_plain, validate
 from dqn_transfer.enums import Algorithm, Engine, Mode, RewardMode, SourceTask
 from dqn_transfer.envs.maps import generate_layout
 from dqn_transfer.envs.settings import ENV_KEYS, EnvConfig
-from dqn_transfer.sources import source_hash, transfer_sources
-from dqn_transfer.trainer import train
-from dqn_transfer.transfer_mapping import TransferError
+from dqn_transfer.sources.resolve import source_hash, transfer_sources
+from dqn_transfer.training.trainer import train
+from dqn_transfer.transfer.mapping import TransferError
 
 # Two agents, two chests (row 0 col 4, row 4 col 4), one trap (row 2 col 2), no obstacles.
 MAP = "0...T\n.....\n..X..\n.....\n1...T\n"
@@ -75,13 +75,13 @@ def agent_files(entry: Path) -> list[str]:
 @pytest.fixture
 def pretrainings(monkeypatch) -> list[TrainConfig]:
     """Every pretraining run started from now on (its config), each still carried out."""
-    real, runs = dqn_transfer.sources.train, []
+    real, runs = dqn_transfer.sources.resolve.train, []
 
     def counted(run_config, *args, **kwargs):
         runs.append(run_config)
         return real(run_config, *args, **kwargs)
 
-    monkeypatch.setattr(dqn_transfer.sources, "train", counted)
+    monkeypatch.setattr(dqn_transfer.sources.resolve, "train", counted)
     return runs
 
 

@@ -25,12 +25,12 @@ from pathlib import Path
 import pytest
 from conftest import TRAIN_TIMEOUT, agent_meta, start_train
 
-import dqn_transfer.sources
+import dqn_transfer.sources.resolve
 from dqn_transfer.config import AgentConfig, ReplicasConfig, TrainConfig, TransferConfig
 from dqn_transfer.enums import Algorithm
 from dqn_transfer.envs.settings import EnvConfig
-from dqn_transfer.sources import transfer_sources
-from dqn_transfer.transfer_mapping import TransferError
+from dqn_transfer.sources.resolve import transfer_sources
+from dqn_transfer.transfer.mapping import TransferError
 
 # Two agents, two chests (row 0 col 4, row 4 col 4), one trap (row 2 col 2), no obstacles.
 MAP = "0...T\n.....\n..X..\n.....\n1...T\n"
@@ -98,7 +98,7 @@ def test_a_complete_entry_is_reused_without_pretraining(cache, entry, tmp_path, 
     def no_training(*args, **kwargs):
         raise AssertionError("pretrained again")
 
-    monkeypatch.setattr(dqn_transfer.sources, "train", no_training)
+    monkeypatch.setattr(dqn_transfer.sources.resolve, "train", no_training)
     assert transfer_sources(config(cache), tmp_path)[0][0] == checkpoint
     assert REUSING in caplog.text and PRETRAINING not in caplog.text
     assert checkpoint.stat().st_mtime_ns == stamp
@@ -107,7 +107,7 @@ def test_a_complete_entry_is_reused_without_pretraining(cache, entry, tmp_path, 
 @pytest.mark.parametrize("failure", [KeyboardInterrupt, RuntimeError])
 def test_a_failed_pretraining_leaves_nothing(cache, tmp_path, monkeypatch, failure):
     """The pretraining runs to its end (every file written), then fails before it is complete."""
-    real_train, used = dqn_transfer.sources.train, []
+    real_train, used = dqn_transfer.sources.resolve.train, []
 
     def train_then_fail(config, run_dir, **kwargs):
         used.append(Path(run_dir))
@@ -115,12 +115,12 @@ def test_a_failed_pretraining_leaves_nothing(cache, tmp_path, monkeypatch, failu
         assert (Path(run_dir) / "metrics.jsonl").stat().st_size > 0
         raise failure()
 
-    monkeypatch.setattr(dqn_transfer.sources, "train", train_then_fail)
+    monkeypatch.setattr(dqn_transfer.sources.resolve, "train", train_then_fail)
     with pytest.raises(failure):
         transfer_sources(config(cache), tmp_path)[0][0]
     assert used and used[0].parent == cache  # it pretrained beside the entry it would have become ...
     assert listing(cache) == ([], [])  # ... and nothing of it is left
-    monkeypatch.setattr(dqn_transfer.sources, "train", real_train)
+    monkeypatch.setattr(dqn_transfer.sources.resolve, "train", real_train)
     checkpoint = transfer_sources(config(cache), tmp_path)[0][0]  # the next run pretrains afresh
     assert checkpoint_steps(checkpoint) == PRETRAIN_STEPS
 
@@ -256,13 +256,13 @@ def test_replicas_pretrain_their_missing_sources_as_one_batch(cache, tmp_path, m
     the very entry (same hash, same tensors) the lone pretraining of its seed makes. Later, a batch
     reuses them all, and with one entry gone it pretrains only that one, alone."""
     caplog.set_level(logging.INFO, logger="dqn_transfer")
-    real, runs = dqn_transfer.sources.train, []
+    real, runs = dqn_transfer.sources.resolve.train, []
 
     def counted(run_config, *args, **kwargs):
         runs.append(run_config.replicas.seeds)
         return real(run_config, *args, **kwargs)
 
-    monkeypatch.setattr(dqn_transfer.sources, "train", counted)
+    monkeypatch.setattr(dqn_transfer.sources.resolve, "train", counted)
     batch = dataclasses.replace(config(cache), replicas=ReplicasConfig(seeds=3))
     per_replica = transfer_sources(batch, tmp_path)
     sources = [targets[0] for targets in per_replica]  # the default team: every agent from the one source

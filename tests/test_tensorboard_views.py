@@ -25,8 +25,8 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from conftest import DOWN, always_acting_team
 from dqn_transfer.config import AgentConfig, TrainConfig, TransferConfig
 from dqn_transfer.envs.settings import EnvConfig
-from dqn_transfer.run_dir import RunDir
-from dqn_transfer.trainer import train
+from dqn_transfer.storage.run_dir import RunDir
+from dqn_transfer.training.trainer import train
 
 CELL = 32  # TensorBoard's cell size in pixels
 BLUE, GREEN, GOLD, FREE = (31, 119, 180), (44, 160, 44), (255, 196, 0), (235, 235, 235)

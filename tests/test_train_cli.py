@@ -424,7 +424,7 @@ def kill_and_resume(tmp_path: Path, monkeypatch, config, dies, before: bool = Fa
 
     Returns the (resumed, reference) evaluations without their timing field.
     """
-    from dqn_transfer.trainer import Trainer
+    from dqn_transfer.training.trainer import Trainer
 
     Trainer(config(), tmp_path / "reference").run()
     original = Trainer.save_checkpoint

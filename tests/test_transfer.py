@@ -27,16 +27,16 @@ from safetensors import safe_open
 from safetensors.numpy import load_file
 from torch import nn
 
-from dqn_transfer.checkpoint import CheckpointError
+from dqn_transfer.storage.checkpoint import CheckpointError
 from dqn_transfer.config import AgentConfig, ConfigError, TrainConfig, TransferConfig
 from dqn_transfer.enums import Algorithm, Exchange, Mode
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.analysis.compare import compare_runs
 from dqn_transfer.analysis.runs import learning_curve
 from dqn_transfer.analysis.transfer_metrics import jumpstart
-from dqn_transfer.sources import transfer_sources
-from dqn_transfer.trainer import Trainer
-from dqn_transfer.transfer_mapping import TransferError
+from dqn_transfer.sources.resolve import transfer_sources
+from dqn_transfer.training.trainer import Trainer
+from dqn_transfer.transfer.mapping import TransferError
 
 N = 5  # map side of every map below
 NUM_ACTIONS = 4
@@ -467,7 +467,7 @@ def _flat(weights: dict[str, np.ndarray]) -> np.ndarray:
 
 
 def test_exchange_best_moves_others_towards_the_best(work, dqn_source, monkeypatch):
-    import dqn_transfer.trainer as trainer_module
+    import dqn_transfer.training.trainer as trainer_module
 
     real = trainer_module.exchange_best
     calls = []
@@ -497,7 +497,7 @@ def test_exchange_best_moves_others_towards_the_best(work, dqn_source, monkeypat
 
 
 def test_shared_replay_gives_each_agent_its_teammates_transitions(work, dqn_source, monkeypatch):
-    import dqn_transfer.trainer as trainer_module
+    import dqn_transfer.training.trainer as trainer_module
 
     real = trainer_module.exchange_replay
     calls = []

@@ -11,7 +11,7 @@ import torch
 from conftest import reference_mlp as mlp
 from torch import nn
 
-from dqn_transfer.transfer_mapping import (
+from dqn_transfer.transfer.mapping import (
     TransferError,
     input_map,
     plan_segment_mapping,

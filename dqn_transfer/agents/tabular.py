@@ -33,7 +33,6 @@ from dqn_transfer.agents.base import (
 )
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm
-from dqn_transfer.transfer_mapping import fallback_names, fallback_tables
 
 _NO_ACTION = -1  # empty slot of the SARSA next-action cache
 
@@ -42,6 +41,26 @@ def huber(td_error: float) -> float:
     """The DQN loss of a TD error (smooth L1), so tabular and deep ``td_loss`` curves compare."""
     magnitude = abs(td_error)
     return 0.5 * magnitude**2 if magnitude < 1.0 else magnitude - 0.5
+
+
+
+def fallback_names(level: int) -> tuple[str, str, str]:
+    """The tensor names of fallback table ``level`` (0 is looked up first): keys, values, projection."""
+    tag = "fallback" if level == 0 else f"fallback{level}"
+    return f"{tag}_keys", f"{tag}_values", f"{tag}_projection"
+
+
+def fallback_tables(tensors: Mapping[str, np.ndarray]) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The fallback tables in ``tensors``, in lookup order (levels 0, 1, ... up to the first missing)."""
+    tables = []
+    while True:
+        names = fallback_names(len(tables))
+        present = [name for name in names if name in tensors]
+        if not present:
+            return tables
+        if len(present) != len(names):
+            raise ValueError(f"fallback table is incomplete: has only {present}")
+        tables.append(tuple(np.asarray(tensors[name]) for name in names))
 
 
 class _Fallback:

@@ -1,6 +1,6 @@
 """Reading run directories: their evaluations (``metrics.jsonl``) and their Hydra configs.
 
-A run directory is laid out as :mod:`dqn_transfer.run_dir` says. Evaluations are read from the file,
+A run directory is laid out as :mod:`dqn_transfer.storage.run_dir` says. Evaluations are read from the file,
 never from live objects, so runs from any machine or SLURM job can be analysed; a run that is still
 writing, or was killed mid-write, is read up to its last complete line.
 
@@ -26,7 +26,7 @@ import numpy as np
 import yaml
 
 from dqn_transfer.analysis.transfer_metrics import Curve
-from dqn_transfer.run_dir import CONFIG_FILE, HYDRA_DIR, LOG_FILE, METRICS_FILE, RunDir, natural_key
+from dqn_transfer.storage.run_dir import CONFIG_FILE, HYDRA_DIR, LOG_FILE, METRICS_FILE, RunDir, natural_key
 
 K = TypeVar("K")
 

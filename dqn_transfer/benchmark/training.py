@@ -6,7 +6,7 @@ checkpoint writes (``summary["overhead"]``) are subtracted, since SB3's ``learn`
 ``DQN("MlpPolicy", gymnasium.make("TreasureHunt-v0"), ...).learn(steps)``. Both get the hyperparameters
 of one :class:`~dqn_transfer.config.AgentConfig` (``BENCH_AGENT``).
 
-After training, both play the same greedy episodes through :func:`dqn_transfer.rollout.play_episode`
+After training, both play the same greedy episodes through :func:`dqn_transfer.evaluation.rollout.play_episode`
 on the numpy game ``TreasureHunt-v0`` wraps, so their success figures are comparable.
 """
 
@@ -22,9 +22,9 @@ import torch
 from dqn_transfer.benchmark.config import BENCH_AGENT, SOURCE_MAP, sb3_dqn
 from dqn_transfer.config import AgentConfig, EnvConfig, TrainConfig
 from dqn_transfer.envs import make_game
-from dqn_transfer.rollout import Policy, greedy_policy, play_episode
+from dqn_transfer.evaluation.rollout import Policy, greedy_policy, play_episode
 from dqn_transfer.timing import Stopwatch
-from dqn_transfer.trainer import Trainer
+from dqn_transfer.training.trainer import Trainer
 
 # The greedy episodes are seeded apart from training's (the start is fixed, so a deterministic
 # policy plays the same episode each time: a few suffice).

@@ -35,10 +35,10 @@ from pathlib import Path
 from typing import Any
 
 from dqn_transfer.benchmark.config import LONE_AGENT, LONE_MAP, TEAM_MAP
-from dqn_transfer.checkpoint import verify_checkpoint
+from dqn_transfer.storage.checkpoint import verify_checkpoint
 from dqn_transfer.config import SB3_NAMES, AgentConfig
 from dqn_transfer.enums import Engine
-from dqn_transfer.run_dir import RunDir
+from dqn_transfer.storage.run_dir import RunDir
 
 LONE_CONTENDERS = ("ours", "ours_torch", "sb3", "bare")
 # The engine of each of our contenders.

@@ -23,7 +23,7 @@ from importlib.util import find_spec
 from pathlib import Path
 
 from dqn_transfer.benchmark.suite import NEEDS_SB3, PROFILES, SECTIONS, render_markdown, run_benchmark
-from dqn_transfer.checkpoint import CheckpointError, atomic_write
+from dqn_transfer.storage.checkpoint import CheckpointError, atomic_write
 
 
 def positive_int(text: str) -> int:

@@ -1,6 +1,6 @@
 """``dqn-transfer-ckpt list|show|verify PATH``: inspect checkpoints (a file, a run dir or a checkpoints dir);
 ``dqn-transfer-ckpt export RUN_DIR OUT_DIR``: the team as a folder to share, with its model card
-(:mod:`dqn_transfer.model_card`).
+(:mod:`dqn_transfer.sharing.model_card`).
 
 Every file is verified (format, meta, digest) before anything is shown; a bad file is one ``error:``
 line and exit code 1, never a traceback, and nothing is ever unpickled.
@@ -13,10 +13,10 @@ import json
 import sys
 from collections.abc import Mapping
 
-from dqn_transfer.checkpoint import CheckpointError, CheckpointInfo, find_checkpoints, verify_checkpoint
+from dqn_transfer.storage.checkpoint import CheckpointError, CheckpointInfo, find_checkpoints, verify_checkpoint
 from dqn_transfer.cli.console import exit_with
-from dqn_transfer.model_card import ExportError, export_team
-from dqn_transfer.run_dir import RunDir
+from dqn_transfer.sharing.model_card import ExportError, export_team
+from dqn_transfer.storage.run_dir import RunDir
 
 
 def _format_list_row(info: CheckpointInfo, replicas: bool) -> str:

@@ -17,10 +17,10 @@ import os
 import sys
 from pathlib import Path
 
-from dqn_transfer.checkpoint import CheckpointError, atomic_write
+from dqn_transfer.storage.checkpoint import CheckpointError, atomic_write
 from dqn_transfer.cli.console import exit_with
-from dqn_transfer.team import TeamError, load_team
-from dqn_transfer.watch import gif_bytes, outcome, replay_in_terminal, watch_team
+from dqn_transfer.sharing.team import TeamError, load_team
+from dqn_transfer.evaluation.watch import gif_bytes, outcome, replay_in_terminal, watch_team
 
 
 class PlayError(Exception):

@@ -10,7 +10,7 @@
 
 (``dqn-transfer-report`` and ``python -m dqn_transfer.cli.report`` are the same program.) Each
 experiment is one Hydra multirun of ``python -m dqn_transfer.cli.train -m experiment=<name>``
-(``conf/experiment/``) into ``OUT/runs/<name>/``; ``--launcher joblib`` (the default, from the
+(``dqn_transfer/conf/experiment/``) into ``OUT/runs/<name>/``; ``--launcher joblib`` (the default, from the
 ``sweep`` extra) runs ``--n-jobs`` jobs at a time. The runs' evaluations are then exported to
 ``OUT/data/<name>.jsonl`` (one JSON line per run, with its config) and the report is computed from
 those files alone, by the rules of ``results/VERDICT_RULES.md``:

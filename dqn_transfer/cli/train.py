@@ -32,7 +32,7 @@ from hydra.utils import get_original_cwd
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from dqn_transfer.checkpoint import CheckpointError, load_training_state
+from dqn_transfer.storage.checkpoint import CheckpointError, load_training_state
 from dqn_transfer.config import (
     CONFIG_DIR,
     SB3_NAMES,
@@ -42,13 +42,13 @@ from dqn_transfer.config import (
     register_configs,
     validate,
 )
-from dqn_transfer.config_help import config_groups, group_options, help_text
-from dqn_transfer.curriculum import curriculum_sources
+from dqn_transfer.config.help import config_groups, group_options, help_text
+from dqn_transfer.sources.curriculum import curriculum_sources
 from dqn_transfer.documented import describe
-from dqn_transfer.run_dir import RunClaim, RunDir, RunDirError
-from dqn_transfer.sources import transfer_sources
-from dqn_transfer.trainer import Interrupted, train
-from dqn_transfer.transfer_mapping import TransferError
+from dqn_transfer.storage.run_dir import RunClaim, RunDir, RunDirError
+from dqn_transfer.sources.resolve import transfer_sources
+from dqn_transfer.training.trainer import Interrupted, train
+from dqn_transfer.transfer.mapping import TransferError
 
 log = logging.getLogger("dqn_transfer.train")
 

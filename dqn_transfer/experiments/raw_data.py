@@ -26,7 +26,7 @@ import numpy as np
 from dqn_transfer.analysis.runs import IncompleteLastLine, load_runs, read_metrics, source_steps
 from dqn_transfer.analysis.transfer_metrics import Curve
 from dqn_transfer.envs.maps import optimal_team_return, resolve_map
-from dqn_transfer.run_dir import natural_key
+from dqn_transfer.storage.run_dir import natural_key
 from dqn_transfer.timing import cpu_model, cpus_available
 
 DATA_DIR = "data"

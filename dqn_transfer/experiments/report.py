@@ -45,7 +45,7 @@ def _git(*args: str) -> str:
 def code_state() -> dict[str, str]:
     """The commit the runs are made with, and the last commit of the verdict rules before them."""
     commit = _git("rev-parse", "--short", "HEAD") or "unknown"
-    dirty = bool(_git("status", "--porcelain", "--", "dqn_transfer", "conf"))
+    dirty = bool(_git("status", "--porcelain", "--", "dqn_transfer"))  # the package holds its conf/
     rules = _git("log", "-1", "--format=%h %cs", "--", str(RULES_FILE)) or "not committed"
     return {"commit": commit + (" (with uncommitted changes)" if dirty else ""), "rules_commit": rules}
 

@@ -1,6 +1,6 @@
 """Running the study's experiments: one Hydra multirun per experiment, into ``OUT/runs/<name>/``.
 
-Each experiment is ``python -m dqn_transfer.cli.train -m experiment=<name>`` (``conf/experiment/``)
+Each experiment is ``python -m dqn_transfer.cli.train -m experiment=<name>`` (``dqn_transfer/conf/experiment/``)
 in a subprocess, with the profile's overrides: one job per condition, its seeds batched inside the
 job as replicas (``replicas.seeds``, one run directory each); ``--launcher joblib`` (the default, from
 the ``sweep`` extra; without it, Hydra's basic launcher) runs ``--n-jobs`` jobs at a time,
@@ -33,7 +33,7 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 
 from dqn_transfer.analysis.runs import EvaluationError, load_config, read_metrics
 from dqn_transfer.config import CONFIG_DIR, register_configs
-from dqn_transfer.run_dir import RunDir
+from dqn_transfer.storage.run_dir import RunDir
 
 EXPERIMENTS = ("hypothesis", "hypothesis_shared", "claim1", "claim2", "transfer", "curriculum")
 RUNS_DIR = "runs"  # OUT/runs/<experiment>/: the sweeps' run directories (checkpoints, logs; not committed)
@@ -70,7 +70,7 @@ PROFILES = {
         description="SMOKE RUN: 2-3 maps, one seed and 1,500 steps per run, claim 2 at two team sizes; it checks "
                     "that the pipeline works end to end and is NOT evidence for or against any claim."),
     "full": Profile(
-        description="the evidence: the maps, seeds and step counts of conf/experiment/*.yaml (10 to 20 runs per "
+        description="the evidence: the maps, seeds and step counts of dqn_transfer/conf/experiment/*.yaml (10 to 20 runs per "
                     "condition)."),
 }
 

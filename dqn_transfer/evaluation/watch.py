@@ -22,7 +22,7 @@ from PIL import Image
 from dqn_transfer.agents.base import Learner
 from dqn_transfer.envs.game import COLOURS, TreasureHuntGame, text_grid
 from dqn_transfer.envs.pictures import agent_colour, draw_state
-from dqn_transfer.rollout import EpisodeResult, Policy, evaluation_rng, greedy_policy, play_episode, team_return_of
+from dqn_transfer.evaluation.rollout import EpisodeResult, Policy, evaluation_rng, greedy_policy, play_episode, team_return_of
 
 GIF_FRAME_MS = 250  # the faces' render_fps of 4
 GIF_LAST_FRAME_MS = 1500  # a pause on each episode's outcome
@@ -169,7 +169,7 @@ def evaluation_views(learner: Learner, game: TreasureHuntGame, seed: int, evalua
     """What TensorBoard shows of an evaluation: its first episode, played here from the evaluation's
     own generator, as its last frame with every trail, ``[H, W, 3]`` uint8, and per agent the Q-values
     of every observation it acted on in that episode; and the episode's result, for
-    :func:`~dqn_transfer.rollout.evaluate` (which then does not play it again)."""
+    :func:`~dqn_transfer.evaluation.rollout.evaluate` (which then does not play it again)."""
     rng = evaluation_rng(seed, evaluation, 0)
     episode = record_episode(game, greedy_policy(learner, rng), rng)
     picture = frame_picture(episode, len(episode.frames) - 1, cell_px=TENSORBOARD_CELL_PX)

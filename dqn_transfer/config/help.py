@@ -1,8 +1,8 @@
 """``python train.py --help``: the config menu and every key with its description and default.
 
 Both come from where they are defined, never from a copy: the groups and their options from the
-YAML files under ``conf/`` (an option's description is its file's first comment line, its default
-the one ``conf/config.yaml`` picks), the keys from the schema dataclasses (each field's
+YAML files under ``dqn_transfer/conf/`` (an option's description is its file's first comment line, its default
+the one ``dqn_transfer/conf/config.yaml`` picks), the keys from the schema dataclasses (each field's
 :func:`~dqn_transfer.documented.documented` description and default).
 """
 
@@ -12,14 +12,14 @@ from pathlib import Path
 
 import yaml
 
-from dqn_transfer.config import CONFIG_DIR, TrainConfig
+from dqn_transfer.config.schema import CONFIG_DIR, TrainConfig
 from dqn_transfer.documented import describe, format_default
 
 ROOT_CONFIG = "config.yaml"
 
 
 def config_groups(config_dir: Path = CONFIG_DIR) -> tuple[str, ...]:
-    """The config groups (``agent``, ``env``, ...): the folders under ``conf/``."""
+    """The config groups (``agent``, ``env``, ...): the folders under ``dqn_transfer/conf/``."""
     return tuple(sorted(p.name for p in config_dir.iterdir() if p.is_dir()))
 
 
@@ -30,7 +30,7 @@ def group_options(group: str, config_dir: Path = CONFIG_DIR) -> list[str]:
 
 
 def default_options(config_dir: Path = CONFIG_DIR) -> dict[str, str | None]:
-    """The option ``conf/config.yaml``'s defaults list picks for each group (None: none)."""
+    """The option ``dqn_transfer/conf/config.yaml``'s defaults list picks for each group (None: none)."""
     defaults = yaml.safe_load((config_dir / ROOT_CONFIG).read_text())["defaults"]
     return {group: option for entry in defaults if isinstance(entry, dict) for group, option in entry.items()}
 

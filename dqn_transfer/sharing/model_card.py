@@ -29,12 +29,12 @@ from typing import Any
 import numpy as np
 import yaml
 
-from dqn_transfer.checkpoint import CheckpointError, atomic_write_all
+from dqn_transfer.storage.checkpoint import CheckpointError, atomic_write_all
 from dqn_transfer.documented import format_default
 from dqn_transfer.enums import Algorithm
 from dqn_transfer.envs.settings import DEFAULTS, MAP_KEYS, EnvConfig
-from dqn_transfer.team import TeamError, TrainedTeam, load_team
-from dqn_transfer.watch import RecordedEpisode, gif_bytes, watch_team
+from dqn_transfer.sharing.team import TeamError, TrainedTeam, load_team
+from dqn_transfer.evaluation.watch import RecordedEpisode, gif_bytes, watch_team
 
 CARD_FILE, MAP_FILE, GIF_FILE = "README.md", "map.txt", "replay.gif"
 EVAL_EPISODES, EVAL_SEED = 10, 0

@@ -40,7 +40,7 @@ import safetensors
 import safetensors.numpy
 
 from dqn_transfer.enums import Algorithm
-from dqn_transfer.run_dir import AGENT_FILE_GLOB, CHECKPOINTS_DIR, RunDir, natural_key
+from dqn_transfer.storage.run_dir import AGENT_FILE_GLOB, CHECKPOINTS_DIR, RunDir, natural_key
 
 FORMAT_VERSION = 1
 META_KEY = "meta"
@@ -375,5 +375,5 @@ def find_checkpoints(path: str | os.PathLike) -> list[Path]:
 
 
 if __name__ == "__main__":  # the command line moved to dqn_transfer.cli.ckpt; say so instead of doing nothing
-    raise SystemExit("error: dqn_transfer.checkpoint is a library module; inspect checkpoints with "
+    raise SystemExit("error: dqn_transfer.storage.checkpoint is a library module; inspect checkpoints with "
                      "`dqn-transfer-ckpt list|show|verify PATH` (or `python -m dqn_transfer.cli.ckpt`)")

@@ -1,7 +1,7 @@
 """A directory of finished runs, one per key, that parallel jobs fill once and never see half-made.
 
-The pretrained transfer sources (:mod:`dqn_transfer.sources`) and the curriculum's stages
-(:mod:`dqn_transfer.curriculum`) are both such caches: ``<root>/<key>/`` is an ordinary run directory
+The pretrained transfer sources (:mod:`dqn_transfer.sources.resolve`) and the curriculum's stages
+(:mod:`dqn_transfer.sources.curriculum`) are both such caches: ``<root>/<key>/`` is an ordinary run directory
 that appears whole or not at all.
 
 - A run is trained in a hidden sibling and renamed to ``<key>/`` once complete. Several missing
@@ -27,10 +27,10 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, TypeVar
 
-from dqn_transfer.checkpoint import load_agent_checkpoint
-from dqn_transfer.run_dir import RunDir
-from dqn_transfer.trainer import Interrupted
-from dqn_transfer.transfer_mapping import TransferError
+from dqn_transfer.storage.checkpoint import load_agent_checkpoint
+from dqn_transfer.storage.run_dir import RunDir
+from dqn_transfer.training.trainer import Interrupted
+from dqn_transfer.transfer.mapping import TransferError
 
 log = logging.getLogger("dqn_transfer.transfer")
 T = TypeVar("T")

@@ -1,13 +1,13 @@
 """A curriculum: stages trained one after another, each warm-starting the next; the run is the last.
 
-``curriculum.stages`` (a ``conf/curriculum/`` option) lists the stages before the run, easiest first.
+``curriculum.stages`` (a ``dqn_transfer/conf/curriculum/`` option) lists the stages before the run, easiest first.
 Stage ``n`` is the run's own config with its env changed by the stage's ``env``, trained for the
 stage's ``steps``. Every stage after the first starts from the previous stage's agents through the
 transfer hook (the previous map placed at the stage's ``offset``, its agents picked by the stage's
 ``source_agent``), with the run's other ``transfer.*`` settings; the run starts from the last stage
 at ``transfer.offset``. With replicas, every replica has its own chain of stages (its seed, its map).
 
-Finished stages are cached like the pretrained sources (:class:`~dqn_transfer.run_cache.RunCache`,
+Finished stages are cached like the pretrained sources (:class:`~dqn_transfer.sources.run_cache.RunCache`,
 ``<launch dir>/outputs/curriculum/<hash>/``, each an ordinary run directory). A stage's hash covers
 its config and its predecessor's hash, so every run whose curriculum begins the same way reuses those
 stages, and a changed stage retrains itself and what follows. The cache is resumable: a stage that was
@@ -35,12 +35,12 @@ from dqn_transfer.config import (
     to_plain,
     validate,
 )
-from dqn_transfer.run_cache import RunCache
-from dqn_transfer.sources import resolve_source
-from dqn_transfer.trainer import build_game, train
-from dqn_transfer.warm_start import transfer_targets
+from dqn_transfer.sources.run_cache import RunCache
+from dqn_transfer.sources.resolve import resolve_source
+from dqn_transfer.training.trainer import build_game, train
+from dqn_transfer.transfer.warm_start import transfer_targets
 
-log = logging.getLogger("dqn_transfer.curriculum")
+log = logging.getLogger("dqn_transfer.sources.curriculum")
 
 # Keys that change how a run is watched, not what it learns: left out of a stage's hash.
 NOT_IN_STAGE_HASH = ("progress", "resume")

@@ -1,8 +1,8 @@
 """The transfer hook: load a source agent's checkpoint into the target agents of a fresh run.
 
-The source is a path per target agent (:mod:`dqn_transfer.sources` finds or pretrains it); the
+The source is a path per target agent (:mod:`dqn_transfer.sources.resolve` finds or pretrains it); the
 mapping onto the target's observation and map is by segment name and by aligned cell
-(:mod:`dqn_transfer.transfer_mapping`): segments, cells and chests only the target has get zero
+(:mod:`dqn_transfer.transfer.mapping`): segments, cells and chests only the target has get zero
 input weights, so at step 0 the transferred agents compute the source's Q-values on every state of
 the source's map.
 """
@@ -19,13 +19,13 @@ from typing import Any
 import numpy as np
 
 from dqn_transfer.agents import BatchedDQN, Learner
-from dqn_transfer.checkpoint import CheckpointError, check_compatible, load_agent_checkpoint, load_training_state
+from dqn_transfer.storage.checkpoint import CheckpointError, check_compatible, load_agent_checkpoint, load_training_state
 from dqn_transfer.config import TrainConfig, TransferConfig
 from dqn_transfer.enums import Algorithm, Fill
 from dqn_transfer.envs.game import TreasureHuntGame, make_game
 from dqn_transfer.envs.settings import ENV_KEYS
-from dqn_transfer.run_dir import TRAINING_STATE_FILE
-from dqn_transfer.transfer_mapping import (
+from dqn_transfer.storage.run_dir import TRAINING_STATE_FILE
+from dqn_transfer.transfer.mapping import (
     Embedding,
     MapGeometry,
     SegmentPlan,
@@ -180,7 +180,7 @@ def carry_optimizer_state(learner: BatchedDQN, sources: list[MappedSource], targ
     """``transfer.reset_optimizer=false``: start each target's Adam moments from its source's.
 
     The moments live in the source run's resume state beside the agent file; the first layer's rows
-    are mapped like its weights (:func:`~dqn_transfer.transfer_mapping.map_input_moments`).
+    are mapped like its weights (:func:`~dqn_transfer.transfer.mapping.map_input_moments`).
     """
     states = {source.path: _source_moments(source) for source in sources}
     steps = sorted({step for _, step in states.values()})

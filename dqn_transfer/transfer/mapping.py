@@ -30,12 +30,12 @@ state by state instead (its keys are looked up by their exact bytes).
 
 Tensor names follow the learners: DQN ``q.layers.{l}.weight`` ``[out, in]`` / ``q.layers.{l}.bias``
 ``[out]`` and the same under ``target.``; tabular ``keys`` ``[N, D]`` / ``values`` ``[N, A]`` plus
-optional fallback tables consulted in turn for an unseen observation ``x`` (:func:`fallback_names`:
+optional fallback tables consulted in turn for an unseen observation ``x`` (:func:`~dqn_transfer.agents.tabular.fallback_names`:
 ``fallback_keys`` ``[M, Ds]``, ``fallback_values`` ``[M, A]``, ``fallback_projection`` ``[Ds]`` int64,
 looked up as ``x[fallback_projection]``; then ``fallback1_*``, ...).
 
 This module is pure tensor bookkeeping: the orchestration (finding or pretraining the source,
-caching) lives in :mod:`dqn_transfer.sources` and :mod:`dqn_transfer.warm_start`.
+caching) lives in :mod:`dqn_transfer.sources.resolve` and :mod:`dqn_transfer.transfer.warm_start`.
 """
 
 from __future__ import annotations
@@ -46,6 +46,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+
+from dqn_transfer.agents.tabular import fallback_names, fallback_tables
 
 Layout = Sequence[tuple[str, int]]
 Cell = tuple[int, int]
@@ -353,25 +355,6 @@ def map_input_moments(plan: SegmentPlan, embedding: Embedding | None, exp_avg: n
 # ----------------------------------------------------------------------------------------- tabular
 
 
-def fallback_names(level: int) -> tuple[str, str, str]:
-    """The tensor names of fallback table ``level`` (0 is looked up first): keys, values, projection."""
-    tag = "fallback" if level == 0 else f"fallback{level}"
-    return f"{tag}_keys", f"{tag}_values", f"{tag}_projection"
-
-
-def fallback_tables(tensors: Mapping[str, np.ndarray]) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """The fallback tables in ``tensors``, in lookup order (levels 0, 1, ... up to the first missing)."""
-    tables = []
-    while True:
-        names = fallback_names(len(tables))
-        present = [name for name in names if name in tensors]
-        if not present:
-            return tables
-        if len(present) != len(names):
-            raise TransferError(f"source fallback table is incomplete: has only {present}")
-        tables.append(tuple(np.asarray(tensors[name]) for name in names))
-
-
 def _merge_duplicates(keys: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rows whose keys are byte-identical (the equality the tabular learner uses) become one, with the
     mean of their values, in first-occurrence order. Keys collide when a dropped segment or chest was
@@ -487,7 +470,10 @@ def transfer_tabular_tensors(
     actions = values.shape[1]
     if num_actions is not None and actions != num_actions:
         raise TransferError(f"number of actions differs: source {actions}, target {num_actions}")
-    fallbacks = fallback_tables(source_tensors)
+    try:
+        fallbacks = fallback_tables(source_tensors)
+    except ValueError as err:
+        raise TransferError(f"source {err}") from None
     _warn_dropped(plan, embedding)
 
     learned = (keys, values, np.arange(plan.source_dim, dtype=np.int64))

@@ -40,7 +40,7 @@ from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
 from dqn_transfer.agents import Learner, Transition, UpdateStats, joined, linear_schedule, make_replicas
-from dqn_transfer.checkpoint import (
+from dqn_transfer.storage.checkpoint import (
     CheckpointError,
     atomic_write,
     atomic_write_all,
@@ -51,13 +51,13 @@ from dqn_transfer.checkpoint import (
 from dqn_transfer.config import ConfigError, TrainConfig, replica_configs, to_plain, validate
 from dqn_transfer.enums import Algorithm, Exchange
 from dqn_transfer.envs import TreasureHuntGame, make_game
-from dqn_transfer.exchange import exchange_best, exchange_replay
-from dqn_transfer.logging import RunLogger
-from dqn_transfer.rollout import evaluate, team_return_of
-from dqn_transfer.run_dir import RunDir, existing_run_message
+from dqn_transfer.transfer.exchange import exchange_best, exchange_replay
+from dqn_transfer.training.tensorboard import RunLogger
+from dqn_transfer.evaluation.rollout import evaluate, team_return_of
+from dqn_transfer.storage.run_dir import RunDir, existing_run_message
 from dqn_transfer.timing import Stopwatch
-from dqn_transfer.warm_start import apply_transfer, lineage_table
-from dqn_transfer.watch import evaluation_views
+from dqn_transfer.transfer.warm_start import apply_transfer, lineage_table
+from dqn_transfer.evaluation.watch import evaluation_views
 
 log = logging.getLogger("dqn_transfer.train")
 
@@ -231,7 +231,7 @@ class Trainer:
     directory per replica (``seed_<s>`` or ``seed_<s>-map_<m>``), and one batched learner trains
     them all in lockstep. ``sources`` are the checkpoints a ``transfer.enabled`` run starts its target
     agents from, per replica one for all targets or a list with one per target (found or pretrained by
-    :func:`dqn_transfer.sources.transfer_sources`);
+    :func:`dqn_transfer.sources.resolve.transfer_sources`);
     ``source_task`` trains the single-agent source task of the map instead of the team.
     """
 
@@ -282,7 +282,7 @@ class Trainer:
             for rep in self.replicas:
                 if rep.source is None:
                     raise ConfigError("transfer.enabled: the trainer needs the source checkpoint "
-                                      "(dqn_transfer.sources.transfer_sources finds or pretrains it)")
+                                      "(dqn_transfer.sources.resolve.transfer_sources finds or pretrains it)")
                 rep.transfer_info = apply_transfer(rep.config, rep.learner, rep.game, rep.source)
 
     def _write_replica_configs(self) -> None:

@@ -1,6 +1,6 @@
 """Typed configuration schemas, registered in Hydra's ConfigStore.
 
-The YAML files under ``conf/`` are merged *into* these dataclasses, so a misspelt key
+The YAML files under ``dqn_transfer/conf/`` are merged *into* these dataclasses, so a misspelt key
 (``agent.learning_rate``) or a wrong type (``agent.gamma=high``) is refused by Hydra before
 anything runs.  Enums give the closed vocabularies (modes, algorithms) the same protection.
 Range checks that a type cannot express live in :func:`validate`. The ``env`` schema is the game's
@@ -23,7 +23,7 @@ from dqn_transfer.documented import documented
 from dqn_transfer.enums import Algorithm, Device, Engine, Exchange, Fill, SourceTask
 from dqn_transfer.envs.settings import ENV_KEYS, EnvConfig
 
-# The config groups (conf/ beside the package: a checkout or an editable install).
+# The config groups: dqn_transfer/conf/, inside the package (found from any directory, installed or not).
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "conf"
 
 
@@ -153,7 +153,7 @@ class TrainConfig:
 
 
 def register_configs() -> None:
-    """Make the schemas available to ``conf/config.yaml`` (its defaults list names them)."""
+    """Make the schemas available to ``dqn_transfer/conf/config.yaml`` (its defaults list names them)."""
     cs = ConfigStore.instance()
     cs.store(name="train_schema", node=TrainConfig)
 

@@ -9,7 +9,7 @@
   reuses it. The entry appears whole or not at all, and a file lock makes parallel sweep jobs
   pretrain it once (:func:`pretrained_sources`).
 
-Either way the result is a path, which the trainer's warm start (:mod:`dqn_transfer.warm_start`) loads.
+Either way the result is a path, which the trainer's warm start (:mod:`dqn_transfer.transfer.warm_start`) loads.
 """
 
 from __future__ import annotations
@@ -21,15 +21,15 @@ import logging
 from pathlib import Path
 from typing import Any
 
-from dqn_transfer.checkpoint import CheckpointError, find_checkpoints
+from dqn_transfer.storage.checkpoint import CheckpointError, find_checkpoints
 from dqn_transfer.config import TrainConfig, TransferConfig, replica_configs, to_plain, validate
 from dqn_transfer.enums import Mode, SourceTask
 from dqn_transfer.envs.settings import ENV_KEYS
-from dqn_transfer.run_cache import RunCache
-from dqn_transfer.run_dir import RunDir, agent_file_name
-from dqn_transfer.trainer import build_game, train
-from dqn_transfer.transfer_mapping import TransferError
-from dqn_transfer.warm_start import transfer_targets
+from dqn_transfer.sources.run_cache import RunCache
+from dqn_transfer.storage.run_dir import RunDir, agent_file_name
+from dqn_transfer.training.trainer import build_game, train
+from dqn_transfer.transfer.mapping import TransferError
+from dqn_transfer.transfer.warm_start import transfer_targets
 
 log = logging.getLogger("dqn_transfer.transfer")
 
@@ -89,7 +89,7 @@ def pretrained_sources(config: TrainConfig, layouts: list[str], launch_dir: Path
     replica of ``config`` (one for a lone run): the run directory of its cache entry, whose
     ``agent_0.safetensors`` is the single-agent source and whose agent files are the team source.
 
-    The cache (:class:`~dqn_transfer.run_cache.RunCache`) holds one entry ``<cache_root>/<hash>/`` per
+    The cache (:class:`~dqn_transfer.sources.run_cache.RunCache`) holds one entry ``<cache_root>/<hash>/`` per
     source config, whole or not at all, and makes parallel jobs pretrain each source once. When every
     replica's source is missing, they are pretrained together, as one run of replicas (each exactly
     the lone pretraining of its seed and map), and each replica's directory becomes its entry.

@@ -14,10 +14,10 @@ from pathlib import Path
 from typing import Any
 
 from dqn_transfer.agents import Learner, make_learner
-from dqn_transfer.checkpoint import CheckpointError, find_checkpoints, load_agent_checkpoint
+from dqn_transfer.storage.checkpoint import CheckpointError, find_checkpoints, load_agent_checkpoint
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.envs import TreasureHuntGame, make_game
-from dqn_transfer.run_dir import RunDir
+from dqn_transfer.storage.run_dir import RunDir
 
 
 class TeamError(Exception):

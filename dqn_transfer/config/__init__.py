@@ -1,0 +1,39 @@
+"""The run's configuration: typed schemas (:mod:`.schema`) and the ``--help`` page (:mod:`.help`).
+
+The YAML options of each config group live in ``dqn_transfer/conf/`` (inside the package, so an
+installed package finds them from any directory); the schemas give every key its type and default.
+"""
+
+from dqn_transfer.config.schema import (
+    CONFIG_DIR,
+    SB3_NAMES,
+    AgentConfig,
+    ConfigError,
+    CurriculumConfig,
+    EnvConfig,
+    ReplicasConfig,
+    StageConfig,
+    TrainConfig,
+    TransferConfig,
+    register_configs,
+    replica_configs,
+    to_plain,
+    validate,
+)
+
+__all__ = [
+    "CONFIG_DIR",
+    "SB3_NAMES",
+    "AgentConfig",
+    "ConfigError",
+    "CurriculumConfig",
+    "EnvConfig",
+    "ReplicasConfig",
+    "StageConfig",
+    "TrainConfig",
+    "TransferConfig",
+    "register_configs",
+    "replica_configs",
+    "to_plain",
+    "validate",
+]
