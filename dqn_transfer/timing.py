@@ -35,7 +35,7 @@ class Stopwatch:
     def __init__(self) -> None:
         self.wall, self.cpu = 0.0, 0.0
 
-    def __enter__(self) -> "Stopwatch":
+    def __enter__(self) -> Stopwatch:
         self._wall0, self._cpu0 = time.perf_counter(), time.process_time()
         return self
 

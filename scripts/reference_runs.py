@@ -5,9 +5,9 @@
     python scripts/reference_runs.py --compare A B    # the files whose digests differ (exit 1 if any)
 
 Every run goes through the command line (``python -m dqn_transfer.cli.train``, ``-ckpt``, ``-play``)
-from inside ``OUT`` with the same run directories, so paths written into files are the same between two
-recordings made into the same ``OUT`` path (move the first recording aside before the second). A
-digest is the SHA-256 of a file's bytes, except for the few things that hold a clock or a process:
+from inside ``OUT`` with the same run directories; ``OUT``'s own path, where a file holds it, is hashed as
+``<OUT>``, so two recordings made in different places compare. A digest is the SHA-256 of a file's
+bytes, except for the few things that hold a clock or a process:
 ``metrics.jsonl`` lines lose ``wall_time``; TensorBoard events, logs and Hydra's own record are left out.
 Each run is small (about a thousand steps); the whole set takes a few minutes on 2 cores.
 """
@@ -36,20 +36,38 @@ RUNS: dict[str, list[str]] = {
     "sarsa_coords": ["agent=sarsa", "env.obs_encoding=coords"],
     "dqn_view_shared": ["agent=dqn", "env.view_radius=1", "agent.share_parameters=true", "agent.learning_starts=200"],
     "transfer_pretrained": ["transfer=on", "transfer.pretrain_steps=800"],
-    "transfer_team_numpy": ["transfer=on", "transfer.source_task=team", "transfer.pretrain_steps=800",
-                            "agent.engine=numpy", "mode=cooperative"],
-    "transfer_sarsa_shifted": ["agent=sarsa", "transfer=on", "transfer.source_map_shift=1000",
-                               "transfer.pretrain_steps=800"],
+    "transfer_team_numpy": [
+        "transfer=on",
+        "transfer.source_task=team",
+        "transfer.pretrain_steps=800",
+        "agent.engine=numpy",
+        "mode=cooperative",
+    ],
+    "transfer_sarsa_shifted": [
+        "agent=sarsa",
+        "transfer=on",
+        "transfer.source_map_shift=1000",
+        "transfer.pretrain_steps=800",
+    ],
     "transfer_from_run": ["transfer=on", "transfer.source=runs/default", "transfer.targets=[1]"],
     "replicas_sarsa": ["agent=sarsa", "replicas.seeds=2", "replicas.maps=2", "mode=cooperative"],
     "replicas_double_dqn_numpy": ["agent.engine=numpy", "replicas.seeds=2", "agent.learning_starts=200"],
     "replicas_dqn_torch": ["agent=dqn", "replicas.seeds=2", "agent.learning_starts=200"],
-    "exchange_best": ["mode=cooperative", "transfer.exchange=best", "transfer.exchange_every=5",
-                      "agent.learning_starts=200"],
+    "exchange_best": [
+        "mode=cooperative",
+        "transfer.exchange=best",
+        "transfer.exchange_every=5",
+        "agent.learning_starts=200",
+    ],
     "exchange_shared_replay_sarsa": ["agent=sarsa", "transfer.exchange=shared_replay", "transfer.exchange_every=5"],
     "exchange_best_qlearning": ["agent=qlearning", "transfer.exchange=best", "transfer.exchange_every=5"],
-    "curriculum_nested": ["agent=sarsa", "curriculum=nested", "curriculum.stages.0.steps=600",
-                          "curriculum.stages.1.steps=600", "total_steps=1200"],
+    "curriculum_nested": [
+        "agent=sarsa",
+        "curriculum=nested",
+        "curriculum.stages.0.steps=600",
+        "curriculum.stages.1.steps=600",
+        "total_steps=1200",
+    ],
 }
 # A run stopped at 600 steps, then resumed to 1200: must equal the run made in one go.
 RESUMED = ["agent.learning_starts=200", "mode=cooperative"]
@@ -61,14 +79,26 @@ def record(out: Path) -> None:
     common = [f"transfer.cache_dir={out / 'pretrained'}", f"curriculum.cache_dir={out / 'curriculum'}"]
     for name, overrides in RUNS.items():
         run(TRAIN + SMALL + overrides + common + [f"hydra.run.dir=runs/{name}"], out, name)
-    resumed = [f"hydra.run.dir=runs/resumed"]
+    resumed = ["hydra.run.dir=runs/resumed"]
     run(TRAIN + [*SMALL[:-2], "progress=false", "total_steps=600"] + RESUMED + common + resumed, out, "resumed (1/2)")
     run(TRAIN + ["resume=true", "total_steps=1200"] + resumed, out, "resumed (2/2)")
     run(TRAIN + SMALL + RESUMED + common + ["hydra.run.dir=runs/resumed_in_one_go"], out, "resumed_in_one_go")
     ckpt = [sys.executable, "-m", "dqn_transfer.cli.ckpt"]
     run(ckpt + ["export", "runs/default", "exported"], out, "export")
-    run([sys.executable, "-m", "dqn_transfer.cli.play", "runs/replicas_sarsa/seed_1-map_7", "--episodes", "2",
-         "--gif", "played.gif"], out, "play")
+    run(
+        [
+            sys.executable,
+            "-m",
+            "dqn_transfer.cli.play",
+            "runs/replicas_sarsa/seed_1-map_7",
+            "--episodes",
+            "2",
+            "--gif",
+            "played.gif",
+        ],
+        out,
+        "play",
+    )
     write_digests(out)
 
 
@@ -79,8 +109,10 @@ def run(command: list[str], cwd: Path, name: str) -> None:
         sys.exit(f"{name} failed ({done.returncode}):\n{done.stderr[-3000:]}")
 
 
-def digest(path: Path) -> str:
-    data = path.read_bytes()
+def digest(path: Path, out: Path) -> str:
+    # The recording's own directory is written into some files (configs, sources): hashed as <OUT>, two
+    # recordings made in different places compare.
+    data = path.read_bytes().replace(str(out).encode(), b"<OUT>")
     if path.name == "metrics.jsonl":
         lines = [json.loads(line) for line in data.decode().splitlines()]
         data = "\n".join(json.dumps({k: v for k, v in line.items() if k != "wall_time"}) for line in lines).encode()
@@ -88,16 +120,25 @@ def digest(path: Path) -> str:
 
 
 def write_digests(out: Path) -> None:
-    files = sorted(p for p in out.rglob("*") if p.is_file() and p.name not in SKIPPED_NAMES
-                   and "tfevents" not in p.name and ".lock" not in p.name and p.name != "DIGESTS.txt")
-    lines = [f"{digest(p)}  {p.relative_to(out)}" for p in files]
+    files = sorted(
+        p
+        for p in out.rglob("*")
+        if p.is_file()
+        and p.name not in SKIPPED_NAMES
+        and "tfevents" not in p.name
+        and ".lock" not in p.name
+        and p.name != "DIGESTS.txt"
+    )
+    lines = [f"{digest(p, out)}  {p.relative_to(out)}" for p in files]
     (out / "DIGESTS.txt").write_text("\n".join(lines) + "\n")
     print(f"{len(lines)} files digested into {out / 'DIGESTS.txt'}")
 
 
 def compare(a: Path, b: Path) -> int:
     def read(root: Path) -> dict[str, str]:
-        return {name: sha for sha, name in (line.split("  ", 1) for line in (root / "DIGESTS.txt").read_text().splitlines())}
+        return {
+            name: sha for sha, name in (line.split("  ", 1) for line in (root / "DIGESTS.txt").read_text().splitlines())
+        }
 
     left, right = read(a), read(b)
     different = sorted(n for n in left.keys() & right.keys() if left[n] != right[n])

@@ -11,10 +11,10 @@ import json
 import os
 import subprocess
 import sys
+from collections.abc import Iterable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Sequence
 
 import numpy as np
 import pytest
@@ -55,10 +55,11 @@ class TrainResult:
     def output(self) -> str:
         return self.stdout + self.stderr
 
-    def check(self) -> "TrainResult":
+    def check(self) -> TrainResult:
         assert self.returncode == 0, (
             f"train.py {' '.join(self.args)} exited {self.returncode}\n"
-            f"--- stdout\n{self.stdout}\n--- stderr\n{self.stderr}")
+            f"--- stdout\n{self.stdout}\n--- stderr\n{self.stderr}"
+        )
         return self
 
 
@@ -69,28 +70,33 @@ def run_train(cwd: Path, *overrides: str, run_dir: Path | None = None, check: bo
     """
     cwd = Path(cwd)
     run_dir = Path(run_dir) if run_dir is not None else cwd / "run"
-    proc = subprocess.run(train_command(run_dir, overrides), cwd=cwd, env=train_env(), capture_output=True,
-                          text=True, timeout=TRAIN_TIMEOUT)
+    proc = subprocess.run(
+        train_command(run_dir, overrides),
+        cwd=cwd,
+        env=train_env(),
+        capture_output=True,
+        text=True,
+        timeout=TRAIN_TIMEOUT,
+    )
     result = TrainResult(list(overrides), proc.returncode, proc.stdout, proc.stderr, run_dir)
     return result.check() if check else result
 
 
 def start_train(cwd: Path, *overrides: str, run_dir: Path) -> subprocess.Popen:
     """Start a run in the background (e.g. to kill it); output goes to ``run_dir``'s sibling .out file."""
-    out = open(Path(run_dir).with_suffix(".out"), "w")
-    try:
-        return subprocess.Popen(train_command(run_dir, overrides), cwd=cwd, env=train_env(), stdout=out,
-                                stderr=subprocess.STDOUT)
-    finally:
-        out.close()  # the child holds its own descriptor
+    with open(Path(run_dir).with_suffix(".out"), "w") as out:  # the child holds its own descriptor
+        return subprocess.Popen(
+            train_command(run_dir, overrides), cwd=cwd, env=train_env(), stdout=out, stderr=subprocess.STDOUT
+        )
 
 
 def run_many(jobs: Sequence[tuple[Path, Sequence[str], Path | None]], check: bool = True) -> list[TrainResult]:
     """Run independent ``(cwd, overrides, run_dir)`` jobs side by side, one per CPU core."""
     workers = max(2, min(len(jobs), os.cpu_count() or 2))
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        futures = [pool.submit(run_train, cwd, *overrides, run_dir=run_dir, check=False)
-                   for cwd, overrides, run_dir in jobs]
+        futures = [
+            pool.submit(run_train, cwd, *overrides, run_dir=run_dir, check=False) for cwd, overrides, run_dir in jobs
+        ]
         results = [future.result() for future in futures]
     if check:
         for result in results:
@@ -162,19 +168,27 @@ def always_acting_team(run_dir: Path, action: int = RIGHT, layout: str = ALWAYS_
     (-1 + 100) and agent 1 walks to the right edge and stays there until the 9th step truncates it
     (9 x -1): 9 steps, team return 90. The run is ``total_steps=0``; its agent files are then rewritten
     with zero weights and an output bias of 1 for ``action``, 0 for the others."""
-    from dqn_transfer.storage.checkpoint import load_agent_checkpoint, save_agent_checkpoint
     from dqn_transfer.config import AgentConfig, TrainConfig
     from dqn_transfer.envs.settings import EnvConfig
+    from dqn_transfer.storage.checkpoint import load_agent_checkpoint, save_agent_checkpoint
     from dqn_transfer.storage.run_dir import RunDir
     from dqn_transfer.training.trainer import train
 
-    env = EnvConfig(layout=layout, size=3, num_treasures=layout.count("T"), num_traps=layout.count("X"),
-                    num_agents=sum(ch.isdigit() for ch in layout), complexity=0.0)
+    env = EnvConfig(
+        layout=layout,
+        size=3,
+        num_treasures=layout.count("T"),
+        num_traps=layout.count("X"),
+        num_agents=sum(ch.isdigit() for ch in layout),
+        complexity=0.0,
+    )
     train(TrainConfig(env=env, agent=AgentConfig(algorithm="dqn", hidden=[8]), total_steps=0, progress=False), run_dir)
     for file in sorted(RunDir(run_dir).checkpoints.glob("agent_*.safetensors")):
         tensors, meta = load_agent_checkpoint(file)
         tensors = {name: np.zeros_like(t) for name, t in tensors.items()}
         for net in ("q", "target"):
             tensors[f"{net}.layers.1.bias"][action] = 1.0
-        save_agent_checkpoint(file, tensors, {k: v for k, v in meta.items() if k not in ("format_version", "kind", "digest")})
+        save_agent_checkpoint(
+            file, tensors, {k: v for k, v in meta.items() if k not in ("format_version", "kind", "digest")}
+        )
     return run_dir

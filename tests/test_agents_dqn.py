@@ -24,8 +24,15 @@ def dqn(num_agents: int = 2, seed: int = 0, double: bool = False, **kwargs) -> D
 
 def step_of(t: dict, actions: np.ndarray, live: np.ndarray | None = None) -> Transition:
     """The joint transition of one ``random_steps`` entry with the actions taken."""
-    return Transition(t["obs"], actions, t["rewards"], t["next_obs"], t["terminated"], t["truncated"],
-                      t["live"] if live is None else live)
+    return Transition(
+        t["obs"],
+        actions,
+        t["rewards"],
+        t["next_obs"],
+        t["terminated"],
+        t["truncated"],
+        t["live"] if live is None else live,
+    )
 
 
 def random_steps(num_agents: int, n: int, seed: int = 0) -> list[dict]:
@@ -100,8 +107,10 @@ def constant_q_learner(c: float, **kwargs) -> DQNLearner:
     """Zero weights everywhere and output bias c: Q(s, a) = c for every s and a."""
     learner = dqn(hidden=[4], batch_size=1, **kwargs)
     state = {
-        "layers.0.weight": np.zeros((4, D), np.float32), "layers.0.bias": np.zeros(4, np.float32),
-        "layers.1.weight": np.zeros((A, 4), np.float32), "layers.1.bias": np.full(A, c, np.float32),
+        "layers.0.weight": np.zeros((4, D), np.float32),
+        "layers.0.bias": np.zeros(4, np.float32),
+        "layers.1.weight": np.zeros((A, 4), np.float32),
+        "layers.1.bias": np.full(A, c, np.float32),
     }
     for i in range(learner.num_agents):
         learner.load_agent_tensors(i, {f"q.{k}": v for k, v in state.items()})
@@ -112,9 +121,18 @@ def constant_q_learner(c: float, **kwargs) -> DQNLearner:
 def test_truncated_transition_bootstraps_and_terminated_does_not(double):
     learner = constant_q_learner(1.0, double=double, gamma=0.5)
     obs = np.zeros((2, D), np.float32)
-    out = learner.update(Transition(obs, np.array([0, 1]), np.zeros(2, np.float32), obs,
-                                    terminated=np.array([False, True]), truncated=np.array([True, False]),
-                                    live=np.ones(2, bool)), step=1)
+    out = learner.update(
+        Transition(
+            obs,
+            np.array([0, 1]),
+            np.zeros(2, np.float32),
+            obs,
+            terminated=np.array([False, True]),
+            truncated=np.array([True, False]),
+            live=np.ones(2, bool),
+        ),
+        step=1,
+    )
     # agent 0, truncated:  y = 0 + 0.5 * 1 = 0.5, d = 1 - 0.5 = 0.5 -> Huber 0.5 * 0.5^2 = 0.125
     # agent 1, terminated: y = 0,                  d = 1 - 0 = 1    -> Huber 1 - 0.5     = 0.5
     np.testing.assert_allclose(out.td_loss, [0.125, 0.5])
@@ -215,8 +233,12 @@ def test_training_state_round_trip_continues_bit_identically(share_parameters):
 
 def test_make_learner_builds_each_algorithm_from_its_config():
     cfg = dict(lr=0.1, gamma=0.9, hidden=[16], batch_size=8, buffer_size=100)
-    for algorithm, cls in [("sarsa", TabularLearner), ("qlearning", TabularLearner),
-                           ("dqn", DQNLearner), ("double_dqn", DQNLearner)]:
+    for algorithm, cls in [
+        ("sarsa", TabularLearner),
+        ("qlearning", TabularLearner),
+        ("dqn", DQNLearner),
+        ("double_dqn", DQNLearner),
+    ]:
         learner = make_learner(AgentConfig(algorithm=Algorithm(algorithm), **cfg), 2, LAYOUT, A, seed=0)
         assert isinstance(learner, cls) and learner.algorithm == algorithm
         assert learner.lr == 0.1 and learner.gamma == 0.9
@@ -236,8 +258,18 @@ def test_dqn_learns_a_corridor():
     Two agents learn their own corridor side by side in the batched network.
     """
     k, n, gamma, total = 2, 5, 0.9, 2000
-    hp = AgentConfig(algorithm=Algorithm.dqn, lr=3e-3, gamma=gamma, batch_size=32, buffer_size=2000,
-                     learning_starts=100, train_freq=1, target_update=50, tau=1.0, hidden=[32])
+    hp = AgentConfig(
+        algorithm=Algorithm.dqn,
+        lr=3e-3,
+        gamma=gamma,
+        batch_size=32,
+        buffer_size=2000,
+        learning_starts=100,
+        train_freq=1,
+        target_update=50,
+        tau=1.0,
+        hidden=[32],
+    )
     learner = DQNLearner(k, [("position", n)], 2, hp, seed=0)
     eye = np.eye(n, dtype=np.float32)
     pos, t_in_episode = np.zeros(k, int), np.zeros(k, int)
@@ -247,8 +279,12 @@ def test_dqn_learns_a_corridor():
         new_pos = np.clip(pos + np.where(actions == 1, 1, -1), 0, n - 1)
         t_in_episode += 1
         terminated, truncated = new_pos == n - 1, (t_in_episode >= 20) & (new_pos != n - 1)
-        learner.update(Transition(eye[pos], actions, terminated.astype(np.float32), eye[new_pos], terminated,
-                                  truncated, np.ones(k, bool)), step)
+        learner.update(
+            Transition(
+                eye[pos], actions, terminated.astype(np.float32), eye[new_pos], terminated, truncated, np.ones(k, bool)
+            ),
+            step,
+        )
         done = terminated | truncated
         pos, t_in_episode = np.where(done, 0, new_pos), np.where(done, 0, t_in_episode)
 

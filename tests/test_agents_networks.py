@@ -21,7 +21,11 @@ def separate_networks(batched: BatchedMLP) -> list[nn.Sequential]:
         state = batched.member_state(m)
         # Sequential numbers its modules 0..4; the Linear layers are modules 0, 2, 4.
         net.load_state_dict(
-            {f"{2 * l}.{kind}": torch.from_numpy(state[f"layers.{l}.{kind}"]) for l in range(3) for kind in ("weight", "bias")}
+            {
+                f"{2 * l}.{kind}": torch.from_numpy(state[f"layers.{l}.{kind}"])
+                for l in range(3)
+                for kind in ("weight", "bias")
+            }
         )
         networks.append(net)
     return networks

@@ -7,8 +7,8 @@ from dqn_transfer.agents import TabularLearner, Transition
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm, Mode
 from dqn_transfer.envs.game import make_game
-from dqn_transfer.transfer.exchange import exchange_best, exchange_replay
 from dqn_transfer.evaluation.rollout import evaluate
+from dqn_transfer.transfer.exchange import exchange_best, exchange_replay
 
 LAYOUT = [("position", 2)]
 S0 = np.array([1.0, 0.0], dtype=np.float32)
@@ -16,10 +16,12 @@ S1 = np.array([0.0, 1.0], dtype=np.float32)
 ALL_LIVE = np.ones(3, dtype=bool)
 
 
-def tabular(algorithm: str, num_agents: int, layout=LAYOUT, actions: int = 2, lr: float = 0.5,
-            seed: int = 0) -> TabularLearner:
-    return TabularLearner(num_agents, layout, actions, AgentConfig(algorithm=Algorithm(algorithm), lr=lr, gamma=0.9),
-                          seed=seed)
+def tabular(
+    algorithm: str, num_agents: int, layout=LAYOUT, actions: int = 2, lr: float = 0.5, seed: int = 0
+) -> TabularLearner:
+    return TabularLearner(
+        num_agents, layout, actions, AgentConfig(algorithm=Algorithm(algorithm), lr=lr, gamma=0.9), seed=seed
+    )
 
 
 def learner(algorithm: str, num_agents: int = 3, seed: int = 0) -> TabularLearner:
@@ -40,9 +42,18 @@ def test_one_update_normal_terminated_truncated(algorithm):
     agent = learner(algorithm)
     agent.act(np.stack([S0, S0, S0]), ALL_LIVE, epsilon=0.0)  # SARSA's a' uses this epsilon: greedy
     terminated, truncated = flags("", "term", "trunc")
-    out = agent.update(Transition(
-        obs=np.stack([S0, S0, S0]), actions=np.array([0, 1, 0]), rewards=np.array([1.0, 1.0, 0.0]),
-        next_obs=np.stack([S1, S1, S1]), terminated=terminated, truncated=truncated, live=ALL_LIVE), step=1)
+    out = agent.update(
+        Transition(
+            obs=np.stack([S0, S0, S0]),
+            actions=np.array([0, 1, 0]),
+            rewards=np.array([1.0, 1.0, 0.0]),
+            next_obs=np.stack([S1, S1, S1]),
+            terminated=terminated,
+            truncated=truncated,
+            live=ALL_LIVE,
+        ),
+        step=1,
+    )
     # agent 0: y = 1 + 0.9 * Q(S1, a'=argmax=1) = 1 + 0.9 * 4 = 4.6 ; Q(S0,0) = 0 + 0.5 * 4.6 = 2.3
     # agent 1: terminated, y = 1                               ; Q(S0,1) = 0 + 0.5 * 1   = 0.5
     # agent 2: truncated still bootstraps, y = 0 + 0.9 * 4 = 3.6 ; Q(S0,0) = 0 + 0.5 * 3.6 = 1.8
@@ -71,8 +82,18 @@ def test_sarsa_bootstraps_from_the_cached_next_action_and_plays_it():
     agent = learner("sarsa", num_agents=k, seed=3)
     live = np.ones(k, bool)
     agent.act(np.stack([S0] * k), live, epsilon=1.0)  # random a': agents end up with different ones
-    agent.update(Transition(np.stack([S0] * k), np.zeros(k, np.int64), np.ones(k), np.stack([S1] * k),
-                            np.zeros(k, bool), np.zeros(k, bool), live), step=1)
+    agent.update(
+        Transition(
+            np.stack([S0] * k),
+            np.zeros(k, np.int64),
+            np.ones(k),
+            np.stack([S1] * k),
+            np.zeros(k, bool),
+            np.zeros(k, bool),
+            live,
+        ),
+        step=1,
+    )
     cached = agent.next_action.copy()
     assert set(cached.tolist()) == {0, 1}
     for i, a_next in enumerate(cached):
@@ -97,8 +118,17 @@ def test_sarsa_cache_is_ignored_for_another_observation_and_in_greedy_mode():
 def test_dead_agents_are_not_updated_and_get_nan():
     agent = learner("qlearning")
     live = np.array([True, False, True])
-    out = agent.update(Transition(np.stack([S0] * 3), np.zeros(3, np.int64), np.ones(3), np.stack([S1] * 3),
-                                  *flags("term", "term", "term"), live), step=1)
+    out = agent.update(
+        Transition(
+            np.stack([S0] * 3),
+            np.zeros(3, np.int64),
+            np.ones(3),
+            np.stack([S1] * 3),
+            *flags("term", "term", "term"),
+            live,
+        ),
+        step=1,
+    )
     assert np.isnan(out.td_loss[1]) and np.isnan(out.q_mean[1])
     assert len(agent.agent_tensors(1)["keys"]) == 1 and len(agent.agent_tensors(0)["keys"]) == 2
 
@@ -109,7 +139,9 @@ def test_fallback_initialises_unseen_entries_and_round_trips():
     agent.add_fallback(np.array([[1.0]], np.float32), np.array([[5.0, 7.0]], np.float32), np.array([1]))
     assert agent.agent_q_values(0, S1).tolist() == [5.0, 7.0]  # S1[[1]] = [1] is in the fallback
     assert agent.agent_q_values(0, S0).tolist() == [0.0, 0.0]  # S0[[1]] = [0] is not: 0
-    agent.update(Transition(S1[None], np.array([0]), np.array([0.0]), S0[None], *flags("term"), np.ones(1, bool)), step=1)
+    agent.update(
+        Transition(S1[None], np.array([0]), np.array([0.0]), S0[None], *flags("term"), np.ones(1, bool)), step=1
+    )
     # Entry created from the fallback, then updated: y = 0 ; Q(S1,0) = 5 + 0.5 * (0 - 5) = 2.5
     assert agent.agent_q_values(0, S1).tolist() == [2.5, 7.0]
 
@@ -125,14 +157,17 @@ def test_fallback_initialises_unseen_entries_and_round_trips():
 def test_training_state_round_trip_continues_identically():
     rng = np.random.default_rng(5)
     states = np.eye(4, dtype=np.float32)
-    inputs = [(rng.integers(4, size=2), rng.integers(4, size=2), rng.normal(size=2), rng.random(2) < 0.2)
-              for _ in range(60)]
+    inputs = [
+        (rng.integers(4, size=2), rng.integers(4, size=2), rng.normal(size=2), rng.random(2) < 0.2) for _ in range(60)
+    ]
     layout = [("position", 4)]
 
     def run(agent, steps):
         for s, s_next, r, done in steps:
             actions = agent.act(states[s], np.ones(2, bool), epsilon=0.3)
-            agent.update(Transition(states[s], actions, r, states[s_next], done, np.zeros(2, bool), np.ones(2, bool)), 0)
+            agent.update(
+                Transition(states[s], actions, r, states[s_next], done, np.zeros(2, bool), np.ones(2, bool)), 0
+            )
 
     a = tabular("sarsa", 2, layout, 4, lr=0.1, seed=0)
     run(a, inputs[:30])
@@ -154,8 +189,17 @@ def test_tabular_learner_refuses_a_dqn_config():
 
 def test_q_values_of_the_team_are_each_agents_own():
     agent = learner("qlearning")
-    agent.update(Transition(np.stack([S0] * 3), np.array([0, 1, 0]), np.ones(3), np.stack([S1] * 3),
-                            *flags("term", "term", "term"), ALL_LIVE), step=1)
+    agent.update(
+        Transition(
+            np.stack([S0] * 3),
+            np.array([0, 1, 0]),
+            np.ones(3),
+            np.stack([S1] * 3),
+            *flags("term", "term", "term"),
+            ALL_LIVE,
+        ),
+        step=1,
+    )
     # Each agent: y = 1 (terminated), Q(S0, a) = 0.5 * 1 for its own a; S1 = [2, 4] everywhere.
     np.testing.assert_allclose(agent.q_values(np.stack([S0, S0, S1])), [[0.5, 0.0], [0.0, 0.5], [2.0, 4.0]])
 
@@ -170,8 +214,9 @@ def test_untrained_agents_evaluate_alike_whatever_their_observation_encodes(seed
     results = []
     for mode in Mode:
         game = make_game(layout=layout, mode=mode)
-        learner = TabularLearner(1, game.obs_layout(), game.num_actions, AgentConfig(algorithm=Algorithm.sarsa),
-                                 seed=seed)
+        learner = TabularLearner(
+            1, game.obs_layout(), game.num_actions, AgentConfig(algorithm=Algorithm.sarsa), seed=seed
+        )
         state = learner.rng.bit_generator.state
         results.append(evaluate(learner, game, episodes=5, seed=seed, evaluation=0))
         assert learner.rng.bit_generator.state == state  # evaluation draws none of the learner's numbers
@@ -211,8 +256,15 @@ def test_exchange_replay_updates_each_table_on_its_team_mates_transitions(algori
     s1, s2 = np.array([1.0, 0.0], np.float32), np.array([0.0, 1.0], np.float32)
     learner.tables[1][s2.tobytes()] = np.array([0.0, 5.0, 5.0, 5.0], np.float32)  # every action worth 5 at s2
     # agent 0 moved s1 -> s2 with action 2 and reward 1; agent 1 was already done
-    step = Transition(np.stack([s1, s1]), np.array([2, 0]), np.array([1.0, 0.0], np.float32), np.stack([s2, s2]),
-                      np.array([False, False]), np.array([False, False]), np.array([True, False]))
+    step = Transition(
+        np.stack([s1, s1]),
+        np.array([2, 0]),
+        np.array([1.0, 0.0], np.float32),
+        np.stack([s2, s2]),
+        np.array([False, False]),
+        np.array([False, False]),
+        np.array([True, False]),
+    )
     exchange_replay(learner, [step], step=10)
     # agent 1: Q(s1, 2) = 0 + 0.5 * (1 + 0.9 * Q(s2, a') - 0); Q-learning a' = argmax (5), SARSA a' is
     # epsilon-greedy with epsilon 0 (no act yet): a greedy one, also 5

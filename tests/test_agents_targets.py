@@ -18,21 +18,25 @@ TERMINATED = torch.tensor([False, False, True])
 
 def test_dqn_targets_take_the_target_networks_max():
     y = dqn_targets(REWARDS, NEXT_Q_TARGET, TERMINATED, GAMMA)
-    expected = torch.tensor([
-        4.6,  # 1 + 0.9 * max(4, 2) = 1 + 3.6
-        5.4,  # 0 + 0.9 * max(1, 6)
-        2.0,  # terminated: r only
-    ])
+    expected = torch.tensor(
+        [
+            4.6,  # 1 + 0.9 * max(4, 2) = 1 + 3.6
+            5.4,  # 0 + 0.9 * max(1, 6)
+            2.0,  # terminated: r only
+        ]
+    )
     torch.testing.assert_close(y, expected)
 
 
 def test_double_dqn_targets_score_the_online_argmax_with_the_target_network():
     y = double_dqn_targets(REWARDS, NEXT_Q_ONLINE, NEXT_Q_TARGET, TERMINATED, GAMMA)
-    expected = torch.tensor([
-        2.8,  # online argmax = 1 -> Q_target = 2 -> 1 + 0.9 * 2 (DQN said 4.6)
-        0.9,  # online argmax = 0 -> Q_target = 1 -> 0 + 0.9 * 1 (DQN said 5.4)
-        2.0,  # terminated: r only
-    ])
+    expected = torch.tensor(
+        [
+            2.8,  # online argmax = 1 -> Q_target = 2 -> 1 + 0.9 * 2 (DQN said 4.6)
+            0.9,  # online argmax = 0 -> Q_target = 1 -> 0 + 0.9 * 1 (DQN said 5.4)
+            2.0,  # terminated: r only
+        ]
+    )
     torch.testing.assert_close(y, expected)
 
 
@@ -43,15 +47,14 @@ def test_truncation_bootstraps_and_termination_does_not():
     next_q = torch.tensor([[4.0, 2.0], [4.0, 2.0]])
     terminated = torch.tensor([False, True])  # row 0 was truncated, row 1 terminated
     torch.testing.assert_close(dqn_targets(rewards, next_q, terminated, GAMMA), torch.tensor([4.6, 1.0]))
-    torch.testing.assert_close(
-        double_dqn_targets(rewards, next_q, next_q, terminated, GAMMA), torch.tensor([4.6, 1.0])
-    )
+    torch.testing.assert_close(double_dqn_targets(rewards, next_q, next_q, terminated, GAMMA), torch.tensor([4.6, 1.0]))
 
 
 def test_targets_work_on_batched_agent_shapes():
     # [K=2, B=1, A=2]: the learner calls the functions on all agents' batches at once.
-    y = dqn_targets(torch.tensor([[0.0], [1.0]]), torch.tensor([[[1.0, 2.0]], [[3.0, 0.0]]]),
-                    torch.tensor([[False], [False]]), 0.5)
+    y = dqn_targets(
+        torch.tensor([[0.0], [1.0]]), torch.tensor([[[1.0, 2.0]], [[3.0, 0.0]]]), torch.tensor([[False], [False]]), 0.5
+    )
     torch.testing.assert_close(y, torch.tensor([[1.0], [2.5]]))  # 0 + 0.5*2 ; 1 + 0.5*3
 
 

@@ -44,7 +44,7 @@ def test_the_import_graph_has_no_cycle():
             if target == module or target not in GRAPH:
                 continue
             if state.get(target) == 1:
-                cycle = path[path.index(target):] + [target] if target in path else [module, target]
+                cycle = path[path.index(target) :] + [target] if target in path else [module, target]
                 pytest.fail("import cycle: " + " -> ".join(cycle))
             if target not in state:
                 visit(target, path + [target])
@@ -67,20 +67,20 @@ ALLOWED = {
     "enums": set(),
     "documented": set(),
     "timing": set(),
-    "envs": LEAVES,                                       # the game knows no learner and no config
-    "config": LEAVES | {"envs"},                          # the schemas (env's is the game's own EnvConfig)
-    "agents": LEAVES | {"config"},                        # learners never see the game or a file
-    "storage": LEAVES,                                    # checkpoint files and the run directory's names
-    "evaluation": LEAVES | {"envs", "agents"},            # greedy episodes of a game and a policy
+    "envs": LEAVES,  # the game knows no learner and no config
+    "config": LEAVES | {"envs"},  # the schemas (env's is the game's own EnvConfig)
+    "agents": LEAVES | {"config"},  # learners never see the game or a file
+    "storage": LEAVES,  # checkpoint files and the run directory's names
+    "evaluation": LEAVES | {"envs", "agents"},  # greedy episodes of a game and a policy
     "transfer": LEAVES | {"envs", "config", "agents", "storage"},
     "training": LEAVES | {"envs", "config", "agents", "storage", "evaluation", "transfer"},
     "sources": LEAVES | {"envs", "config", "storage", "transfer", "training"},
     "sharing": LEAVES | {"envs", "config", "agents", "storage", "evaluation"},
-    "analysis": LEAVES | {"storage"},                     # reads run directories, never live objects
+    "analysis": LEAVES | {"storage"},  # reads run directories, never live objects
     "experiments": LEAVES | {"envs", "config", "storage", "analysis"},  # runs go through a subprocess
     "benchmark": LEAVES | {"envs", "config", "agents", "storage", "evaluation", "training"},
     "cli": {part_of(m) for m in GRAPH} - {"dqn_transfer", "cli", "play"},  # the entry points
-    "play": {"cli"},                                      # `python -m dqn_transfer.play`, an alias
+    "play": {"cli"},  # `python -m dqn_transfer.play`, an alias
 }
 # Inside a part, the modules that may not import each other.
 FORBIDDEN_INSIDE = {
@@ -96,8 +96,11 @@ MAX_TOP_LEVEL_MODULES = 8
 
 @pytest.mark.parametrize("part", sorted(ALLOWED))
 def test_each_part_imports_only_what_lies_below_it(part):
-    offending = {module: sorted(t for t in targets if part_of(t) not in ALLOWED[part] | {part, "dqn_transfer"})
-                 for module, targets in GRAPH.items() if part_of(module) == part}
+    offending = {
+        module: sorted(t for t in targets if part_of(t) not in ALLOWED[part] | {part, "dqn_transfer"})
+        for module, targets in GRAPH.items()
+        if part_of(module) == part
+    }
     assert not {m: t for m, t in offending.items() if t}, offending
 
 
@@ -116,7 +119,10 @@ def test_the_top_level_holds_few_modules():
 
 
 def test_nothing_imports_the_entry_points():
-    users = {module for module, targets in GRAPH.items() if not module.startswith(ENTRY_POINTS)
-             and any(t.startswith(ENTRY_POINTS) for t in targets)}
+    users = {
+        module
+        for module, targets in GRAPH.items()
+        if not module.startswith(ENTRY_POINTS) and any(t.startswith(ENTRY_POINTS) for t in targets)
+    }
     assert not users
     assert not any(t.startswith("dqn_transfer.play") for targets in GRAPH.values() for t in targets)

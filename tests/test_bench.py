@@ -24,8 +24,18 @@ from torch import nn
 
 from dqn_transfer.agents import DQNLearner, make_learner
 from dqn_transfer.benchmark import processes, suite, whole_process
-from dqn_transfer.benchmark.config import (BENCH_AGENT, BENCH_MAP, LONE_AGENT, LONE_MAP, SB3_NAMES, SOURCE_MAP,
-                                           TEAM_MAP, replay_warmup, sb3_dqn, sb3_kwargs)
+from dqn_transfer.benchmark.config import (
+    BENCH_AGENT,
+    BENCH_MAP,
+    LONE_AGENT,
+    LONE_MAP,
+    SB3_NAMES,
+    SOURCE_MAP,
+    TEAM_MAP,
+    replay_warmup,
+    sb3_dqn,
+    sb3_kwargs,
+)
 from dqn_transfer.benchmark.env_throughput import measure_env_throughput
 from dqn_transfer.benchmark.team_scaling import TeamRig
 from dqn_transfer.benchmark.training import greedy_check, measure_ours_training, measure_sb3_training
@@ -36,16 +46,16 @@ from dqn_transfer.config import CONFIG_DIR, AgentConfig, TrainConfig, register_c
 from dqn_transfer.enums import Algorithm
 from dqn_transfer.envs import make_game
 
-TINY = dataclasses.replace(BENCH_AGENT, batch_size=8, buffer_size=200, learning_starts=20, target_update=10,
-                           hidden=[8])
+TINY = dataclasses.replace(BENCH_AGENT, batch_size=8, buffer_size=200, learning_starts=20, target_update=10, hidden=[8])
 TINY_MAP = {**SOURCE_MAP, "max_steps": 10}
 TINY_SIZES = suite.Sizes(env_steps=20, train_steps=30, team_steps=2, updates=2, eval_episodes=1, thread_cap_s=0.05)
 TRAIN_STEPS = 40
 IN_PROCESS = ("env", "training", "team", "update")
 # Sections 5 and 6: 1,100 steps is 25 gradient steps after LONE_AGENT's learning_starts of 1,000; 60 steps
 # with learning_starts 20 is 10.
-PROCESS_SIZES = dataclasses.replace(TINY_SIZES, lone_steps=1_100, replica_steps=60, replica_counts=(1, 2),
-                                    replica_learning_starts=20)
+PROCESS_SIZES = dataclasses.replace(
+    TINY_SIZES, lone_steps=1_100, replica_steps=60, replica_counts=(1, 2), replica_learning_starts=20
+)
 
 
 def gradient_steps(steps: int, learning_starts: int, train_freq: int) -> int:
@@ -56,10 +66,21 @@ def gradient_steps(steps: int, learning_starts: int, train_freq: int) -> int:
 # ----------------------------------------------------------------------------- matched hyperparameters
 def test_sb3_kwargs_give_sb3_our_values_under_its_names():
     assert sb3_kwargs(BENCH_AGENT) == {
-        "learning_rate": 1e-3, "gamma": 0.99, "batch_size": 64, "buffer_size": 50_000, "learning_starts": 1_000,
-        "train_freq": 1, "gradient_steps": 1, "target_update_interval": 500, "tau": 1.0, "max_grad_norm": 10.0,
-        "exploration_initial_eps": 1.0, "exploration_final_eps": 0.05, "exploration_fraction": 0.5,
-        "policy_kwargs": {"net_arch": [64, 64]}, "device": "cpu",
+        "learning_rate": 1e-3,
+        "gamma": 0.99,
+        "batch_size": 64,
+        "buffer_size": 50_000,
+        "learning_starts": 1_000,
+        "train_freq": 1,
+        "gradient_steps": 1,
+        "target_update_interval": 500,
+        "tau": 1.0,
+        "max_grad_norm": 10.0,
+        "exploration_initial_eps": 1.0,
+        "exploration_final_eps": 0.05,
+        "exploration_fraction": 0.5,
+        "policy_kwargs": {"net_arch": [64, 64]},
+        "device": "cpu",
     }
     # Every hyperparameter the DQN learner and the trainer read is matched (a new key must be added).
     # hidden: net_arch; the others fixed (engine: what computes ours, not a hyperparameter)
@@ -76,11 +97,23 @@ def test_sb3_kwargs_give_sb3_our_values_under_its_names():
 def test_bench_learner_differs_from_the_cli_learner_only_in_the_overridden_keys():
     game = make_game(**SOURCE_MAP).single_agent_game()
     cli_agent = AgentConfig(algorithm=Algorithm.dqn)
-    learners = {id(config): make_learner(config, 1, game.obs_layout(), game.num_actions, seed=0)
-                for config in (BENCH_AGENT, cli_agent)}
-    field_of = {"lr": "lr", "gamma": "gamma", "batch_size": "batch_size", "learning_starts": "learning_starts",
-                "train_freq": "train_freq", "gradient_steps": "gradient_steps", "target_update": "target_update",
-                "tau": "tau", "hidden": "hidden", "max_grad_norm": "max_grad_norm", "replay.capacity": "buffer_size"}
+    learners = {
+        id(config): make_learner(config, 1, game.obs_layout(), game.num_actions, seed=0)
+        for config in (BENCH_AGENT, cli_agent)
+    }
+    field_of = {
+        "lr": "lr",
+        "gamma": "gamma",
+        "batch_size": "batch_size",
+        "learning_starts": "learning_starts",
+        "train_freq": "train_freq",
+        "gradient_steps": "gradient_steps",
+        "target_update": "target_update",
+        "tau": "tau",
+        "hidden": "hidden",
+        "max_grad_norm": "max_grad_norm",
+        "replay.capacity": "buffer_size",
+    }
     differing = set()
     for attribute, field in field_of.items():
         values = []
@@ -116,8 +149,10 @@ def test_env_throughput_plays_the_same_episodes_through_both_paths():
 # ----------------------------------------------------------------------------- 2. training
 @pytest.fixture(scope="module")
 def training_runs():
-    return {measure.__name__: measure(TRAIN_STEPS, 0, TINY, TINY_MAP, eval_episodes=2)
-            for measure in (measure_ours_training, measure_sb3_training)}
+    return {
+        measure.__name__: measure(TRAIN_STEPS, 0, TINY, TINY_MAP, eval_episodes=2)
+        for measure in (measure_ours_training, measure_sb3_training)
+    }
 
 
 def test_both_contenders_take_one_gradient_step_per_env_step_after_learning_starts(training_runs):
@@ -181,13 +216,19 @@ def test_update_rig_times_real_updates_on_real_replay():
 def test_the_bare_update_and_ours_are_the_same_update():
     rig = UpdateRig(0, TINY, TINY_MAP)
     linears = [layer for layer in rig.q if isinstance(layer, nn.Linear)]
-    state = {f"layers.{l}.{kind}": getattr(layer, kind).detach().clone() for l, layer in enumerate(linears)
-             for kind in ("weight", "bias")}
+    state = {
+        f"layers.{l}.{kind}": getattr(layer, kind).detach().clone()
+        for l, layer in enumerate(linears)
+        for kind in ("weight", "bias")
+    }
     rig.learner.load_agent_tensors(0, {f"q.{name}": t.numpy() for name, t in state.items()})
     rig.bare_update()
     rig.learner.train_on(rig.batch)
-    updated = {f"layers.{l}.{kind}": getattr(layer, kind).detach() for l, layer in enumerate(linears)
-               for kind in ("weight", "bias")}
+    updated = {
+        f"layers.{l}.{kind}": getattr(layer, kind).detach()
+        for l, layer in enumerate(linears)
+        for kind in ("weight", "bias")
+    }
     for name, tensor in rig.learner.get_member_weights(0).items():
         assert not np.array_equal(tensor, state[name]), name  # it moved
         np.testing.assert_allclose(tensor, updated[name], rtol=0, atol=1e-6, err_msg=name)
@@ -215,12 +256,31 @@ def compose_train_command(command: list[str]) -> TrainConfig:
 def test_our_lone_process_gets_exactly_the_lone_settings(tmp_path):
     command = whole_process.train_command(tmp_path / "run", 2_000, 3, LONE_AGENT, {**LONE_MAP, "num_agents": 1})
     # The settings the benchmark promises, spelt as on a command line.
-    for override in ("env.size=7", "env.num_treasures=1", "env.num_traps=1", "env.complexity=0.15", "env.map_seed=3",
-                     "env.num_agents=1", "agent=dqn", "agent.hidden=[64,64]", "agent.batch_size=32",
-                     "agent.train_freq=4", "agent.gradient_steps=1", "agent.target_update=1000", "agent.tau=1.0",
-                     "agent.buffer_size=50000", "agent.lr=0.0001", "agent.learning_starts=1000", "total_steps=2000",
-                     "eval_every=2000", "eval_episodes=1", "checkpoint_every=2000", "progress=false", "threads=1",
-                     f"hydra.run.dir={tmp_path / 'run'}"):
+    for override in (
+        "env.size=7",
+        "env.num_treasures=1",
+        "env.num_traps=1",
+        "env.complexity=0.15",
+        "env.map_seed=3",
+        "env.num_agents=1",
+        "agent=dqn",
+        "agent.hidden=[64,64]",
+        "agent.batch_size=32",
+        "agent.train_freq=4",
+        "agent.gradient_steps=1",
+        "agent.target_update=1000",
+        "agent.tau=1.0",
+        "agent.buffer_size=50000",
+        "agent.lr=0.0001",
+        "agent.learning_starts=1000",
+        "total_steps=2000",
+        "eval_every=2000",
+        "eval_episodes=1",
+        "checkpoint_every=2000",
+        "progress=false",
+        "threads=1",
+        f"hydra.run.dir={tmp_path / 'run'}",
+    ):
         assert override in command, override
     config = compose_train_command(command)
     assert config.agent == LONE_AGENT  # every key, the unlisted ones (gamma, epsilon, clip) included
@@ -257,20 +317,25 @@ def test_the_bare_loop_decays_epsilon_as_cleanrl_does():
 
 def test_run_together_times_each_process_and_reads_its_last_line():
     script = "import json, time; time.sleep({}); print('log line'); print(json.dumps({{'slept': {}}}))"
-    out = whole_process.run_together([[sys.executable, "-c", script.format(0.2, 0.2)],
-                                      [sys.executable, "-c", script.format(0.4, 0.4)]])
+    out = whole_process.run_together(
+        [[sys.executable, "-c", script.format(0.2, 0.2)], [sys.executable, "-c", script.format(0.4, 0.4)]]
+    )
     assert [p["report"] for p in out["processes"]] == [{"slept": 0.2}, {"slept": 0.4}]
     assert out["seconds"] >= max(p["seconds"] for p in out["processes"])  # first spawn to last exit
     assert out["cpu_seconds"] == pytest.approx(sum(p["cpu_seconds"] for p in out["processes"]))
     assert all(p["cpu_seconds"] > 0 and p["max_rss_mb"] > 1 for p in out["processes"])  # the child's, via wait4
     with pytest.raises(whole_process.ProcessFailed, match="exited with 3:\nno good"):
-        whole_process.run_together([[sys.executable, "-c", "import sys; print('no good', file=sys.stderr); sys.exit(3)"]])
+        whole_process.run_together(
+            [[sys.executable, "-c", "import sys; print('no good', file=sys.stderr); sys.exit(3)"]]
+        )
 
 
 def test_processes_command_line_prints_what_it_did(capsys):
     threads = torch.get_num_threads()
     try:
-        assert processes.main(["bare", "--steps", "30", "--seed", "1", "--map", "bench", "--learning-starts", "10"]) == 0
+        assert (
+            processes.main(["bare", "--steps", "30", "--seed", "1", "--map", "bench", "--learning-starts", "10"]) == 0
+        )
     finally:
         torch.set_num_threads(threads)  # main sets one thread, as its own process would
     report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
@@ -280,8 +345,9 @@ def test_processes_command_line_prints_what_it_did(capsys):
 
 @pytest.fixture(scope="module")
 def process_document():
-    return suite.run_benchmark("quick", 0, 1, 1, sizes=PROCESS_SIZES, sections=("lone", "replicas"),
-                               progress=lambda what: None)
+    return suite.run_benchmark(
+        "quick", 0, 1, 1, sizes=PROCESS_SIZES, sections=("lone", "replicas"), progress=lambda what: None
+    )
 
 
 @pytest.mark.slow
@@ -305,8 +371,12 @@ def test_replicas_section_runs_one_process_of_r_replicas_and_sb3_side_by_side(pr
     rep = process_document["replicas"]
     cores = process_document["machine"]["cpus_available"]
     expected = gradient_steps(PROCESS_SIZES.replica_steps, PROCESS_SIZES.replica_learning_starts, 4)
-    assert [(row["engine"], row["replicas"]) for row in rep["rows"]] == [("numpy", 1), ("numpy", 2), ("torch", 1),
-                                                                      ("torch", 2)]
+    assert [(row["engine"], row["replicas"]) for row in rep["rows"]] == [
+        ("numpy", 1),
+        ("numpy", 2),
+        ("torch", 1),
+        ("torch", 2),
+    ]
     for row in rep["rows"]:
         run = row["raw"][0]
         assert row["learners"] == run["learners"] == 4 * row["replicas"]
@@ -329,8 +399,12 @@ def test_replicas_section_runs_one_process_of_r_replicas_and_sb3_side_by_side(pr
 def test_tables_of_the_whole_process_sections(process_document):
     table = suite.render_markdown(process_document)
     assert [line.split()[1] for line in table.splitlines() if line.startswith("## ")] == ["5.", "6."]
-    assert [row.split(":")[0] for row in table_rows(table, "## 5.")] == ["ours", "ours, torch engine (the default)",
-                                                                       "SB3", "bare PyTorch"]
+    assert [row.split(":")[0] for row in table_rows(table, "## 5.")] == [
+        "ours",
+        "ours, torch engine (the default)",
+        "SB3",
+        "bare PyTorch",
+    ]
     assert table_rows(table, "## 6.") == ["numpy", "numpy", "torch", "torch"]
     for heading in ("## 5.", "## 6."):
         part = table.split(heading, 1)[1].split("\n## ", 1)[0]
@@ -342,8 +416,9 @@ def test_tables_of_the_whole_process_sections(process_document):
 # ----------------------------------------------------------------------------- the document and its table
 @pytest.fixture(scope="module")
 def document():
-    return suite.run_benchmark("quick", 0, 1, 1, sizes=TINY_SIZES, agent=TINY, sections=IN_PROCESS,
-                               progress=lambda what: None)
+    return suite.run_benchmark(
+        "quick", 0, 1, 1, sizes=TINY_SIZES, agent=TINY, sections=IN_PROCESS, progress=lambda what: None
+    )
 
 
 def table_rows(table: str, heading: str) -> list[str]:
@@ -362,7 +437,11 @@ def test_document_holds_every_section_and_is_json(document):
     assert {f"{name}_us" for name in ("bare", "in_memory", "ours", "sample", "sb3")} <= set(update)
     assert update["bare_over_bare"] == 1.0
     assert ("ours_default_threads_us" in update) == (suite.DEFAULT_THREADS != 1)
-    assert document["settings"]["hyperparameters"] == {**dataclasses.asdict(TINY), "algorithm": "dqn", "engine": "torch"}
+    assert document["settings"]["hyperparameters"] == {
+        **dataclasses.asdict(TINY),
+        "algorithm": "dqn",
+        "engine": "torch",
+    }
     assert document["machine"]["torch_threads_used"] == [1]
     assert json.loads(json.dumps(document)) == document  # plain JSON types throughout
 
@@ -395,24 +474,41 @@ def test_cli_profile_and_sections_choose_what_is_measured(tmp_path, monkeypatch,
 
     def fake_run(profile, seed, repeats, threads, sections):
         calls.append((profile, list(sections)))
-        return suite.run_benchmark(profile, seed, repeats, threads, sizes=TINY_SIZES, sections=["env"],
-                                   progress=lambda what: None)
+        return suite.run_benchmark(
+            profile, seed, repeats, threads, sizes=TINY_SIZES, sections=["env"], progress=lambda what: None
+        )
 
     monkeypatch.setattr(cli, "run_benchmark", fake_run)
     out = str(tmp_path / "bench.json")
-    for argv in (["--profile", "quick", "--sections", "replicas,lone"], ["--quick", "--only", "lone", "--only",
-                                                                         "replicas"]):
+    for argv in (
+        ["--profile", "quick", "--sections", "replicas,lone"],
+        ["--quick", "--only", "lone", "--only", "replicas"],
+    ):
         assert cli.main([*argv, "--repeats", "1", "--out", out]) == 0
     assert cli.main(["--sections", "update, env", "--only", "lone", "--out", out]) == 0
     assert cli.main(["--out", out]) == 0
-    assert calls == [("quick", ["lone", "replicas"]), ("quick", ["lone", "replicas"]),
-                     ("full", ["env", "update", "lone"]), ("full", list(suite.SECTIONS))]
+    assert calls == [
+        ("quick", ["lone", "replicas"]),
+        ("quick", ["lone", "replicas"]),
+        ("full", ["env", "update", "lone"]),
+        ("full", list(suite.SECTIONS)),
+    ]
     capsys.readouterr()
 
 
-@pytest.mark.parametrize("argv", [["--repeats", "0"], ["--threads", "x"], ["--seed", "1.5"], ["--bogus"],
-                                  ["--only", "everything"], ["--sections", "lone,bogus"], ["--sections", ","],
-                                  ["--profile", "tiny"]])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["--repeats", "0"],
+        ["--threads", "x"],
+        ["--seed", "1.5"],
+        ["--bogus"],
+        ["--only", "everything"],
+        ["--sections", "lone,bogus"],
+        ["--sections", ","],
+        ["--profile", "tiny"],
+    ],
+)
 def test_bad_arguments_are_argparse_errors(argv, capsys):
     with pytest.raises(SystemExit) as excinfo:
         cli.main(argv)

@@ -14,8 +14,11 @@ import pytest
 import safetensors.torch
 import torch
 
-from dqn_transfer.storage import checkpoint
 from dqn_transfer.cli import ckpt as ckpt_cli
+from dqn_transfer.config import AgentConfig, TrainConfig
+from dqn_transfer.enums import Algorithm
+from dqn_transfer.envs.settings import EnvConfig
+from dqn_transfer.storage import checkpoint
 from dqn_transfer.storage.checkpoint import (
     FORMAT_VERSION,
     CheckpointError,
@@ -27,9 +30,6 @@ from dqn_transfer.storage.checkpoint import (
     save_training_state,
     verify_checkpoint,
 )
-from dqn_transfer.config import AgentConfig, TrainConfig
-from dqn_transfer.enums import Algorithm
-from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.storage.run_dir import RunDir
 from dqn_transfer.training.trainer import Trainer
 
@@ -203,11 +203,14 @@ def test_refuses_pickle_without_unpickling_it(tmp_path: Path):
     assert not marker.exists()
 
 
-@pytest.mark.parametrize("name, zipfile", [
-    ("model.pt", True),                 # refused by its extension
-    ("agent_0.safetensors", True),      # renamed torch.save zip: refused by its PK magic
-    ("agent_0.safetensors", False),     # legacy torch.save: a bare pickle, refused by its 0x80 byte
-])
+@pytest.mark.parametrize(
+    "name, zipfile",
+    [
+        ("model.pt", True),  # refused by its extension
+        ("agent_0.safetensors", True),  # renamed torch.save zip: refused by its PK magic
+        ("agent_0.safetensors", False),  # legacy torch.save: a bare pickle, refused by its 0x80 byte
+    ],
+)
 def test_refuses_torch_save_files(tmp_path: Path, name: str, zipfile: bool):
     path = tmp_path / name
     torch.save(make_tensors(), path, _use_new_zipfile_serialization=zipfile)
@@ -279,19 +282,31 @@ def test_training_state_loader_refuses_pickles_too(tmp_path: Path):
 
 def test_check_compatible_accepts_matching_run():
     meta = make_meta()
-    check_compatible(meta, {"algorithm": "double_dqn",  # same family as dqn
-                            "obs_layout": (("position", 36), ("treasures", 1)),  # tuples vs JSON lists
-                            "num_actions": 4, "size": 6, "mode": "competitive"})
+    check_compatible(
+        meta,
+        {
+            "algorithm": "double_dqn",  # same family as dqn
+            "obs_layout": (("position", 36), ("treasures", 1)),  # tuples vs JSON lists
+            "num_actions": 4,
+            "size": 6,
+            "mode": "competitive",
+        },
+    )
 
 
-@pytest.mark.parametrize("expected, message", [
-    ({"size": 8}, "checkpoint was trained on a 6x6 map; this run uses 8x8"),
-    ({"obs_layout": [("position", 64), ("treasures", 2)]},
-     "checkpoint obs_layout [position:36, treasures:1] differs from this run's [position:64, treasures:2]"),
-    ({"algorithm": "sarsa"}, "checkpoint holds a dqn agent (dqn); this run uses a tabular agent (sarsa)"),
-    ({"num_actions": 5}, "checkpoint has 4 actions; this run has 5"),
-    ({"mode": "cooperative"}, "checkpoint has mode='competitive'; this run expects 'cooperative'"),
-])
+@pytest.mark.parametrize(
+    "expected, message",
+    [
+        ({"size": 8}, "checkpoint was trained on a 6x6 map; this run uses 8x8"),
+        (
+            {"obs_layout": [("position", 64), ("treasures", 2)]},
+            "checkpoint obs_layout [position:36, treasures:1] differs from this run's [position:64, treasures:2]",
+        ),
+        ({"algorithm": "sarsa"}, "checkpoint holds a dqn agent (dqn); this run uses a tabular agent (sarsa)"),
+        ({"num_actions": 5}, "checkpoint has 4 actions; this run has 5"),
+        ({"mode": "cooperative"}, "checkpoint has mode='competitive'; this run expects 'cooperative'"),
+    ],
+)
 def test_check_compatible_names_the_mismatch(expected: dict, message: str):
     with pytest.raises(CheckpointError) as info:
         check_compatible(make_meta(), expected)
@@ -317,8 +332,9 @@ def test_find_checkpoints_from_file_run_dir_and_checkpoints_dir(tmp_path: Path):
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "dqn_transfer.cli.ckpt", *args], cwd=REPO,
-                          capture_output=True, text=True, timeout=60)
+    return subprocess.run(
+        [sys.executable, "-m", "dqn_transfer.cli.ckpt", *args], cwd=REPO, capture_output=True, text=True, timeout=60
+    )
 
 
 def test_cli_list_show_verify_on_a_good_run(ckpt: Path, capsys):
@@ -344,8 +360,11 @@ def test_cli_verify_reports_bad_files_in_one_line_without_traceback(ckpt: Path, 
     bait = tmp_path / "bait.safetensors"
     bait.write_bytes(pickle.dumps(_CreatesFileWhenUnpickled(marker)))
 
-    for path, fragment in [(ckpt, "tensor digest mismatch"), (bait, "refusing to load it"),
-                           (tmp_path / "missing", "no such file or directory")]:
+    for path, fragment in [
+        (ckpt, "tensor digest mismatch"),
+        (bait, "refusing to load it"),
+        (tmp_path / "missing", "no such file or directory"),
+    ]:
         result = run_cli("verify", str(path))
         assert result.returncode == 1
         assert "Traceback" not in result.stderr
@@ -359,9 +378,15 @@ def test_a_disk_full_during_a_run_keeps_the_previous_checkpoint_whole(tmp_path: 
     file is written. Every file on disk must still be the first checkpoint's, verified, and nothing
     half-written may be left (the run ends with the one-line CheckpointError)."""
     layout = "0..T\n....\n....\n1..T"  # two agents, two chests three moves away: episodes of 3 steps
-    config = TrainConfig(env=EnvConfig(layout=layout, size=4, num_treasures=2, num_traps=0, num_agents=2,
-                                       complexity=0.0), agent=AgentConfig(algorithm=Algorithm.qlearning, lr=0.5),
-                         total_steps=400, eval_every=400, eval_episodes=1, checkpoint_every=100, progress=False)
+    config = TrainConfig(
+        env=EnvConfig(layout=layout, size=4, num_treasures=2, num_traps=0, num_agents=2, complexity=0.0),
+        agent=AgentConfig(algorithm=Algorithm.qlearning, lr=0.5),
+        total_steps=400,
+        eval_every=400,
+        eval_episodes=1,
+        checkpoint_every=100,
+        progress=False,
+    )
     run = RunDir(tmp_path / "run")
     temp_files_opened = []
     real_open = os.open

@@ -1,7 +1,5 @@
 """Every config option composes through Hydra; typos, wrong types and out-of-range values are refused."""
 
-from pathlib import Path
-
 import pytest
 from hydra import compose, initialize_config_dir
 from hydra.errors import ConfigCompositionException
@@ -43,7 +41,9 @@ def test_defaults_are_the_documented_ones():
 
 
 def test_transfer_takes_an_offset_a_fill_and_a_source_agent_per_target():
-    config = compose_config("transfer=on", "transfer.offset=[2,1]", "transfer.fill=nearest", "transfer.source_agent=[1,0,1]")
+    config = compose_config(
+        "transfer=on", "transfer.offset=[2,1]", "transfer.fill=nearest", "transfer.source_agent=[1,0,1]"
+    )
     assert config.transfer.offset == [2, 1] and config.transfer.fill is Fill.nearest
     assert config.transfer.source_agent == [1, 0, 1]
     validate(config)
@@ -55,39 +55,48 @@ def test_mode_group_sets_the_env_mode_not_a_new_key():
     assert config.env.mode is Mode.deliberative and config.env.size == 10
 
 
-@pytest.mark.parametrize("override", [
-    "agent.learning_rate=0.1",  # typo of agent.lr
-    "env.sise=8",
-    "agent.gamma=high",  # wrong type
-    "total_steps=many",
-    "env.mode=telepathic",  # not a Mode
-    "agent=ppo",  # no such group option
-    "transfer.fill=far",  # not a Fill
-])
+@pytest.mark.parametrize(
+    "override",
+    [
+        "agent.learning_rate=0.1",  # typo of agent.lr
+        "env.sise=8",
+        "agent.gamma=high",  # wrong type
+        "total_steps=many",
+        "env.mode=telepathic",  # not a Mode
+        "agent=ppo",  # no such group option
+        "transfer.fill=far",  # not a Fill
+    ],
+)
 def test_bad_overrides_are_refused(override):
     with pytest.raises((ConfigCompositionException, ValidationError)):
         compose_config(override)
 
 
-@pytest.mark.parametrize("override, message", [
-    ("agent.gamma=1.5", "agent.gamma must be in \\[0, 1\\]"),
-    ("agent.batch_size=0", "agent.batch_size must be >= 1"),
-    ("total_steps=-5", "total_steps must be >= 0"),
-    ("env.complexity=1.2", "env.complexity must be in \\[0, 1\\)"),
-    ("agent.hidden=[]", "agent.hidden must be a non-empty list"),
-    ("agent.tau=0", "agent.tau must be in \\(0, 1\\]"),
-    ("env.max_steps=0", "env.max_steps must be >= 1"),
-    ("transfer.exchange_tau=1.5", "transfer.exchange_tau must be in \\(0, 1\\]"),
-    ("agent.lr=0", "agent.lr must be > 0"),
-    ("transfer.freeze=[0]", "transfer.freeze=\\[0\\] .* needs transfer=on"),
-    ("transfer.offset=[1]", "transfer.offset must be \\[row, col\\] with both >= 0, got \\[1\\]"),
-    ("transfer.offset=[1,1]", "transfer.offset=\\[1, 1\\] / transfer.fill=zero place a source's map .* need transfer=on"),
-    ("transfer.offset=[0,-1]", "transfer.offset must be \\[row, col\\]"),
-    ("transfer.source_agent=-1", "transfer.source_agent must be an agent index or a non-empty list"),
-    ("transfer.source_agent=[0,x]", "transfer.source_agent must be"),
-    ("transfer.source_agent=[]", "transfer.source_agent must be"),
-    ("transfer.source_agent=true", "transfer.source_agent must be"),
-])
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("agent.gamma=1.5", "agent.gamma must be in \\[0, 1\\]"),
+        ("agent.batch_size=0", "agent.batch_size must be >= 1"),
+        ("total_steps=-5", "total_steps must be >= 0"),
+        ("env.complexity=1.2", "env.complexity must be in \\[0, 1\\)"),
+        ("agent.hidden=[]", "agent.hidden must be a non-empty list"),
+        ("agent.tau=0", "agent.tau must be in \\(0, 1\\]"),
+        ("env.max_steps=0", "env.max_steps must be >= 1"),
+        ("transfer.exchange_tau=1.5", "transfer.exchange_tau must be in \\(0, 1\\]"),
+        ("agent.lr=0", "agent.lr must be > 0"),
+        ("transfer.freeze=[0]", "transfer.freeze=\\[0\\] .* needs transfer=on"),
+        ("transfer.offset=[1]", "transfer.offset must be \\[row, col\\] with both >= 0, got \\[1\\]"),
+        (
+            "transfer.offset=[1,1]",
+            "transfer.offset=\\[1, 1\\] / transfer.fill=zero place a source's map .* need transfer=on",
+        ),
+        ("transfer.offset=[0,-1]", "transfer.offset must be \\[row, col\\]"),
+        ("transfer.source_agent=-1", "transfer.source_agent must be an agent index or a non-empty list"),
+        ("transfer.source_agent=[0,x]", "transfer.source_agent must be"),
+        ("transfer.source_agent=[]", "transfer.source_agent must be"),
+        ("transfer.source_agent=true", "transfer.source_agent must be"),
+    ],
+)
 def test_out_of_range_values_name_the_key(override, message):
     config = compose_config(override)
     with pytest.raises(ConfigError, match=message):
@@ -101,8 +110,15 @@ def test_tabular_learners_refuse_network_only_options():
     validate(compose_config("agent=sarsa", "transfer.exchange=best"))  # tables exchange too
 
 
-@pytest.mark.parametrize("option, algorithm", [("dqn", Algorithm.dqn), ("double_dqn", Algorithm.double_dqn),
-                                               ("sarsa", Algorithm.sarsa), ("qlearning", Algorithm.qlearning)])
+@pytest.mark.parametrize(
+    "option, algorithm",
+    [
+        ("dqn", Algorithm.dqn),
+        ("double_dqn", Algorithm.double_dqn),
+        ("sarsa", Algorithm.sarsa),
+        ("qlearning", Algorithm.qlearning),
+    ],
+)
 def test_the_command_line_and_the_python_api_build_the_same_learner(option, algorithm):
     """`agent=<option>` on the command line is the schema's defaults plus what the option says it
     changes (tabular: lr 0.1, alpha): the learner built from it is the one the Python API builds."""
@@ -111,6 +127,18 @@ def test_the_command_line_and_the_python_api_build_the_same_learner(option, algo
     assert composed == api
     layout, actions = [("position", 9)], 4
     a, b = (make_learner(hp, 2, layout, actions, seed=0) for hp in (composed, api))
-    for name in ("algorithm", "lr", "gamma", "batch_size", "learning_starts", "train_freq", "gradient_steps",
-                 "target_update", "tau", "hidden", "max_grad_norm", "share_parameters"):
+    for name in (
+        "algorithm",
+        "lr",
+        "gamma",
+        "batch_size",
+        "learning_starts",
+        "train_freq",
+        "gradient_steps",
+        "target_update",
+        "tau",
+        "hidden",
+        "max_grad_norm",
+        "share_parameters",
+    ):
         assert getattr(a, name, None) == getattr(b, name, None), name

@@ -13,42 +13,68 @@ import pytest
 import torch
 from conftest import reference_mlp
 
-from dqn_transfer.storage.checkpoint import CheckpointError, load_agent_checkpoint
 from dqn_transfer.config import AgentConfig, TrainConfig, TransferConfig
 from dqn_transfer.enums import Algorithm, Engine, Fill, ObsEncoding
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.sources.resolve import resolve_source
+from dqn_transfer.storage.checkpoint import CheckpointError, load_agent_checkpoint
 from dqn_transfer.training.trainer import Trainer, train
 from dqn_transfer.transfer.mapping import TransferError
 
 SOURCE_MAP = "0....\n.....\n..T..\n.....\nX...."  # chest (2, 2), trap (4, 0), start (0, 0)
 OFFSET = (2, 1)
-TARGET_MAP = "\n".join([
-    ".......T",  # the new chest (0, 7): chest 0 of the target
-    "........",
-    ".0......",  # start 0 on the source's start cell (0, 0) + offset
-    "........",
-    "...T....",  # the source's chest (2, 2) + offset = (4, 3): chest 1 of the target
-    "........",
-    ".X.....1",  # the source's trap (4, 0) + offset
-    "........",
-])
+TARGET_MAP = "\n".join(
+    [
+        ".......T",  # the new chest (0, 7): chest 0 of the target
+        "........",
+        ".0......",  # start 0 on the source's start cell (0, 0) + offset
+        "........",
+        "...T....",  # the source's chest (2, 2) + offset = (4, 3): chest 1 of the target
+        "........",
+        ".X.....1",  # the source's trap (4, 0) + offset
+        "........",
+    ]
+)
 SOURCE_CELLS = [(r, c) for r in range(5) for c in range(5)]
 
 
-def config(layout: str, algorithm: Algorithm, *, encoding: ObsEncoding = ObsEncoding.onehot, steps: int = 0,
-           transfer: TransferConfig | None = None) -> TrainConfig:
+def config(
+    layout: str,
+    algorithm: Algorithm,
+    *,
+    encoding: ObsEncoding = ObsEncoding.onehot,
+    steps: int = 0,
+    transfer: TransferConfig | None = None,
+) -> TrainConfig:
     rows = layout.split("\n")
-    env = EnvConfig(layout=layout, size=len(rows), num_treasures=layout.count("T"), num_traps=layout.count("X"),
-                    complexity=0.0, obs_encoding=encoding)
-    return TrainConfig(env=env,
-                       agent=AgentConfig(algorithm=algorithm, engine=Engine.numpy, learning_starts=20, lr=0.3
-                                         if Algorithm(algorithm).is_tabular else 1e-3),
-                       transfer=transfer or TransferConfig(), total_steps=steps, eval_every=max(steps, 1),
-                       eval_episodes=1, checkpoint_every=max(steps, 1), progress=False)
+    env = EnvConfig(
+        layout=layout,
+        size=len(rows),
+        num_treasures=layout.count("T"),
+        num_traps=layout.count("X"),
+        complexity=0.0,
+        obs_encoding=encoding,
+    )
+    return TrainConfig(
+        env=env,
+        agent=AgentConfig(
+            algorithm=algorithm,
+            engine=Engine.numpy,
+            learning_starts=20,
+            lr=0.3 if Algorithm(algorithm).is_tabular else 1e-3,
+        ),
+        transfer=transfer or TransferConfig(),
+        total_steps=steps,
+        eval_every=max(steps, 1),
+        eval_episodes=1,
+        checkpoint_every=max(steps, 1),
+        progress=False,
+    )
 
 
-def trained_source(tmp_path, algorithm: Algorithm, encoding: ObsEncoding = ObsEncoding.onehot, layout: str = SOURCE_MAP):
+def trained_source(
+    tmp_path, algorithm: Algorithm, encoding: ObsEncoding = ObsEncoding.onehot, layout: str = SOURCE_MAP
+):
     """A team run on the source map (so it has a `treasures` input), trained a little."""
     train(config(layout, algorithm, encoding=encoding, steps=300), tmp_path / "source")
     return tmp_path / "source" / "checkpoints" / "agent_0.safetensors"
@@ -57,8 +83,9 @@ def trained_source(tmp_path, algorithm: Algorithm, encoding: ObsEncoding = ObsEn
 def transferred(tmp_path, source, algorithm: Algorithm, encoding: ObsEncoding = ObsEncoding.onehot, **transfer):
     """The target run's learner right after the warm start (no training)."""
     settings = TransferConfig(enabled=True, source=str(source), **{"offset": list(OFFSET), **transfer})
-    trainer = Trainer(config(TARGET_MAP, algorithm, encoding=encoding, transfer=settings), tmp_path / "target",
-                      sources=[source])
+    trainer = Trainer(
+        config(TARGET_MAP, algorithm, encoding=encoding, transfer=settings), tmp_path / "target", sources=[source]
+    )
     trainer.prepare()
     return trainer.replicas[0].learner
 
@@ -141,14 +168,22 @@ def test_a_source_chest_without_a_target_chest_is_dropped_with_a_warning(tmp_pat
         source_obs = position(cell, 5, ObsEncoding.onehot) + [0.0, 1.0]
         target_obs = position((cell[0] + 2, cell[1] + 1), 8, ObsEncoding.onehot) + [1.0, 1.0]
         with torch.no_grad():
-            np.testing.assert_allclose(target_q(learner, target_obs), reference(torch.tensor([source_obs])).numpy()[0],
-                                       rtol=0, atol=1e-5)
+            np.testing.assert_allclose(
+                target_q(learner, target_obs), reference(torch.tensor([source_obs])).numpy()[0], rtol=0, atol=1e-5
+            )
 
 
-@pytest.mark.parametrize("offset, message", [
-    ((4, 0), r"transfer.offset=\[4, 0\] puts the source's 5x5 map off this run's 8x8 map \(each offset must be in 0..3\)"),
-    ((0, 4), r"offset=\[0, 4\] puts the source's 5x5 map off"),
-])
+@pytest.mark.parametrize(
+    "offset, message",
+    [
+        (
+            (4, 0),
+            r"transfer.offset=\[4, 0\] puts the source's 5x5 map off this run's 8x8 map "
+            r"\(each offset must be in 0..3\)",
+        ),
+        ((0, 4), r"offset=\[0, 4\] puts the source's 5x5 map off"),
+    ],
+)
 def test_an_offset_that_pushes_the_source_off_the_map_is_refused(tmp_path, offset, message):
     source = trained_source(tmp_path, Algorithm.sarsa)
     with pytest.raises(TransferError, match=message):
@@ -175,9 +210,12 @@ def test_a_larger_team_takes_one_source_agent_per_target(tmp_path):
     obs[:, 8 * 3 + 3] = 1.0  # every agent at (3, 3), both chests full
     obs[:, 64:] = 1.0
     with torch.no_grad():
-        per_source = [reference_mlp(load_agent_checkpoint(tmp_path / "pair" / "checkpoints" /
-                                                          f"agent_{i}.safetensors")[0])(torch.from_numpy(obs[:1]))[0]
-                      for i in (0, 1)]
+        per_source = [
+            reference_mlp(load_agent_checkpoint(tmp_path / "pair" / "checkpoints" / f"agent_{i}.safetensors")[0])(
+                torch.from_numpy(obs[:1])
+            )[0]
+            for i in (0, 1)
+        ]
     got = trainer.replicas[0].learner.q_values(obs)
     for agent, source_agent in enumerate([1, 0, 1]):
         np.testing.assert_allclose(got[agent], per_source[source_agent].numpy(), rtol=0, atol=1e-5)
@@ -186,12 +224,16 @@ def test_a_larger_team_takes_one_source_agent_per_target(tmp_path):
     assert [entry["source_agent"] for entry in info["per_target"]] == [1, 0, 1]
 
 
-@pytest.mark.parametrize("source_agent, message", [
-    ([0, 1], "lists 2 source agents for 3 target agents"),
-    ([0, 5, 0], "has no agent_5.safetensors"),
-])
+@pytest.mark.parametrize(
+    "source_agent, message",
+    [
+        ([0, 1], "lists 2 source agents for 3 target agents"),
+        ([0, 5, 0], "has no agent_5.safetensors"),
+    ],
+)
 def test_a_wrong_source_agent_list_is_refused(tmp_path, source_agent, message):
     train(config(TARGET_MAP, Algorithm.sarsa, steps=0), tmp_path / "pair")
     with pytest.raises((TransferError, CheckpointError), match=message):
-        resolve_source(TransferConfig(enabled=True, source=str(tmp_path / "pair"), source_agent=source_agent),
-                       tmp_path, 3)
+        resolve_source(
+            TransferConfig(enabled=True, source=str(tmp_path / "pair"), source_agent=source_agent), tmp_path, 3
+        )

@@ -28,17 +28,24 @@ from dqn_transfer.config import (
     register_configs,
     validate,
 )
-from dqn_transfer.sources.curriculum import curriculum_sources
 from dqn_transfer.enums import Algorithm, Engine
 from dqn_transfer.envs.settings import EnvConfig
+from dqn_transfer.sources.curriculum import curriculum_sources
 from dqn_transfer.transfer.warm_start import lineage
 
 CONF_DIR = str(CONFIG_DIR)
 register_configs()
 # The shipped example with short stages: 5x5 (300 steps) -> 8x8 (3000 steps) -> this run's 12x12.
-NESTED = ("curriculum=nested", "curriculum.stages.0.steps=300", "curriculum.stages.1.steps=3000",
-          "total_steps=1500", "eval_every=500", "checkpoint_every=100", "agent.engine=numpy",
-          "agent.learning_starts=50")
+NESTED = (
+    "curriculum=nested",
+    "curriculum.stages.0.steps=300",
+    "curriculum.stages.1.steps=3000",
+    "total_steps=1500",
+    "eval_every=500",
+    "checkpoint_every=100",
+    "agent.engine=numpy",
+    "agent.learning_starts=50",
+)
 
 
 def compose_config(*overrides: str) -> TrainConfig:
@@ -54,13 +61,19 @@ def test_the_shipped_curricula_compose(option):
     assert config.curriculum.stages[0].steps < config.curriculum.stages[1].steps < config.total_steps
 
 
-@pytest.mark.parametrize("overrides, message", [
-    (("curriculum=grow", "transfer.enabled=false"), "needs transfer=on"),
-    (("curriculum=grow", "transfer.source=somewhere"), "not from transfer.source=somewhere"),
-    (("curriculum=grow", "+curriculum.stages.0.env.sise=5"), r"curriculum.stages\[0\].env: unknown env key\(s\) \['sise'\]"),
-    (("curriculum=grow", "curriculum.stages.1.steps=0"), r"curriculum.stages\[1\].steps must be >= 1"),
-    (("curriculum=grow", "curriculum.stages.1.offset=[1]"), r"curriculum.stages\[1\].offset must be \[row, col\]"),
-])
+@pytest.mark.parametrize(
+    "overrides, message",
+    [
+        (("curriculum=grow", "transfer.enabled=false"), "needs transfer=on"),
+        (("curriculum=grow", "transfer.source=somewhere"), "not from transfer.source=somewhere"),
+        (
+            ("curriculum=grow", "+curriculum.stages.0.env.sise=5"),
+            r"curriculum.stages\[0\].env: unknown env key\(s\) \['sise'\]",
+        ),
+        (("curriculum=grow", "curriculum.stages.1.steps=0"), r"curriculum.stages\[1\].steps must be >= 1"),
+        (("curriculum=grow", "curriculum.stages.1.offset=[1]"), r"curriculum.stages\[1\].offset must be \[row, col\]"),
+    ],
+)
 def test_a_bad_curriculum_is_refused_naming_the_stage(overrides, message):
     with pytest.raises(ConfigError, match=message):
         validate(compose_config(*overrides))
@@ -72,13 +85,20 @@ SMALL, LARGE = "0.T\n...\n..X", "0....\n...T.\n.....\n...X.\n1...."  # SMALL sit
 
 
 def lone_config(cache: Path, first_steps: int = 30, *, replicas: int = 1) -> TrainConfig:
-    stages = [StageConfig(env={"layout": SMALL}, steps=first_steps),
-              StageConfig(env={"layout": LARGE.replace("1", ".")}, steps=40, offset=[1, 1])]
-    return TrainConfig(env=EnvConfig(layout=LARGE, size=5, num_treasures=1, num_traps=1, num_agents=2, complexity=0.0),
-                       agent=AgentConfig(algorithm=Algorithm.qlearning, lr=0.5, engine=Engine.numpy),
-                       transfer=TransferConfig(enabled=True), curriculum=CurriculumConfig(stages=stages,
-                                                                                          cache_dir=str(cache)),
-                       replicas=ReplicasConfig(seeds=replicas), total_steps=0, eval_episodes=1, progress=False)
+    stages = [
+        StageConfig(env={"layout": SMALL}, steps=first_steps),
+        StageConfig(env={"layout": LARGE.replace("1", ".")}, steps=40, offset=[1, 1]),
+    ]
+    return TrainConfig(
+        env=EnvConfig(layout=LARGE, size=5, num_treasures=1, num_traps=1, num_agents=2, complexity=0.0),
+        agent=AgentConfig(algorithm=Algorithm.qlearning, lr=0.5, engine=Engine.numpy),
+        transfer=TransferConfig(enabled=True),
+        curriculum=CurriculumConfig(stages=stages, cache_dir=str(cache)),
+        replicas=ReplicasConfig(seeds=replicas),
+        total_steps=0,
+        eval_episodes=1,
+        progress=False,
+    )
 
 
 @pytest.fixture
@@ -137,8 +157,11 @@ def final_run(run_dir: Path) -> tuple[list[dict], list[str], dict[str, np.ndarra
     paths differ with the launch directory) and its agents' tensors."""
     records = without_timing(read_metrics(run_dir))
     chain = [step["digest"] for step in lineage(records[0].pop("transfer_source"))]
-    tensors = {f"{i}/{name}": value for i in range(4)
-               for name, value in load_file(run_dir / "checkpoints" / f"agent_{i}.safetensors").items()}
+    tensors = {
+        f"{i}/{name}": value
+        for i in range(4)
+        for name, value in load_file(run_dir / "checkpoints" / f"agent_{i}.safetensors").items()
+    }
     return records, chain, tensors
 
 
@@ -215,6 +238,7 @@ def test_a_curriculum_killed_between_stages_or_stopped_in_one_resumes_to_the_sam
     assert records == expected and chain == expected_chain and len(chain) == 2
     assert ours.keys() == theirs.keys() and all(np.array_equal(ours[k], theirs[k]) for k in ours)
     stages = sorted(p.name for p in cache.iterdir() if not p.name.startswith("."))
-    assert stages == sorted(p.name for p in (reference_work / "outputs" / "curriculum").iterdir()
-                            if not p.name.startswith("."))
+    assert stages == sorted(
+        p.name for p in (reference_work / "outputs" / "curriculum").iterdir() if not p.name.startswith(".")
+    )
     assert not [p for p in cache.iterdir() if ".partial" in p.name or ".tmp" in p.name]

@@ -151,7 +151,7 @@ def test_single_agent_mdp_is_agent_0_on_the_same_map():
     assert env.unwrapped.obs_layout() == [("position", 25)]
     assert obs.shape == (25,) and obs[0] == 1.0
     total = 0.0
-    for step in range(4):
+    for _ in range(4):
         obs, reward, terminated, truncated, info = env.step(3)  # right x 4 to the chest
         total += reward
     assert total == 97.0 and terminated and not truncated and info["treasures_collected"] == 1
@@ -172,8 +172,9 @@ def test_stable_baselines3_dqn_runs():
     from stable_baselines3 import DQN
 
     env = gymnasium.make("TreasureHunt-v0", size=5, num_treasures=1, complexity=0.1)
-    model = DQN("MlpPolicy", env, learning_starts=50, buffer_size=1_000, batch_size=32,
-                train_freq=4, seed=0, device="cpu")
+    model = DQN(
+        "MlpPolicy", env, learning_starts=50, buffer_size=1_000, batch_size=32, train_freq=4, seed=0, device="cpu"
+    )
     model.learn(total_timesteps=300)
     action, _ = model.predict(env.reset(seed=0)[0], deterministic=True)
     assert env.action_space.contains(int(action))
@@ -201,9 +202,11 @@ def test_human_mode_prints_the_text_frame_at_reset_and_every_step(capsys):
     env.step({"agent_0": 3})  # right: beside the chest
     assert env.render() is None
     frames = capsys.readouterr().out.split("\n\n")
-    assert frames[:3] == ["0.T\n...\nX..\nstep 0/9  live agents: [0]  full chests: 1/1",
-                          ".0T\n...\nX..\nstep 1/9  live agents: [0]  full chests: 1/1",
-                          ".0T\n...\nX..\nstep 1/9  live agents: [0]  full chests: 1/1"]
+    assert frames[:3] == [
+        "0.T\n...\nX..\nstep 0/9  live agents: [0]  full chests: 1/1",
+        ".0T\n...\nX..\nstep 1/9  live agents: [0]  full chests: 1/1",
+        ".0T\n...\nX..\nstep 1/9  live agents: [0]  full chests: 1/1",
+    ]
     single = gymnasium.make("TreasureHunt-v0", layout=layout, render_mode="human")
     single.reset(seed=0)
     single.step(3)

@@ -330,8 +330,9 @@ def _rollout(game: TreasureHuntGame, rng: np.random.Generator, actions: np.ndarr
         if game.done:
             out.append(("reset", game.reset(rng)))
         obs, reward, terminated, truncated, info = game.step(joint)
-        out.append((obs, reward, terminated, truncated, game.live,
-                    info["treasures_collected"], info["trap"], info["live"]))
+        out.append(
+            (obs, reward, terminated, truncated, game.live, info["treasures_collected"], info["trap"], info["live"])
+        )
     return out
 
 
@@ -358,17 +359,14 @@ def _assert_same(got: list, expected: list) -> None:
         ("deliberative", "coords", 2, None),
     ],
 )
-def test_state_dict_round_trip_mid_episode_replays_identically(
-    mode, obs_encoding, view_radius, max_steps
-):
-    settings = dict(mode=mode, obs_encoding=obs_encoding, view_radius=view_radius,
-                    max_steps=max_steps)
+def test_state_dict_round_trip_mid_episode_replays_identically(mode, obs_encoding, view_radius, max_steps):
+    settings = dict(mode=mode, obs_encoding=obs_encoding, view_radius=view_radius, max_steps=max_steps)
     actions = np.random.default_rng(1).integers(0, 4, size=(400, 4))
     game = TreasureHuntGame(parse_layout(SAVE_MAP), **settings)
     rng = np.random.default_rng(7)
     obs = game.reset(rng)
     # Warm up until mid-episode: some agent done, some still live, a step or more in.
-    for step, joint in enumerate(actions[:100]):
+    for step, joint in enumerate(actions[:100]):  # noqa: B007 (step is read after the loop)
         if game.steps >= 2 and 0 < game.live.sum() < 4:
             break
         if game.done:
@@ -378,8 +376,7 @@ def test_state_dict_round_trip_mid_episode_replays_identically(
         pytest.fail("no mid-episode save point in the warm-up")
     saved_text = json.dumps(game.state_dict())  # as a checkpoint would store it
     saved_rng = rng.bit_generator.state
-    at_save = (obs, game.positions, game.live, game.chest_full, game.assignment, game.steps,
-               game.treasures_collected)
+    at_save = (obs, game.positions, game.live, game.chest_full, game.assignment, game.steps, game.treasures_collected)
     expected = _rollout(game, rng, actions[step:])
     assert sum(isinstance(out[0], str) for out in expected) >= 3  # several episodes follow
     assert rng.bit_generator.state != saved_rng  # chest ties were drawn after the save
@@ -388,8 +385,15 @@ def test_state_dict_round_trip_mid_episode_replays_identically(
     restored_rng = np.random.default_rng()
     restored_rng.bit_generator.state = saved_rng
     obs = fresh.load_state_dict(json.loads(saved_text), restored_rng)
-    restored = (obs, fresh.positions, fresh.live, fresh.chest_full, fresh.assignment,
-                fresh.steps, fresh.treasures_collected)
+    restored = (
+        obs,
+        fresh.positions,
+        fresh.live,
+        fresh.chest_full,
+        fresh.assignment,
+        fresh.steps,
+        fresh.treasures_collected,
+    )
     _assert_same([restored], [at_save])
     _assert_same(_rollout(fresh, restored_rng, actions[step:]), expected)
     assert restored_rng.bit_generator.state == rng.bit_generator.state

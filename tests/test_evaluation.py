@@ -26,8 +26,14 @@ from dqn_transfer.analysis.stats import (
     mean_intervals,
     performance_profile,
 )
-from dqn_transfer.analysis.transfer_metrics import asymptotic_performance, jumpstart, mean_curve
-from dqn_transfer.analysis.transfer_metrics import time_to_threshold, total_reward, transfer_ratio
+from dqn_transfer.analysis.transfer_metrics import (
+    asymptotic_performance,
+    jumpstart,
+    mean_curve,
+    time_to_threshold,
+    total_reward,
+    transfer_ratio,
+)
 from dqn_transfer.cli import compare
 from dqn_transfer.storage.run_dir import RunDir
 
@@ -40,8 +46,7 @@ def curve(steps, values):
 
 def make_run(path: Path, returns: list[float], seed: int | None = None, step_every: int = 10) -> Path:
     path.mkdir(parents=True)
-    lines = [json.dumps({"step": i * step_every, "team_return": r, "success_rate": 0.5})
-             for i, r in enumerate(returns)]
+    lines = [json.dumps({"step": i * step_every, "team_return": r, "success_rate": 0.5}) for i, r in enumerate(returns)]
     files = RunDir(path)
     files.metrics.write_text("\n".join(lines) + "\n")
     if seed is not None:
@@ -93,6 +98,7 @@ def test_transfer_ratio_uses_areas_above_the_common_floor():
     # baseline above it: [0, 20, 40] -> 10*(0+20)/2 + 10*(20+40)/2 = 100 + 300 = 400
     # ratio = (700 - 400) / 400 = 0.75
     assert transfer_ratio(transfer, baseline) == pytest.approx(0.75)
+
     # invariant to shifting and scaling every return (e.g. a different step cost offset)
     def rescaled(c):
         return c[0], 2.0 * c[1] + 1000.0
@@ -184,7 +190,7 @@ def test_read_metrics_and_learning_curve(tmp_path: Path):
     RunDir(run).metrics.write_text(
         '{"step": 20, "team_return": -4.0}\n'
         '{"step": 10, "team_return": -9.0}\n'
-        '\n'
+        "\n"
         '{"step": 20, "team_return": -3.0, "success_rate": 1.0}\n'  # resumed run re-evaluated step 20
         '{"step": 30, "team_ret'  # killed mid-write
     )
@@ -194,8 +200,7 @@ def test_read_metrics_and_learning_curve(tmp_path: Path):
         steps, values = learning_curve(run)
     np.testing.assert_array_equal(steps, [10.0, 20.0])
     np.testing.assert_array_equal(values, [-9.0, -3.0])  # the later record of step 20 wins
-    with pytest.warns(UserWarning), pytest.raises(EvaluationError,
-                                                  match="available: success_rate, team_return"):
+    with pytest.warns(UserWarning), pytest.raises(EvaluationError, match="available: success_rate, team_return"):
         learning_curve(run, "episodic_length")
 
 
@@ -218,10 +223,8 @@ def test_mean_curve_uses_the_common_steps():
 @pytest.fixture
 def runs(tmp_path: Path) -> tuple[list[Path], list[Path]]:
     """Evaluations at steps 0, 10, 20; transfer given in reverse seed order to exercise pairing."""
-    baseline = [make_run(tmp_path / "b0", [-60, -40, -20], seed=0),
-                make_run(tmp_path / "b1", [-40, -20, 0], seed=1)]
-    transfer = [make_run(tmp_path / "t1", [-10, 0, 10], seed=1),
-                make_run(tmp_path / "t0", [-30, -10, 0], seed=0)]
+    baseline = [make_run(tmp_path / "b0", [-60, -40, -20], seed=0), make_run(tmp_path / "b1", [-40, -20, 0], seed=1)]
+    transfer = [make_run(tmp_path / "t1", [-10, 0, 10], seed=1), make_run(tmp_path / "t0", [-30, -10, 0], seed=0)]
     return transfer, baseline
 
 
@@ -290,9 +293,11 @@ def test_compare_runs_without_threshold_and_with_unequal_counts(runs):
 
 
 def test_format_table():
-    results = {"jumpstart": {"mean": 30.0, "low": 20.0, "high": 40.0, "n": 2},
-               "transfer_ratio": {"mean": 0.5, "low": 0.5, "high": 0.5, "n": 3},
-               "time_to_threshold/baseline": {"mean": 20.0, "low": math.nan, "high": math.nan, "n": 1}}
+    results = {
+        "jumpstart": {"mean": 30.0, "low": 20.0, "high": 40.0, "n": 2},
+        "transfer_ratio": {"mean": 0.5, "low": 0.5, "high": 0.5, "n": 3},
+        "time_to_threshold/baseline": {"mean": 20.0, "low": math.nan, "high": math.nan, "n": 1},
+    }
     assert format_table(results) == (
         "| metric | mean | 95% CI | n |\n"
         "|---|---:|---:|---:|\n"
@@ -313,8 +318,20 @@ def test_cli_prints_the_table(runs, capsys):
 
 def test_cli_missing_dir_is_one_error_line(tmp_path: Path):
     result = subprocess.run(
-        [sys.executable, "-m", "dqn_transfer.cli.compare", "--transfer", str(tmp_path / "nope"),
-         "--baseline", str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=60)
+        [
+            sys.executable,
+            "-m",
+            "dqn_transfer.cli.compare",
+            "--transfer",
+            str(tmp_path / "nope"),
+            "--baseline",
+            str(tmp_path),
+        ],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert result.returncode == 1
     assert "Traceback" not in result.stderr
     assert result.stderr.splitlines() == [f"error: {tmp_path / 'nope'}: no such directory"]
@@ -333,8 +350,16 @@ def test_cli_skips_what_is_not_a_run_and_says_why(runs, tmp_path: Path, capsys):
     started = _not_yet_evaluated(tmp_path / "started")  # a job still before its first evaluation
     empty = _not_yet_evaluated(tmp_path / "empty")
     RunDir(empty).metrics.write_text("")
-    args = ["--transfer", *map(str, transfer), str(started), "--baseline", *map(str, baseline), str(empty),
-            "--threshold", "-5"]
+    args = [
+        "--transfer",
+        *map(str, transfer),
+        str(started),
+        "--baseline",
+        *map(str, baseline),
+        str(empty),
+        "--threshold",
+        "-5",
+    ]
     assert compare.main(args) == 0
     captured = capsys.readouterr()
     # The same numbers as without the two directories (test_compare_runs_by_hand): nothing mixed in.
@@ -395,13 +420,18 @@ def test_the_vectorised_stratified_bootstrap_gives_rliables_own_intervals():
     data = np.random.default_rng(7)
     x, y = data.normal(0.3, 1.0, size=(6, 3)), data.normal(0.0, 1.0, size=(6, 3))  # 6 runs x 3 maps
     ours = improvement_probability(x, y, np.random.default_rng(1))
-    point, ci = rly.get_interval_estimates({"p": (x, y)}, lambda a, b: np.array([rlm.probability_of_improvement(a, b)]),
-                                           reps=2000, random_state=np.random.RandomState(1))
+    point, ci = rly.get_interval_estimates(
+        {"p": (x, y)},
+        lambda a, b: np.array([rlm.probability_of_improvement(a, b)]),
+        reps=2000,
+        random_state=np.random.RandomState(1),
+    )
     assert ours.mean == pytest.approx(point["p"][0])
     assert (ours.low, ours.high) == pytest.approx((ci["p"][0, 0], ci["p"][1, 0]), abs=0.03)
     ours = iqm(x, np.random.default_rng(2))
-    point, ci = rly.get_interval_estimates({"i": x}, lambda a: np.array([rlm.aggregate_iqm(a)]), reps=2000,
-                                           random_state=np.random.RandomState(2))
+    point, ci = rly.get_interval_estimates(
+        {"i": x}, lambda a: np.array([rlm.aggregate_iqm(a)]), reps=2000, random_state=np.random.RandomState(2)
+    )
     assert ours.mean == pytest.approx(point["i"][0])
     assert (ours.low, ours.high) == pytest.approx((ci["i"][0, 0], ci["i"][1, 0]), abs=0.06)
 

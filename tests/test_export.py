@@ -14,16 +14,16 @@ import numpy as np
 import pytest
 import torch
 import yaml
-
 from conftest import reference_mlp, run_train
-from dqn_transfer.sharing import model_card
-from dqn_transfer.storage.checkpoint import load_agent_checkpoint
+
 from dqn_transfer.cli.ckpt import main as ckpt
 from dqn_transfer.cli.play import main as play
 from dqn_transfer.config import AgentConfig, TrainConfig, TransferConfig
 from dqn_transfer.envs import generate_layout
 from dqn_transfer.envs.settings import EnvConfig
+from dqn_transfer.sharing import model_card
 from dqn_transfer.sources.resolve import transfer_sources
+from dqn_transfer.storage.checkpoint import load_agent_checkpoint
 from dqn_transfer.training.trainer import train
 
 ENV = EnvConfig(size=4, num_treasures=1, num_traps=1, num_agents=2, complexity=0.0, map_seed=0)
@@ -65,9 +65,12 @@ def exported(run, tmp_path_factory) -> Path:
 def test_the_folder_holds_the_agents_map_gif_and_card(run, exported):
     assert {p.name for p in exported.iterdir()} == EXPORTED
     for i in (0, 1):  # byte for byte the run's files
-        assert (exported / f"agent_{i}.safetensors").read_bytes() == (run / "checkpoints" / f"agent_{i}.safetensors").read_bytes()
-    assert (exported / "map.txt").read_text() == generate_layout(4, num_treasures=1, num_traps=1, num_agents=2,
-                                                                  complexity=0.0, seed=0) + "\n"
+        assert (exported / f"agent_{i}.safetensors").read_bytes() == (
+            run / "checkpoints" / f"agent_{i}.safetensors"
+        ).read_bytes()
+    assert (exported / "map.txt").read_text() == generate_layout(
+        4, num_treasures=1, num_traps=1, num_agents=2, complexity=0.0, seed=0
+    ) + "\n"
     meta = front_matter((exported / "README.md").read_text())
     assert meta["library_name"] == "dqn-transfer"
     assert {"reinforcement-learning", "multi-agent", "dqn"} <= set(meta["tags"])
@@ -89,8 +92,13 @@ def test_the_card_metrics_are_what_play_measures_with_the_stated_seeds(exported,
 
 
 def test_a_new_run_warm_starts_from_the_folder_with_the_same_q_values(exported, tmp_path):
-    config = TrainConfig(env=ENV, agent=AgentConfig(algorithm="dqn", hidden=[16]), total_steps=0, progress=False,
-                         transfer=TransferConfig(enabled=True, source=str(exported)))
+    config = TrainConfig(
+        env=ENV,
+        agent=AgentConfig(algorithm="dqn", hidden=[16]),
+        total_steps=0,
+        progress=False,
+        transfer=TransferConfig(enabled=True, source=str(exported)),
+    )
     train(config, tmp_path / "warm", sources=transfer_sources(config, tmp_path))
     source = q_values(exported / "agent_0.safetensors")
     fresh = q_values(tmp_path / "warm" / "checkpoints" / "agent_0.safetensors")
@@ -115,8 +123,10 @@ def test_a_failed_write_leaves_nothing(run, tmp_path, monkeypatch, capsys):
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize("case", ["missing_run", "not_a_run", "non_empty_out", "out_is_file", "out_parent_missing",
-                                  "no_out", "out_with_list"])
+@pytest.mark.parametrize(
+    "case",
+    ["missing_run", "not_a_run", "non_empty_out", "out_is_file", "out_parent_missing", "no_out", "out_with_list"],
+)
 def test_bad_input_is_one_error_line_and_leaves_nothing(case, run, tmp_path, capsys):
     (tmp_path / "full").mkdir()
     (tmp_path / "full" / "notes.txt").write_text("mine")
@@ -142,25 +152,44 @@ def test_bad_input_is_one_error_line_and_leaves_nothing(case, run, tmp_path, cap
 def test_export_then_the_cards_own_command_warm_starts(run, tmp_path):
     """From the command line, as a user would: export, then paste the card's warm-start command."""
     out = tmp_path / "team"
-    proc = subprocess.run([sys.executable, "-m", "dqn_transfer.cli.ckpt", "export", str(run), str(out)],
-                          capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-m", "dqn_transfer.cli.ckpt", "export", str(run), str(out)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 0, proc.stderr
     card = (out / "README.md").read_text()
     command = next(line for line in card.splitlines() if line.startswith("python train.py "))
     overrides = shlex.split(command.replace("$FOLDER", str(out)))[2:]
     assert "env.layout_file=" + str(out / "map.txt") in overrides
     run_train(tmp_path, *overrides, "total_steps=0", run_dir=tmp_path / "warm")
-    assert torch.equal(q_values(tmp_path / "warm" / "checkpoints" / "agent_0.safetensors"),
-                       q_values(out / "agent_0.safetensors"))
+    assert torch.equal(
+        q_values(tmp_path / "warm" / "checkpoints" / "agent_0.safetensors"), q_values(out / "agent_0.safetensors")
+    )
 
 
 def test_the_cards_command_names_every_rule_that_differs_from_the_default(tmp_path):
-    env = EnvConfig(size=4, num_treasures=1, num_traps=1, num_agents=2, complexity=0.0, view_radius=1, reward_mode="team")
-    train(TrainConfig(env=env, agent=AgentConfig(algorithm="double_dqn", hidden=[8, 8]), total_steps=0, progress=False),
-          tmp_path / "run")
+    env = EnvConfig(
+        size=4, num_treasures=1, num_traps=1, num_agents=2, complexity=0.0, view_radius=1, reward_mode="team"
+    )
+    train(
+        TrainConfig(env=env, agent=AgentConfig(algorithm="double_dqn", hidden=[8, 8]), total_steps=0, progress=False),
+        tmp_path / "run",
+    )
     assert ckpt(["export", str(tmp_path / "run"), str(tmp_path / "team")]) == 0
-    command = next(line for line in (tmp_path / "team" / "README.md").read_text().splitlines()
-                   if line.startswith("python train.py "))
-    assert shlex.split(command)[2:] == ["agent=double_dqn", "mode=competitive", "transfer=on", "transfer.source=$FOLDER",
-                                        "env.layout_file=$FOLDER/map.txt", "env.reward_mode=team", "env.view_radius=1",
-                                        "agent.hidden=[8,8]"]
+    command = next(
+        line
+        for line in (tmp_path / "team" / "README.md").read_text().splitlines()
+        if line.startswith("python train.py ")
+    )
+    assert shlex.split(command)[2:] == [
+        "agent=double_dqn",
+        "mode=competitive",
+        "transfer=on",
+        "transfer.source=$FOLDER",
+        "env.layout_file=$FOLDER/map.txt",
+        "env.reward_mode=team",
+        "env.view_radius=1",
+        "agent.hidden=[8,8]",
+    ]

@@ -10,8 +10,8 @@ import sys
 from pathlib import Path
 
 import pytest
-
 from conftest import TRAIN_PY, train_env
+
 from dqn_transfer.config import TrainConfig
 from dqn_transfer.config.help import help_text
 from dqn_transfer.documented import describe, documented
@@ -37,35 +37,50 @@ def key_line(page: str, key: str) -> str:
 def test_help_names_every_schema_key_with_its_own_description():
     page = help_text("python train.py")
     keys = schema_fields(TrainConfig)
-    assert len(keys) == 63 and {"agent.lr", "agent.engine", "env.size", "transfer.source", "transfer.source_task",
-                                "transfer.source_map_shift", "replicas.seeds", "threads"} <= set(keys)
+    assert len(keys) == 63 and {
+        "agent.lr",
+        "agent.engine",
+        "env.size",
+        "transfer.source",
+        "transfer.source_task",
+        "transfer.source_map_shift",
+        "replicas.seeds",
+        "threads",
+    } <= set(keys)
     for key, f in keys.items():
         line = key_line(page, key)
         assert f.metadata["help"] in line, line
 
 
-@pytest.mark.parametrize("key, description, default", [
-    ("agent.lr", "Adam step size (DQN) or alpha (tabular)", "0.001"),
-    ("env.size", "grid side n", "6"),
-    ("env.num_traps", "traps; null: k", "null"),
-    ("agent.hidden", "MLP hidden sizes", "[64,64]"),
-    ("env.mode", "how `treasures` is kept", "competitive"),
-    ("agent.share_parameters", "parameter-sharing baseline", "false"),
-    ("total_steps", "joint env steps", "20000"),
-])
+@pytest.mark.parametrize(
+    "key, description, default",
+    [
+        ("agent.lr", "Adam step size (DQN) or alpha (tabular)", "0.001"),
+        ("env.size", "grid side n", "6"),
+        ("env.num_traps", "traps; null: k", "null"),
+        ("agent.hidden", "MLP hidden sizes", "[64,64]"),
+        ("env.mode", "how `treasures` is kept", "competitive"),
+        ("agent.share_parameters", "parameter-sharing baseline", "false"),
+        ("total_steps", "joint env steps", "20000"),
+    ],
+)
 def test_a_key_line_reads_key_description_default(key, description, default):
     line = key_line(help_text("python train.py"), key)
-    assert re.fullmatch(rf"\s+{re.escape(key)}\s+.*{re.escape(description)}.*\s\s\(default {re.escape(default)}\)", line)
+    assert re.fullmatch(
+        rf"\s+{re.escape(key)}\s+.*{re.escape(description)}.*\s\s\(default {re.escape(default)}\)", line
+    )
 
 
 def test_help_shows_the_menu_with_its_defaults():
     page = help_text("dqn-transfer-train")
     assert page.startswith("usage: dqn-transfer-train [group=option ...] [key=value ...]")
-    menu = page[page.index("Config groups"):page.index("Keys")]
-    for group, options, default in [("agent", ["double_dqn", "dqn", "qlearning", "sarsa"], "double_dqn"),
-                                    ("env", ["complex", "simple"], "simple"),
-                                    ("mode", ["competitive", "cooperative", "deliberative"], "competitive"),
-                                    ("transfer", ["off", "on"], "off")]:
+    menu = page[page.index("Config groups") : page.index("Keys")]
+    for group, options, default in [
+        ("agent", ["double_dqn", "dqn", "qlearning", "sarsa"], "double_dqn"),
+        ("env", ["complex", "simple"], "simple"),
+        ("mode", ["competitive", "cooperative", "deliberative"], "competitive"),
+        ("transfer", ["off", "on"], "off"),
+    ]:
         assert f"  {group}:\n" in menu
         for option in options:
             assert re.search(rf"^   {'[*]' if option == default else ' '}{option}\s+\S", menu, re.M), option
@@ -88,12 +103,15 @@ def test_a_schema_key_without_a_description_is_refused():
 def test_train_py_and_the_console_script_print_it_without_running(tmp_path):
     script = shutil.which("dqn-transfer-train", path=str(Path(sys.executable).parent))
     assert script, "the console script is installed with the package (pip install -e .)"
-    for command, program in [([sys.executable, str(TRAIN_PY), "--help"], f"python {TRAIN_PY}"),
-                             ([script, "agent=sarsa", "--help"], "dqn-transfer-train")]:
+    for command, program in [
+        ([sys.executable, str(TRAIN_PY), "--help"], f"python {TRAIN_PY}"),
+        ([script, "agent=sarsa", "--help"], "dqn-transfer-train"),
+    ]:
         proc = subprocess.run(command, cwd=tmp_path, env=train_env(), capture_output=True, text=True, timeout=120)
         assert proc.returncode == 0, proc.stderr
         assert proc.stdout.startswith(f"usage: {program} ")
-        assert re.search(r"^\s+agent\.lr\s+Adam step size \(DQN\) or alpha \(tabular\)\s+\(default 0\.001\)$",
-                         proc.stdout, re.M)
+        assert re.search(
+            r"^\s+agent\.lr\s+Adam step size \(DQN\) or alpha \(tabular\)\s+\(default 0\.001\)$", proc.stdout, re.M
+        )
         assert "== Config ==" not in proc.stdout  # not Hydra's generic page
     assert list(tmp_path.iterdir()) == []  # no run started, no outputs/

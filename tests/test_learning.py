@@ -19,8 +19,8 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from dqn_transfer.config import CONFIG_DIR, register_configs
 from dqn_transfer.analysis.runs import read_metrics
+from dqn_transfer.config import CONFIG_DIR, register_configs
 from dqn_transfer.training.trainer import train
 
 CONF_DIR = str(CONFIG_DIR)
@@ -34,8 +34,9 @@ pytestmark = [pytest.mark.slow, pytest.mark.filterwarnings("ignore:a layout fixe
 
 def run(tmp_path: Path, *overrides: str) -> list[dict]:
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        cfg = compose(config_name="config", overrides=[
-            "progress=false", "eval_every=500", "eval_episodes=1", *overrides])
+        cfg = compose(
+            config_name="config", overrides=["progress=false", "eval_every=500", "eval_episodes=1", *overrides]
+        )
     cfg.env.layout = LAYOUT
     train(OmegaConf.to_object(cfg), tmp_path)
     return read_metrics(tmp_path)
@@ -58,9 +59,18 @@ def test_double_dqn_finds_the_shortest_path(tmp_path):
 def test_qlearning_team_collects_both_chests(tmp_path, mode):
     """Two agents, two chests, each chest 3 moves from one agent: 2 * (2 * -1 + 100) = 196."""
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        cfg = compose(config_name="config", overrides=[
-            "progress=false", "eval_every=1000", "eval_episodes=1", "agent=qlearning",
-            f"mode={mode}", "total_steps=4000", "seed=0"])
+        cfg = compose(
+            config_name="config",
+            overrides=[
+                "progress=false",
+                "eval_every=1000",
+                "eval_episodes=1",
+                "agent=qlearning",
+                f"mode={mode}",
+                "total_steps=4000",
+                "seed=0",
+            ],
+        )
     cfg.env.layout = "0..T\n....\n....\n1..T"
     train(OmegaConf.to_object(cfg), tmp_path)
     final = read_metrics(tmp_path)[-1]

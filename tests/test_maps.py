@@ -65,7 +65,9 @@ def test_generated_maps_obey_every_rule():
     for (size, k, traps, agents, rc), seed in itertools.product(GRID, range(4)):
         text = generate_layout(size, k, traps, agents, rc, seed=seed)
         assert_map_rules(
-            text, size, k,
+            text,
+            size,
+            k,
             k if traps is None else traps,
             k if agents is None else agents,
             round(rc * size * size),
@@ -99,7 +101,10 @@ def test_same_seed_same_map_and_round_trip():
     grid_map = parse_layout(a)
     assert grid_map.layout == a
     assert (grid_map.size, grid_map.num_treasures, grid_map.num_traps, grid_map.num_agents) == (
-        9, 3, 2, 4,
+        9,
+        3,
+        2,
+        4,
     )
     for seed in range(50):
         text = generate_layout(6, 2, 1, 3, 0.15, seed=seed)
@@ -140,10 +145,8 @@ def test_distances_avoid_obstacles_and_traps():
         ("..T\n...\n...", "no agent start"),
         ("0..\n...\n...", "no treasure chest"),
         ("0.#.\n..#T\n###.\n....", "closed area: cell at row 0, col 3"),
-        ("0.....\n......\n..T...\n...X..\n......\n......",
-         "trap at row 3, col 3 is beside treasure at row 2, col 2"),
-        ("0....\n.....\n..#X#\n..#..\n..#.T",
-         "treasure at row 4, col 4 is unreachable from start 0 at row 0, col 0"),
+        ("0.....\n......\n..T...\n...X..\n......\n......", "trap at row 3, col 3 is beside treasure at row 2, col 2"),
+        ("0....\n.....\n..#X#\n..#..\n..#.T", "treasure at row 4, col 4 is unreachable from start 0 at row 0, col 0"),
     ],
 )
 def test_bad_layouts_name_the_rule(layout, match):
@@ -194,8 +197,7 @@ def test_resolve_map_generates_from_map_seed():
 def test_layout_wins_with_one_warning_naming_differing_params():
     layout = "0.T\n...\n..."
     with pytest.warns(UserWarning) as record:
-        grid_map = resolve_map(size=10, num_treasures=1, num_traps=2, complexity=0.0,
-                               map_seed=5, layout=layout)
+        grid_map = resolve_map(size=10, num_treasures=1, num_traps=2, complexity=0.0, map_seed=5, layout=layout)
     assert grid_map.layout == layout
     assert len(record) == 1
     message = str(record[0].message)
@@ -268,8 +270,14 @@ def test_optimal_return_is_none_with_more_agents_than_chests():
 
 def test_optimal_return_is_none_when_a_chest_cannot_be_reached():
     # not a valid map (parse_layout refuses it): the chest at (0,2) is walled off from the start
-    walled = GridMap(size=3, rows=("0#T", ".##", "..."), chests=((0, 2),), traps=(), starts=((0, 0),),
-                     obstacles=frozenset({(0, 1), (1, 1), (1, 2)}))
+    walled = GridMap(
+        size=3,
+        rows=("0#T", ".##", "..."),
+        chests=((0, 2),),
+        traps=(),
+        starts=((0, 0),),
+        obstacles=frozenset({(0, 1), (1, 1), (1, 2)}),
+    )
     assert optimal_team_return(walled, 1) is None
 
 
@@ -291,7 +299,7 @@ def exhaustive_optimum(text: str, num_agents: int, max_steps: int) -> float:
             return cell
         return starts[agent] if rows[r][c] == "#" else (r, c)
 
-    @functools.lru_cache(maxsize=None)
+    @functools.cache
     def value(t, pos, live, full):
         if not any(live) or t == max_steps:
             return 0.0

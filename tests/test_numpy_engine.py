@@ -22,15 +22,36 @@ D, A = 7, 4
 
 def transitions(num_rows: int, n: int, seed: int = 0) -> list[Transition]:
     rng = np.random.default_rng(seed)
-    return [Transition(rng.random((num_rows, D), dtype=np.float32), rng.integers(0, A, num_rows),
-                       rng.normal(size=num_rows).astype(np.float32), rng.random((num_rows, D), dtype=np.float32),
-                       rng.random(num_rows) < 0.2, np.zeros(num_rows, bool), rng.random(num_rows) < 0.9)
-            for _ in range(n)]
+    return [
+        Transition(
+            rng.random((num_rows, D), dtype=np.float32),
+            rng.integers(0, A, num_rows),
+            rng.normal(size=num_rows).astype(np.float32),
+            rng.random((num_rows, D), dtype=np.float32),
+            rng.random(num_rows) < 0.2,
+            np.zeros(num_rows, bool),
+            rng.random(num_rows) < 0.9,
+        )
+        for _ in range(n)
+    ]
 
 
 def agent(**kwargs) -> AgentConfig:
-    return AgentConfig(**{**dict(algorithm=Algorithm.double_dqn, hidden=[16, 16], batch_size=8, buffer_size=64,
-                                 learning_starts=4, lr=1e-2, target_update=5, tau=0.5), **kwargs})
+    return AgentConfig(
+        **{
+            **dict(
+                algorithm=Algorithm.double_dqn,
+                hidden=[16, 16],
+                batch_size=8,
+                buffer_size=64,
+                learning_starts=4,
+                lr=1e-2,
+                target_update=5,
+                tau=0.5,
+            ),
+            **kwargs,
+        }
+    )
 
 
 def engines(num_agents: int, **kwargs) -> tuple[DQNLearner, NumpyDQNLearner]:
@@ -43,9 +64,15 @@ def engines(num_agents: int, **kwargs) -> tuple[DQNLearner, NumpyDQNLearner]:
     return torch_learner, numpy_learner
 
 
-@pytest.mark.parametrize("setting", [
-    dict(algorithm=Algorithm.dqn), dict(), dict(share_parameters=True), dict(max_grad_norm=0.05),
-])
+@pytest.mark.parametrize(
+    "setting",
+    [
+        dict(algorithm=Algorithm.dqn),
+        dict(),
+        dict(share_parameters=True),
+        dict(max_grad_norm=0.05),
+    ],
+)
 def test_numpy_updates_are_the_torch_engines_to_float32_rounding(setting):
     """Same weights, same transitions, same replay draws: 40 updates later the networks, targets, Adam
     moments and statistics agree to float32 rounding (they are computed by other kernels)."""

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import always_acting_team, train_env
 from PIL import Image
 
-from conftest import always_acting_team, train_env
 from dqn_transfer.cli.play import main as play
 from dqn_transfer.envs import make_game
 from dqn_transfer.evaluation.watch import map_picture
@@ -88,8 +88,20 @@ def test_a_lone_agent_file_drives_every_agent_of_its_map(team, capsys):
     assert "episode 1: 9 steps, team return 90" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("case", ["missing", "not_a_run", "gif_dir_missing", "gif_is_dir", "gif_under_file",
-                                  "episodes_zero", "episodes_negative", "replicas", "pickle"])
+@pytest.mark.parametrize(
+    "case",
+    [
+        "missing",
+        "not_a_run",
+        "gif_dir_missing",
+        "gif_is_dir",
+        "gif_under_file",
+        "episodes_zero",
+        "episodes_negative",
+        "replicas",
+        "pickle",
+    ],
+)
 def test_bad_input_is_one_error_line_and_leaves_nothing(case, team, tmp_path, capsys):
     gif = tmp_path / "out.gif"
     args = {
@@ -113,11 +125,17 @@ def test_bad_input_is_one_error_line_and_leaves_nothing(case, team, tmp_path, ca
     captured = capsys.readouterr()
     lines = captured.err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: "), captured.err
-    expected = {"missing": "no such file or directory", "not_a_run": "no agent_*.safetensors",
-                "gif_dir_missing": "does not exist", "gif_is_dir": "is a directory",
-                "gif_under_file": "does not exist", "episodes_zero": "--episodes must be >= 1, got 0",
-                "episodes_negative": "--episodes must be >= 1, got -2", "replicas": "run of 2 replicas",
-                "pickle": "refusing to load it"}[case]
+    expected = {
+        "missing": "no such file or directory",
+        "not_a_run": "no agent_*.safetensors",
+        "gif_dir_missing": "does not exist",
+        "gif_is_dir": "is a directory",
+        "gif_under_file": "does not exist",
+        "episodes_zero": "--episodes must be >= 1, got 0",
+        "episodes_negative": "--episodes must be >= 1, got -2",
+        "replicas": "run of 2 replicas",
+        "pickle": "refusing to load it",
+    }[case]
     assert expected in lines[0]
     assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before
     assert not gif.exists()
@@ -133,5 +151,7 @@ def test_the_console_script_and_the_module_play(team, tmp_path):
         assert proc.returncode == 0, proc.stderr
         assert "episode 1: 9 steps, team return 90" in proc.stdout
     assert len(gif_frames(gif)) == 10
-    proc = subprocess.run([script, str(tmp_path / "nope")], env=train_env(), capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [script, str(tmp_path / "nope")], env=train_env(), capture_output=True, text=True, timeout=120
+    )
     assert proc.returncode == 1 and proc.stderr.startswith("error: ") and "Traceback" not in proc.stderr

@@ -15,24 +15,35 @@ from safetensors.numpy import load_file
 
 from dqn_transfer.agents import DQNLearner, Transition
 from dqn_transfer.analysis.runs import find_run_dirs, load_config
-from dqn_transfer.storage.checkpoint import CheckpointError, find_checkpoints
 from dqn_transfer.config import AgentConfig, ConfigError, ReplicasConfig, TrainConfig, TransferConfig, validate
 from dqn_transfer.enums import Algorithm, Mode
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.sources.resolve import resolve_source
+from dqn_transfer.storage.checkpoint import CheckpointError, find_checkpoints
 from dqn_transfer.training.trainer import Trainer
 
 ENV = EnvConfig(size=5, num_treasures=2, complexity=0.1, map_seed=3, mode=Mode.cooperative)
-DQN = AgentConfig(algorithm=Algorithm.double_dqn, hidden=[16], batch_size=8, learning_starts=40, buffer_size=500,
-                  target_update=30, train_freq=2)
+DQN = AgentConfig(
+    algorithm=Algorithm.double_dqn,
+    hidden=[16],
+    batch_size=8,
+    learning_starts=40,
+    buffer_size=500,
+    target_update=30,
+    train_freq=2,
+)
 
 
-def config(agent: AgentConfig = DQN, seeds: int = 1, maps: int = 1, seed: int = 4, map_seed: int = 3,
-           **top) -> TrainConfig:
-    return TrainConfig(env=dataclasses.replace(ENV, map_seed=map_seed), agent=agent, seed=seed,
-                       replicas=ReplicasConfig(seeds=seeds, maps=maps),
-                       **{**dict(total_steps=240, eval_every=80, eval_episodes=2, checkpoint_every=100,
-                                 progress=False), **top})
+def config(
+    agent: AgentConfig = DQN, seeds: int = 1, maps: int = 1, seed: int = 4, map_seed: int = 3, **top
+) -> TrainConfig:
+    return TrainConfig(
+        env=dataclasses.replace(ENV, map_seed=map_seed),
+        agent=agent,
+        seed=seed,
+        replicas=ReplicasConfig(seeds=seeds, maps=maps),
+        **{**dict(total_steps=240, eval_every=80, eval_episodes=2, checkpoint_every=100, progress=False), **top},
+    )
 
 
 def run_files(run_dir: Path) -> dict[str, object]:
@@ -53,9 +64,11 @@ def assert_same_run(a: Path, b: Path) -> None:
             assert value == files_b[name], name
 
 
-@pytest.mark.parametrize("agent", [dataclasses.replace(DQN, learning_starts=10_000), DQN,
-                                   AgentConfig(algorithm=Algorithm.sarsa, lr=0.1)],
-                         ids=["dqn_nothing_learned", "dqn_learning", "sarsa"])
+@pytest.mark.parametrize(
+    "agent",
+    [dataclasses.replace(DQN, learning_starts=10_000), DQN, AgentConfig(algorithm=Algorithm.sarsa, lr=0.1)],
+    ids=["dqn_nothing_learned", "dqn_learning", "sarsa"],
+)
 def test_each_replica_is_the_lone_run_of_its_seed_and_map(tmp_path, agent):
     """2 seeds x 2 maps: every replica's evaluations, agent files and resume state are those of the lone
     run with its seed and map seed. Bit for bit, learning included: on the CPU each member's batched
@@ -74,16 +87,21 @@ def test_changing_one_replicas_data_leaves_the_others_updates_bit_identical():
     rng = np.random.default_rng(0)
     d, k, steps = 6, 2, 60
     same_half = [rng.random((k, d), dtype=np.float32) for _ in range(steps)]
-    learners = [DQNLearner(k, [("position", d)], 3, dataclasses.replace(DQN, learning_starts=4), seed=[1, 2])
-                for _ in range(2)]
+    learners = [
+        DQNLearner(k, [("position", d)], 3, dataclasses.replace(DQN, learning_starts=4), seed=[1, 2]) for _ in range(2)
+    ]
     for trial, learner in enumerate(learners):
         data = np.random.default_rng(100 + trial)  # replica 0's data differs between the two batches
         for step in range(1, steps + 1):
             obs = np.concatenate([data.random((k, d), dtype=np.float32), same_half[step - 1]])
             actions = learner.act(obs, np.ones(2 * k, bool), epsilon=0.5)
             rewards = np.concatenate([data.normal(size=k), np.linspace(-1, 1, k)]).astype(np.float32)
-            learner.update(Transition(obs, actions, rewards, 1.0 - obs, np.zeros(2 * k, bool),
-                                      np.zeros(2 * k, bool), np.ones(2 * k, bool)), step)
+            learner.update(
+                Transition(
+                    obs, actions, rewards, 1.0 - obs, np.zeros(2 * k, bool), np.zeros(2 * k, bool), np.ones(2 * k, bool)
+                ),
+                step,
+            )
     assert learners[0].num_gradient_steps > 20
     replica_1 = [learner.replica(1) for learner in learners]
     for i in range(k):
@@ -131,8 +149,10 @@ def test_a_replica_directory_reads_like_a_lone_run(tmp_path):
 
     files = find_checkpoints(batch)  # every replica's agent files, replica by replica
     assert [f"{f.parent.parent.name}/{f.name}" for f in files] == [
-        f"{name}/agent_{i}.safetensors" for name in ("seed_4-map_3", "seed_5-map_3", "seed_4-map_4", "seed_5-map_4")
-        for i in range(2)]
+        f"{name}/agent_{i}.safetensors"
+        for name in ("seed_4-map_3", "seed_5-map_3", "seed_4-map_4", "seed_5-map_4")
+        for i in range(2)
+    ]
     with pytest.raises(CheckpointError, match="is a run of 4 replicas: pass one replica's directory"):
         resolve_source(TransferConfig(enabled=True, source=str(batch)), tmp_path, 1)
 
@@ -144,7 +164,9 @@ def test_a_replica_directory_reads_like_a_lone_run(tmp_path):
         assert rep.transfer_info["targets"] == [0, 1]
         for i in range(2):
             got = rep.learner.agent_tensors(i)["q.layers.0.weight"]
-            assert np.array_equal(got, load_file(str(source / "checkpoints" / "agent_0.safetensors"))["q.layers.0.weight"])
+            assert np.array_equal(
+                got, load_file(str(source / "checkpoints" / "agent_0.safetensors"))["q.layers.0.weight"]
+            )
 
 
 def test_replicas_of_maps_need_a_generated_map():

@@ -15,11 +15,10 @@ from omegaconf import OmegaConf
 from dqn_transfer.analysis.plots import group_runs
 from dqn_transfer.analysis.runs import find_run_dirs
 from dqn_transfer.cli import plot, report
-from dqn_transfer.experiments import sweeps
 from dqn_transfer.config import CONFIG_DIR, register_configs, validate
 from dqn_transfer.enums import Algorithm, Mode
 from dqn_transfer.enums import values as enum_values
-from dqn_transfer.experiments import claims
+from dqn_transfer.experiments import claims, sweeps
 from dqn_transfer.experiments.claims import slope
 from dqn_transfer.experiments.raw_data import RunData, export_sweep, read_data, write_data, write_manifest
 from dqn_transfer.experiments.report import write_report
@@ -46,23 +45,44 @@ def _seed_noise(seed: int) -> np.ndarray:
     return np.random.default_rng(seed).normal(0.0, 3.0, size=STEPS.size)
 
 
-def _write_run(run_dir: Path, values: np.ndarray, *, seed: int, mode: str = COMPETITIVE, agents: int = 2,
-               treasures: int = 1, algorithm: str = Algorithm.sarsa.value, transfer: bool = False,
-               success: np.ndarray | None = None) -> None:
+def _write_run(
+    run_dir: Path,
+    values: np.ndarray,
+    *,
+    seed: int,
+    mode: str = COMPETITIVE,
+    agents: int = 2,
+    treasures: int = 1,
+    algorithm: str = Algorithm.sarsa.value,
+    transfer: bool = False,
+    success: np.ndarray | None = None,
+) -> None:
     """A run directory as the trainer leaves it: .hydra/config.yaml + metrics.jsonl."""
     files = RunDir(run_dir)
     files.hydra_dir.mkdir(parents=True)
     config = {
-        "seed": seed, "total_steps": int(STEPS[-1]), "eval_every": 100, "eval_episodes": 5,
-        "env": {"size": 6, "num_treasures": treasures, "num_traps": 1, "num_agents": agents, "mode": mode,
-                "layout": None, "layout_file": None},
+        "seed": seed,
+        "total_steps": int(STEPS[-1]),
+        "eval_every": 100,
+        "eval_episodes": 5,
+        "env": {
+            "size": 6,
+            "num_treasures": treasures,
+            "num_traps": 1,
+            "num_agents": agents,
+            "mode": mode,
+            "layout": None,
+            "layout_file": None,
+        },
         "agent": {"algorithm": algorithm, "eps_start": 1.0},
         "transfer": {"enabled": transfer, "source": None, "pretrain_steps": 500, "epsilon_start": 0.3},
     }
     files.config.write_text(yaml.safe_dump(config))
     success = np.clip(values / 100.0, 0, 1) if success is None else success
-    lines = [json.dumps({"step": int(s), "team_return": float(v), "success_rate": float(p)})
-             for s, v, p in zip(STEPS, values, success)]
+    lines = [
+        json.dumps({"step": int(s), "team_return": float(v), "success_rate": float(p)})
+        for s, v, p in zip(STEPS, values, success)
+    ]
     files.metrics.write_text("\n".join(lines) + "\n")
 
 
@@ -71,19 +91,44 @@ def _write_run(run_dir: Path, values: np.ndarray, *, seed: int, mode: str = COMP
 MAPS, RUN_SEEDS = range(5), range(2)
 
 
-def _record(experiment: str, name: str, values: np.ndarray, *, map_seed: int, seed: int, algorithm: str = "sarsa",
-            mode: str = COOPERATIVE, agents: int = 2, exchange: str = "none", share: bool = False,
-            transfer: bool = False, eps_start: float = 1.0, steps_before: int = 0, optimum: float | None = 100.0,
-            curriculum: dict | None = None, **transfer_keys) -> RunData:
+def _record(
+    experiment: str,
+    name: str,
+    values: np.ndarray,
+    *,
+    map_seed: int,
+    seed: int,
+    algorithm: str = "sarsa",
+    mode: str = COOPERATIVE,
+    agents: int = 2,
+    exchange: str = "none",
+    share: bool = False,
+    transfer: bool = False,
+    eps_start: float = 1.0,
+    steps_before: int = 0,
+    optimum: float | None = 100.0,
+    curriculum: dict | None = None,
+    **transfer_keys,
+) -> RunData:
     """One run's raw data as the export writes it (only the config keys the report reads)."""
-    config = {"seed": seed, "total_steps": int(STEPS[-1]), "eval_every": 100, "eval_episodes": 5,
-              "env": {"map_seed": map_seed, "mode": mode, "num_agents": agents},
-              "agent": {"algorithm": algorithm, "eps_start": eps_start, "share_parameters": share},
-              "transfer": {"enabled": transfer, "exchange": exchange, "epsilon_start": 0.3, **transfer_keys},
-              "curriculum": curriculum or {"stages": []}}
+    config = {
+        "seed": seed,
+        "total_steps": int(STEPS[-1]),
+        "eval_every": 100,
+        "eval_episodes": 5,
+        "env": {"map_seed": map_seed, "mode": mode, "num_agents": agents},
+        "agent": {"algorithm": algorithm, "eps_start": eps_start, "share_parameters": share},
+        "transfer": {"enabled": transfer, "exchange": exchange, "epsilon_start": 0.3, **transfer_keys},
+        "curriculum": curriculum or {"stages": []},
+    }
     zeros = tuple(0.0 for _ in STEPS)
-    metrics = {"team_return": tuple(float(v) for v in values), "success_rate": zeros, "trap_rate": zeros,
-               "after_clear_rate": zeros, "return_after_clear": zeros}
+    metrics = {
+        "team_return": tuple(float(v) for v in values),
+        "success_rate": zeros,
+        "trap_rate": zeros,
+        "after_clear_rate": zeros,
+        "return_after_clear": zeros,
+    }
     return RunData(experiment, name, config, tuple(int(s) for s in STEPS), metrics, steps_before, optimum)
 
 
@@ -92,8 +137,9 @@ def _noise(map_seed: int, seed: int) -> np.ndarray:
     return np.random.default_rng([map_seed, seed]).normal(0.0, 2.0, size=STEPS.size)
 
 
-def _study_data(data: Path, *, exchange_gain: float, coop_gain: float, trend: float, transfer_gain: float,
-                profile: str = "full") -> None:
+def _study_data(
+    data: Path, *, exchange_gain: float, coop_gain: float, trend: float, transfer_gain: float, profile: str = "full"
+) -> None:
     """Raw data of every experiment with effects known by construction (the optimum is 100, so a score
     point is a return unit):
 
@@ -106,41 +152,107 @@ def _study_data(data: Path, *, exchange_gain: float, coop_gain: float, trend: fl
     units = [(m, s) for m in MAPS for s in RUN_SEEDS]
     jitter = {u: np.random.default_rng(list(u)).uniform(-1.0, 1.0) for u in units}
     runs: dict[str, list[RunData]] = {"hypothesis": [], "claim1": [], "claim2": [], "transfer": []}
-    for job, (algorithm, mode, exchange) in enumerate((a, m, e) for a in ("sarsa", "double_dqn")
-                                                      for m in (COOPERATIVE, DELIBERATIVE) for e in ("none", "best")):
+    for job, (algorithm, mode, exchange) in enumerate(
+        (a, m, e) for a in ("sarsa", "double_dqn") for m in (COOPERATIVE, DELIBERATIVE) for e in ("none", "best")
+    ):
         gain = exchange_gain if exchange == "best" else 0.0
-        runs["hypothesis"] += [_record("hypothesis", f"{job}/{u}", ramp + gain + _noise(*u), map_seed=u[0], seed=u[1],
-                                       algorithm=algorithm, mode=mode, agents=4, exchange=exchange) for u in units]
+        runs["hypothesis"] += [
+            _record(
+                "hypothesis",
+                f"{job}/{u}",
+                ramp + gain + _noise(*u),
+                map_seed=u[0],
+                seed=u[1],
+                algorithm=algorithm,
+                mode=mode,
+                agents=4,
+                exchange=exchange,
+            )
+            for u in units
+        ]
     for job, mode in enumerate((COMPETITIVE, COOPERATIVE)):
-        runs["claim1"] += [_record("claim1", f"{job}/{u}", ramp + _noise(*u) + (coop_gain + jitter[u] if job else 0.0),
-                                   map_seed=u[0], seed=u[1], mode=mode, optimum=None) for u in units]
+        runs["claim1"] += [
+            _record(
+                "claim1",
+                f"{job}/{u}",
+                ramp + _noise(*u) + (coop_gain + jitter[u] if job else 0.0),
+                map_seed=u[0],
+                seed=u[1],
+                mode=mode,
+                optimum=None,
+            )
+            for u in units
+        ]
     job = 0
     for algorithm in ("sarsa", "double_dqn"):
         for m in (2, 3, 4, 6):
             for k, mode in enumerate((COMPETITIVE, COOPERATIVE, DELIBERATIVE)):
-                runs["claim2"] += [_record("claim2", f"{job}/{u}", ramp + k * trend * m + _noise(*u) + jitter[u] * k,
-                                           map_seed=u[0], seed=u[1], algorithm=algorithm, mode=mode, agents=m)
-                                   for u in units]
+                runs["claim2"] += [
+                    _record(
+                        "claim2",
+                        f"{job}/{u}",
+                        ramp + k * trend * m + _noise(*u) + jitter[u] * k,
+                        map_seed=u[0],
+                        seed=u[1],
+                        algorithm=algorithm,
+                        mode=mode,
+                        agents=m,
+                    )
+                    for u in units
+                ]
                 job += 1
-    conditions = {"scratch_matched": ({"transfer": False, "eps_start": 0.3}, 0.0),
-                  "scratch": ({"transfer": False}, -5.0),
-                  "same_map": ({"transfer": True, "steps_before": 500}, transfer_gain),
-                  "team_member": ({"transfer": True, "steps_before": 500, "source_task": "team"}, 0.0)}
-    for job, (algorithm, (keys, gain)) in enumerate((a, c) for a in ("sarsa", "double_dqn") for c in conditions.values()):
-        runs["transfer"] += [_record("transfer", f"{job}/{u}", ramp + gain + _noise(*u), map_seed=u[0], seed=u[1],
-                                     algorithm=algorithm, **keys) for u in units]
+    conditions = {
+        "scratch_matched": ({"transfer": False, "eps_start": 0.3}, 0.0),
+        "scratch": ({"transfer": False}, -5.0),
+        "same_map": ({"transfer": True, "steps_before": 500}, transfer_gain),
+        "team_member": ({"transfer": True, "steps_before": 500, "source_task": "team"}, 0.0),
+    }
+    for job, (algorithm, (keys, gain)) in enumerate(
+        (a, c) for a in ("sarsa", "double_dqn") for c in conditions.values()
+    ):
+        runs["transfer"] += [
+            _record(
+                "transfer",
+                f"{job}/{u}",
+                ramp + gain + _noise(*u),
+                map_seed=u[0],
+                seed=u[1],
+                algorithm=algorithm,
+                **keys,
+            )
+            for u in units
+        ]
     # curriculum: 300 steps on a room, then the map for the last 700; scratch 1,000 on the map
     room = {"stages": [{"env": {"size": 5}, "steps": 300}]}
     runs["curriculum"] = [
-        _record("curriculum", f"{job}/{s}", values, map_seed=0, seed=s, algorithm=algorithm, steps_before=before,
-                **({"curriculum": room} if before else {}))
+        _record(
+            "curriculum",
+            f"{job}/{s}",
+            values,
+            map_seed=0,
+            seed=s,
+            algorithm=algorithm,
+            steps_before=before,
+            **({"curriculum": room} if before else {}),
+        )
         for job, (algorithm, before) in enumerate((a, b) for a in ("sarsa", "double_dqn") for b in (0, 300))
-        for s in range(10) for values in [ramp + _noise(0, s)]]
+        for s in range(10)
+        for values in [ramp + _noise(0, s)]
+    ]
     for name, records in runs.items():
         write_data(data / f"{name}.jsonl", records)
-    write_manifest(data, {"profile": profile, "commit": "abc1234", "rules_commit": "def5678 2026-12-02",
-                          "machine": "test machine", "runs": {k: len(v) for k, v in runs.items()},
-                          "wall_seconds": {"claim1": 10.0}, "date": "2026-12-02"})
+    write_manifest(
+        data,
+        {
+            "profile": profile,
+            "commit": "abc1234",
+            "rules_commit": "def5678 2026-12-02",
+            "machine": "test machine",
+            "runs": {k: len(v) for k, v in runs.items()},
+            "wall_seconds": {"claim1": 10.0},
+            "date": "2026-12-02",
+        },
+    )
 
 
 def _verdicts(text: str) -> dict[str, str]:
@@ -151,29 +263,40 @@ def _verdicts(text: str) -> dict[str, str]:
 def test_the_report_states_the_verdicts_known_by_construction(tmp_path):
     _study_data(tmp_path / "data", exchange_gain=20.0, coop_gain=0.0, trend=3.0, transfer_gain=15.0)
     text = write_report(tmp_path / "data", tmp_path).read_text()
-    assert _verdicts(text) == {"Main hypothesis": "**SUPPORTED**",  # best beats none on every map: P = 1
-                               "Claim 1": "**SUPPORTED**",  # coop - comp within +-1 return unit, margin +5
-                               "Claim 2": "**SUPPORTED**",  # both gaps grow by 3 points per agent
-                               "Claim 3": "**SUPPORTED**",  # same_map 15 points above the matched baseline
-                               "Curriculum": "**EXPLORATORY**"}  # no rule, no verdict
+    assert _verdicts(text) == {
+        "Main hypothesis": "**SUPPORTED**",  # best beats none on every map: P = 1
+        "Claim 1": "**SUPPORTED**",  # coop - comp within +-1 return unit, margin +5
+        "Claim 2": "**SUPPORTED**",  # both gaps grow by 3 points per agent
+        "Claim 3": "**SUPPORTED**",  # same_map 15 points above the matched baseline
+        "Curriculum": "**EXPLORATORY**",
+    }  # no rule, no verdict
     assert "committed at def5678 2026-12-02" in text and "SMOKE RUN" not in text
     # the team-member source is no better than the baseline: it never pays for its 500 steps
     row = next(line for line in text.splitlines() if line.startswith("| sarsa | team_member |"))
     assert "| 500 |" in row and row.endswith("| never |")
-    for figure in ("hypothesis.png", "hypothesis_profiles.png", "claim1.png", "claim2.png", "claim2_trend.png",
-                   "transfer.png", "transfer_total_steps.png", "curriculum.png"):
+    for figure in (
+        "hypothesis.png",
+        "hypothesis_profiles.png",
+        "claim1.png",
+        "claim2.png",
+        "claim2_trend.png",
+        "transfer.png",
+        "transfer_total_steps.png",
+        "curriculum.png",
+    ):
         assert (tmp_path / figure).read_bytes()[:8] == PNG_MAGIC and f"]({figure})" in text
 
 
 def test_the_report_says_when_the_data_contradict_or_do_not_support_a_claim(tmp_path):
-    _study_data(tmp_path / "data", exchange_gain=-20.0, coop_gain=30.0, trend=-3.0, transfer_gain=0.0,
-                profile="quick")
+    _study_data(tmp_path / "data", exchange_gain=-20.0, coop_gain=30.0, trend=-3.0, transfer_gain=0.0, profile="quick")
     text = write_report(tmp_path / "data", tmp_path).read_text()
-    assert _verdicts(text) == {"Main hypothesis": "**CONTRADICTED**",  # exchange hurts on every map
-                               "Claim 1": "**NOT SUPPORTED**",  # cooperation is 30 better, far above +5
-                               "Claim 2": "**CONTRADICTED**",  # the gaps shrink with the team
-                               "Claim 3": "**NOT SUPPORTED**",  # identical curves: P = 0.5
-                               "Curriculum": "**EXPLORATORY**"}
+    assert _verdicts(text) == {
+        "Main hypothesis": "**CONTRADICTED**",  # exchange hurts on every map
+        "Claim 1": "**NOT SUPPORTED**",  # cooperation is 30 better, far above +5
+        "Claim 2": "**CONTRADICTED**",  # the gaps shrink with the team
+        "Claim 3": "**NOT SUPPORTED**",  # identical curves: P = 0.5
+        "Curriculum": "**EXPLORATORY**",
+    }
     assert "SMOKE RUN" in text and "NOT evidence" in text  # a quick profile is never evidence
 
 
@@ -182,10 +305,12 @@ def test_the_curriculum_is_compared_on_total_steps():
     # total steps it starts at the scratch run's step-0 value, 300 steps after the scratch run was there.
     ramp = np.linspace(10.0, 60.0, STEPS.size)  # +5 per 100 steps
     scratch = _record("curriculum", "0/0", ramp, map_seed=0, seed=0)
-    curriculum = _record("curriculum", "1/0", ramp, map_seed=0, seed=0, steps_before=300,
-                         curriculum={"stages": [{"steps": 300}]})
-    section = claims.section_curriculum([scratch, curriculum], claims.Context(Path("/nonexistent"),
-                                                                             np.random.default_rng(0)))
+    curriculum = _record(
+        "curriculum", "1/0", ramp, map_seed=0, seed=0, steps_before=300, curriculum={"stages": [{"steps": 300}]}
+    )
+    section = claims.section_curriculum(
+        [scratch, curriculum], claims.Context(Path("/nonexistent"), np.random.default_rng(0))
+    )
     row = next(line for line in section.markdown.splitlines() if line.startswith("| sarsa |"))
     # at total step 300: curriculum 10 (its step 0) - scratch 25 (its step 300) = -0.15 of the optimum 100
     assert row.split("|")[3].strip().startswith("-0.15")
@@ -216,7 +341,8 @@ def test_report_without_data_is_a_clear_error(tmp_path, capsys):
     assert capsys.readouterr().err.splitlines() == [f"error: {tmp_path} has no data/ directory of run data"]
     assert report.main(["--out", str(tmp_path), "--report-only"]) == 1
     assert capsys.readouterr().err.splitlines() == [
-        f"error: {tmp_path.resolve()}/runs holds no runs of {', '.join(EXPERIMENTS)}: run the experiments first"]
+        f"error: {tmp_path.resolve()}/runs holds no runs of {', '.join(EXPERIMENTS)}: run the experiments first"
+    ]
 
 
 def test_exported_runs_keep_their_config_evaluations_and_map_optimum(tmp_path):
@@ -255,10 +381,15 @@ def test_a_band_shows_each_run_beside_the_mean_and_its_axes_say_what_they_measur
     from dqn_transfer.analysis.plots import _band_panel
 
     steps = np.array([0.0, 10.0, 20.0])
-    bimodal = [(steps, np.array([0.0, 90.0, 100.0])), (steps, np.array([0.0, -90.0, -100.0])),
-               (steps, np.array([0.0, 95.0, 100.0]))]
+    bimodal = [
+        (steps, np.array([0.0, 90.0, 100.0])),
+        (steps, np.array([0.0, -90.0, -100.0])),
+        (steps, np.array([0.0, 95.0, 100.0])),
+    ]
     fig, ax = plt.subplots()
-    _band_panel(ax, "team_return", {"cooperative": bimodal}, np.random.default_rng(0), None, "environment steps", "best")
+    _band_panel(
+        ax, "team_return", {"cooperative": bimodal}, np.random.default_rng(0), None, "environment steps", "best"
+    )
     assert len(ax.lines) == 1 + 3  # the mean, then each run
     np.testing.assert_array_equal(ax.lines[2].get_ydata(), [0.0, -90.0, -100.0])  # the run the mean hides
     assert ax.lines[1].get_linewidth() < ax.lines[0].get_linewidth()
@@ -273,8 +404,12 @@ def test_total_steps_count_every_warm_start_behind_a_run(tmp_path, capsys):
     stage_two = {"source_steps": 400, "source_transfer": {"source_steps": 300, "source_transfer": None}}
     chained = tmp_path / "chained"
     RunDir(chained).metrics.parent.mkdir(parents=True)
-    RunDir(chained).metrics.write_text(json.dumps({"step": 0, "team_return": 1.0, "transfer_source": stage_two})
-                                       + "\n" + json.dumps({"step": 10, "team_return": 2.0}) + "\n")
+    RunDir(chained).metrics.write_text(
+        json.dumps({"step": 0, "team_return": 1.0, "transfer_source": stage_two})
+        + "\n"
+        + json.dumps({"step": 10, "team_return": 2.0})
+        + "\n"
+    )
     plain = tmp_path / "plain"
     RunDir(plain).metrics.parent.mkdir(parents=True)
     RunDir(plain).metrics.write_text(json.dumps({"step": 0, "team_return": 0.0}) + "\n")
@@ -332,7 +467,9 @@ def test_plot_of_nothing_usable_is_an_error(tmp_path, capsys):
     out = tmp_path / "curves.png"
     assert plot.main([*map(str, stubs), "--out", str(out)]) == 1
     assert capsys.readouterr().err.splitlines() == [
-        *map(_stub_line, stubs), "error: no usable run directory among the 2 given (2 skipped)"]
+        *map(_stub_line, stubs),
+        "error: no usable run directory among the 2 given (2 skipped)",
+    ]
     assert plot.main([str(stubs[0]), "--out", str(out)]) == 1  # one directory: its reason is the error
     assert capsys.readouterr().err.splitlines() == [f"error: {stubs[0]}: no metrics.jsonl (train.log: {REFUSED})"]
     assert not out.exists()
@@ -348,7 +485,9 @@ def test_the_export_skips_unusable_runs_and_says_why(tmp_path, capsys):
     RunDir(no_config).metrics.write_text('{"step": 0, "team_return": 1000.0}\n')
     assert report.main(["--out", str(tmp_path), "--report-only"]) == 0
     assert capsys.readouterr().err.splitlines() == [
-        _stub_line(stub), f"skipped {no_config}: no readable .hydra/config.yaml (cannot tell its condition)"]
+        _stub_line(stub),
+        f"skipped {no_config}: no readable .hydra/config.yaml (cannot tell its condition)",
+    ]
     assert len(read_data(tmp_path / "data" / "claim1.jsonl")) == 10
     text = (tmp_path / "REPORT.md").read_text()
     assert "5 seeds per condition" in text and "## Claim 1" in text and "## Claim 2" not in text
@@ -356,12 +495,14 @@ def test_the_export_skips_unusable_runs_and_says_why(tmp_path, capsys):
 
 # ------------------------------------------------------------------------------------ the launcher
 
+
 @pytest.fixture
 def no_sweeps(monkeypatch, tmp_path):
     """report.main with the sweeps and the report replaced by recorders: [(experiment, launcher)]."""
     calls = []
-    monkeypatch.setattr(report, "run_experiment", lambda name, profile, out, launcher, *rest: calls.append(
-        (name, launcher)))
+    monkeypatch.setattr(
+        report, "run_experiment", lambda name, profile, out, launcher, *rest: calls.append((name, launcher))
+    )
     (tmp_path / "REPORT.md").write_text("# report\n")
     monkeypatch.setattr(report, "export_data", lambda out: tmp_path / "data")
     monkeypatch.setattr(report, "write_report", lambda data, out: tmp_path / "REPORT.md")
@@ -372,8 +513,10 @@ def test_without_the_sweep_extra_the_sweeps_run_one_at_a_time(monkeypatch, tmp_p
     monkeypatch.setattr(sweeps, "installed_launchers", lambda: ["basic"])  # the dev extra only
     assert report.main(["--out", str(tmp_path)]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert lines[0] == ("the joblib launcher is not installed: running one job at a time with Hydra's basic "
-                        'launcher (for --n-jobs at a time: pip install -e ".[sweep]")')
+    assert lines[0] == (
+        "the joblib launcher is not installed: running one job at a time with Hydra's basic "
+        'launcher (for --n-jobs at a time: pip install -e ".[sweep]")'
+    )
     assert no_sweeps == [(name, "basic") for name in EXPERIMENTS]
     assert launcher_overrides("basic", 2) == []  # no hydra/launcher override: Hydra's own launcher
 
@@ -386,13 +529,17 @@ def test_with_the_sweep_extra_the_default_is_joblib(monkeypatch, tmp_path, capsy
     assert launcher_overrides("joblib", 3) == ["hydra/launcher=joblib", "hydra.launcher.n_jobs=3"]
 
 
-@pytest.mark.parametrize("launcher, message", [
-    ("submitit_slurm", 'its Hydra plugin is not installed (pip install -e ".[slurm]")'),
-    ("joblib", 'its Hydra plugin is not installed (pip install -e ".[sweep]")'),
-    ("slurm", "no such Hydra launcher (installed: basic)"),
-])
-def test_a_launcher_not_installed_is_one_error_before_anything_runs(monkeypatch, tmp_path, capsys, no_sweeps,
-                                                                    launcher, message):
+@pytest.mark.parametrize(
+    "launcher, message",
+    [
+        ("submitit_slurm", 'its Hydra plugin is not installed (pip install -e ".[slurm]")'),
+        ("joblib", 'its Hydra plugin is not installed (pip install -e ".[sweep]")'),
+        ("slurm", "no such Hydra launcher (installed: basic)"),
+    ],
+)
+def test_a_launcher_not_installed_is_one_error_before_anything_runs(
+    monkeypatch, tmp_path, capsys, no_sweeps, launcher, message
+):
     monkeypatch.setattr(sweeps, "installed_launchers", lambda: ["basic"])
     assert report.main(["--out", str(tmp_path / "out"), "--launcher", launcher]) == 1
     captured = capsys.readouterr()
@@ -409,13 +556,16 @@ def _compose(*overrides: str, hydra: bool = False):
         return compose(config_name="config", overrides=list(overrides), return_hydra_config=hydra)
 
 
-@pytest.mark.parametrize("experiment, algorithm, size, treasures, swept", [
-    ("hypothesis", Algorithm.double_dqn, 8, 4, {"transfer.exchange", "mode", "agent"}),
-    ("hypothesis_shared", Algorithm.double_dqn, 8, 4, {"transfer.exchange", "mode", "agent"}),
-    ("claim1", Algorithm.sarsa, 6, 1, {"mode"}),
-    ("claim2", Algorithm.double_dqn, 6, 2, {"env", "mode", "agent"}),
-    ("transfer", Algorithm.double_dqn, 6, 2, {"condition", "agent"}),
-])
+@pytest.mark.parametrize(
+    "experiment, algorithm, size, treasures, swept",
+    [
+        ("hypothesis", Algorithm.double_dqn, 8, 4, {"transfer.exchange", "mode", "agent"}),
+        ("hypothesis_shared", Algorithm.double_dqn, 8, 4, {"transfer.exchange", "mode", "agent"}),
+        ("claim1", Algorithm.sarsa, 6, 1, {"mode"}),
+        ("claim2", Algorithm.double_dqn, 6, 2, {"env", "mode", "agent"}),
+        ("transfer", Algorithm.double_dqn, 6, 2, {"condition", "agent"}),
+    ],
+)
 def test_experiment_configs_compose(experiment, algorithm, size, treasures, swept):
     cfg = _compose(f"experiment={experiment}", hydra=True)
     assert set(cfg.hydra.sweeper.params) == swept
@@ -444,6 +594,7 @@ def test_claim2_teams_have_as_many_chests_and_traps_as_agents_on_maps_that_grow(
 def test_the_transfer_conditions_differ_only_in_what_they_name():
     def job(condition: str):
         return OmegaConf.to_object(_compose("experiment=transfer", f"condition={condition}"))
+
     matched, scratch, same, one = job("scratch_matched"), job("scratch"), job("same_map"), job("same_map_one")
     assert matched.agent.eps_start == same.transfer.epsilon_start == 0.3 and scratch.agent.eps_start == 1.0
     assert not matched.transfer.enabled and same.transfer.enabled and one.transfer.targets == [0]
@@ -453,8 +604,13 @@ def test_the_transfer_conditions_differ_only_in_what_they_name():
 
 def test_profiles_and_job_counts(tmp_path):
     assert {name: count_jobs(name, sweep_overrides(name, "full", tmp_path)) for name in EXPERIMENTS} == {
-        "hypothesis": 3 * 2 * 2, "hypothesis_shared": 2, "claim1": 2, "claim2": 4 * 3 * 2, "transfer": 6 * 2,
-        "curriculum": 2 * 2}
+        "hypothesis": 3 * 2 * 2,
+        "hypothesis_shared": 2,
+        "claim1": 2,
+        "claim2": 4 * 3 * 2,
+        "transfer": 6 * 2,
+        "curriculum": 2 * 2,
+    }
     assert count_jobs("claim2", sweep_overrides("claim2", "quick", tmp_path)) == 2 * 3 * 2  # two team sizes
     assert f"transfer.cache_dir='{tmp_path / 'pretrained'}'" in sweep_overrides("transfer", "full", tmp_path)
     with pytest.raises(ReproduceError, match="unknown experiment"):
@@ -489,6 +645,7 @@ def test_the_quick_study_runs_end_to_end_from_the_command_line(tmp_path, capsys)
 def test_the_probability_of_improvement_compares_runs_on_the_same_maps_only():
     def runs(scores: dict[int, float]) -> list[RunData]:
         return [_record("x", f"{m}", np.full(STEPS.size, v), map_seed=m, seed=0) for m, v in scores.items()]
+
     better = runs({0: 0.0, 1: 90.0, 2: 90.0})
     worse = runs({1: 10.0, 2: 10.0, 3: 100.0})
     # maps 1 and 2 only: better wins both (maps 0 and 3 have nothing to be compared with)

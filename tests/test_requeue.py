@@ -15,8 +15,9 @@ from dqn_transfer.storage.run_dir import RunDir
 
 
 def job_start(job_dir: Path) -> ClaimRunDir:
-    config = OmegaConf.create({"resume": False, "hydra": {"mode": RunMode.MULTIRUN,
-                                                          "runtime": {"output_dir": str(job_dir)}}})
+    config = OmegaConf.create(
+        {"resume": False, "hydra": {"mode": RunMode.MULTIRUN, "runtime": {"output_dir": str(job_dir)}}}
+    )
     callback = ClaimRunDir()
     callback.on_job_start(config)
     return callback

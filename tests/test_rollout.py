@@ -107,10 +107,22 @@ class StubLearner:
 def test_evaluate_appends_the_after_clear_keys():
     game = game_of(ONE_CHEST)
     result = evaluate(StubLearner(), game, episodes=3, seed=0, evaluation=0)
-    assert list(result) == ["team_return", "success_rate", "trap_rate", "episode_length",
-                            "after_clear_rate", "return_after_clear"]
-    assert result == {"team_return": 90.0, "success_rate": 1.0, "trap_rate": 0.0, "episode_length": 9.0,
-                      "after_clear_rate": 1.0, "return_after_clear": -7.0}
+    assert list(result) == [
+        "team_return",
+        "success_rate",
+        "trap_rate",
+        "episode_length",
+        "after_clear_rate",
+        "return_after_clear",
+    ]
+    assert result == {
+        "team_return": 90.0,
+        "success_rate": 1.0,
+        "trap_rate": 0.0,
+        "episode_length": 9.0,
+        "after_clear_rate": 1.0,
+        "return_after_clear": -7.0,
+    }
     # with a first episode that ended with the chest: means over 1 + 3 = 4 episodes, 0 for it
     first = EpisodeResult(99.0, 2, 1, 1.0, 0.0, 0, 0.0)
     result = evaluate(StubLearner(), game, episodes=4, seed=0, evaluation=0, first=first)

@@ -8,22 +8,48 @@ import signal
 import subprocess
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
-from concurrent.futures import ThreadPoolExecutor
-
-from conftest import TRAIN_PY, TRAIN_TIMEOUT, agent_meta, read_metrics, run_train, start_train, train_env, without_timing
+from conftest import (
+    TRAIN_PY,
+    TRAIN_TIMEOUT,
+    agent_meta,
+    read_metrics,
+    run_train,
+    start_train,
+    train_env,
+    without_timing,
+)
 
 from dqn_transfer.storage.checkpoint import load_training_state
 
 pytestmark = pytest.mark.slow
 
 MAP = "0...T\n.#...\n...#.\nX....\n1..T.\n"  # 5 x 5, two chests, one trap, two agents
-BASE = ("env.layout_file=map.txt", "env.size=5", "env.num_treasures=2", "env.num_traps=1", "env.num_agents=2",
-        "env.complexity=0.08", "env.map_seed=0", "eval_episodes=2")
-LONG_RUN = (*BASE, "agent=dqn", "mode=cooperative", "agent.learning_starts=100", "agent.hidden=[32]",
-            "agent.batch_size=32", "total_steps=1500", "checkpoint_every=100000", "eval_every=100", "seed=5")
+BASE = (
+    "env.layout_file=map.txt",
+    "env.size=5",
+    "env.num_treasures=2",
+    "env.num_traps=1",
+    "env.num_agents=2",
+    "env.complexity=0.08",
+    "env.map_seed=0",
+    "eval_episodes=2",
+)
+LONG_RUN = (
+    *BASE,
+    "agent=dqn",
+    "mode=cooperative",
+    "agent.learning_starts=100",
+    "agent.hidden=[32]",
+    "agent.batch_size=32",
+    "total_steps=1500",
+    "checkpoint_every=100000",
+    "eval_every=100",
+    "seed=5",
+)
 
 
 @pytest.fixture(scope="module")
@@ -53,8 +79,10 @@ def wait_for_evaluations(run_dir: Path, count: int, proc: subprocess.Popen, time
 def signalled(launch):
     """The same run uninterrupted, stopped by SIGINT and by SIGTERM, each resumed to the end."""
     reference = start_train(launch, *LONG_RUN, run_dir=launch / "reference")
-    procs = {signum: start_train(launch, *LONG_RUN, run_dir=launch / signal.Signals(signum).name)
-             for signum in (signal.SIGINT, signal.SIGTERM)}
+    procs = {
+        signum: start_train(launch, *LONG_RUN, run_dir=launch / signal.Signals(signum).name)
+        for signum in (signal.SIGINT, signal.SIGTERM)
+    }
     outcomes = {}
     for signum, proc in procs.items():
         run_dir = launch / signal.Signals(signum).name
@@ -62,11 +90,14 @@ def signalled(launch):
         sent = time.monotonic()
         proc.send_signal(signum)
         code = proc.wait(timeout=60)
-        outcomes[signum] = dict(code=code, within=time.monotonic() - sent, run_dir=run_dir,
-                                output=run_dir.with_suffix(".out").read_text(),
-                                step=load_training_state(run_dir / "checkpoints" / "training_state.safetensors")
-                                [1]["counters"]["step"])
-    for signum, outcome in outcomes.items():
+        outcomes[signum] = dict(
+            code=code,
+            within=time.monotonic() - sent,
+            run_dir=run_dir,
+            output=run_dir.with_suffix(".out").read_text(),
+            step=load_training_state(run_dir / "checkpoints" / "training_state.safetensors")[1]["counters"]["step"],
+        )
+    for outcome in outcomes.values():
         outcome["resumed"] = run_train(launch, "resume=true", run_dir=outcome["run_dir"])
     assert reference.wait(timeout=TRAIN_TIMEOUT) == 0
     return launch / "reference", outcomes
@@ -95,10 +126,13 @@ def test_resuming_after_a_signal_gives_the_uninterrupted_run(signalled, signum):
 
 def test_two_runs_started_in_the_same_second_get_their_own_directories(tmp_path):
     (tmp_path / "map.txt").write_text(MAP)
-    command = [sys.executable, str(TRAIN_PY), *BASE, "agent=sarsa", "total_steps=50", "eval_every=25",
-               "progress=false"]
-    procs = [subprocess.Popen(command, cwd=tmp_path, env=train_env(), stdout=subprocess.PIPE,
-                              stderr=subprocess.STDOUT, text=True) for _ in range(2)]
+    command = [sys.executable, str(TRAIN_PY), *BASE, "agent=sarsa", "total_steps=50", "eval_every=25", "progress=false"]
+    procs = [
+        subprocess.Popen(
+            command, cwd=tmp_path, env=train_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+        )
+        for _ in range(2)
+    ]
     outputs = [p.communicate(timeout=TRAIN_TIMEOUT)[0] for p in procs]
     assert [p.returncode for p in procs] == [0, 0], outputs
     runs = sorted((tmp_path / "outputs" / "runs").glob("*/*"))
@@ -154,7 +188,9 @@ def refusals(tmp_path_factory):
             (cwd / "map.txt").write_text(MAP)
             if where == "existing":
                 (cwd / "empty_run").mkdir()
-            jobs.append((cwd, (*BASE, "total_steps=10", *overrides), cwd / "empty_run" if where == "existing" else None))
+            jobs.append(
+                (cwd, (*BASE, "total_steps=10", *overrides), cwd / "empty_run" if where == "existing" else None)
+            )
     with ThreadPoolExecutor(max_workers=2) as pool:
         outputs = list(pool.map(lambda job: run_in(*job), jobs))
     return {cwd.name: (result, _tree(cwd)) for (cwd, _, _), result in zip(jobs, outputs)}
@@ -181,11 +217,15 @@ def test_a_refused_run_leaves_nothing_behind(refusals, name):
 
 
 def test_unknown_keys_name_the_nearest_valid_one(refusals):
-    assert "error: unknown config key 'agent.learning_rate' in 'agent.learning_rate=0.5' (did you mean agent.lr?)" \
+    assert (
+        "error: unknown config key 'agent.learning_rate' in 'agent.learning_rate=0.5' (did you mean agent.lr?)"
         in refusals["typo_default"][0].stderr
+    )
     assert "in '+agent.learning_rate=0.5' (did you mean agent.lr?)" in refusals["appended_typo_default"][0].stderr
-    assert "error: agent=ppo: no such option (choose from double_dqn, dqn, qlearning, sarsa)" \
+    assert (
+        "error: agent=ppo: no such option (choose from double_dqn, dqn, qlearning, sarsa)"
         in refusals["no_such_option_default"][0].stderr
+    )
 
 
 def test_a_run_directory_beneath_a_file_is_one_line(tmp_path):
@@ -193,17 +233,34 @@ def test_a_run_directory_beneath_a_file_is_one_line(tmp_path):
     (tmp_path / "a_file").write_text("x")
     result = run_train(tmp_path, *BASE, "total_steps=10", run_dir=tmp_path / "a_file" / "run", check=False)
     assert result.returncode == 1 and "Traceback" not in result.output
-    assert f"error: cannot use {tmp_path / 'a_file' / 'run'} as a run directory: {tmp_path / 'a_file'} is a file" \
+    assert (
+        f"error: cannot use {tmp_path / 'a_file' / 'run'} as a run directory: {tmp_path / 'a_file'} is a file"
         in result.stderr
+    )
 
 
 def test_log_lines_never_glue_onto_the_progress_bar(tmp_path):
     (tmp_path / "map.txt").write_text(MAP)
-    command = [sys.executable, str(TRAIN_PY), *BASE, "agent=sarsa", "total_steps=3000", "eval_every=500",
-               "progress=true", f"hydra.run.dir={tmp_path / 'run'}"]
+    command = [
+        sys.executable,
+        str(TRAIN_PY),
+        *BASE,
+        "agent=sarsa",
+        "total_steps=3000",
+        "eval_every=500",
+        "progress=true",
+        f"hydra.run.dir={tmp_path / 'run'}",
+    ]
     # One stream, as on a terminal: the bar (stderr) and the log lines (stdout) interleave.
-    result = subprocess.run(command, cwd=tmp_path, env=train_env(), stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, timeout=TRAIN_TIMEOUT)
+    result = subprocess.run(
+        command,
+        cwd=tmp_path,
+        env=train_env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        timeout=TRAIN_TIMEOUT,
+    )
     assert result.returncode == 0, result.stdout
     # The bar redraws with carriage returns; every log line must start a line of its own.
     pieces = result.stdout.replace("\r", "\n").splitlines()
@@ -213,10 +270,21 @@ def test_log_lines_never_glue_onto_the_progress_bar(tmp_path):
 
 def test_parallel_jobs_tag_their_lines(tmp_path):
     (tmp_path / "map.txt").write_text(MAP)
-    command = [sys.executable, str(TRAIN_PY), "-m", *BASE, "agent=sarsa", "total_steps=20", "eval_every=10",
-               "progress=false", "seed=0,1", f"hydra.sweep.dir={tmp_path / 'sweep'}"]
-    result = subprocess.run(command, cwd=tmp_path, env=train_env(), capture_output=True, text=True,
-                            timeout=TRAIN_TIMEOUT)
+    command = [
+        sys.executable,
+        str(TRAIN_PY),
+        "-m",
+        *BASE,
+        "agent=sarsa",
+        "total_steps=20",
+        "eval_every=10",
+        "progress=false",
+        "seed=0,1",
+        f"hydra.sweep.dir={tmp_path / 'sweep'}",
+    ]
+    result = subprocess.run(
+        command, cwd=tmp_path, env=train_env(), capture_output=True, text=True, timeout=TRAIN_TIMEOUT
+    )
     assert result.returncode == 0, result.stderr
     for job in (0, 1):
         log = (tmp_path / "sweep" / str(job) / "train.log").read_text()
@@ -224,8 +292,9 @@ def test_parallel_jobs_tag_their_lines(tmp_path):
         assert len(evals) == 3 and all(f"- [job {job}] eval step" in line for line in evals), evals
     # The same sweep again into the same folder: refused before any job's record is rewritten.
     record = (tmp_path / "sweep" / "0" / ".hydra" / "config.yaml").read_bytes()
-    again = subprocess.run(command, cwd=tmp_path, env=train_env(), capture_output=True, text=True,
-                           timeout=TRAIN_TIMEOUT)
+    again = subprocess.run(
+        command, cwd=tmp_path, env=train_env(), capture_output=True, text=True, timeout=TRAIN_TIMEOUT
+    )
     assert again.returncode == 1 and "Traceback" not in again.stderr + again.stdout
     assert f"error: {tmp_path / 'sweep'} already holds the runs of a sweep (0, 1)" in again.stderr
     assert (tmp_path / "sweep" / "0" / ".hydra" / "config.yaml").read_bytes() == record

@@ -24,8 +24,17 @@ from conftest import agent_meta, read_metrics, run_many
 from safetensors.numpy import load_file
 
 import dqn_transfer.sources.resolve
-from dqn_transfer.config import AgentConfig, ConfigError, CurriculumConfig, ReplicasConfig, StageConfig, TrainConfig
-from dqn_transfer.config import TransferConfig, to_plain, validate
+from dqn_transfer.config import (
+    AgentConfig,
+    ConfigError,
+    CurriculumConfig,
+    ReplicasConfig,
+    StageConfig,
+    TrainConfig,
+    TransferConfig,
+    to_plain,
+    validate,
+)
 from dqn_transfer.enums import Algorithm, Engine, Mode, RewardMode, SourceTask
 from dqn_transfer.envs.maps import generate_layout
 from dqn_transfer.envs.settings import ENV_KEYS, EnvConfig
@@ -43,15 +52,22 @@ GENERATED = dict(size=5, num_treasures=2, num_traps=1, num_agents=2, complexity=
 MAP_SEED = 3
 PRETRAINING = "transfer: pretraining"
 QLEARNING = AgentConfig(algorithm=Algorithm.qlearning, lr=0.5)
-NUMPY_DQN = AgentConfig(algorithm=Algorithm.dqn, engine=Engine.numpy, hidden=[16], batch_size=16, buffer_size=500,
-                        learning_starts=20)
+NUMPY_DQN = AgentConfig(
+    algorithm=Algorithm.dqn, engine=Engine.numpy, hidden=[16], batch_size=16, buffer_size=500, learning_starts=20
+)
 
 
 def config(cache: Path, *, agent: AgentConfig = QLEARNING, env: EnvConfig | None = None, **transfer) -> TrainConfig:
     env = env or EnvConfig(layout=MAP, size=5, num_treasures=2, num_traps=1, num_agents=2, complexity=0.0)
-    return TrainConfig(env=env, agent=agent, seed=0, total_steps=0, eval_episodes=1, progress=False,
-                       transfer=TransferConfig(enabled=True, cache_dir=str(cache), pretrain_steps=PRETRAIN_STEPS,
-                                               **transfer))
+    return TrainConfig(
+        env=env,
+        agent=agent,
+        seed=0,
+        total_steps=0,
+        eval_episodes=1,
+        progress=False,
+        transfer=TransferConfig(enabled=True, cache_dir=str(cache), pretrain_steps=PRETRAIN_STEPS, **transfer),
+    )
 
 
 def generated(map_seed: int = MAP_SEED, **env) -> EnvConfig:
@@ -60,8 +76,14 @@ def generated(map_seed: int = MAP_SEED, **env) -> EnvConfig:
 
 def generated_layout(map_seed: int) -> str:
     """The map generator's own output for a map seed: what the env config of that seed plays on."""
-    return generate_layout(GENERATED["size"], GENERATED["num_treasures"], GENERATED["num_traps"],
-                           GENERATED["num_agents"], GENERATED["complexity"], seed=map_seed)
+    return generate_layout(
+        GENERATED["size"],
+        GENERATED["num_treasures"],
+        GENERATED["num_traps"],
+        GENERATED["num_agents"],
+        GENERATED["complexity"],
+        seed=map_seed,
+    )
 
 
 def entries(cache: Path) -> list[str]:
@@ -87,6 +109,7 @@ def pretrainings(monkeypatch) -> list[TrainConfig]:
 
 # ------------------------------------------------------------------------- single (the default)
 
+
 def old_source_hash(config: TrainConfig, layout: str) -> str:
     """The cache key as it was before source_task / source_map_shift existed, written out here: the env
     keys but mode, reward_mode and render_mode (the layout as text, no file), the agent block, the
@@ -94,8 +117,12 @@ def old_source_hash(config: TrainConfig, layout: str) -> str:
     plain = to_plain(config)
     env = {key: plain["env"][key] for key in ENV_KEYS if key not in ("mode", "reward_mode", "render_mode")}
     env.update(layout_file=None, layout=layout)
-    key = {"env": env, "agent": plain["agent"], "seed": plain["seed"],
-           "pretrain_steps": plain["transfer"]["pretrain_steps"]}
+    key = {
+        "env": env,
+        "agent": plain["agent"],
+        "seed": plain["seed"],
+        "pretrain_steps": plain["transfer"]["pretrain_steps"],
+    }
     return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -133,13 +160,16 @@ def test_mode_and_reward_mode_enter_the_key_of_a_team_source_only(tmp_path, pret
         transfer_sources(with_env(SourceTask.team, **env), tmp_path)
     assert len(pretrainings) == 4 and len(entries(cache)) == 4
     assert [(run.env.mode, run.env.reward_mode) for run in pretrainings[1:]] == [
-        (Mode.competitive, RewardMode.individual), (Mode.cooperative, RewardMode.individual),
-        (Mode.competitive, RewardMode.team)]  # each team source played its run's own game
+        (Mode.competitive, RewardMode.individual),
+        (Mode.cooperative, RewardMode.individual),
+        (Mode.competitive, RewardMode.team),
+    ]  # each team source played its run's own game
     transfer_sources(with_env(SourceTask.team, mode=Mode.cooperative), tmp_path)
     assert len(pretrainings) == 4  # reused
 
 
 # ------------------------------------------------------------------------- team
+
 
 def test_targets_start_from_the_chosen_member_of_a_pretrained_team(tmp_path, pretrainings, caplog):
     caplog.set_level(logging.INFO, logger="dqn_transfer")
@@ -153,7 +183,11 @@ def test_targets_start_from_the_chosen_member_of_a_pretrained_team(tmp_path, pre
     for index, name in enumerate(agent_files(entry)):
         meta = agent_meta(entry / "checkpoints" / name)
         assert (meta["agent_index"], meta["steps"], meta["source_task"], meta["transfer"]) == (
-            index, PRETRAIN_STEPS, False, None)
+            index,
+            PRETRAIN_STEPS,
+            False,
+            None,
+        )
         assert meta["env"]["layout"] == PLAYED and meta["env"]["num_agents"] == 2
         assert [segment for segment, _ in meta["obs_layout"]][:2] == ["position", "treasures"]
     assert len(pretrainings) == 1 and pretrainings[0].total_steps == PRETRAIN_STEPS
@@ -173,8 +207,9 @@ def test_targets_start_from_the_chosen_member_of_a_pretrained_team(tmp_path, pre
     # Another choice of members reuses the cached team: no pretraining again.
     caplog.clear()
     other = dataclasses.replace(team, transfer=dataclasses.replace(team.transfer, source_agent=[1, 0]))
-    assert transfer_sources(other, tmp_path) == [[entry / "checkpoints" / "agent_1.safetensors",
-                                                  entry / "checkpoints" / "agent_0.safetensors"]]
+    assert transfer_sources(other, tmp_path) == [
+        [entry / "checkpoints" / "agent_1.safetensors", entry / "checkpoints" / "agent_0.safetensors"]
+    ]
     assert len(pretrainings) == 1 and "reusing the pretrained source" in caplog.text
     train(other, tmp_path / "run2", sources=transfer_sources(other, tmp_path))
     for i, member in enumerate((1, 0)):
@@ -199,6 +234,7 @@ def test_team_sources_of_replicas_are_pretrained_as_one_batch(tmp_path, pretrain
 
 # ------------------------------------------------------------------------- source_map_shift
 
+
 @pytest.mark.parametrize("task", [SourceTask.single, SourceTask.team])
 def test_a_shifted_source_learns_the_map_of_the_shifted_seed(tmp_path, pretrainings, task):
     cache = tmp_path / "cache"
@@ -213,8 +249,10 @@ def test_a_shifted_source_learns_the_map_of_the_shifted_seed(tmp_path, pretraini
     # where this map has none are dropped (and recorded), matched ones kept.
     train(dataclasses.replace(run, total_steps=10, eval_every=10), tmp_path / "run", sources=[[first, first]])
     record = read_metrics(tmp_path / "run")[0]["transfer_source"]
-    chests = {layout: {(r, c) for r, row in enumerate(layout.splitlines()) for c, ch in enumerate(row) if ch == "T"}
-              for layout in (own, shifted)}
+    chests = {
+        layout: {(r, c) for r, row in enumerate(layout.splitlines()) for c, ch in enumerate(row) if ch == "T"}
+        for layout in (own, shifted)
+    }
     assert chests[shifted] & chests[own] and chests[shifted] - chests[own]  # the maps share one chest cell of two
     assert sorted(map(tuple, record["mapping"]["dropped_chests"])) == sorted(chests[shifted] - chests[own])
     assert record["source_steps"] == PRETRAIN_STEPS
@@ -227,7 +265,9 @@ def test_each_replica_shifts_its_own_map_seed(tmp_path, pretrainings):
     batch = dataclasses.replace(config(cache, env=generated(), source_map_shift=SHIFT), replicas=ReplicasConfig(maps=2))
     sources = [targets[0] for targets in transfer_sources(batch, tmp_path)]
     assert [agent_meta(source)["env"]["layout"] for source in sources] == [
-        generated_layout(MAP_SEED + SHIFT), generated_layout(MAP_SEED + 1 + SHIFT)]
+        generated_layout(MAP_SEED + SHIFT),
+        generated_layout(MAP_SEED + 1 + SHIFT),
+    ]
     assert len(pretrainings) == 1 and len(entries(cache)) == 2
     on_that_map = config(cache, env=generated(map_seed=MAP_SEED + 1 + SHIFT))
     assert transfer_sources(on_that_map, tmp_path)[0][0] == sources[1]
@@ -236,19 +276,26 @@ def test_each_replica_shifts_its_own_map_seed(tmp_path, pretrainings):
 
 # ------------------------------------------------------------------------- refusals
 
+
 def test_a_curriculum_refuses_the_pretraining_keys(tmp_path):
     stages = CurriculumConfig(stages=[StageConfig(env={"size": 4}, steps=10)])
     for transfer in ({"source_task": SourceTask.team}, {"source_map_shift": 5}):
         run = dataclasses.replace(config(tmp_path, env=generated(), **transfer), curriculum=stages)
-        with pytest.raises(ConfigError, match="^curriculum: this run starts from its last stage, not from a "
-                                              "pretrained source"):
+        with pytest.raises(
+            ConfigError, match="^curriculum: this run starts from its last stage, not from a pretrained source"
+        ):
             validate(run)
 
 
 def test_a_team_member_the_team_lacks_is_refused_before_pretraining(tmp_path, pretrainings):
-    for wanted, message in [(2, r"transfer.source_agent=2: the source team .* of 2 agents \(0..1\), which has no "
-                                r"agent 2$"),
-                            ([0, 1, 0], r"transfer.source_agent lists 3 source agents for 2 target agents")]:
+    for wanted, message in [
+        (
+            2,
+            r"transfer.source_agent=2: the source team .* of 2 agents \(0..1\), which has no "
+            r"agent 2$",
+        ),
+        ([0, 1, 0], r"transfer.source_agent lists 3 source agents for 2 target agents"),
+    ]:
         with pytest.raises(TransferError, match=message):
             transfer_sources(config(tmp_path / "cache", source_task=SourceTask.team, source_agent=wanted), tmp_path)
     assert pretrainings == [] and not (tmp_path / "cache").exists()
@@ -256,24 +303,34 @@ def test_a_team_member_the_team_lacks_is_refused_before_pretraining(tmp_path, pr
 
 # name -> (overrides, the error line)
 REFUSED = {
-    "team_without_transfer": (("transfer.source_task=team",),
-                              "error: transfer.source_task=team says how the transfer source is pretrained: it needs "
-                              "transfer=on"),
-    "shift_without_transfer": (("transfer.source_map_shift=1000",),
-                               "error: transfer.source_map_shift=1000 says how the transfer source is pretrained: it "
-                               "needs transfer=on"),
-    "team_with_source": (("transfer=on", "transfer.source=elsewhere", "transfer.source_task=team"),
-                         "error: transfer.source_task=team says how the transfer source is pretrained, but "
-                         "transfer.source=elsewhere is not pretrained: leave one of them unset"),
-    "shift_with_source": (("transfer=on", "transfer.source=elsewhere", "transfer.source_map_shift=1000"),
-                          "error: transfer.source_map_shift=1000 says how the transfer source is pretrained, but "
-                          "transfer.source=elsewhere is not pretrained: leave one of them unset"),
-    "shift_with_layout": (("transfer=on", "env.layout_file=map.txt", "transfer.source_map_shift=1000"),
-                          "error: transfer.source_map_shift=1000 shifts env.map_seed, which needs a generated map; "
-                          "env.layout / env.layout_file fix the map"),
-    "team_member_missing": (("transfer=on", "transfer.source_task=team", "transfer.source_agent=2"),
-                            "error: transfer.source_agent=2: the source team (transfer.source_task=team) is this run's "
-                            "team of 2 agents (0..1), which has no agent 2"),
+    "team_without_transfer": (
+        ("transfer.source_task=team",),
+        "error: transfer.source_task=team says how the transfer source is pretrained: it needs transfer=on",
+    ),
+    "shift_without_transfer": (
+        ("transfer.source_map_shift=1000",),
+        "error: transfer.source_map_shift=1000 says how the transfer source is pretrained: it needs transfer=on",
+    ),
+    "team_with_source": (
+        ("transfer=on", "transfer.source=elsewhere", "transfer.source_task=team"),
+        "error: transfer.source_task=team says how the transfer source is pretrained, but "
+        "transfer.source=elsewhere is not pretrained: leave one of them unset",
+    ),
+    "shift_with_source": (
+        ("transfer=on", "transfer.source=elsewhere", "transfer.source_map_shift=1000"),
+        "error: transfer.source_map_shift=1000 says how the transfer source is pretrained, but "
+        "transfer.source=elsewhere is not pretrained: leave one of them unset",
+    ),
+    "shift_with_layout": (
+        ("transfer=on", "env.layout_file=map.txt", "transfer.source_map_shift=1000"),
+        "error: transfer.source_map_shift=1000 shifts env.map_seed, which needs a generated map; "
+        "env.layout / env.layout_file fix the map",
+    ),
+    "team_member_missing": (
+        ("transfer=on", "transfer.source_task=team", "transfer.source_agent=2"),
+        "error: transfer.source_agent=2: the source team (transfer.source_task=team) is this run's "
+        "team of 2 agents (0..1), which has no agent 2",
+    ),
 }
 
 
@@ -282,8 +339,10 @@ def refused(tmp_path_factory) -> tuple[Path, dict]:
     cwd = tmp_path_factory.mktemp("refused")
     (cwd / "map.txt").write_text(MAP)
     names = list(REFUSED)
-    jobs = [(cwd, ("agent=qlearning", "transfer.pretrain_steps=50", "total_steps=20", *REFUSED[name][0]), cwd / name)
-            for name in names]
+    jobs = [
+        (cwd, ("agent=qlearning", "transfer.pretrain_steps=50", "total_steps=20", *REFUSED[name][0]), cwd / name)
+        for name in names
+    ]
     return cwd, dict(zip(names, run_many(jobs, check=False)))
 
 

@@ -37,15 +37,30 @@ MAP = "0...T\n.....\n..X..\n.....\n1...T\n"
 PRETRAIN_STEPS = 200
 PRETRAINING, REUSING, WAITING = "pretraining a source agent", "reusing the pretrained source", "waiting for another job"
 # The command line of the process tests: a small DQN on MAP, every run's source cached in cache/.
-CLI = ("env.layout_file=map.txt", "eval_episodes=2", "agent=dqn", "agent.hidden=[32]", "agent.batch_size=32",
-       "agent.learning_starts=50", "transfer=on", "transfer.cache_dir=cache")
+CLI = (
+    "env.layout_file=map.txt",
+    "eval_episodes=2",
+    "agent=dqn",
+    "agent.hidden=[32]",
+    "agent.batch_size=32",
+    "agent.learning_starts=50",
+    "transfer=on",
+    "transfer.cache_dir=cache",
+)
 
 
 def config(cache: Path, pretrain_steps: int = PRETRAIN_STEPS) -> TrainConfig:
     env = EnvConfig(layout=MAP, size=5, num_treasures=2, num_traps=1, num_agents=2, complexity=0.0)
     transfer = TransferConfig(enabled=True, cache_dir=str(cache), pretrain_steps=pretrain_steps)
-    return TrainConfig(env=env, agent=AgentConfig(algorithm=Algorithm.qlearning, lr=0.5), seed=0, total_steps=0,
-                       eval_episodes=1, progress=False, transfer=transfer)
+    return TrainConfig(
+        env=env,
+        agent=AgentConfig(algorithm=Algorithm.qlearning, lr=0.5),
+        seed=0,
+        total_steps=0,
+        eval_episodes=1,
+        progress=False,
+        transfer=transfer,
+    )
 
 
 def listing(cache: Path) -> tuple[list[str], list[str]]:
@@ -75,6 +90,7 @@ def entry(cache: Path, tmp_path: Path) -> Path:
 
 
 # ------------------------------------------------------------------------- in process
+
 
 def test_a_pretraining_fills_one_entry_and_nothing_else(cache, tmp_path, caplog):
     caplog.set_level(logging.INFO, logger="dqn_transfer")
@@ -164,11 +180,14 @@ def test_an_unusable_cache_dir_is_one_message(tmp_path):
     (tmp_path / "a_file").write_text("")
     with pytest.raises(TransferError) as err:
         transfer_sources(config(tmp_path / "a_file" / "cache"), tmp_path)[0][0]
-    assert str(err.value) == (f"cannot use the pretraining cache {tmp_path / 'a_file' / 'cache'}: Not a directory "
-                              "(set transfer.cache_dir to a writable directory)")
+    assert str(err.value) == (
+        f"cannot use the pretraining cache {tmp_path / 'a_file' / 'cache'}: Not a directory "
+        "(set transfer.cache_dir to a writable directory)"
+    )
 
 
 # ------------------------------------------------------------------------- real processes
+
 
 def wait_for(condition: Callable[[], object], procs: list[subprocess.Popen], what: str, timeout: float = 120):
     """Poll ``condition`` until it returns something true; fail if a process ends before that."""
@@ -228,8 +247,10 @@ def test_two_cold_runs_at_once_pretrain_once(tmp_path):
     entries, hidden = listing(cache)
     assert len(entries) == 1 and hidden == []
     checkpoint = cache / entries[0] / "checkpoints" / "agent_0.safetensors"
-    sources = [json.loads((tmp_path / f"run{i}" / "metrics.jsonl").read_text().splitlines()[0])["transfer_source"]
-               for i in range(2)]
+    sources = [
+        json.loads((tmp_path / f"run{i}" / "metrics.jsonl").read_text().splitlines()[0])["transfer_source"]
+        for i in range(2)
+    ]
     assert sources[0]["digest"] == sources[1]["digest"]
     assert sources[0]["source"] == sources[1]["source"] == str(checkpoint)
 

@@ -24,8 +24,15 @@ pytestmark = pytest.mark.slow  # starts `python train.py -m` and, through submit
 MAP = "0...T\n.#...\n...#.\nX....\n1..T.\n"  # 5 x 5, two chests, one trap, two agents ("0", "1")
 NUM_AGENTS = 2
 # The map's own parameters, so that the layout file overrides nothing (no warning in the logs).
-ENV = ("env.layout_file=map.txt", "env.size=5", "env.num_treasures=2", "env.num_traps=1", "env.num_agents=2",
-       "env.complexity=0.08", "env.map_seed=0")
+ENV = (
+    "env.layout_file=map.txt",
+    "env.size=5",
+    "env.num_treasures=2",
+    "env.num_traps=1",
+    "env.num_agents=2",
+    "env.complexity=0.08",
+    "env.map_seed=0",
+)
 SEEDS = (0, 1)
 TOTAL_STEPS, EVAL_EVERY = 300, 100
 # submitit's local controller sends the job its "about to time out" signal (SIGUSR2) 30 s before
@@ -37,11 +44,23 @@ assert TIMEOUT_MIN * 60 < TRAIN_TIMEOUT
 
 
 def sweep_command(sweep_dir: Path) -> list[str]:
-    return [sys.executable, str(TRAIN_PY), "-m", "hydra/launcher=submitit_local",
-            f"hydra.launcher.timeout_min={TIMEOUT_MIN}", "hydra.launcher.cpus_per_task=1",
-            f"seed={','.join(map(str, SEEDS))}", *ENV, "agent=sarsa", f"total_steps={TOTAL_STEPS}",
-            f"eval_every={EVAL_EVERY}", f"checkpoint_every={EVAL_EVERY}", "eval_episodes=2", "progress=false",
-            f"hydra.sweep.dir={sweep_dir}"]
+    return [
+        sys.executable,
+        str(TRAIN_PY),
+        "-m",
+        "hydra/launcher=submitit_local",
+        f"hydra.launcher.timeout_min={TIMEOUT_MIN}",
+        "hydra.launcher.cpus_per_task=1",
+        f"seed={','.join(map(str, SEEDS))}",
+        *ENV,
+        "agent=sarsa",
+        f"total_steps={TOTAL_STEPS}",
+        f"eval_every={EVAL_EVERY}",
+        f"checkpoint_every={EVAL_EVERY}",
+        "eval_episodes=2",
+        "progress=false",
+        f"hydra.sweep.dir={sweep_dir}",
+    ]
 
 
 def sweep_env() -> dict[str, str]:
@@ -54,8 +73,9 @@ def sweep_env() -> dict[str, str]:
 
 
 def run_sweep(launch: Path, sweep_dir: Path) -> subprocess.CompletedProcess:
-    return subprocess.run(sweep_command(sweep_dir), cwd=launch, env=sweep_env(), capture_output=True, text=True,
-                          timeout=TRAIN_TIMEOUT)
+    return subprocess.run(
+        sweep_command(sweep_dir), cwd=launch, env=sweep_env(), capture_output=True, text=True, timeout=TRAIN_TIMEOUT
+    )
 
 
 def submitit_jobs(sweep_dir: Path) -> list[Path]:

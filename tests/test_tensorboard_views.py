@@ -19,10 +19,10 @@ import urllib.request
 
 import numpy as np
 import pytest
+from conftest import DOWN, always_acting_team
 from PIL import Image
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from conftest import DOWN, always_acting_team
 from dqn_transfer.config import AgentConfig, TrainConfig, TransferConfig
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.storage.run_dir import RunDir
@@ -38,8 +38,15 @@ def run(tmp_path_factory) -> RunDir:
     base = tmp_path_factory.mktemp("tb")
     source = always_acting_team(base / "source") / "checkpoints" / "agent_0.safetensors"
     env = EnvConfig(layout="0.T\n1..\nX..", size=3, num_treasures=1, num_traps=1, num_agents=2, complexity=0.0)
-    config = TrainConfig(env=env, agent=AgentConfig(algorithm="dqn", hidden=[8]), total_steps=1, eval_every=1,
-                         eval_episodes=1, progress=False, transfer=TransferConfig(enabled=True, source=str(source)))
+    config = TrainConfig(
+        env=env,
+        agent=AgentConfig(algorithm="dqn", hidden=[8]),
+        total_steps=1,
+        eval_every=1,
+        eval_episodes=1,
+        progress=False,
+        transfer=TransferConfig(enabled=True, source=str(source)),
+    )
     train(config, base / "run", sources=[source])
     return RunDir(base / "run")
 
@@ -78,8 +85,15 @@ def test_the_trap_rate_is_the_one_in_metrics_jsonl(tmp_path):
     layout = "0.T\nX..\n..."
     file = always_acting_team(tmp_path / "source", DOWN, layout) / "checkpoints" / "agent_0.safetensors"
     env = EnvConfig(layout=layout, size=3, num_treasures=1, num_traps=1, num_agents=1, complexity=0.0)
-    config = TrainConfig(env=env, agent=AgentConfig(algorithm="dqn", hidden=[8]), total_steps=1, eval_every=1,
-                         eval_episodes=1, progress=False, transfer=TransferConfig(enabled=True, source=str(file)))
+    config = TrainConfig(
+        env=env,
+        agent=AgentConfig(algorithm="dqn", hidden=[8]),
+        total_steps=1,
+        eval_every=1,
+        eval_episodes=1,
+        progress=False,
+        transfer=TransferConfig(enabled=True, source=str(file)),
+    )
     train(config, tmp_path / "run", sources=[file])
     metrics = [json.loads(line) for line in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
     assert [m["trap_rate"] for m in metrics] == [1.0, 1.0]
@@ -93,9 +107,26 @@ def get(url: str) -> bytes:
 
 @pytest.mark.slow
 def test_a_tensorboard_server_on_loopback_serves_the_picture(run):
-    server = subprocess.Popen([sys.executable, "-m", "tensorboard.main", "--logdir", str(run.tensorboard),
-                               "--host", "127.0.0.1", "--port", "0", "--load_fast", "false", "--reload_interval", "1"],
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    server = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "tensorboard.main",
+            "--logdir",
+            str(run.tensorboard),
+            "--host",
+            "127.0.0.1",
+            "--port",
+            "0",
+            "--load_fast",
+            "false",
+            "--reload_interval",
+            "1",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     try:
         deadline = time.monotonic() + SERVER_TIMEOUT
         address = None

@@ -40,10 +40,19 @@ LEARNER_RUNS = {
     "double_dqn": (("agent=double_dqn", "mode=cooperative", "agent.learning_starts=50", *SMALL_NET), 300, 150),
 }
 
-TB_TAGS = [f"agent_{i}/{name}" for i in range(NUM_AGENTS)
-           for name in ("episodic_return", "episodic_length", "td_loss", "q_mean")] + [
-    "team/return", "team/treasures_collected", "team/trap_rate", "eval/team_return",
-    "eval/success_rate", "train/epsilon", "train/sps"]
+TB_TAGS = [
+    f"agent_{i}/{name}"
+    for i in range(NUM_AGENTS)
+    for name in ("episodic_return", "episodic_length", "td_loss", "q_mean")
+] + [
+    "team/return",
+    "team/treasures_collected",
+    "team/trap_rate",
+    "eval/team_return",
+    "eval/success_rate",
+    "train/epsilon",
+    "train/sps",
+]
 
 
 def learner_overrides(name: str) -> tuple[str, ...]:
@@ -55,12 +64,18 @@ def agent_tensors(path: Path) -> dict[str, np.ndarray]:
     from safetensors import safe_open
 
     with safe_open(str(path), framework="numpy") as f:
-        return {name: f.get_tensor(name) for name in f.keys()}
+        return {name: f.get_tensor(name) for name in f.keys()}  # noqa: SIM118 (safe_open has no __iter__)
 
 
 def checkpoint_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "dqn_transfer.cli.ckpt", *args], cwd=REPO,
-                          env=train_env(), capture_output=True, text=True, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "dqn_transfer.cli.ckpt", *args],
+        cwd=REPO,
+        env=train_env(),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
 
 
 def file_bytes(directory: Path) -> dict[str, bytes]:
@@ -175,13 +190,25 @@ def test_checkpoints_are_self_describing_safetensors(runs):
     for i in range(NUM_AGENTS):
         path = d / "checkpoints" / f"agent_{i}.safetensors"
         meta = agent_meta(path)
-        for key in ("algorithm", "obs_layout", "num_actions", "network", "env", "steps", "episodes",
-                    "last_eval", "digest"):
+        for key in (
+            "algorithm",
+            "obs_layout",
+            "num_actions",
+            "network",
+            "env",
+            "steps",
+            "episodes",
+            "last_eval",
+            "digest",
+        ):
             assert key in meta, key
         assert meta["algorithm"] == "dqn"
         # deliberative mode: position one-hot (n*n), what it knows of each chest, its assignment
-        assert [list(s) for s in meta["obs_layout"]] == [["position", SIZE * SIZE], ["treasures", NUM_TREASURES],
-                                                         ["assignment", NUM_TREASURES]]
+        assert [list(s) for s in meta["obs_layout"]] == [
+            ["position", SIZE * SIZE],
+            ["treasures", NUM_TREASURES],
+            ["assignment", NUM_TREASURES],
+        ]
         assert meta["num_actions"] == 4
         assert meta["env"]["mode"] == "deliberative"
         assert meta["env"]["size"] == SIZE
@@ -232,16 +259,30 @@ def test_same_seed_same_results_different_seed_differs(runs):
     a, b, c = (read_metrics(runs[name].run_dir) for name in ("dqn", "dqn_again", "dqn_seed1"))
     assert without_timing(a) == without_timing(b)
     assert without_timing(a) != without_timing(c)
-    digests = {name: [agent_meta(runs[name].run_dir / "checkpoints" / f"agent_{i}.safetensors")["digest"]
-                      for i in range(NUM_AGENTS)] for name in ("dqn", "dqn_again", "dqn_seed1")}
+    digests = {
+        name: [
+            agent_meta(runs[name].run_dir / "checkpoints" / f"agent_{i}.safetensors")["digest"]
+            for i in range(NUM_AGENTS)
+        ]
+        for name in ("dqn", "dqn_again", "dqn_seed1")
+    }
     assert digests["dqn"] == digests["dqn_again"]  # bit-identical weights
     assert digests["dqn"] != digests["dqn_seed1"]
 
 
 # ------------------------------------------------------------------------ 6. resume after SIGKILL
 
-RESUME_RUN = (*BASE, "agent=dqn", "mode=cooperative", "agent.learning_starts=100", *SMALL_NET,
-              "total_steps=1500", "checkpoint_every=500", "eval_every=125", "seed=3")
+RESUME_RUN = (
+    *BASE,
+    "agent=dqn",
+    "mode=cooperative",
+    "agent.learning_starts=100",
+    *SMALL_NET,
+    "total_steps=1500",
+    "checkpoint_every=500",
+    "eval_every=125",
+    "seed=3",
+)
 
 
 def _state_step(path: Path) -> int:
@@ -283,8 +324,14 @@ def resumed(launch_dir):
     metrics_at_kill = _complete_metric_steps(killed_dir)
     result = run_train(launch_dir, *RESUME_RUN, "resume=true", run_dir=killed_dir, check=False)
     reference.wait(timeout=300)
-    return {"killed_code": killed_code, "checkpointed": checkpointed, "metrics_at_kill": metrics_at_kill,
-            "result": result, "reference_code": reference.returncode, "reference_dir": launch_dir / "uninterrupted"}
+    return {
+        "killed_code": killed_code,
+        "checkpointed": checkpointed,
+        "metrics_at_kill": metrics_at_kill,
+        "result": result,
+        "reference_code": reference.returncode,
+        "reference_dir": launch_dir / "uninterrupted",
+    }
 
 
 def test_sigkilled_run_resumes_to_the_end(resumed):
@@ -409,8 +456,9 @@ def test_second_run_into_a_run_directory_is_refused(refused):
 
 def test_refused_run_keeps_the_runs_own_config_record(refused):
     before, after, _ = refused
-    assert {k: v for k, v in after.items() if k.startswith(".hydra")} == \
-        {k: v for k, v in before.items() if k.startswith(".hydra")}
+    assert {k: v for k, v in after.items() if k.startswith(".hydra")} == {
+        k: v for k, v in before.items() if k.startswith(".hydra")
+    }
 
 
 class _Killed(Exception):
@@ -459,12 +507,21 @@ def test_a_kill_at_a_checkpoint_loses_nothing(tmp_path, monkeypatch, before):
     from dqn_transfer.envs.settings import EnvConfig
 
     def config(resume: bool = False) -> TrainConfig:
-        return TrainConfig(env=EnvConfig(layout=MAP), agent=AgentConfig(algorithm=Algorithm.qlearning, lr=0.1),
-                           seed=2, total_steps=90, eval_every=1, eval_episodes=1, checkpoint_every=40,
-                           progress=False, resume=resume)
+        return TrainConfig(
+            env=EnvConfig(layout=MAP),
+            agent=AgentConfig(algorithm=Algorithm.qlearning, lr=0.1),
+            seed=2,
+            total_steps=90,
+            eval_every=1,
+            eval_episodes=1,
+            checkpoint_every=40,
+            progress=False,
+            resume=resume,
+        )
 
-    resumed, reference = kill_and_resume(tmp_path, monkeypatch, config, before=before,
-                                         dies=lambda trainer: trainer.step > 40)
+    resumed, reference = kill_and_resume(
+        tmp_path, monkeypatch, config, before=before, dies=lambda trainer: trainer.step > 40
+    )
     assert [m["step"] for m in resumed] == list(range(91))
     assert resumed == reference
 
@@ -499,14 +556,23 @@ def test_kill_mid_exchange_window_resumes_exactly(tmp_path, monkeypatch, exchang
 
     def config(resume: bool = False) -> TrainConfig:
         return TrainConfig(
-            env=EnvConfig(layout=MAP), seed=0, total_steps=240, eval_every=40, eval_episodes=1,
-            checkpoint_every=30, progress=False, resume=resume,
+            env=EnvConfig(layout=MAP),
+            seed=0,
+            total_steps=240,
+            eval_every=40,
+            eval_episodes=1,
+            checkpoint_every=30,
+            progress=False,
+            resume=resume,
             agent=AgentConfig(algorithm=Algorithm(algorithm), hidden=[16], batch_size=8, learning_starts=30),
-            transfer=TransferConfig(exchange=Exchange(exchange), exchange_every=5))
+            transfer=TransferConfig(exchange=Exchange(exchange), exchange_every=5),
+        )
 
     mid_window = lambda trainer: bool(trainer.replicas[0].window_returns)  # noqa: E731
     resumed, reference = kill_and_resume(tmp_path, monkeypatch, config, dies=mid_window)
     assert resumed == reference
-    digests = [agent_meta(tmp_path / name / "checkpoints" / "agent_1.safetensors")["digest"]
-               for name in ("killed", "reference")]
+    digests = [
+        agent_meta(tmp_path / name / "checkpoints" / "agent_1.safetensors")["digest"]
+        for name in ("killed", "reference")
+    ]
     assert digests[0] == digests[1]  # bit-identical weights

@@ -27,14 +27,14 @@ from safetensors import safe_open
 from safetensors.numpy import load_file
 from torch import nn
 
-from dqn_transfer.storage.checkpoint import CheckpointError
-from dqn_transfer.config import AgentConfig, ConfigError, TrainConfig, TransferConfig
-from dqn_transfer.enums import Algorithm, Exchange, Mode
-from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.analysis.compare import compare_runs
 from dqn_transfer.analysis.runs import learning_curve
 from dqn_transfer.analysis.transfer_metrics import jumpstart
+from dqn_transfer.config import AgentConfig, ConfigError, TrainConfig, TransferConfig
+from dqn_transfer.enums import Algorithm, Exchange, Mode
+from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.sources.resolve import transfer_sources
+from dqn_transfer.storage.checkpoint import CheckpointError
 from dqn_transfer.training.trainer import Trainer
 from dqn_transfer.transfer.mapping import TransferError
 
@@ -46,8 +46,15 @@ TEAM_MAP = "0...T\n.....\n..X..\n.....\n1...T\n"
 # Jumpstart map: one agent, one chest four moves away (row 2 col 2), one trap in a corner.
 SOLO_MAP = "0....\n.....\n..T..\n.....\n....X\n"
 
-DQN_AGENT = dict(algorithm=Algorithm.dqn, hidden=[32, 32], batch_size=32, buffer_size=5_000,
-                 learning_starts=50, target_update=100, tau=1.0)
+DQN_AGENT = dict(
+    algorithm=Algorithm.dqn,
+    hidden=[32, 32],
+    batch_size=32,
+    buffer_size=5_000,
+    learning_starts=50,
+    target_update=100,
+    tau=1.0,
+)
 QL_AGENT = dict(algorithm=Algorithm.qlearning, lr=0.5)
 
 
@@ -62,16 +69,38 @@ def one_torch_thread():
 
 def env_config(layout: str, mode: Mode = Mode.cooperative) -> EnvConfig:
     """The layout, with generation parameters that agree with it (no 'layout differs' warning)."""
-    return EnvConfig(layout=layout, size=N, num_treasures=layout.count("T"), num_traps=layout.count("X"),
-                     num_agents=sum(ch.isdigit() for ch in layout), complexity=0.0, mode=mode)
+    return EnvConfig(
+        layout=layout,
+        size=N,
+        num_treasures=layout.count("T"),
+        num_traps=layout.count("X"),
+        num_agents=sum(ch.isdigit() for ch in layout),
+        complexity=0.0,
+        mode=mode,
+    )
 
 
-def make_config(layout: str, agent: dict, *, mode: Mode = Mode.cooperative, seed: int = 0,
-                total_steps: int = 0, transfer: TransferConfig | None = None, **top) -> TrainConfig:
+def make_config(
+    layout: str,
+    agent: dict,
+    *,
+    mode: Mode = Mode.cooperative,
+    seed: int = 0,
+    total_steps: int = 0,
+    transfer: TransferConfig | None = None,
+    **top,
+) -> TrainConfig:
     top = {"eval_episodes": 1, "progress": False, **top}
-    return TrainConfig(env=env_config(layout, mode), agent=AgentConfig(**agent), seed=seed,
-                       total_steps=total_steps, eval_every=max(1, total_steps), checkpoint_every=max(1, total_steps),
-                       transfer=transfer or TransferConfig(), **top)
+    return TrainConfig(
+        env=env_config(layout, mode),
+        agent=AgentConfig(**agent),
+        seed=seed,
+        total_steps=total_steps,
+        eval_every=max(1, total_steps),
+        checkpoint_every=max(1, total_steps),
+        transfer=transfer or TransferConfig(),
+        **top,
+    )
 
 
 def make_trainer(config: TrainConfig, run_dir: Path, launch_dir: Path) -> Trainer:
@@ -97,7 +126,8 @@ def source_mlp(path: Path) -> nn.Sequential:
 
 
 def random_observations(mode: Mode, num_treasures: int, count: int, rng: np.random.Generator):
-    """``(position one-hot [count, n*n], expanded obs [count, D])`` in the observation's documented segment order (docs/game.md)."""
+    """``(position one-hot [count, n*n], expanded obs [count, D])`` in the observation's documented
+    segment order (docs/game.md)."""
     position = np.eye(N * N, dtype=np.float32)[rng.integers(N * N, size=count)]
     parts = [position, rng.integers(0, 2, size=(count, num_treasures)).astype(np.float32)]
     if mode is Mode.deliberative:
@@ -110,6 +140,7 @@ def expected_layout(mode: Mode, k: int) -> list[tuple[str, int]]:
 
 
 # ------------------------------------------------------------------------------ module-wide sources
+
 
 @pytest.fixture(scope="module")
 def work(tmp_path_factory) -> Path:
@@ -129,12 +160,14 @@ def tabular_source(work) -> Path:
 
 # ----------------------------------------------------------------------------- function preservation
 
+
 @pytest.mark.parametrize("mode", [Mode.cooperative, Mode.deliberative])
 def test_dqn_transfer_preserves_the_source_q_function(work, dqn_source, mode):
     meta = header_meta(dqn_source)
     assert meta["obs_layout"] == [["position", N * N]] and meta["source_task"] and meta["steps"] == 300
-    config = make_config(TEAM_MAP, DQN_AGENT, mode=mode, seed=1,
-                         transfer=TransferConfig(enabled=True, source=str(dqn_source)))
+    config = make_config(
+        TEAM_MAP, DQN_AGENT, mode=mode, seed=1, transfer=TransferConfig(enabled=True, source=str(dqn_source))
+    )
     trainer = make_trainer(config, work / f"fp_dqn_{mode.value}", work)
     assert trainer.replicas[0].game.obs_layout() == expected_layout(mode, 2)
     trainer.run()  # total_steps=0: transfer, write the initial checkpoints, stop
@@ -160,8 +193,9 @@ def test_tabular_transfer_preserves_the_source_table(work, tabular_source, mode)
     keys, values = source["keys"], source["values"]
     visited = keys.argmax(axis=1)
     assert keys.shape[1] == N * N and len(visited) >= 10 and np.abs(values).max() > 1.0
-    config = make_config(TEAM_MAP, QL_AGENT, mode=mode,
-                         transfer=TransferConfig(enabled=True, source=str(tabular_source)))
+    config = make_config(
+        TEAM_MAP, QL_AGENT, mode=mode, transfer=TransferConfig(enabled=True, source=str(tabular_source))
+    )
     trainer = make_trainer(config, work / f"fp_ql_{mode.value}", work)
     trainer.run()
 
@@ -181,6 +215,7 @@ def test_tabular_transfer_preserves_the_source_table(work, tabular_source, mode)
 
 # --------------------------------------------------------------------------- CLI refusal of sources
 
+
 class _Plant:
     """Unpickling this creates ``marker``: what a malicious shared 'checkpoint' could do."""
 
@@ -191,9 +226,20 @@ class _Plant:
         return (open, (self.marker, "w"))
 
 
-TEAM_CLI = ("agent=dqn", "agent.hidden=[32,32]", "mode=cooperative", "env.layout_file=team_map.txt",
-            f"env.size={N}", "env.num_treasures=2", "env.num_traps=1", "env.num_agents=2", "env.complexity=0.0",
-            "env.map_seed=0", "transfer=on", "total_steps=0")  # generation keys agree with the layout: no warning
+TEAM_CLI = (
+    "agent=dqn",
+    "agent.hidden=[32,32]",
+    "mode=cooperative",
+    "env.layout_file=team_map.txt",
+    f"env.size={N}",
+    "env.num_treasures=2",
+    "env.num_traps=1",
+    "env.num_agents=2",
+    "env.complexity=0.0",
+    "env.map_seed=0",
+    "transfer=on",
+    "total_steps=0",
+)  # generation keys agree with the layout: no warning
 
 
 @pytest.fixture(scope="module")
@@ -223,20 +269,36 @@ def cli_refusals(work, dqn_source, tabular_source):
         "bit_flipped": (bad / "flipped.safetensors", TEAM_CLI, ("digest mismatch",)),
         "missing": (bad / "nowhere.safetensors", TEAM_CLI, ("no such file",)),
         # a generated 4 x 4 map: smaller than the source's 5 x 5 (a larger one would take it, at transfer.offset)
-        "larger_source_map": (dqn_source, ("agent=dqn", "agent.hidden=[32,32]", "transfer=on", "total_steps=0",
-                                           "env.size=4"), ("5x5 map does not fit in this run's 4x4 map",)),
+        "larger_source_map": (
+            dqn_source,
+            ("agent=dqn", "agent.hidden=[32,32]", "transfer=on", "total_steps=0", "env.size=4"),
+            ("5x5 map does not fit in this run's 4x4 map",),
+        ),
         "tabular_for_dqn": (tabular_source, TEAM_CLI, ("tabular", "dqn")),
         "other_hidden": (other_hidden, TEAM_CLI, ("hidden layers differ", "[16]", "[32, 32]")),
     }
-    jobs = [(cwd, (*overrides, f"transfer.source={path}"), cwd / f"run_{name}")
-            for name, (path, overrides, _) in cases.items()]
+    jobs = [
+        (cwd, (*overrides, f"transfer.source={path}"), cwd / f"run_{name}")
+        for name, (path, overrides, _) in cases.items()
+    ]
     results = run_many(jobs, check=False)
     return {name: (result, words) for (name, (_, _, words)), result in zip(cases.items(), results)}, marker, planted
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("case", ["pickle_disguised", "torch_save_pt", "truncated", "bit_flipped", "missing",
-                                  "larger_source_map", "tabular_for_dqn", "other_hidden"])
+@pytest.mark.parametrize(
+    "case",
+    [
+        "pickle_disguised",
+        "torch_save_pt",
+        "truncated",
+        "bit_flipped",
+        "missing",
+        "larger_source_map",
+        "tabular_for_dqn",
+        "other_hidden",
+    ],
+)
 def test_cli_refuses_bad_source_with_one_line(cli_refusals, case):
     results, _, _ = cli_refusals
     result, words = results[case]
@@ -269,8 +331,11 @@ def test_planted_pickle_of_any_protocol_is_refused_in_process(work, protocol):
     source = work / f"plant_{protocol}" / "agent_0.safetensors"
     source.parent.mkdir()
     source.write_bytes(pickle.dumps(_Plant(str(marker)), protocol=protocol))
-    trainer = make_trainer(make_config(TEAM_MAP, DQN_AGENT, transfer=TransferConfig(enabled=True, source=str(source))),
-                      work / f"plant_run_{protocol}", work)
+    trainer = make_trainer(
+        make_config(TEAM_MAP, DQN_AGENT, transfer=TransferConfig(enabled=True, source=str(source))),
+        work / f"plant_run_{protocol}",
+        work,
+    )
     with pytest.raises(CheckpointError, match="not a safetensors|pickle"):
         trainer.run()
     assert not marker.exists()
@@ -279,8 +344,9 @@ def test_planted_pickle_of_any_protocol_is_refused_in_process(work, protocol):
 
 def test_out_of_range_targets_and_freeze_are_clear_errors(work, dqn_source):
     def run(name: str, **transfer) -> None:
-        config = make_config(TEAM_MAP, DQN_AGENT,
-                             transfer=TransferConfig(enabled=True, source=str(dqn_source), **transfer))
+        config = make_config(
+            TEAM_MAP, DQN_AGENT, transfer=TransferConfig(enabled=True, source=str(dqn_source), **transfer)
+        )
         make_trainer(config, work / name, work).run()
 
     with pytest.raises(TransferError, match=r"transfer.targets \[2\] out of range for 2 agents"):
@@ -290,6 +356,7 @@ def test_out_of_range_targets_and_freeze_are_clear_errors(work, dqn_source):
 
 
 # ------------------------------------------------------------------------- pretraining and its cache
+
 
 def test_pretrained_source_is_cached_and_reused(work, caplog):
     caplog.set_level(logging.INFO, logger="dqn_transfer")
@@ -309,7 +376,10 @@ def test_pretrained_source_is_cached_and_reused(work, caplog):
     meta = header_meta(checkpoint)
     assert meta["steps"] == 120 and meta["source_task"]
     stamp, digest = checkpoint.stat().st_mtime_ns, meta["digest"]
-    assert first.replicas[0].transfer_info["source"] == str(checkpoint.resolve()) and first.replicas[0].transfer_info["pretrained"]
+    assert (
+        first.replicas[0].transfer_info["source"] == str(checkpoint.resolve())
+        and first.replicas[0].transfer_info["pretrained"]
+    )
 
     caplog.clear()
     second = run("cache_2", 120)
@@ -322,7 +392,10 @@ def test_pretrained_source_is_cached_and_reused(work, caplog):
     assert "pretraining a source agent" in caplog.text
     assert len([e for e in cache.iterdir() if not e.name.startswith(".")]) == 2
     assert checkpoint.stat().st_mtime_ns == stamp
-    assert third.replicas[0].transfer_info["digest"] != digest and header_meta(Path(third.replicas[0].transfer_info["source"]))["steps"] == 140
+    assert (
+        third.replicas[0].transfer_info["digest"] != digest
+        and header_meta(Path(third.replicas[0].transfer_info["source"]))["steps"] == 140
+    )
 
 
 def test_relative_cache_dir_is_under_the_launch_dir(work, monkeypatch):
@@ -366,8 +439,10 @@ def _check_jumpstart(on, off, label: str):
     baseline = [_step0_team_return(d) for d in off]
     results = compare_runs(on, off)
     js = results["jumpstart"]
-    print(f"[{label}] step-0 team_return transfer={transferred} baseline={baseline} "  # shown with -s
-          f"jumpstart mean={js['mean']:.2f} 95% CI=[{js['low']:.2f}, {js['high']:.2f}] n={js['n']}")
+    print(
+        f"[{label}] step-0 team_return transfer={transferred} baseline={baseline} "  # shown with -s
+        f"jumpstart mean={js['mean']:.2f} 95% CI=[{js['low']:.2f}, {js['high']:.2f}] n={js['n']}"
+    )
     # The source solves the map (chest 4 moves away: 3 x -1 + 100), and the transfer keeps its policy.
     assert transferred == [97.0] * len(SEEDS)
     assert js["n"] == len(SEEDS) and js["mean"] > 0 and js["low"] > 0
@@ -389,8 +464,7 @@ def test_jumpstart_tabular_with_pretrained_sources(work):
 
 @pytest.mark.slow
 def test_jumpstart_dqn(work):
-    source = train_source(work / "js_dqn_source", SOLO_MAP, {**DQN_AGENT, "learning_starts": 100}, 800,
-                          eval_episodes=1)
+    source = train_source(work / "js_dqn_source", SOLO_MAP, {**DQN_AGENT, "learning_starts": 100}, 800, eval_episodes=1)
     assert header_meta(source)["last_eval"]["success_rate"] == 1.0
     on, off = _jumpstart_runs(work, "dqn", DQN_AGENT, TransferConfig(enabled=True, source=str(source)))
     _check_jumpstart(on, off, "dqn")
@@ -398,12 +472,14 @@ def test_jumpstart_dqn(work):
 
 # ------------------------------------------------------------------------ what a run records
 
+
 def test_run_records_source_path_and_digest(work, dqn_source):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     run_dir = work / "records"
-    config = make_config(TEAM_MAP, DQN_AGENT, total_steps=3,
-                         transfer=TransferConfig(enabled=True, source=str(dqn_source)))
+    config = make_config(
+        TEAM_MAP, DQN_AGENT, total_steps=3, transfer=TransferConfig(enabled=True, source=str(dqn_source))
+    )
     make_trainer(config, run_dir, work).run()
     digest = header_meta(dqn_source)["digest"]
 
@@ -425,11 +501,16 @@ def test_run_records_source_path_and_digest(work, dqn_source):
 
 # ------------------------------------------------------------------- targets, freeze, exchange
 
+
 def test_targets_transfers_only_the_listed_agents(work, dqn_source):
     source = load_file(str(dqn_source))
-    on = make_trainer(make_config(TEAM_MAP, DQN_AGENT, seed=7,
-                             transfer=TransferConfig(enabled=True, source=str(dqn_source), targets=[0])),
-                 work / "targets_on", work)
+    on = make_trainer(
+        make_config(
+            TEAM_MAP, DQN_AGENT, seed=7, transfer=TransferConfig(enabled=True, source=str(dqn_source), targets=[0])
+        ),
+        work / "targets_on",
+        work,
+    )
     off = make_trainer(make_config(TEAM_MAP, DQN_AGENT, seed=7), work / "targets_off", work)
     on.run()
     off.run()
@@ -440,22 +521,23 @@ def test_targets_transfers_only_the_listed_agents(work, dqn_source):
     for name in fresh1:  # agent 1 keeps its random init: identical to the same seed without transfer
         np.testing.assert_array_equal(agent1[name], fresh1[name])
     np.testing.assert_array_equal(agent0["q.layers.0.weight"][:, : N * N], source["q.layers.0.weight"])
-    assert not agent0["q.layers.0.weight"][:, N * N:].any()  # treasures: zero input weights
+    assert not agent0["q.layers.0.weight"][:, N * N :].any()  # treasures: zero input weights
     np.testing.assert_array_equal(agent0["q.layers.2.weight"], source["q.layers.2.weight"])
     assert not np.array_equal(agent0["q.layers.2.weight"], fresh0["q.layers.2.weight"])
 
 
 def test_freeze_keeps_layer_0_fixed_while_training(work, dqn_source):
     source = load_file(str(dqn_source))
-    config = make_config(TEAM_MAP, DQN_AGENT, total_steps=150,
-                         transfer=TransferConfig(enabled=True, source=str(dqn_source), freeze=[0]))
+    config = make_config(
+        TEAM_MAP, DQN_AGENT, total_steps=150, transfer=TransferConfig(enabled=True, source=str(dqn_source), freeze=[0])
+    )
     trainer = make_trainer(config, work / "freeze", work)
     trainer.run()
     assert trainer.learner.num_gradient_steps >= 90
     for agent in range(2):
         tensors = trainer.learner.agent_tensors(agent)
         np.testing.assert_array_equal(tensors["q.layers.0.weight"][:, : N * N], source["q.layers.0.weight"])
-        assert not tensors["q.layers.0.weight"][:, N * N:].any()
+        assert not tensors["q.layers.0.weight"][:, N * N :].any()
         np.testing.assert_array_equal(tensors["q.layers.0.bias"], source["q.layers.0.bias"])
         assert not np.array_equal(tensors["q.layers.1.weight"], source["q.layers.1.weight"])  # the rest learned
     saved = load_file(str(trainer.replicas[0].run_dir.agent_checkpoint(1)))
@@ -481,8 +563,9 @@ def test_exchange_best_moves_others_towards_the_best(work, dqn_source, monkeypat
 
     monkeypatch.setattr(trainer_module, "exchange_best", spy)
     # Only agent 0 is transferred, so the two networks differ from the start.
-    transfer = TransferConfig(enabled=True, source=str(dqn_source), targets=[0], exchange=Exchange.best,
-                              exchange_every=3, exchange_tau=0.25)
+    transfer = TransferConfig(
+        enabled=True, source=str(dqn_source), targets=[0], exchange=Exchange.best, exchange_every=3, exchange_tau=0.25
+    )
     trainer = make_trainer(make_config(TEAM_MAP, DQN_AGENT, total_steps=300, transfer=transfer), work / "best", work)
     trainer.run()
     assert len(calls) == trainer.replicas[0].counters.episodes // 3 >= 3
@@ -506,12 +589,18 @@ def test_shared_replay_gives_each_agent_its_teammates_transitions(work, dqn_sour
         replay = trainer.learner.replay  # the team's rows (one replica: all of them)
         size_before = replay.size.copy()
         real(team, transitions, step)
-        calls.append((size_before, replay.size.copy(), list(transitions), replay.ptr.copy(),
-                      torch.from_numpy(replay.state_dict()["obs"])))
+        calls.append(
+            (
+                size_before,
+                replay.size.copy(),
+                list(transitions),
+                replay.ptr.copy(),
+                torch.from_numpy(replay.state_dict()["obs"]),
+            )
+        )
 
     monkeypatch.setattr(trainer_module, "exchange_replay", spy)
-    transfer = TransferConfig(enabled=True, source=str(dqn_source), exchange=Exchange.shared_replay,
-                              exchange_every=2)
+    transfer = TransferConfig(enabled=True, source=str(dqn_source), exchange=Exchange.shared_replay, exchange_every=2)
     trainer = make_trainer(make_config(TEAM_MAP, DQN_AGENT, total_steps=300, transfer=transfer), work / "shared", work)
     trainer.run()
     assert len(calls) == trainer.replicas[0].counters.episodes // 2 >= 3
@@ -525,7 +614,7 @@ def test_shared_replay_gives_each_agent_its_teammates_transitions(work, dqn_sour
             assert given > 0
             assert size_after[receiver] - size_before[receiver] == given  # buffer far from full
             # The newest `given` rows of the receiver are exactly the teammate's observations.
-            newest = obs_storage[receiver, ptr[receiver] - given: ptr[receiver]].numpy()
+            newest = obs_storage[receiver, ptr[receiver] - given : ptr[receiver]].numpy()
             np.testing.assert_array_equal(newest, own_obs[live[:, giver], giver])
             shared_total[receiver] += given
     # Over the run: own transitions (one per live step) + what the teammate shared.
@@ -535,11 +624,13 @@ def test_shared_replay_gives_each_agent_its_teammates_transitions(work, dqn_sour
 
 # ----------------------------------------------------------------------------- optimizer carry-over
 
+
 def test_reset_optimizer_false_carries_the_sources_adam_moments(work, dqn_source):
     """Moments come from the source's resume state; layer 0's rows map like its weights."""
     source_state = load_file(str(dqn_source.parent / "training_state.safetensors"))
-    config = make_config(TEAM_MAP, DQN_AGENT, transfer=TransferConfig(
-        enabled=True, source=str(dqn_source), reset_optimizer=False))
+    config = make_config(
+        TEAM_MAP, DQN_AGENT, transfer=TransferConfig(enabled=True, source=str(dqn_source), reset_optimizer=False)
+    )
     trainer = make_trainer(config, work / "carry_adam", work)
     trainer.run()
     state, _ = trainer.learner.training_state()  # weight_0 moments [K, in, out]: rows 0..24 position, 25..26 treasures
@@ -547,15 +638,20 @@ def test_reset_optimizer_false_carries_the_sources_adam_moments(work, dqn_source
         source_moment = source_state[f"learner/optim.weight_0.{key}"][0]  # [25, 32]
         carried = state[f"optim.weight_0.{key}"]
         for agent in (0, 1):
-            np.testing.assert_array_equal(carried[agent, :N * N], source_moment)
-            assert np.count_nonzero(carried[agent, N * N:]) == 0  # treasures rows: no history
-            np.testing.assert_array_equal(state[f"optim.bias_1.{key}"][agent], source_state[f"learner/optim.bias_1.{key}"][0])
+            np.testing.assert_array_equal(carried[agent, : N * N], source_moment)
+            assert np.count_nonzero(carried[agent, N * N :]) == 0  # treasures rows: no history
+            np.testing.assert_array_equal(
+                state[f"optim.bias_1.{key}"][agent], source_state[f"learner/optim.bias_1.{key}"][0]
+            )
     assert float(state["optim.weight_0.step"]) == float(source_state["learner/optim.weight_0.step"].reshape(-1)[0])
 
 
 def test_reset_optimizer_false_refuses_partial_targets(work, dqn_source):
-    config = make_config(TEAM_MAP, DQN_AGENT, transfer=TransferConfig(
-        enabled=True, source=str(dqn_source), reset_optimizer=False, targets=[1]))
+    config = make_config(
+        TEAM_MAP,
+        DQN_AGENT,
+        transfer=TransferConfig(enabled=True, source=str(dqn_source), reset_optimizer=False, targets=[1]),
+    )
     with pytest.raises(TransferError, match="needs every agent as a target"):
         make_trainer(config, work / "carry_adam_partial", work).run()
 
@@ -564,7 +660,8 @@ def test_reset_optimizer_false_needs_the_sources_resume_state(work, dqn_source):
     lone = work / "lone" / "agent_0.safetensors"
     lone.parent.mkdir(exist_ok=True)
     lone.write_bytes(dqn_source.read_bytes())
-    config = make_config(TEAM_MAP, DQN_AGENT, transfer=TransferConfig(
-        enabled=True, source=str(lone), reset_optimizer=False))
+    config = make_config(
+        TEAM_MAP, DQN_AGENT, transfer=TransferConfig(enabled=True, source=str(lone), reset_optimizer=False)
+    )
     with pytest.raises(TransferError, match="needs the source's optimizer state"):
         make_trainer(config, work / "carry_adam_lone", work).run()

@@ -105,5 +105,6 @@ def make_replicas(
         engine = import_module("dqn_transfer.agents.numpy_dqn")
         return engine.NumpyDQNLearner(num_agents, obs_layout, num_actions, hp, seed=list(seeds))
     engine = import_module("dqn_transfer.agents.dqn")
-    return engine.DQNLearner(num_agents, obs_layout, num_actions, hp, seed=list(seeds),
-                             device=engine.resolve_device(device, threads))
+    return engine.DQNLearner(
+        num_agents, obs_layout, num_actions, hp, seed=list(seeds), device=engine.resolve_device(device, threads)
+    )

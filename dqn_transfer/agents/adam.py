@@ -34,8 +34,15 @@ class FlatAdam(AdamState):
     :param eps: added to the denominator
     """
 
-    def __init__(self, flat: torch.Tensor, flat_grad: torch.Tensor, spans: Sequence[tuple[int, int]],
-                 lr: float, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8) -> None:
+    def __init__(
+        self,
+        flat: torch.Tensor,
+        flat_grad: torch.Tensor,
+        spans: Sequence[tuple[int, int]],
+        lr: float,
+        betas: tuple[float, float] = (0.9, 0.999),
+        eps: float = 1e-8,
+    ) -> None:
         super().__init__(spans, torch.zeros_like(flat), torch.zeros_like(flat))
         self.flat, self.flat_grad = flat, flat_grad
         self.lr, (self.beta1, self.beta2), self.eps = lr, betas, eps
@@ -51,8 +58,10 @@ class FlatAdam(AdamState):
         key = tuple((i, self.steps[i] - self.steps[active[0]]) for i in active)
         if key != self._stretches_key:
             param = self.flat.detach()
-            self._stretches = [(i, (param[a:b], self.flat_grad[a:b], self.exp_avg[a:b], self.exp_avg_sq[a:b]))
-                               for a, b, i in self.stretches(active)]
+            self._stretches = [
+                (i, (param[a:b], self.flat_grad[a:b], self.exp_avg[a:b], self.exp_avg_sq[a:b]))
+                for a, b, i in self.stretches(active)
+            ]
             self._stretches_key = key
         for index, views in self._stretches:
             self._update(*views, self.steps[index])
@@ -70,8 +79,9 @@ class FlatAdam(AdamState):
         for moment in (self.exp_avg, self.exp_avg_sq):
             moment.masked_fill_(moment.abs() < SMALLEST_NORMAL, 0.0)
 
-    def _update(self, param: torch.Tensor, grad: torch.Tensor, exp_avg: torch.Tensor, exp_avg_sq: torch.Tensor,
-                step: int) -> None:
+    def _update(
+        self, param: torch.Tensor, grad: torch.Tensor, exp_avg: torch.Tensor, exp_avg_sq: torch.Tensor, step: int
+    ) -> None:
         # torch.optim.adam._single_tensor_adam, the non-capturable branch, on one stretch.
         exp_avg.lerp_(grad, 1 - self.beta1)
         exp_avg_sq.mul_(self.beta2).addcmul_(grad, grad, value=1 - self.beta2)

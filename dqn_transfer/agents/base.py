@@ -43,8 +43,14 @@ class Learner(Protocol):
     obs_layout: list[tuple[str, int]]
     num_actions: int
 
-    def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, greedy: bool = False,
-            ties: np.random.Generator | None = None) -> np.ndarray:
+    def act(
+        self,
+        obs: np.ndarray,
+        live: np.ndarray,
+        epsilon: float | np.ndarray,
+        greedy: bool = False,
+        ties: np.random.Generator | None = None,
+    ) -> np.ndarray:
         """Epsilon-greedy actions ``[K]``; when ``greedy``, the best actions, consuming none of the
         learner's random numbers: a tie between equal values (a table's unvisited states) goes to a best
         action drawn from ``ties``, or to the first one without it. Networks take the first best action

@@ -76,14 +76,14 @@ class DQNLearner(BatchedDQN):
         num_agents: int,
         obs_layout: ObsLayout,
         num_actions: int,
-        hp: AgentConfig = AgentConfig(),
+        hp: AgentConfig | None = None,
         *,
         seed: int | Sequence[int] = 0,
         device: torch.device | str = "cpu",
     ) -> None:
         """The parameters are :class:`~dqn_transfer.agents.dqn_base.BatchedDQN`'s, and ``device``: where the
         networks live (the replay stays on the host)."""
-        super().__init__(num_agents, obs_layout, num_actions, hp, seed)
+        super().__init__(num_agents, obs_layout, num_actions, hp if hp is not None else AgentConfig(), seed)
         self.device = torch.device(device)
         # Initial weights: torch's generator, on the CPU, so the seed gives the same weights on any device.
         generators = [torch.Generator().manual_seed(s) for s in self.seeds]

@@ -53,8 +53,9 @@ class BatchedDQN(TeamShape):
     :meth:`q_values`, :meth:`_greedy_actions`, :meth:`train_on` and the array conversions.
     """
 
-    def __init__(self, num_agents: int, obs_layout: ObsLayout, num_actions: int, hp: AgentConfig,
-                 seed: int | Sequence[int]) -> None:
+    def __init__(
+        self, num_agents: int, obs_layout: ObsLayout, num_actions: int, hp: AgentConfig, seed: int | Sequence[int]
+    ) -> None:
         """
         :param num_agents: K, the agents of the team (each its own network unless ``share_parameters``)
         :param obs_layout: the observation's named segments ``[(name, size), ...]``
@@ -90,8 +91,9 @@ class BatchedDQN(TeamShape):
         # are JSON-able); the engine draws the initial weights from the seed itself.
         streams = [np.random.SeedSequence(s).spawn(2) for s in self.seeds]
         self.rngs = [np.random.default_rng(explore) for explore, _ in streams]
-        self.replay = ReplayBuffer(self.num_rows, hp.buffer_size, self.obs_dim,
-                                   [np.random.default_rng(replay) for _, replay in streams])
+        self.replay = ReplayBuffer(
+            self.num_rows, hp.buffer_size, self.obs_dim, [np.random.default_rng(replay) for _, replay in streams]
+        )
         self.frozen_layers: list[int] = []
         self.num_gradient_steps = 0
         # What update returns when it does not train (read-only: the trainer only reads statistics).
@@ -141,8 +143,15 @@ class BatchedDQN(TeamShape):
         return obs[:, None, :]
 
     # ------------------------------------------------------------------------------ acting
-    def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, greedy: bool = False,
-            ties: np.random.Generator | None = None, replica: int | None = None) -> np.ndarray:
+    def act(
+        self,
+        obs: np.ndarray,
+        live: np.ndarray,
+        epsilon: float | np.ndarray,
+        greedy: bool = False,
+        ties: np.random.Generator | None = None,
+        replica: int | None = None,
+    ) -> np.ndarray:
         """Per-agent epsilon-greedy; one forward pass for every agent, skipped if everyone explores.
 
         Actions are returned for every row (of ``replica``, or of all); those of non-live agents are
@@ -159,8 +168,10 @@ class BatchedDQN(TeamShape):
         k = self.num_agents
         replicas = range(self.num_replicas) if replica is None else [replica]
         undecided = np.full(k, -1, dtype=np.int64)
-        draws = [epsilon_greedy(undecided, epsilon[i * k : (i + 1) * k], self.num_actions, self.rngs[r])
-                 for i, r in enumerate(replicas)]
+        draws = [
+            epsilon_greedy(undecided, epsilon[i * k : (i + 1) * k], self.num_actions, self.rngs[r])
+            for i, r in enumerate(replicas)
+        ]
         actions = joined(draws)
         exploit = actions < 0
         if exploit.any():
@@ -243,8 +254,15 @@ class BatchedDQN(TeamShape):
             raise IndexError(f"agent index {i} out of range for {self.num_rows} agents")
         return i // self.num_agents if self.share_parameters else i
 
-    def add_experience(self, i: int, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray,
-                       next_obs: np.ndarray, terminated: np.ndarray) -> None:
+    def add_experience(
+        self,
+        i: int,
+        obs: np.ndarray,
+        actions: np.ndarray,
+        rewards: np.ndarray,
+        next_obs: np.ndarray,
+        terminated: np.ndarray,
+    ) -> None:
         """Append ``[N, ...]`` transitions (e.g. a team-mate's) to agent i's replay row."""
         self.replay.extend(i, obs, actions, rewards, next_obs, terminated)
 
@@ -356,8 +374,14 @@ class DQNReplica:
             raise IndexError(f"agent index {i} out of range for {self.num_agents} agents")
         return self.offset + i
 
-    def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, greedy: bool = False,
-            ties: np.random.Generator | None = None) -> np.ndarray:
+    def act(
+        self,
+        obs: np.ndarray,
+        live: np.ndarray,
+        epsilon: float | np.ndarray,
+        greedy: bool = False,
+        ties: np.random.Generator | None = None,
+    ) -> np.ndarray:
         return self.learner.act(obs, live, epsilon, greedy, replica=self.index)
 
     def q_values(self, obs: np.ndarray) -> np.ndarray:

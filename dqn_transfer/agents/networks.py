@@ -35,8 +35,8 @@ class BatchedMLP(nn.Module, StackedLayout):
 
     Tensors ``weight_{l}`` ``[M, in, out]`` and ``bias_{l}`` ``[M, out]`` for each layer l are views of
     the one Parameter ``flat`` (``tensors``, :meth:`layer`, :meth:`named_tensors`; no autograd history);
-    ``grads`` are the same views of ``flat_grad``, where :meth:`backward` writes. ``member_state`` converts member m to the
-    ``nn.Linear`` convention (``layers.{l}.weight`` ``[out, in]``) used in checkpoints.
+    ``grads`` are the same views of ``flat_grad``, where :meth:`backward` writes. ``member_state``
+    converts member m to the ``nn.Linear`` convention (``layers.{l}.weight`` ``[out, in]``) used in checkpoints.
 
     ``generators``: one per equal block of members (a replica), each drawing its block's initial
     weights layer by layer, so a block starts exactly as a network of that block alone seeded the
@@ -64,8 +64,9 @@ class BatchedMLP(nn.Module, StackedLayout):
         # every element of the flat buffer belongs to.
         self._squares = torch.zeros(offset, device=device)
         self._squares_by_member = [self._squares[a:b].view(num_members, -1) for a, b in self.spans]
-        self._member_of = torch.cat([torch.arange(num_members, device=device).repeat_interleave(math.prod(shape[1:]))
-                                     for shape in self.shapes])
+        self._member_of = torch.cat(
+            [torch.arange(num_members, device=device).repeat_interleave(math.prod(shape[1:])) for shape in self.shapes]
+        )
         # Per layer: the weight and the bias as a [M, 1, out] row to broadcast over the batch.
         self._affine = [(self.tensors[2 * l], self.tensors[2 * l + 1].unsqueeze(1)) for l in range(self.num_layers)]
         # The same as numpy arrays sharing the memory (CPU), for predict_numpy.
@@ -81,7 +82,7 @@ class BatchedMLP(nn.Module, StackedLayout):
     def _initialise(self, generators: Sequence[torch.Generator]) -> None:
         # nn.Linear's default init (kaiming_uniform(a=sqrt(5)) == U(-1/sqrt(in), 1/sqrt(in)) for the
         # weight, same bound for the bias), drawn on the CPU so a seed gives the same weights anywhere.
-        for r, members, l, fan_in, bound in self.initial_draws(len(generators)):
+        for r, members, l, _fan_in, bound in self.initial_draws(len(generators)):
             weight, bias = self.layer(l)
             generator = generators[r]
             weight[members] = (torch.rand(weight[members].shape, generator=generator) * 2 - 1) * bound
@@ -108,8 +109,9 @@ class BatchedMLP(nn.Module, StackedLayout):
         return x
 
     @torch.no_grad()
-    def predict(self, x: torch.Tensor, members: slice | None = None,
-                inputs: list[torch.Tensor] | None = None) -> torch.Tensor:
+    def predict(
+        self, x: torch.Tensor, members: slice | None = None, inputs: list[torch.Tensor] | None = None
+    ) -> torch.Tensor:
         """``forward`` without autograd, for ``members`` only (default all; ``x [len(members), B, in]``);
         every layer's input is appended to ``inputs`` if given (what ``backward`` needs)."""
         last = self.num_layers - 1

@@ -36,8 +36,14 @@ class NumpyMLP(StackedLayout):
         weights layer by layer (``nn.Linear``'s distribution); None: all zeros (a target network)
     """
 
-    def __init__(self, num_members: int, in_dim: int, hidden: Sequence[int], out_dim: int,
-                 rngs: Sequence[np.random.Generator] | None = None) -> None:
+    def __init__(
+        self,
+        num_members: int,
+        in_dim: int,
+        hidden: Sequence[int],
+        out_dim: int,
+        rngs: Sequence[np.random.Generator] | None = None,
+    ) -> None:
         super().__init__(num_members, in_dim, hidden, out_dim)
         self.flat = np.zeros(self.num_parameters, dtype=np.float32)
         self.flat_grad = np.zeros(self.num_parameters, dtype=np.float32)
@@ -49,7 +55,7 @@ class NumpyMLP(StackedLayout):
             self._initialise(rngs)
 
     def _initialise(self, rngs: Sequence[np.random.Generator]) -> None:
-        for r, members, l, fan_in, bound in self.initial_draws(len(rngs)):
+        for r, members, l, _fan_in, bound in self.initial_draws(len(rngs)):
             weight, bias = self.layer(l)
             weight[members] = rngs[r].uniform(-bound, bound, size=weight[members].shape)
             bias[members] = rngs[r].uniform(-bound, bound, size=bias[members].shape)
@@ -59,8 +65,9 @@ class NumpyMLP(StackedLayout):
         return self.tensors[2 * l], self.tensors[2 * l + 1]
 
     # ------------------------------------------------------------------------- forward
-    def predict(self, x: np.ndarray, members: slice | None = None,
-                inputs: list[np.ndarray] | None = None) -> np.ndarray:
+    def predict(
+        self, x: np.ndarray, members: slice | None = None, inputs: list[np.ndarray] | None = None
+    ) -> np.ndarray:
         """``x [len(members), B, in] -> [len(members), B, out]`` for ``members`` (default all); every
         layer's input is appended to ``inputs`` if given (what :meth:`backward` needs)."""
         last = self.num_layers - 1
@@ -99,8 +106,9 @@ class NumpyMLP(StackedLayout):
         flat = self.flat_grad
         if float(np.dot(flat, flat)) < (0.99 * max_norm) ** 2:
             return  # no member's norm exceeds the norm of all gradients together: nobody is clipped
-        squares = sum(np.einsum("mi,mi->m", g, g) for g in (self.grads[i].reshape(self.num_members, -1)
-                                                          for i in tensors))
+        squares = sum(
+            np.einsum("mi,mi->m", g, g) for g in (self.grads[i].reshape(self.num_members, -1) for i in tensors)
+        )
         scale = np.minimum(max_norm / (np.sqrt(squares) + 1e-6), 1.0).astype(np.float32)
         if (scale < 1.0).any():
             for i in tensors:
@@ -147,8 +155,15 @@ class NumpyAdam(AdamState):
     :param eps: added to the denominator
     """
 
-    def __init__(self, flat: np.ndarray, flat_grad: np.ndarray, spans: Sequence[tuple[int, int]], lr: float,
-                 betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8) -> None:
+    def __init__(
+        self,
+        flat: np.ndarray,
+        flat_grad: np.ndarray,
+        spans: Sequence[tuple[int, int]],
+        lr: float,
+        betas: tuple[float, float] = (0.9, 0.999),
+        eps: float = 1e-8,
+    ) -> None:
         super().__init__(spans, np.zeros_like(flat), np.zeros_like(flat))
         self.flat, self.flat_grad = flat, flat_grad
         self.lr, (self.beta1, self.beta2), self.eps = lr, betas, eps
@@ -191,12 +206,12 @@ class NumpyDQNLearner(BatchedDQN):
         num_agents: int,
         obs_layout: ObsLayout,
         num_actions: int,
-        hp: AgentConfig = AgentConfig(),
+        hp: AgentConfig | None = None,
         *,
         seed: int | Sequence[int] = 0,
     ) -> None:
         """The parameters are :class:`~dqn_transfer.agents.dqn_base.BatchedDQN`'s."""
-        super().__init__(num_agents, obs_layout, num_actions, hp, seed)
+        super().__init__(num_agents, obs_layout, num_actions, hp if hp is not None else AgentConfig(), seed)
         weight_rngs = [np.random.default_rng(np.random.SeedSequence(s, spawn_key=(WEIGHT_STREAM,))) for s in self.seeds]
         self.q_network = NumpyMLP(self.num_members, self.obs_dim, self.hidden, num_actions, weight_rngs)
         self.target_network = NumpyMLP(self.num_members, self.obs_dim, self.hidden, num_actions)
@@ -210,8 +225,9 @@ class NumpyDQNLearner(BatchedDQN):
     def _to_numpy(self, array: np.ndarray) -> np.ndarray:
         return array
 
-    def _predict(self, network: NumpyMLP, obs: np.ndarray, replica: int | None = None,
-                 inputs: list[np.ndarray] | None = None) -> np.ndarray:
+    def _predict(
+        self, network: NumpyMLP, obs: np.ndarray, replica: int | None = None, inputs: list[np.ndarray] | None = None
+    ) -> np.ndarray:
         """``obs [rows, B, D] -> Q [rows, B, A]`` (rows of one replica, or of all)."""
         rows, batch, width = obs.shape
         if self.share_parameters:  # a shared network sees its replica's agents as one batch

@@ -31,8 +31,13 @@ class ReplayBatch(NamedTuple):
 
 
 # The fields of a checkpoint's replay state, as they are stored there.
-FIELD_DTYPES = {"obs": np.float32, "actions": np.int64, "rewards": np.float32, "next_obs": np.float32,
-                "terminated": np.bool_}
+FIELD_DTYPES = {
+    "obs": np.float32,
+    "actions": np.int64,
+    "rewards": np.float32,
+    "next_obs": np.float32,
+    "terminated": np.bool_,
+}
 
 
 class ReplayBuffer:
@@ -63,8 +68,13 @@ class ReplayBuffer:
         self.rngs = list(rngs)
         self.rows_per_rng = num_rows // len(self.rngs)
         d = obs_dim
-        self.columns = {"obs": slice(0, d), "next_obs": slice(d, 2 * d), "rewards": 2 * d, "actions": 2 * d + 1,
-                        "terminated": 2 * d + 2}
+        self.columns = {
+            "obs": slice(0, d),
+            "next_obs": slice(d, 2 * d),
+            "rewards": 2 * d,
+            "actions": 2 * d + 1,
+            "terminated": 2 * d + 2,
+        }
         # numpy's zeros come from calloc: pages are committed as they are first written, so a
         # 50k-transition buffer of 64 replicas costs what it holds, not 11 GB up front.
         self.storage = np.zeros((num_rows, capacity, 2 * d + 3), dtype=np.float32)
@@ -126,14 +136,20 @@ class ReplayBuffer:
         """
         high = np.maximum(self.size, 1)[:, None]
         k = self.rows_per_rng
-        cols = np.concatenate([rng.integers(0, high[r * k : (r + 1) * k], size=(k, batch_size))
-                               for r, rng in enumerate(self.rngs)])
+        cols = np.concatenate(
+            [rng.integers(0, high[r * k : (r + 1) * k], size=(k, batch_size)) for r, rng in enumerate(self.rngs)]
+        )
         # One flat gather (row k, slot c is element k * capacity + c of the [rows * capacity, width] view).
         flat = (np.arange(self.num_rows)[:, None] * self.capacity + cols).reshape(-1)
         picked = self.storage.reshape(-1, self.storage.shape[-1])[flat].reshape(self.num_rows, batch_size, -1)
         c = self.columns
-        return ReplayBatch(picked[..., c["obs"]], picked[..., c["actions"]].astype(np.int64), picked[..., c["rewards"]],
-                           picked[..., c["next_obs"]], picked[..., c["terminated"]])
+        return ReplayBatch(
+            picked[..., c["obs"]],
+            picked[..., c["actions"]].astype(np.int64),
+            picked[..., c["rewards"]],
+            picked[..., c["next_obs"]],
+            picked[..., c["terminated"]],
+        )
 
     # ------------------------------------------------------------------------ checkpoints
     def state_dict(self, rows: slice | None = None) -> dict[str, np.ndarray]:
@@ -143,8 +159,10 @@ class ReplayBuffer:
         filled = int(size.max(initial=0))
         stored = self.storage[rows, :filled]
         # Contiguous copies: safetensors writes an array's raw buffer, and a slice is only a view.
-        arrays = {name: np.ascontiguousarray(stored[..., self.columns[name]].astype(dtype))
-                  for name, dtype in FIELD_DTYPES.items()}
+        arrays = {
+            name: np.ascontiguousarray(stored[..., self.columns[name]].astype(dtype))
+            for name, dtype in FIELD_DTYPES.items()
+        }
         arrays["ptr"] = self.ptr[rows].copy()
         arrays["size"] = size.copy()
         return arrays
@@ -155,16 +173,20 @@ class ReplayBuffer:
         num_rows = len(range(self.num_rows)[rows])
         size = np.asarray(arrays["size"], dtype=np.int64)
         if size.shape != (num_rows,) or (size > self.capacity).any():
-            raise ValueError(f"replay state holds sizes {size.tolist()}, not valid for {num_rows} agents "
-                             f"with capacity {self.capacity}")
+            raise ValueError(
+                f"replay state holds sizes {size.tolist()}, not valid for {num_rows} agents "
+                f"with capacity {self.capacity}"
+            )
         filled = int(size.max(initial=0))
         for name in FIELD_DTYPES:
             expected = (num_rows, filled, self.obs_dim) if name in ("obs", "next_obs") else (num_rows, filled)
             if tuple(np.shape(arrays[name])) != expected:
-                raise ValueError(f"replay array '{name}' has shape {list(np.shape(arrays[name]))}, "
-                                 f"expected {list(expected)}")
-        packed = self._pack(*(np.asarray(arrays[name]) for name in ("obs", "actions", "rewards", "next_obs",
-                                                                     "terminated")))
+                raise ValueError(
+                    f"replay array '{name}' has shape {list(np.shape(arrays[name]))}, expected {list(expected)}"
+                )
+        packed = self._pack(
+            *(np.asarray(arrays[name]) for name in ("obs", "actions", "rewards", "next_obs", "terminated"))
+        )
         self.storage[rows] = 0.0
         self.storage[rows, :filled] = packed.reshape(num_rows, filled, -1)
         self.ptr[rows] = np.asarray(arrays["ptr"], dtype=np.int64)

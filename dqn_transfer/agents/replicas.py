@@ -30,15 +30,27 @@ class LearnerReplicas:
     def _rows(self, r: int) -> slice:
         return slice(r * self.num_agents, (r + 1) * self.num_agents)
 
-    def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, greedy: bool = False,
-            ties: np.random.Generator | None = None) -> np.ndarray:
+    def act(
+        self,
+        obs: np.ndarray,
+        live: np.ndarray,
+        epsilon: float | np.ndarray,
+        greedy: bool = False,
+        ties: np.random.Generator | None = None,
+    ) -> np.ndarray:
         epsilon = np.asarray(epsilon, dtype=np.float64)
         if epsilon.ndim == 0:
             epsilon = np.full(self.num_rows, epsilon)
-        return np.concatenate([learner.act(obs[self._rows(r)], live[self._rows(r)], epsilon[self._rows(r)], greedy,
-                                           ties) for r, learner in enumerate(self.learners)])
+        return np.concatenate(
+            [
+                learner.act(obs[self._rows(r)], live[self._rows(r)], epsilon[self._rows(r)], greedy, ties)
+                for r, learner in enumerate(self.learners)
+            ]
+        )
 
     def update(self, transition: Transition, step: int) -> UpdateStats:
-        stats = [learner.update(Transition(*(field[self._rows(r)] for field in transition)), step)
-                 for r, learner in enumerate(self.learners)]
+        stats = [
+            learner.update(Transition(*(field[self._rows(r)] for field in transition)), step)
+            for r, learner in enumerate(self.learners)
+        ]
         return UpdateStats(*(np.concatenate(column) for column in zip(*stats)))

@@ -93,8 +93,10 @@ class AdamState:
     def moments(self, i: int, shape: Sequence[int]) -> dict[str, Any]:
         """Tensor i's ``exp_avg`` and ``exp_avg_sq``, as views of shape ``shape`` (write through them)."""
         a, b = self.spans[i]
-        return {"exp_avg": self.exp_avg[a:b].reshape(tuple(shape)),
-                "exp_avg_sq": self.exp_avg_sq[a:b].reshape(tuple(shape))}
+        return {
+            "exp_avg": self.exp_avg[a:b].reshape(tuple(shape)),
+            "exp_avg_sq": self.exp_avg_sq[a:b].reshape(tuple(shape)),
+        }
 
     def init_state(self, i: int) -> None:
         """Give tensor i the state Adam creates at its first step (zero moments, step 0), if it has none."""

@@ -19,6 +19,7 @@ action, so the update follows the policy actually played (on-policy).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -41,7 +42,6 @@ def huber(td_error: float) -> float:
     """The DQN loss of a TD error (smooth L1), so tabular and deep ``td_loss`` curves compare."""
     magnitude = abs(td_error)
     return 0.5 * magnitude**2 if magnitude < 1.0 else magnitude - 0.5
-
 
 
 def fallback_names(level: int) -> tuple[str, str, str]:
@@ -173,8 +173,14 @@ class TabularLearner(TeamShape):
 
     # ---------------------------------------------------------------------------------- acting
 
-    def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, greedy: bool = False,
-            ties: np.random.Generator | None = None) -> np.ndarray:
+    def act(
+        self,
+        obs: np.ndarray,
+        live: np.ndarray,
+        epsilon: float | np.ndarray,
+        greedy: bool = False,
+        ties: np.random.Generator | None = None,
+    ) -> np.ndarray:
         """Epsilon-greedy per live agent; SARSA replays the action its last update chose for ``obs``.
 
         ``greedy`` (evaluation) uses no cached action and none of the learner's random numbers, so

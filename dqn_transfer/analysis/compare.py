@@ -44,9 +44,12 @@ def _pair_by_seed(transfer_dirs: Sequence[Path], baseline_dirs: Sequence[Path]) 
     weights, exploration noise). Unequal counts pair up to the shorter list, with a warning.
     """
     if len(transfer_dirs) != len(baseline_dirs):
-        warnings.warn(f"{len(transfer_dirs)} transfer vs {len(baseline_dirs)} baseline runs: "
-                      f"differences use the first {min(len(transfer_dirs), len(baseline_dirs))} "
-                      "pairs in seed order", stacklevel=3)
+        warnings.warn(
+            f"{len(transfer_dirs)} transfer vs {len(baseline_dirs)} baseline runs: "
+            f"differences use the first {min(len(transfer_dirs), len(baseline_dirs))} "
+            "pairs in seed order",
+            stacklevel=3,
+        )
     return list(zip(_seed_order(transfer_dirs), _seed_order(baseline_dirs)))
 
 
@@ -63,9 +66,14 @@ def _within(curve: Curve, start: float, end: float) -> Curve:
     return steps[kept], values[kept]
 
 
-def compare_runs(transfer_dirs: Sequence[str | os.PathLike], baseline_dirs: Sequence[str | os.PathLike],
-                 metric: str = "team_return", threshold: float | None = None,
-                 seed: int = 0, transfer_offset: int = 0) -> dict[str, dict[str, float]]:
+def compare_runs(
+    transfer_dirs: Sequence[str | os.PathLike],
+    baseline_dirs: Sequence[str | os.PathLike],
+    metric: str = "team_return",
+    threshold: float | None = None,
+    seed: int = 0,
+    transfer_offset: int = 0,
+) -> dict[str, dict[str, float]]:
     """Each transfer metric as ``{"mean", "low", "high", "n"}`` with a 95% bootstrap CI over seeds.
 
     - ``jumpstart``: paired by seed (see :func:`_pair_by_seed`), each transfer run against the
@@ -109,7 +117,8 @@ def compare_runs(transfer_dirs: Sequence[str | os.PathLike], baseline_dirs: Sequ
     start, end = max(c[0][0] for c in t_curves + b_curves), min(c[0][-1] for c in t_curves + b_curves)
     per_curve_metrics: dict[str, Callable[[Curve], float]] = {
         "asymptotic_performance": asymptotic_performance,
-        "total_reward": lambda c: total_reward(_within(c, start, end))}
+        "total_reward": lambda c: total_reward(_within(c, start, end)),
+    }
     if threshold is not None:
         per_curve_metrics["time_to_threshold"] = lambda c: time_to_threshold(c, threshold)
     for name, fn in per_curve_metrics.items():
@@ -127,7 +136,9 @@ def compare_runs(transfer_dirs: Sequence[str | os.PathLike], baseline_dirs: Sequ
     results["asymptotic_performance/baseline_iqm"] = asdict(iqm(final_b, rng))
     results["asymptotic_performance/P(transfer > baseline)"] = asdict(improvement_probability(final_t, final_b, rng))
     if threshold is not None:  # every run counts: one that never reached the threshold is slower than any that did
-        sooner_t, sooner_b = (_sooner_is_higher(per_run[f"time_to_threshold/{side}"]) for side in ("transfer", "baseline"))
+        sooner_t, sooner_b = (
+            _sooner_is_higher(per_run[f"time_to_threshold/{side}"]) for side in ("transfer", "baseline")
+        )
         results["time_to_threshold/P(transfer sooner)"] = asdict(improvement_probability(sooner_t, sooner_b, rng))
     return results
 
@@ -136,6 +147,7 @@ def format_table(results: dict[str, dict[str, float]]) -> str:
     """Markdown table of :func:`compare_runs` results (``n/a`` where a value is undefined; ``no spread``
     where every resample gave the same value, e.g. every paired difference is equal: a zero-width
     interval is not a measured certainty)."""
+
     def fmt(x: float) -> str:
         return "n/a" if not math.isfinite(x) else f"{x:.4g}"
 

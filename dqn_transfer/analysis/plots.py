@@ -2,8 +2,9 @@
 
 A group of runs (one condition, several seeds) is drawn as its mean curve over seeds with a 95%
 percentile-bootstrap band (:func:`dqn_transfer.analysis.stats.curve_band`) and each run as a thin
-line; a group of one run is one line. Axes say in words what they measure (:data:`METRIC_LABELS`). :func:`group_runs` finds the groups of a set of runs by what differs between their configs,
-ignoring the seed.
+line; a group of one run is one line. Axes say in words what they measure (:data:`METRIC_LABELS`).
+:func:`group_runs` finds the groups of a set of runs by what differs between their configs, ignoring
+the seed.
 """
 
 from __future__ import annotations
@@ -15,12 +16,12 @@ from typing import Any
 import matplotlib
 
 matplotlib.use("Agg")  # files only: works on clusters and in CI without a display
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from dqn_transfer.analysis.runs import learning_curve, load_config, steps_before  # noqa: E402
-from dqn_transfer.analysis.stats import Estimate, curve_band, performance_profile  # noqa: E402
-from dqn_transfer.analysis.transfer_metrics import Curve  # noqa: E402
+from dqn_transfer.analysis.runs import learning_curve, load_config, steps_before
+from dqn_transfer.analysis.stats import Estimate, curve_band, performance_profile
+from dqn_transfer.analysis.transfer_metrics import Curve
 
 # Keys that differ between runs of one condition without making it another condition.
 IGNORED_KEYS = ("seed", "progress", "resume", "device", "checkpoint_every", "transfer.cache_dir")
@@ -95,25 +96,39 @@ def metric_label(metric: str) -> str:
     return METRIC_LABELS.get(metric, f"eval {metric}")
 
 
-def plot_band(ax, curves: Sequence[Curve], label: str, rng: np.random.Generator, color=None,
-              linestyle: str = "-") -> None:
+def plot_band(
+    ax, curves: Sequence[Curve], label: str, rng: np.random.Generator, color=None, linestyle: str = "-"
+) -> None:
     """Mean curve with its 95% CI band, and each run as a thin line (so bimodal outcomes show, which a
     mean hides); the legend says how many runs it rests on."""
     steps, mean, low, high = curve_band(curves, rng)
     n = len(curves)
-    line, = ax.plot(steps, mean, label=f"{label} (n={n})", color=color, lw=1.8, ls=linestyle)
+    (line,) = ax.plot(steps, mean, label=f"{label} (n={n})", color=color, lw=1.8, ls=linestyle)
     if n > 1:
         ax.fill_between(steps, low, high, color=line.get_color(), alpha=0.2, lw=0)
         for run_steps, run_values in curves:
             ax.plot(run_steps, run_values, color=line.get_color(), lw=0.6, alpha=0.35, zorder=line.get_zorder() - 1)
 
 
-def _band_panel(ax, metric: str, groups: dict[str, list[Curve]], rng: np.random.Generator,
-                color_of: ColorOf | None, xlabel: str, legend_loc: str) -> None:
+def _band_panel(
+    ax,
+    metric: str,
+    groups: dict[str, list[Curve]],
+    rng: np.random.Generator,
+    color_of: ColorOf | None,
+    xlabel: str,
+    legend_loc: str,
+) -> None:
     """One axes: every group's mean curve and band, in the groups' order (so the rng draws are too)."""
     for index, (label, curves) in enumerate(groups.items()):
-        plot_band(ax, curves, label, rng, color=color_of(label) if color_of else None,
-                  linestyle=LINESTYLES[index % len(LINESTYLES)])
+        plot_band(
+            ax,
+            curves,
+            label,
+            rng,
+            color=color_of(label) if color_of else None,
+            linestyle=LINESTYLES[index % len(LINESTYLES)],
+        )
     ax.set_xlabel(xlabel)
     ax.set_ylabel(metric_label(metric), fontsize="small")
     ax.grid(alpha=0.3)
@@ -123,16 +138,33 @@ def _band_panel(ax, metric: str, groups: dict[str, list[Curve]], rng: np.random.
 def _save(fig, path: Path, dpi: int, watermark: str | None = None) -> Path:
     """Write the figure; a ``watermark`` (e.g. a smoke run's "not evidence") is printed across it."""
     if watermark:
-        fig.text(0.5, 0.5, watermark, fontsize=28, color="red", alpha=0.25, ha="center", va="center", rotation=20,
-                 transform=fig.transFigure, zorder=10)
+        fig.text(
+            0.5,
+            0.5,
+            watermark,
+            fontsize=28,
+            color="red",
+            alpha=0.25,
+            ha="center",
+            va="center",
+            rotation=20,
+            transform=fig.transFigure,
+            zorder=10,
+        )
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=dpi, metadata={"Software": None})  # no version stamp: regenerated files stay identical
     plt.close(fig)
     return path
 
 
-def plot_groups(groups: dict[str, list[Path]], metric: str, out: Path, title: str | None = None,
-                seed: int = 0, total_steps: bool = False) -> Path:
+def plot_groups(
+    groups: dict[str, list[Path]],
+    metric: str,
+    out: Path,
+    title: str | None = None,
+    seed: int = 0,
+    total_steps: bool = False,
+) -> Path:
     """One figure: every group's mean curve and band for ``metric``. With ``total_steps``, each run's
     curve starts at the steps spent before it (:func:`~dqn_transfer.analysis.runs.steps_before`: its
     source's pretraining, a curriculum's stages), marked by a dotted line, so conditions compare at
@@ -152,8 +184,16 @@ def plot_groups(groups: dict[str, list[Path]], metric: str, out: Path, title: st
 def _mark(ax, x: float, text: str) -> None:
     """A dotted vertical line at ``x`` with its label along it."""
     ax.axvline(x, color="grey", ls=":", lw=1)
-    ax.annotate(text, (x, 1), xycoords=("data", "axes fraction"), fontsize="x-small", rotation=90, va="top",
-                ha="right", color="grey")
+    ax.annotate(
+        text,
+        (x, 1),
+        xycoords=("data", "axes fraction"),
+        fontsize="x-small",
+        rotation=90,
+        va="top",
+        ha="right",
+        color="grey",
+    )
 
 
 def _shifted(curve: Curve, offset: int) -> Curve:
@@ -171,10 +211,17 @@ def _grid(panels: int, width: float, height: float):
     return fig, axes.flat
 
 
-def curves_figure(path: Path, panels: list[tuple[str, dict[str, list[Curve]]]], title: str,
-                  rng: np.random.Generator, color_of: ColorOf | None = None, note: str | None = None,
-                  xlabel: str = "environment steps", watermark: str | None = None,
-                  marks: Sequence[tuple[float, str]] = ()) -> Path:
+def curves_figure(
+    path: Path,
+    panels: list[tuple[str, dict[str, list[Curve]]]],
+    title: str,
+    rng: np.random.Generator,
+    color_of: ColorOf | None = None,
+    note: str | None = None,
+    xlabel: str = "environment steps",
+    watermark: str | None = None,
+    marks: Sequence[tuple[float, str]] = (),
+) -> Path:
     """Panels of learning curves (mean and 95% band per group, each run thin), one per ``(metric, groups)``;
     ``marks``: ``(x, label)`` dotted vertical lines on every panel."""
     fig, axes = _grid(len(panels), 6.2, 4.3)
@@ -186,9 +233,15 @@ def curves_figure(path: Path, panels: list[tuple[str, dict[str, list[Curve]]]], 
     return _save(fig, path, dpi=110, watermark=watermark)
 
 
-def errorbar_figure(path: Path, panels: list[tuple[str, dict[str, dict[int, Estimate]]]], xlabel: str,
-                    title: str, color_of: ColorOf | None = None, watermark: str | None = None,
-                    zero_line: bool = False) -> Path:
+def errorbar_figure(
+    path: Path,
+    panels: list[tuple[str, dict[str, dict[int, Estimate]]]],
+    xlabel: str,
+    title: str,
+    color_of: ColorOf | None = None,
+    watermark: str | None = None,
+    zero_line: bool = False,
+) -> Path:
     """Panels side by side of estimates against an integer x, one per ``(ylabel, {series: {x: estimate}})``.
 
     Each series is a line with its 95% CIs as error bars, shifted sideways by its position so the
@@ -207,9 +260,16 @@ def errorbar_figure(path: Path, panels: list[tuple[str, dict[str, dict[int, Esti
             highs = np.array([e.high if e.has_ci else e.mean for e in est])
             n = "/".join(sorted({str(e.n) for e in est}))
             offset = 0.08 * (index - (len(series) - 1) / 2)
-            ax.errorbar(np.array(xs) + offset, means, yerr=[means - lows, highs - means], marker="o", capsize=4,
-                        ls=LINESTYLES[index % len(LINESTYLES)], label=f"{label} (n={n})",
-                        color=color_of(label) if color_of else None)
+            ax.errorbar(
+                np.array(xs) + offset,
+                means,
+                yerr=[means - lows, highs - means],
+                marker="o",
+                capsize=4,
+                ls=LINESTYLES[index % len(LINESTYLES)],
+                label=f"{label} (n={n})",
+                color=color_of(label) if color_of else None,
+            )
         ax.set_xticks(sorted({x for points in series.values() for x in points}))
         ax.set_xlabel(xlabel)
         ax.set_ylabel(ylabel, fontsize="small")
@@ -219,8 +279,14 @@ def errorbar_figure(path: Path, panels: list[tuple[str, dict[str, dict[int, Esti
     return _save(fig, path, dpi=110, watermark=watermark)
 
 
-def profile_figure(path: Path, panels: list[tuple[str, dict[str, np.ndarray]]], title: str,
-                   rng: np.random.Generator, color_of: ColorOf | None = None, watermark: str | None = None) -> Path:
+def profile_figure(
+    path: Path,
+    panels: list[tuple[str, dict[str, np.ndarray]]],
+    title: str,
+    rng: np.random.Generator,
+    color_of: ColorOf | None = None,
+    watermark: str | None = None,
+) -> Path:
     """Performance profiles (rliable's score distributions): per panel, for each condition (scores
     ``[runs, maps]``), the fraction of runs scoring above tau, for every tau, with a 95%
     stratified-bootstrap band (:func:`~dqn_transfer.analysis.stats.performance_profile`)."""
@@ -231,8 +297,13 @@ def profile_figure(path: Path, panels: list[tuple[str, dict[str, np.ndarray]]], 
         taus = np.linspace(low, high, 61)
         for index, (name, condition) in enumerate(scores.items()):
             profile, band_low, band_high = performance_profile(condition, taus, rng)
-            line, = ax.plot(taus, profile, label=f"{name} (n={condition.size})", ls=LINESTYLES[index % len(LINESTYLES)],
-                            color=color_of(name) if color_of else None)
+            (line,) = ax.plot(
+                taus,
+                profile,
+                label=f"{name} (n={condition.size})",
+                ls=LINESTYLES[index % len(LINESTYLES)],
+                color=color_of(name) if color_of else None,
+            )
             ax.fill_between(taus, band_low, band_high, color=line.get_color(), alpha=0.15, lw=0)
         ax.set_title(label, fontsize="medium")
         ax.set_xlabel("final score tau (team return / optimal return)")

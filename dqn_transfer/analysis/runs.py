@@ -57,8 +57,9 @@ def read_metrics(run_dir: str | os.PathLike) -> list[dict[str, Any]]:
     try:
         text = path.read_text()
     except FileNotFoundError:
-        raise EvaluationError(f"{path}: missing; {run_dir} has no evaluations (not a run directory, "
-                              "or the run has not evaluated yet)") from None
+        raise EvaluationError(
+            f"{path}: missing; {run_dir} has no evaluations (not a run directory, or the run has not evaluated yet)"
+        ) from None
     lines = text.split("\n")
     records = []
     for number, line in enumerate(lines, start=1):
@@ -89,10 +90,12 @@ def learning_curve(run_dir: str | os.PathLike, metric: str = "team_return") -> C
         if isinstance(record.get(metric), (int, float)) and "step" in record:
             by_step[int(record["step"])] = float(record[metric])
     if not by_step:
-        available = sorted({key for record in records for key, value in record.items()
-                            if isinstance(value, (int, float))} - {"step"})
-        raise EvaluationError(f"{RunDir(run_dir).metrics}: no {metric!r} evaluations "
-                              f"(available: {', '.join(available) or 'none'})")
+        available = sorted(
+            {key for record in records for key, value in record.items() if isinstance(value, (int, float))} - {"step"}
+        )
+        raise EvaluationError(
+            f"{RunDir(run_dir).metrics}: no {metric!r} evaluations (available: {', '.join(available) or 'none'})"
+        )
     steps = np.array(sorted(by_step), dtype=np.float64)
     return steps, np.array([by_step[int(s)] for s in steps], dtype=np.float64)
 
@@ -113,8 +116,9 @@ def _candidates(path: Path) -> list[Path]:
     if run.has_metrics() or run.hydra_dir.is_dir():
         return [path]
     found = {p.parent for name in (METRICS_FILE, HYDRA_DIR) for p in path.rglob(name)}
-    return sorted((d for d in found if not _is_hidden_below(d, path) and not RunDir(d).replicas_index.exists()),
-                  key=natural_key)
+    return sorted(
+        (d for d in found if not _is_hidden_below(d, path) and not RunDir(d).replicas_index.exists()), key=natural_key
+    )
 
 
 def _last_error(log_path: Path) -> str | None:
@@ -123,7 +127,7 @@ def _last_error(log_path: Path) -> str | None:
         lines = log_path.read_text(errors="replace").splitlines()
     except OSError:
         return None
-    errors = [line[line.index("error: "):] for line in lines if "error: " in line]
+    errors = [line[line.index("error: ") :] for line in lines if "error: " in line]
     return errors[-1] if errors else None
 
 
@@ -147,8 +151,9 @@ def _unusable_reason(run_dir: Path, need_config: bool = False) -> str | None:
     return None
 
 
-def scan_run_dirs(paths: Sequence[str | os.PathLike],
-                  need_config: bool = False) -> tuple[list[Path], list[tuple[Path, str]]]:
+def scan_run_dirs(
+    paths: Sequence[str | os.PathLike], need_config: bool = False
+) -> tuple[list[Path], list[tuple[Path, str]]]:
     """``(usable runs, [(skipped directory, why)])`` at or below ``paths``: a run directory given is
     taken in the given order, a directory above runs (a sweep) contributes the runs below it."""
     runs: list[Path] = []
@@ -197,6 +202,7 @@ def skipped_runs_on_stderr() -> Iterator[None]:
     """For the command lines: every :class:`SkippedRun` as its own ``skipped DIR: REASON`` line on stderr,
     any other user warning as one ``warning: ...`` line; incomplete last lines of runs still writing are
     expected and not shown."""
+
     def show(message, category, filename, lineno, file=None, line=None) -> None:
         print(("" if issubclass(category, SkippedRun) else "warning: ") + str(message), file=sys.stderr)
 

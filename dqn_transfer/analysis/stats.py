@@ -42,8 +42,12 @@ def _percentiles(means: np.ndarray, confidence: float) -> tuple[np.ndarray, np.n
     return low, high
 
 
-def bootstrap_ci(values: Sequence[float] | np.ndarray, rng: np.random.Generator,
-                 n_resamples: int = N_RESAMPLES, confidence: float = 0.95) -> tuple[float, float, float]:
+def bootstrap_ci(
+    values: Sequence[float] | np.ndarray,
+    rng: np.random.Generator,
+    n_resamples: int = N_RESAMPLES,
+    confidence: float = 0.95,
+) -> tuple[float, float, float]:
     """``(mean, low, high)``: percentile-bootstrap interval of the mean over seeds.
 
     With a single value there is no spread to resample, so the interval is ``(nan, nan)`` rather
@@ -96,8 +100,13 @@ def estimate(values: Sequence[float], rng: np.random.Generator) -> Estimate:
     return Estimate(*bootstrap_ci(values, rng), len(values))
 
 
-def difference(a: dict[int, float], b: dict[int, float], rng: np.random.Generator,
-               n_resamples: int = N_RESAMPLES, confidence: float = 0.95) -> Estimate:
+def difference(
+    a: dict[int, float],
+    b: dict[int, float],
+    rng: np.random.Generator,
+    n_resamples: int = N_RESAMPLES,
+    confidence: float = 0.95,
+) -> Estimate:
     """Mean of ``a - b`` (each ``{seed: value}``) with a bootstrap CI: paired by seed when both have
     the same seeds (same map, same initial values and exploration noise cancel), else two
     independent samples, each resampled on its own."""
@@ -112,8 +121,9 @@ def difference(a: dict[int, float], b: dict[int, float], rng: np.random.Generato
     return Estimate(mean, float(low), float(high), min(av.size, bv.size))
 
 
-def curve_band(curves: Sequence[Curve], rng: np.random.Generator, confidence: float = 0.95,
-               n_resamples: int = BAND_RESAMPLES) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def curve_band(
+    curves: Sequence[Curve], rng: np.random.Generator, confidence: float = 0.95, n_resamples: int = BAND_RESAMPLES
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``(steps, mean, low, high)`` over runs at the steps they all share; percentile bootstrap per step.
 
     With a single run the band collapses to the curve itself (there is no spread to resample).
@@ -139,11 +149,14 @@ def mean_intervals(values: Sequence[float], rng: np.random.Generator, confidence
     t_low, t_high = scipy.stats.t.interval(confidence, n - 1, loc=mean, scale=scipy.stats.sem(values))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # near-degenerate samples: scipy warns and returns nan, shown as "n/a"
-        bca = scipy.stats.bootstrap((values,), np.mean, confidence_level=confidence, method="BCa",
-                                    n_resamples=N_RESAMPLES, random_state=rng).confidence_interval
-    return {"percentile": Estimate(*bootstrap_ci(values, rng, confidence=confidence), n),
-            "t": Estimate(mean, float(t_low), float(t_high), n),
-            "bca": Estimate(mean, float(bca.low), float(bca.high), n)}
+        bca = scipy.stats.bootstrap(
+            (values,), np.mean, confidence_level=confidence, method="BCa", n_resamples=N_RESAMPLES, random_state=rng
+        ).confidence_interval
+    return {
+        "percentile": Estimate(*bootstrap_ci(values, rng, confidence=confidence), n),
+        "t": Estimate(mean, float(t_low), float(t_high), n),
+        "bca": Estimate(mean, float(bca.low), float(bca.high), n),
+    }
 
 
 def _as_runs_by_tasks(scores: Sequence[float] | np.ndarray) -> np.ndarray:
@@ -186,8 +199,9 @@ def _improvement_per_task(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return ((xs > ys) + 0.5 * (xs == ys)).mean(axis=(-3, -2))
 
 
-def improvement_probability(x: Sequence[float] | np.ndarray, y: Sequence[float] | np.ndarray,
-                            rng: np.random.Generator, confidence: float = 0.95) -> Estimate:
+def improvement_probability(
+    x: Sequence[float] | np.ndarray, y: Sequence[float] | np.ndarray, rng: np.random.Generator, confidence: float = 0.95
+) -> Estimate:
     """P(X > Y): the probability that a run of condition ``x`` scores higher than a run of ``y`` on the
     same task (a tie counts one half; the Mann-Whitney U statistic over n_x * n_y), averaged over
     tasks (rliable's ``probability_of_improvement``), with a stratified-bootstrap percentile interval.
@@ -212,8 +226,9 @@ def improvement_probability(x: Sequence[float] | np.ndarray, y: Sequence[float] 
     return _percentile_estimate(point, resampled, confidence, n)
 
 
-def performance_profile(scores: Sequence[float] | np.ndarray, taus: np.ndarray, rng: np.random.Generator,
-                        confidence: float = 0.95) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def performance_profile(
+    scores: Sequence[float] | np.ndarray, taus: np.ndarray, rng: np.random.Generator, confidence: float = 0.95
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(profile, low, high)``: the fraction of runs (over every task) scoring above each ``tau``
     (rliable's ``score_distributions``), with a stratified-bootstrap percentile band, resampled as
     :func:`iqm` does (rliable's own bootstrap seeds itself and differs in the last bits from call to call,

@@ -31,8 +31,18 @@ SOURCE_MAP: dict[str, Any] = dict(size=10, num_treasures=1, num_traps=1, complex
 # trains every 4 steps on batches of 32 with lr 1e-4 and hard target copies), so that the processes
 # measured are the ones a user would start, not the in-process rigs of sections 2-4. The rest
 # (gamma, epsilon schedule, gradient clip) are AgentConfig's defaults.
-LONE_AGENT = AgentConfig(algorithm=Algorithm.dqn, lr=1e-4, batch_size=32, buffer_size=50_000, learning_starts=1_000,
-                         train_freq=4, gradient_steps=1, target_update=1_000, tau=1.0, hidden=[64, 64])
+LONE_AGENT = AgentConfig(
+    algorithm=Algorithm.dqn,
+    lr=1e-4,
+    batch_size=32,
+    buffer_size=50_000,
+    learning_starts=1_000,
+    train_freq=4,
+    gradient_steps=1,
+    target_update=1_000,
+    tau=1.0,
+    hidden=[64, 64],
+)
 # Section 5: a 7 x 7 map with one chest (agent 0 alone: num_agents defaults to the one chest).
 LONE_MAP: dict[str, Any] = dict(size=7, num_treasures=1, num_traps=1, complexity=0.15, map_seed=3)
 # Section 6: BENCH_MAP played by a cooperative team of 4 (TreasureHunt-v0 of it is agent 0 alone).
@@ -47,8 +57,11 @@ def replay_warmup(agent: AgentConfig) -> int:
 
 def sb3_kwargs(agent: AgentConfig) -> dict[str, Any]:
     """SB3 ``DQN`` keywords matching ``agent`` (its exploration keys are the trainer's schedule)."""
-    return {**{sb3: getattr(agent, ours) for ours, sb3 in SB3_NAMES.items()},
-            "policy_kwargs": dict(net_arch=list(agent.hidden)), "device": "cpu"}
+    return {
+        **{sb3: getattr(agent, ours) for ours, sb3 in SB3_NAMES.items()},
+        "policy_kwargs": dict(net_arch=list(agent.hidden)),
+        "device": "cpu",
+    }
 
 
 def sb3_dqn(agent: AgentConfig, env_kwargs: dict[str, Any], seed: int):

@@ -18,8 +18,9 @@ from dqn_transfer.envs.treasure_hunt import parallel_env
 from dqn_transfer.timing import Stopwatch
 
 
-def measure_env_throughput(num_agents: int, steps: int, seed: int, mode: Mode = Mode.competitive,
-                           env_kwargs: dict[str, Any] = BENCH_MAP) -> dict[str, Any]:
+def measure_env_throughput(
+    num_agents: int, steps: int, seed: int, mode: Mode = Mode.competitive, env_kwargs: dict[str, Any] = BENCH_MAP
+) -> dict[str, Any]:
     """``steps`` joint steps of random play on ``env_kwargs`` generated for ``num_agents`` starts."""
     env = parallel_env(num_agents=num_agents, mode=mode, **env_kwargs)
     actions = np.random.default_rng(seed).integers(0, env.game.num_actions, size=(steps, num_agents))

@@ -51,8 +51,11 @@ def sb3(steps: int, seed: int, agent: AgentConfig, env_kwargs: dict[str, Any]) -
     """
     model = sb3_dqn(agent, env_kwargs, seed)
     model.learn(total_timesteps=steps)
-    return {"steps": int(model.num_timesteps), "gradient_steps": int(model._n_updates),
-            "episodes": int(model._episode_num)}
+    return {
+        "steps": int(model.num_timesteps),
+        "gradient_steps": int(model._n_updates),
+        "episodes": int(model._episode_num),
+    }
 
 
 def linear_schedule(start_e: float, end_e: float, duration: float, t: int) -> float:
@@ -149,14 +152,20 @@ PROGRAMS = {"sb3": sb3, "bare": bare}
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m dqn_transfer.benchmark.processes",
-                                     description="A reference DQN process of the benchmark (sections 5 and 6).")
+    parser = argparse.ArgumentParser(
+        prog="python -m dqn_transfer.benchmark.processes",
+        description="A reference DQN process of the benchmark (sections 5 and 6).",
+    )
     parser.add_argument("program", choices=PROGRAMS)
     parser.add_argument("--steps", type=int, required=True, help="env steps to train for")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--map", choices=MAPS, default="lone", help="LONE_MAP (section 5) or BENCH_MAP (section 6)")
-    parser.add_argument("--learning-starts", type=int, default=LONE_AGENT.learning_starts,
-                        help=f"env steps before the first update (default {LONE_AGENT.learning_starts})")
+    parser.add_argument(
+        "--learning-starts",
+        type=int,
+        default=LONE_AGENT.learning_starts,
+        help=f"env steps before the first update (default {LONE_AGENT.learning_starts})",
+    )
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     agent = dataclasses.replace(LONE_AGENT, learning_starts=args.learning_starts)

@@ -41,8 +41,12 @@ from dqn_transfer.benchmark.env_throughput import measure_env_throughput
 from dqn_transfer.benchmark.team_scaling import TeamRig
 from dqn_transfer.benchmark.training import measure_ours_training, measure_sb3_training
 from dqn_transfer.benchmark.update_cost import THREAD_NAMES, UPDATE_NAMES, SB3UpdateRig, UpdateRig
-from dqn_transfer.benchmark.whole_process import (LONE_CONTENDERS, measure_lone, measure_ours_replicas,
-                                                  measure_sb3_parallel)
+from dqn_transfer.benchmark.whole_process import (
+    LONE_CONTENDERS,
+    measure_lone,
+    measure_ours_replicas,
+    measure_sb3_parallel,
+)
 from dqn_transfer.config import AgentConfig, to_plain
 from dqn_transfer.enums import Engine
 from dqn_transfer.timing import cpu_model, cpus_available
@@ -73,15 +77,34 @@ class Sizes:
 
 
 PROFILES = {
-    "full": Sizes(env_steps=20_000, train_steps=10_000, team_steps=400, updates=2_000, eval_episodes=5,
-                  thread_cap_s=3.0, lone_steps=10_000, replica_steps=3_000, replica_counts=(1, 4, 10, 16, 64),
-                  replica_learning_starts=500),
+    "full": Sizes(
+        env_steps=20_000,
+        train_steps=10_000,
+        team_steps=400,
+        updates=2_000,
+        eval_episodes=5,
+        thread_cap_s=3.0,
+        lone_steps=10_000,
+        replica_steps=3_000,
+        replica_counts=(1, 4, 10, 16, 64),
+        replica_learning_starts=500,
+    ),
     # quick: section 3 fills only 200 steps of replay before timing (the fill level hardly changes the
     # per-step cost) and section 4 skips the default-thread timings; the hyperparameters stay matched.
     # Sections 5 and 6 run so little that process start-up dominates: a smoke run, not a figure.
-    "quick": Sizes(env_steps=2_000, train_steps=2_000, team_steps=40, updates=200, eval_episodes=2,
-                   team_learning_starts=200, default_thread_timings=False, lone_steps=2_000, replica_steps=300,
-                   replica_counts=(1, 2), replica_learning_starts=100),
+    "quick": Sizes(
+        env_steps=2_000,
+        train_steps=2_000,
+        team_steps=40,
+        updates=200,
+        eval_episodes=2,
+        team_learning_starts=200,
+        default_thread_timings=False,
+        lone_steps=2_000,
+        replica_steps=300,
+        replica_counts=(1, 2),
+        replica_learning_starts=100,
+    ),
 }
 
 # Section 6: our process runs each engine on one thread (see the module docstring).
@@ -168,16 +191,18 @@ def env_section(sizes: Sizes, seed: int, repeats: int, progress: ProgressFn) -> 
             "steps": sizes.env_steps,
             "pettingzoo_steps_per_s": median(x["pettingzoo_steps_per_s"] for x in raw[k]),
             "core_steps_per_s": median(x["core_steps_per_s"] for x in raw[k]),
-            "core_over_pettingzoo": paired_ratio([x["core_steps_per_s"] for x in raw[k]],
-                                                 [x["pettingzoo_steps_per_s"] for x in raw[k]]),
+            "core_over_pettingzoo": paired_ratio(
+                [x["core_steps_per_s"] for x in raw[k]], [x["pettingzoo_steps_per_s"] for x in raw[k]]
+            ),
             "raw": raw[k],
         }
         for k in ENV_AGENTS
     ]
 
 
-def training_section(sizes: Sizes, seed: int, repeats: int, train_threads: list[int], agent: AgentConfig,
-                     progress: ProgressFn) -> list[dict[str, Any]]:
+def training_section(
+    sizes: Sizes, seed: int, repeats: int, train_threads: list[int], agent: AgentConfig, progress: ProgressFn
+) -> list[dict[str, Any]]:
     measures = {"ours": measure_ours_training, "sb3": measure_sb3_training}
     raw: dict[int, dict[str, list[dict[str, Any]]]] = {t: {"ours": [], "sb3": []} for t in train_threads}
     for r in range(repeats):
@@ -186,34 +211,39 @@ def training_section(sizes: Sizes, seed: int, repeats: int, train_threads: list[
                 torch.set_num_threads(t)
                 out = measures[who](sizes.train_steps, seed + r, agent, eval_episodes=sizes.eval_episodes)
                 raw[t][who].append(out)
-                progress(f"training {sizes.train_steps} steps, {'ours' if who == 'ours' else 'SB3 DQN'}, "
-                         f"{t} thread(s), repeat {r + 1}/{repeats}: {out['steps_per_s']:.0f} steps/s")
+                progress(
+                    f"training {sizes.train_steps} steps, {'ours' if who == 'ours' else 'SB3 DQN'}, "
+                    f"{t} thread(s), repeat {r + 1}/{repeats}: {out['steps_per_s']:.0f} steps/s"
+                )
     rows = []
     for t in train_threads:
         runs = raw[t]
         # Each figure as its series over repeats, per contender.
         series = {who: {key: [run[key] for run in runs[who]] for key in runs[who][0]} for who in runs}
         ours, sb3 = series["ours"], series["sb3"]
-        rows.append({
-            "torch_threads": t,
-            "steps": sizes.train_steps,
-            "ours_steps_per_s": median(ours["steps_per_s"]),
-            "sb3_steps_per_s": median(sb3["steps_per_s"]),
-            "ours_over_sb3": paired_ratio(ours["steps_per_s"], sb3["steps_per_s"]),
-            "ours_steps_per_cpu_s": median(ours["steps_per_cpu_s"]),
-            "sb3_steps_per_cpu_s": median(sb3["steps_per_cpu_s"]),
-            "ours_over_sb3_cpu": paired_ratio(ours["steps_per_cpu_s"], sb3["steps_per_cpu_s"]),
-            "ours_greedy_success": float(np.mean(ours["greedy_success"])),
-            "sb3_greedy_success": float(np.mean(sb3["greedy_success"])),
-            "ours_greedy_return": float(np.mean(ours["greedy_return"])),
-            "sb3_greedy_return": float(np.mean(sb3["greedy_return"])),
-            "raw": runs,
-        })
+        rows.append(
+            {
+                "torch_threads": t,
+                "steps": sizes.train_steps,
+                "ours_steps_per_s": median(ours["steps_per_s"]),
+                "sb3_steps_per_s": median(sb3["steps_per_s"]),
+                "ours_over_sb3": paired_ratio(ours["steps_per_s"], sb3["steps_per_s"]),
+                "ours_steps_per_cpu_s": median(ours["steps_per_cpu_s"]),
+                "sb3_steps_per_cpu_s": median(sb3["steps_per_cpu_s"]),
+                "ours_over_sb3_cpu": paired_ratio(ours["steps_per_cpu_s"], sb3["steps_per_cpu_s"]),
+                "ours_greedy_success": float(np.mean(ours["greedy_success"])),
+                "sb3_greedy_success": float(np.mean(sb3["greedy_success"])),
+                "ours_greedy_return": float(np.mean(ours["greedy_return"])),
+                "sb3_greedy_return": float(np.mean(sb3["greedy_return"])),
+                "raw": runs,
+            }
+        )
     return rows
 
 
-def team_section(sizes: Sizes, seed: int, repeats: int, agent: AgentConfig,
-                 progress: ProgressFn) -> list[dict[str, Any]]:
+def team_section(
+    sizes: Sizes, seed: int, repeats: int, agent: AgentConfig, progress: ProgressFn
+) -> list[dict[str, Any]]:
     rigs = {}
     for k in TEAM_SIZES:
         for separate in (False, True):
@@ -227,8 +257,10 @@ def team_section(sizes: Sizes, seed: int, repeats: int, agent: AgentConfig,
                 watch = rigs[k, separate].run(sizes.team_steps)
                 wall[k, separate].append(1000.0 * watch.wall / sizes.team_steps)
                 cpu[k, separate].append(1000.0 * watch.cpu / sizes.team_steps)
-                progress(f"team K={k}, {'separate' if separate else 'batched'}, repeat {r + 1}/{repeats}: "
-                         f"{wall[k, separate][-1]:.2f} ms/step")
+                progress(
+                    f"team K={k}, {'separate' if separate else 'batched'}, repeat {r + 1}/{repeats}: "
+                    f"{wall[k, separate][-1]:.2f} ms/step"
+                )
     return [
         {
             "num_agents": k,
@@ -250,8 +282,15 @@ def team_section(sizes: Sizes, seed: int, repeats: int, agent: AgentConfig,
     ]
 
 
-def update_section(sizes: Sizes, seed: int, repeats: int, threads: int, agent: AgentConfig,
-                   with_default_threads: bool, progress: ProgressFn) -> dict[str, Any]:
+def update_section(
+    sizes: Sizes,
+    seed: int,
+    repeats: int,
+    threads: int,
+    agent: AgentConfig,
+    with_default_threads: bool,
+    progress: ProgressFn,
+) -> dict[str, Any]:
     rig = UpdateRig(seed, agent)
     progress("update rig built (DQNLearner K=1, bare nn.Sequential, bare BatchedMLP)")
     sb3_rig = SB3UpdateRig(seed, agent)
@@ -305,8 +344,10 @@ def lone_section(sizes: Sizes, seed: int, repeats: int, progress: ProgressFn) ->
         for who in alternate(LONE_CONTENDERS, r):
             out = measure_lone(who, sizes.lone_steps, seed + r)
             raw[who].append(out)
-            progress(f"lone learner, {who}, {sizes.lone_steps} steps, repeat {r + 1}/{repeats}: "
-                     f"{out['seconds']:.1f} s, {out['steps_per_s']:.0f} steps/s")
+            progress(
+                f"lone learner, {who}, {sizes.lone_steps} steps, repeat {r + 1}/{repeats}: "
+                f"{out['seconds']:.1f} s, {out['steps_per_s']:.0f} steps/s"
+            )
     ours = raw["ours"]
     contenders = {
         who: {
@@ -339,7 +380,8 @@ def replicas_section(sizes: Sizes, seed: int, repeats: int, cores: int, progress
     agent = dataclasses.replace(LONE_AGENT, learning_starts=sizes.replica_learning_starts)
     steps = sizes.replica_steps
     ours: dict[tuple[Engine, int], list[dict[str, Any]]] = {
-        (engine, count): [] for engine in REPLICA_ENGINES for count in sizes.replica_counts}
+        (engine, count): [] for engine in REPLICA_ENGINES for count in sizes.replica_counts
+    }
     sb3: list[dict[str, Any]] = []
     for r in range(repeats):
         for who in alternate(("sb3", *ours), r):
@@ -349,20 +391,24 @@ def replicas_section(sizes: Sizes, seed: int, repeats: int, cores: int, progress
                 label = f"{cores} SB3 processes side by side"
             else:
                 engine, count = who
-                out = measure_ours_replicas(count, steps, seed + r, dataclasses.replace(agent, engine=engine),
-                                            threads=REPLICA_THREADS)
+                out = measure_ours_replicas(
+                    count, steps, seed + r, dataclasses.replace(agent, engine=engine), threads=REPLICA_THREADS
+                )
                 ours[who].append(out)
                 label = f"ours, {engine.value} engine, {count} replica(s) in one process"
-            progress(f"replicas, {label}, {steps} steps, repeat {r + 1}/{repeats}: {out['seconds']:.1f} s, "
-                     f"{out['learner_steps_per_s']:.0f} learner-steps/s")
+            progress(
+                f"replicas, {label}, {steps} steps, repeat {r + 1}/{repeats}: {out['seconds']:.1f} s, "
+                f"{out['learner_steps_per_s']:.0f} learner-steps/s"
+            )
     sb3_rate, sb3_cpu_rate = _series(sb3, "learner_steps_per_s"), _series(sb3, "learner_steps_per_cpu_s")
     rows = [
         {
             "engine": engine.value,
             "replicas": count,
             "learners": count * TEAM_MAP["num_agents"],
-            **_medians(runs, ("seconds", "cpu_seconds", "learner_steps_per_s", "learner_steps_per_cpu_s",
-                              "max_rss_mb")),
+            **_medians(
+                runs, ("seconds", "cpu_seconds", "learner_steps_per_s", "learner_steps_per_cpu_s", "max_rss_mb")
+            ),
             "gradient_steps": runs[0]["gradient_steps"],
             "ours_over_sb3": paired_ratio(_series(runs, "learner_steps_per_s"), sb3_rate),
             "ours_over_sb3_cpu": paired_ratio(_series(runs, "learner_steps_per_cpu_s"), sb3_cpu_rate),
@@ -394,9 +440,17 @@ def replicas_section(sizes: Sizes, seed: int, repeats: int, cores: int, progress
 
 
 # ----------------------------------------------------------------------------- the document
-def run_benchmark(profile: str, seed: int, repeats: int, threads: int, train_threads: list[int] | None = None,
-                  sizes: Sizes | None = None, agent: AgentConfig = BENCH_AGENT,
-                  sections: Sequence[str] = SECTIONS, progress: ProgressFn | None = None) -> dict[str, Any]:
+def run_benchmark(
+    profile: str,
+    seed: int,
+    repeats: int,
+    threads: int,
+    train_threads: list[int] | None = None,
+    sizes: Sizes | None = None,
+    agent: AgentConfig = BENCH_AGENT,
+    sections: Sequence[str] = SECTIONS,
+    progress: ProgressFn | None = None,
+) -> dict[str, Any]:
     """The measurements of ``sections`` (all six by default), as the JSON document.
 
     ``sizes`` defaults to ``PROFILES[profile]``; ``train_threads`` (torch threads of section 2) to
@@ -404,9 +458,12 @@ def run_benchmark(profile: str, seed: int, repeats: int, threads: int, train_thr
     """
     sizes = PROFILES[profile] if sizes is None else sizes
     train_threads = [threads] if train_threads is None else list(train_threads)
-    team_agent = (agent if sizes.team_learning_starts is None
-                  else dataclasses.replace(agent, learning_starts=sizes.team_learning_starts))
-    with_default_threads = sizes.default_thread_timings and DEFAULT_THREADS != threads
+    team_agent = (
+        agent
+        if sizes.team_learning_starts is None
+        else dataclasses.replace(agent, learning_starts=sizes.team_learning_starts)
+    )
+    with_default_threads = sizes.default_thread_timings and threads != DEFAULT_THREADS
     if progress is None:
         steps = {
             "env": repeats * len(ENV_AGENTS),
@@ -433,13 +490,24 @@ def run_benchmark(profile: str, seed: int, repeats: int, threads: int, train_thr
         results["lone"] = lone_section(sizes, seed, repeats, progress)
     if "replicas" in sections:
         results["replicas"] = replicas_section(sizes, seed, repeats, cpus_available(), progress)
-    results["machine"] = {**machine_info(sorted({threads, *train_threads})),
-                          "loadavg_start": loadavg_start, "loadavg_end": _loadavg()}
+    results["machine"] = {
+        **machine_info(sorted({threads, *train_threads})),
+        "loadavg_start": loadavg_start,
+        "loadavg_end": _loadavg(),
+    }
     results["settings"] = {
-        "profile": profile, "seed": seed, "repeats": repeats, "threads": threads, "train_threads": train_threads,
-        "sections": list(sections), **dataclasses.asdict(sizes), "replica_counts": list(sizes.replica_counts),
+        "profile": profile,
+        "seed": seed,
+        "repeats": repeats,
+        "threads": threads,
+        "train_threads": train_threads,
+        "sections": list(sections),
+        **dataclasses.asdict(sizes),
+        "replica_counts": list(sizes.replica_counts),
         "hyperparameters": to_plain(agent),
-        "team_learning_starts": team_agent.learning_starts, "env_map": BENCH_MAP, "source_map": SOURCE_MAP,
+        "team_learning_starts": team_agent.learning_starts,
+        "env_map": BENCH_MAP,
+        "source_map": SOURCE_MAP,
     }
     results["method"] = METHOD
     return results
@@ -450,13 +518,21 @@ def _fmt(x: float, digits: int = 0) -> str:
     return f"{x:,.{digits}f}"
 
 
-def _part(heading: str, text: str, columns: Sequence[str], rows: Iterable[Sequence[str]],
-          label_column: bool = False) -> list[str]:
+def _part(
+    heading: str, text: str, columns: Sequence[str], rows: Iterable[Sequence[str]], label_column: bool = False
+) -> list[str]:
     """One section of the table: heading, explanation, and a Markdown table whose columns are right-aligned
     numbers (the first one left-aligned when it holds labels)."""
     align = ["---" if label_column else "---:"] + ["---:"] * (len(columns) - 1)
-    return [heading, "", text, "", f"| {' | '.join(columns)} |", f"|{'|'.join(align)}|",
-            *(f"| {' | '.join(row)} |" for row in rows)]
+    return [
+        heading,
+        "",
+        text,
+        "",
+        f"| {' | '.join(columns)} |",
+        f"|{'|'.join(align)}|",
+        *(f"| {' | '.join(row)} |" for row in rows),
+    ]
 
 
 def _x(ratio: float) -> str:
@@ -469,8 +545,16 @@ def _env_table(res: dict[str, Any]) -> list[str]:
         f"## 1. Environment throughput (random actions, {s['env_steps']:,} joint steps, resets included)",
         f"Map: {s['env_map']} generated for K starts. Wall clock.",
         ["agents", "PettingZoo ParallelEnv steps/s", "numpy core steps/s", "core / PettingZoo"],
-        ([str(row["num_agents"]), _fmt(row["pettingzoo_steps_per_s"]), _fmt(row["core_steps_per_s"]),
-          _x(row["core_over_pettingzoo"])] for row in res["env"]))
+        (
+            [
+                str(row["num_agents"]),
+                _fmt(row["pettingzoo_steps_per_s"]),
+                _fmt(row["core_steps_per_s"]),
+                _x(row["core_over_pettingzoo"]),
+            ]
+            for row in res["env"]
+        ),
+    )
 
 
 def _training_table(res: dict[str, Any]) -> list[str]:
@@ -481,18 +565,35 @@ def _training_table(res: dict[str, Any]) -> list[str]:
         f"{max(0, s['train_steps'] - hp['learning_starts']):,} gradient steps)",
         f"Map: {s['source_map']} (one chest, 6 moves from the start). Ours: `Trainer(source_task=True).run()` "
         "(the training loop with its TensorBoard logging; progress bar off; its greedy evaluations and "
-        "checkpoint writes timed and subtracted). SB3: `DQN(\"MlpPolicy\", gymnasium.make(\"TreasureHunt-v0\"), "
+        'checkpoint writes timed and subtracted). SB3: `DQN("MlpPolicy", gymnasium.make("TreasureHunt-v0"), '
         f"...).learn()`. Matched: net_arch {hp['hidden']}, lr {hp['lr']}, batch {hp['batch_size']}, buffer "
         f"{hp['buffer_size']:,}, learning_starts {hp['learning_starts']}, train_freq {hp['train_freq']}, "
         f"gradient_steps {hp['gradient_steps']}, target_update {hp['target_update']} (tau {hp['tau']}), "
         f"gamma {hp['gamma']}, epsilon {hp['eps_start']} -> {hp['eps_end']} over {hp['exploration_fraction']} "
         f"of the run, max_grad_norm {hp['max_grad_norm']}, Huber loss, Adam, CPU. Greedy success: fraction of "
         "greedy episodes reaching the chest after training (same episode loop for both), mean over repeats.",
-        ["torch threads", "ours steps/s", "SB3 steps/s", "ours / SB3 (wall)", "ours / SB3 (CPU)",
-         "ours greedy success", "SB3 greedy success"],
-        ([str(row["torch_threads"]), _fmt(row["ours_steps_per_s"]), _fmt(row["sb3_steps_per_s"]),
-          _x(row["ours_over_sb3"]), _x(row["ours_over_sb3_cpu"]), _fmt(row["ours_greedy_success"], 2),
-          _fmt(row["sb3_greedy_success"], 2)] for row in res["training"]))
+        [
+            "torch threads",
+            "ours steps/s",
+            "SB3 steps/s",
+            "ours / SB3 (wall)",
+            "ours / SB3 (CPU)",
+            "ours greedy success",
+            "SB3 greedy success",
+        ],
+        (
+            [
+                str(row["torch_threads"]),
+                _fmt(row["ours_steps_per_s"]),
+                _fmt(row["sb3_steps_per_s"]),
+                _x(row["ours_over_sb3"]),
+                _x(row["ours_over_sb3_cpu"]),
+                _fmt(row["ours_greedy_success"], 2),
+                _fmt(row["sb3_greedy_success"], 2),
+            ]
+            for row in res["training"]
+        ),
+    )
 
 
 def _team_table(res: dict[str, Any]) -> list[str]:
@@ -505,12 +606,30 @@ def _team_table(res: dict[str, Any]) -> list[str]:
         f"replay-filling steps; map {s['env_map']} generated for K starts, same hyperparameters. Batched: one "
         "DQNLearner for the K agents (stacked weights, one Adam step). Separate: K single-agent DQNLearners "
         "stepped in a Python loop.",
-        ["K", "batched ms/step", "batched ms/agent-step", "batched vs K=1", "separate ms/step",
-         "separate ms/agent-step", "separate / batched (wall)", "separate / batched (CPU)"],
-        ([str(row["num_agents"]), _fmt(row["batched_ms_per_step"], 2), _fmt(row["batched_ms_per_agent_step"], 2),
-          _x(row["batched_over_k1"]), _fmt(row["separate_ms_per_step"], 2),
-          _fmt(row["separate_ms_per_agent_step"], 2), _x(row["separate_over_batched"]),
-          _x(row["separate_over_batched_cpu"])] for row in res["team"]))
+        [
+            "K",
+            "batched ms/step",
+            "batched ms/agent-step",
+            "batched vs K=1",
+            "separate ms/step",
+            "separate ms/agent-step",
+            "separate / batched (wall)",
+            "separate / batched (CPU)",
+        ],
+        (
+            [
+                str(row["num_agents"]),
+                _fmt(row["batched_ms_per_step"], 2),
+                _fmt(row["batched_ms_per_agent_step"], 2),
+                _x(row["batched_over_k1"]),
+                _fmt(row["separate_ms_per_step"], 2),
+                _fmt(row["separate_ms_per_agent_step"], 2),
+                _x(row["separate_over_batched"]),
+                _x(row["separate_over_batched_cpu"]),
+            ]
+            for row in res["team"]
+        ),
+    )
 
 
 UPDATE_LABELS = {
@@ -532,37 +651,53 @@ def _update_table(res: dict[str, Any]) -> list[str]:
         "Bare = CleanRL-style update of an nn.Sequential on a batch already in memory as tensors (target "
         "max under no_grad, gather, Huber loss, backward, clip_grad_norm_, Adam step).",
         ["update", "wall us/update", "CPU us/update", "vs bare (wall)", "vs bare (CPU)"],
-        ([label.format(threads=u["default_threads"]), _fmt(u[f"{key}_us"]), _fmt(u[f"{key}_cpu_us"]),
-          _x(u[f"{key}_over_bare"]), _x(u[f"{key}_over_bare_cpu"])]
-         for key, label in UPDATE_LABELS.items() if f"{key}_us" in u),
-        label_column=True)
+        (
+            [
+                label.format(threads=u["default_threads"]),
+                _fmt(u[f"{key}_us"]),
+                _fmt(u[f"{key}_cpu_us"]),
+                _x(u[f"{key}_over_bare"]),
+                _x(u[f"{key}_over_bare_cpu"]),
+            ]
+            for key, label in UPDATE_LABELS.items()
+            if f"{key}_us" in u
+        ),
+        label_column=True,
+    )
 
 
 def _machine_line(res: dict[str, Any], section: dict[str, Any]) -> str:
     """The machine, and the load average (1 min) when the section started and ended."""
     m, start, end = res["machine"], section.get("loadavg_start"), section.get("loadavg_end")
-    load = (f"; load average (1 min) {start[0]:.2f} at the start of this section, {end[0]:.2f} at its end"
-            if start and end else "")
+    load = (
+        f"; load average (1 min) {start[0]:.2f} at the start of this section, {end[0]:.2f} at its end"
+        if start and end
+        else ""
+    )
     return f"Machine: {m['cpu_model']}, {m['cpus_available']} cores{load}."
 
 
 def _hyperparameters(hp: dict[str, Any]) -> str:
-    return (f"MLP {hp['hidden']}, Adam lr {hp['lr']:g}, batch {hp['batch_size']}, replay {hp['buffer_size']:,}, "
-            f"learning_starts {hp['learning_starts']:,}, train_freq {hp['train_freq']}, gradient_steps "
-            f"{hp['gradient_steps']}, target copy every {hp['target_update']:,} steps (tau {hp['tau']}), gamma "
-            f"{hp['gamma']}, epsilon {hp['eps_start']} -> {hp['eps_end']} over {hp['exploration_fraction']} of the "
-            f"run, Huber loss, max_grad_norm {hp['max_grad_norm']}, CPU")
+    return (
+        f"MLP {hp['hidden']}, Adam lr {hp['lr']:g}, batch {hp['batch_size']}, replay {hp['buffer_size']:,}, "
+        f"learning_starts {hp['learning_starts']:,}, train_freq {hp['train_freq']}, gradient_steps "
+        f"{hp['gradient_steps']}, target copy every {hp['target_update']:,} steps (tau {hp['tau']}), gamma "
+        f"{hp['gamma']}, epsilon {hp['eps_start']} -> {hp['eps_end']} over {hp['exploration_fraction']} of the "
+        f"run, Huber loss, max_grad_norm {hp['max_grad_norm']}, CPU"
+    )
 
 
 def _map(kwargs: dict[str, Any]) -> str:
-    return (f"{kwargs['size']}x{kwargs['size']} map ({kwargs['num_treasures']} chest(s), {kwargs['num_traps']} "
-            f"trap(s), complexity {kwargs['complexity']}, map seed {kwargs['map_seed']})")
+    return (
+        f"{kwargs['size']}x{kwargs['size']} map ({kwargs['num_treasures']} chest(s), {kwargs['num_traps']} "
+        f"trap(s), complexity {kwargs['complexity']}, map seed {kwargs['map_seed']})"
+    )
 
 
 LONE_LABELS = {
     "ours": "ours: `python -m dqn_transfer.cli.train agent.engine=numpy` (`train.py`)",
     "ours_torch": "ours, torch engine (the default): `python -m dqn_transfer.cli.train`",
-    "sb3": "SB3: `DQN(\"MlpPolicy\", gymnasium.make(\"TreasureHunt-v0\")).learn()`",
+    "sb3": 'SB3: `DQN("MlpPolicy", gymnasium.make("TreasureHunt-v0")).learn()`',
     "bare": "bare PyTorch: a CleanRL-style dqn.py loop",
 }
 
@@ -579,13 +714,34 @@ def _lone_table(res: dict[str, Any]) -> list[str]:
         "final checkpoint included); CPU: user + system of the process (os.wait4). Ours observes the "
         "team game's position + chest-state inputs, SB3 and bare the position inputs of TreasureHunt-v0. "
         "ours / this: ours' steps/s over this program's, paired by repeat (> 1: ours is faster).",
-        ["program", "wall s", "steps/s", "CPU s", "steps/CPU-s", "peak RSS MB", "gradient steps",
-         "ours / this (wall)", "ours / this (CPU)"],
-        ([label, _fmt(c[who]["seconds"], 1), _fmt(c[who]["steps_per_s"]), _fmt(c[who]["cpu_seconds"], 1),
-          _fmt(c[who]["steps_per_cpu_s"]), _fmt(c[who]["max_rss_mb"]), _fmt(c[who]["gradient_steps"]),
-          _x(c[who]["ours_over_this"]), _x(c[who]["ours_over_this_cpu"])]
-         for who, label in LONE_LABELS.items() if who in c),
-        label_column=True)
+        [
+            "program",
+            "wall s",
+            "steps/s",
+            "CPU s",
+            "steps/CPU-s",
+            "peak RSS MB",
+            "gradient steps",
+            "ours / this (wall)",
+            "ours / this (CPU)",
+        ],
+        (
+            [
+                label,
+                _fmt(c[who]["seconds"], 1),
+                _fmt(c[who]["steps_per_s"]),
+                _fmt(c[who]["cpu_seconds"], 1),
+                _fmt(c[who]["steps_per_cpu_s"]),
+                _fmt(c[who]["max_rss_mb"]),
+                _fmt(c[who]["gradient_steps"]),
+                _x(c[who]["ours_over_this"]),
+                _x(c[who]["ours_over_this_cpu"]),
+            ]
+            for who, label in LONE_LABELS.items()
+            if who in c
+        ),
+        label_column=True,
+    )
 
 
 def _replicas_table(res: dict[str, Any]) -> list[str]:
@@ -596,34 +752,66 @@ def _replicas_table(res: dict[str, Any]) -> list[str]:
         f"per process ({rep['steps']:,} env steps per process)",
         f"{_machine_line(res, rep)} Settings: a cooperative team of {k} DQN agents on a {_map(rep['map'])}, "
         f"{rep['steps']:,} joint env steps, {_hyperparameters(rep['hyperparameters'])}. Ours: ONE "
-        f"`python -m dqn_transfer.cli.train replicas.seeds=R agent.engine=E threads={rep['ours_threads']}` process (R x {k} "
+        "`python -m dqn_transfer.cli.train replicas.seeds=R agent.engine=E "
+        f"threads={rep['ours_threads']}` process (R x {k} "
         f"learners, one batched learner); learner-steps/s = steps x R x {k} / whole-process wall. SB3: "
         f"{rep['sb3_processes']} `DQN.learn` processes (TreasureHunt-v0 of the map, one learner each, one "
         f"torch thread) started together; learner-steps/s = {rep['sb3_processes']} x steps / wall until the "
         f"last exits: {_fmt(sb3['learner_steps_per_s'])} (CPU: {_fmt(sb3['learner_steps_per_cpu_s'])} per "
         f"CPU-s), peak RSS {_fmt(sb3['max_rss_mb'])} MB per process. Measured once per repeat and paired with "
         "every R of that repeat (> 1: ours is faster).",
-        ["engine", "R", "learners", "ours wall s", "ours learner-steps/s", "ours learner-steps/CPU-s", "ours peak RSS MB",
-         "SB3 learner-steps/s", "ours / SB3 (wall)", "ours / SB3 (CPU)"],
-        ([row["engine"], str(row["replicas"]), str(row["learners"]), _fmt(row["seconds"], 1), _fmt(row["learner_steps_per_s"]),
-          _fmt(row["learner_steps_per_cpu_s"]), _fmt(row["max_rss_mb"]), _fmt(sb3["learner_steps_per_s"]),
-          _x(row["ours_over_sb3"]), _x(row["ours_over_sb3_cpu"])] for row in rep["rows"]))
+        [
+            "engine",
+            "R",
+            "learners",
+            "ours wall s",
+            "ours learner-steps/s",
+            "ours learner-steps/CPU-s",
+            "ours peak RSS MB",
+            "SB3 learner-steps/s",
+            "ours / SB3 (wall)",
+            "ours / SB3 (CPU)",
+        ],
+        (
+            [
+                row["engine"],
+                str(row["replicas"]),
+                str(row["learners"]),
+                _fmt(row["seconds"], 1),
+                _fmt(row["learner_steps_per_s"]),
+                _fmt(row["learner_steps_per_cpu_s"]),
+                _fmt(row["max_rss_mb"]),
+                _fmt(sb3["learner_steps_per_s"]),
+                _x(row["ours_over_sb3"]),
+                _x(row["ours_over_sb3_cpu"]),
+            ]
+            for row in rep["rows"]
+        ),
+    )
 
 
-TABLES = {"env": _env_table, "training": _training_table, "team": _team_table, "update": _update_table,
-          "lone": _lone_table, "replicas": _replicas_table}
+TABLES = {
+    "env": _env_table,
+    "training": _training_table,
+    "team": _team_table,
+    "update": _update_table,
+    "lone": _lone_table,
+    "replicas": _replicas_table,
+}
 
 
 def render_markdown(res: dict[str, Any]) -> str:
     """The table of a :func:`run_benchmark` document: a header, then one part per measured section."""
     s, m = res["settings"], res["machine"]
-    load = (f"; load average (1 min) at start {m['loadavg_start'][0]:.2f}, at end {m['loadavg_end'][0]:.2f}"
-            if m.get("loadavg_start") else "")
+    load = (
+        f"; load average (1 min) at start {m['loadavg_start'][0]:.2f}, at end {m['loadavg_end'][0]:.2f}"
+        if m.get("loadavg_start")
+        else ""
+    )
     lines = [
         f"# dqn_transfer benchmark ({s['profile']})",
         "",
-        f"Method: {res['method']} R = {s['repeats']}, seed {s['seed']}, torch threads {s['threads']} "
-        "unless stated.",
+        f"Method: {res['method']} R = {s['repeats']}, seed {s['seed']}, torch threads {s['threads']} unless stated.",
         "",
         f"Machine: {m['cpu_model']}, {m['cpus_available']} CPU(s) available ({m['cpu_count']} total), "
         f"torch {m['torch']} (default {m['torch_default_threads']} threads), SB3 {m['stable_baselines3']}, "

@@ -31,8 +31,14 @@ class TeamRig:
     so every timed step trains. ``step_count`` counts the joint env steps played so far.
     """
 
-    def __init__(self, num_agents: int, separate: bool, seed: int, agent: AgentConfig = BENCH_AGENT,
-                 env_kwargs: dict[str, Any] = BENCH_MAP):
+    def __init__(
+        self,
+        num_agents: int,
+        separate: bool,
+        seed: int,
+        agent: AgentConfig = BENCH_AGENT,
+        env_kwargs: dict[str, Any] = BENCH_MAP,
+    ):
         self.num_agents, self.separate, self.agent = num_agents, separate, agent
         self.game = make_game(**env_kwargs, num_agents=num_agents)
         layout, actions = self.game.obs_layout(), self.game.num_actions
@@ -50,8 +56,9 @@ class TeamRig:
         game, obs = self.game, self.obs
         live = game.live
         if self.separate:
-            actions = np.concatenate([learner.act(obs[i : i + 1], live[i : i + 1], epsilon)
-                                      for i, learner in enumerate(self.learners)])
+            actions = np.concatenate(
+                [learner.act(obs[i : i + 1], live[i : i + 1], epsilon) for i, learner in enumerate(self.learners)]
+            )
         else:
             actions = self.learners[0].act(obs, live, epsilon)
         next_obs, rewards, terminated, truncated, _ = game.step(actions)
@@ -70,4 +77,3 @@ class TeamRig:
             for _ in range(steps):
                 self._step(self.agent.eps_end)
         return watch
-

@@ -36,17 +36,30 @@ def greedy_check(policy: Policy, env_kwargs: dict[str, Any], episodes: int, seed
     and the mean return."""
     game = make_game(**env_kwargs).single_agent_game()
     results = [play_episode(game, policy, np.random.default_rng(seed + episode)) for episode in range(episodes)]
-    return {"greedy_success": float(np.mean([r.treasures_collected > 0 for r in results])),
-            "greedy_return": float(np.mean([r.team_return for r in results]))}
+    return {
+        "greedy_success": float(np.mean([r.treasures_collected > 0 for r in results])),
+        "greedy_return": float(np.mean([r.team_return for r in results])),
+    }
 
 
 def _figures(steps: int, wall: float, cpu: float, gradient_steps: int) -> dict[str, Any]:
-    return {"steps": steps, "seconds": wall, "cpu_seconds": cpu, "steps_per_s": steps / wall,
-            "steps_per_cpu_s": steps / cpu, "gradient_steps": gradient_steps}
+    return {
+        "steps": steps,
+        "seconds": wall,
+        "cpu_seconds": cpu,
+        "steps_per_s": steps / wall,
+        "steps_per_cpu_s": steps / cpu,
+        "gradient_steps": gradient_steps,
+    }
 
 
-def measure_ours_training(steps: int, seed: int, agent: AgentConfig = BENCH_AGENT,
-                          env_kwargs: dict[str, Any] = SOURCE_MAP, eval_episodes: int = 3) -> dict[str, Any]:
+def measure_ours_training(
+    steps: int,
+    seed: int,
+    agent: AgentConfig = BENCH_AGENT,
+    env_kwargs: dict[str, Any] = SOURCE_MAP,
+    eval_episodes: int = 3,
+) -> dict[str, Any]:
     """Env steps/s of our trainer on the source task, its evaluations and checkpoints subtracted."""
     config = TrainConfig(
         env=EnvConfig(**env_kwargs),
@@ -65,8 +78,9 @@ def measure_ours_training(steps: int, seed: int, agent: AgentConfig = BENCH_AGEN
             summary = trainer.run()
     overhead = summary["overhead"]
     return {
-        **_figures(steps, run.wall - overhead["wall"], run.cpu - overhead["cpu"],
-                   int(trainer.learner.num_gradient_steps)),
+        **_figures(
+            steps, run.wall - overhead["wall"], run.cpu - overhead["cpu"], int(trainer.learner.num_gradient_steps)
+        ),
         "run_seconds": run.wall,
         "excluded_seconds": overhead["wall"],
         "excluded_cpu_seconds": overhead["cpu"],
@@ -74,8 +88,13 @@ def measure_ours_training(steps: int, seed: int, agent: AgentConfig = BENCH_AGEN
     }
 
 
-def measure_sb3_training(steps: int, seed: int, agent: AgentConfig = BENCH_AGENT,
-                         env_kwargs: dict[str, Any] = SOURCE_MAP, eval_episodes: int = 3) -> dict[str, Any]:
+def measure_sb3_training(
+    steps: int,
+    seed: int,
+    agent: AgentConfig = BENCH_AGENT,
+    env_kwargs: dict[str, Any] = SOURCE_MAP,
+    eval_episodes: int = 3,
+) -> dict[str, Any]:
     """Env steps/s of SB3's ``DQN.learn(steps)`` with the same hyperparameters."""
     model = sb3_dqn(agent, env_kwargs, seed)
     with Stopwatch() as run:

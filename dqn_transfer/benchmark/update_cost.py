@@ -44,8 +44,14 @@ def mlp(sizes: list[int]) -> nn.Sequential:
     return nn.Sequential(*layers[:-1])
 
 
-def td_update(online: nn.Module, target: nn.Module, optimizer: torch.optim.Optimizer,
-              clip: Callable[[], Any], batch: ReplayBatch, gamma: float) -> None:
+def td_update(
+    online: nn.Module,
+    target: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    clip: Callable[[], Any],
+    batch: ReplayBatch,
+    gamma: float,
+) -> None:
     """One DQN gradient step on a batch in memory, ``[B, ...]`` for an ``nn.Sequential`` or
     ``[K, B, ...]`` for a ``BatchedMLP``: the Huber loss is averaged over the batch and summed over
     members, as ``DQNLearner`` does (for ``[B, ...]`` that is the plain batch mean)."""
@@ -97,9 +103,14 @@ class UpdateRig:
         self.optimizer = torch.optim.Adam(self.q.parameters(), lr=agent.lr)
 
     def bare_update(self) -> None:
-        td_update(self.q, self.q_target, self.optimizer,
-                  lambda: nn.utils.clip_grad_norm_(self.q.parameters(), self.agent.max_grad_norm),
-                  self.flat_batch, self.agent.gamma)
+        td_update(
+            self.q,
+            self.q_target,
+            self.optimizer,
+            lambda: nn.utils.clip_grad_norm_(self.q.parameters(), self.agent.max_grad_norm),
+            self.flat_batch,
+            self.agent.gamma,
+        )
 
     def time(self, which: str, updates: int, max_seconds: float | None = None) -> tuple[float, float]:
         """(wall, CPU) microseconds per update of ``which`` in (bare, in_memory, ours, sample)."""

@@ -35,9 +35,9 @@ from pathlib import Path
 from typing import Any
 
 from dqn_transfer.benchmark.config import LONE_AGENT, LONE_MAP, TEAM_MAP
-from dqn_transfer.storage.checkpoint import verify_checkpoint
 from dqn_transfer.config import SB3_NAMES, AgentConfig
 from dqn_transfer.enums import Engine
+from dqn_transfer.storage.checkpoint import verify_checkpoint
 from dqn_transfer.storage.run_dir import RunDir
 
 LONE_CONTENDERS = ("ours", "ours_torch", "sb3", "bare")
@@ -61,8 +61,15 @@ def _override(value: Any) -> str:
     return str(value)
 
 
-def train_command(run_dir: Path, steps: int, seed: int, agent: AgentConfig, env_kwargs: dict[str, Any],
-                  threads: int = 1, replicas: int = 1) -> list[str]:
+def train_command(
+    run_dir: Path,
+    steps: int,
+    seed: int,
+    agent: AgentConfig,
+    env_kwargs: dict[str, Any],
+    threads: int = 1,
+    replicas: int = 1,
+) -> list[str]:
     """``python -m dqn_transfer.cli.train`` with overrides for exactly ``agent`` and ``env_kwargs``.
 
     Evaluations and checkpoints as rarely as the trainer allows (at step 0 and at the end, one greedy
@@ -77,18 +84,27 @@ def train_command(run_dir: Path, steps: int, seed: int, agent: AgentConfig, env_
     :param replicas: ``replicas.seeds``
     """
     return [
-        sys.executable, "-m", "dqn_transfer.cli.train",
+        sys.executable,
+        "-m",
+        "dqn_transfer.cli.train",
         *(f"env.{key}={_override(value)}" for key, value in env_kwargs.items()),
         "agent=dqn",
         *(f"agent.{key}={_override(getattr(agent, key))}" for key in MATCHED_KEYS),
-        f"seed={seed}", f"total_steps={steps}", f"eval_every={steps}", "eval_episodes=1",
-        f"checkpoint_every={steps}", "progress=false", f"threads={threads}", f"replicas.seeds={replicas}",
+        f"seed={seed}",
+        f"total_steps={steps}",
+        f"eval_every={steps}",
+        "eval_episodes=1",
+        f"checkpoint_every={steps}",
+        "progress=false",
+        f"threads={threads}",
+        f"replicas.seeds={replicas}",
         f"hydra.run.dir={run_dir}",
     ]
 
 
-def reference_command(program: str, steps: int, seed: int, map_name: str = "lone",
-                      learning_starts: int = LONE_AGENT.learning_starts) -> list[str]:
+def reference_command(
+    program: str, steps: int, seed: int, map_name: str = "lone", learning_starts: int = LONE_AGENT.learning_starts
+) -> list[str]:
     """``python -m dqn_transfer.benchmark.processes <program> ...`` (program: ``sb3`` or ``bare``).
 
     :param program: ``sb3`` or ``bare``
@@ -97,8 +113,20 @@ def reference_command(program: str, steps: int, seed: int, map_name: str = "lone
     :param map_name: ``lone`` (LONE_MAP) or ``bench`` (BENCH_MAP)
     :param learning_starts: env steps before the first update
     """
-    return [sys.executable, "-m", "dqn_transfer.benchmark.processes", program, "--steps", str(steps),
-            "--seed", str(seed), "--map", map_name, "--learning-starts", str(learning_starts)]
+    return [
+        sys.executable,
+        "-m",
+        "dqn_transfer.benchmark.processes",
+        program,
+        "--steps",
+        str(steps),
+        "--seed",
+        str(seed),
+        "--map",
+        map_name,
+        "--learning-starts",
+        str(learning_starts),
+    ]
 
 
 def run_together(commands: Sequence[Sequence[str]]) -> dict[str, Any]:
@@ -127,8 +155,9 @@ def run_together(commands: Sequence[Sequence[str]]) -> dict[str, Any]:
             for command, (out, err) in zip(commands, logs):
                 with open(out, "wb") as stdout, open(err, "wb") as stderr:
                     starts.append(time.perf_counter())
-                    children.append(subprocess.Popen(list(command), stdin=subprocess.DEVNULL, stdout=stdout,
-                                                     stderr=stderr))
+                    children.append(
+                        subprocess.Popen(list(command), stdin=subprocess.DEVNULL, stdout=stdout, stderr=stderr)
+                    )
             waiters = [threading.Thread(target=reap, args=(i,), daemon=True) for i in range(n)]
             for waiter in waiters:
                 waiter.start()
@@ -152,11 +181,19 @@ def run_together(commands: Sequence[Sequence[str]]) -> dict[str, Any]:
             if child.returncode != 0:
                 tail = "\n".join(logs[i][1].read_text(errors="replace").strip().splitlines()[-15:])
                 raise ProcessFailed(f"{' '.join(command)} exited with {child.returncode}:\n{tail}")
-            processes.append({"seconds": end - start, "cpu_seconds": usage.ru_utime + usage.ru_stime,
-                              "max_rss_mb": usage.ru_maxrss / 1024.0,  # Linux reports kilobytes
-                              "report": _last_json(logs[i][0].read_text(errors="replace"))})
-    return {"seconds": max(r[0] for r in reaped) - min(starts),
-            "cpu_seconds": sum(p["cpu_seconds"] for p in processes), "processes": processes}
+            processes.append(
+                {
+                    "seconds": end - start,
+                    "cpu_seconds": usage.ru_utime + usage.ru_stime,
+                    "max_rss_mb": usage.ru_maxrss / 1024.0,  # Linux reports kilobytes
+                    "report": _last_json(logs[i][0].read_text(errors="replace")),
+                }
+            )
+    return {
+        "seconds": max(r[0] for r in reaped) - min(starts),
+        "cpu_seconds": sum(p["cpu_seconds"] for p in processes),
+        "processes": processes,
+    }
 
 
 def _last_json(text: str) -> dict[str, Any] | None:
@@ -173,19 +210,28 @@ def trainer_report(run_dir: Path) -> dict[str, Any]:
     run = RunDir(run_dir)
     dirs = run.replica_dirs() or [run.path]
     metas = [verify_checkpoint(RunDir(d).training_state, "training_state").meta for d in dirs]
-    return {"replicas": len(dirs),
-            "steps": [m["counters"]["step"] for m in metas],
-            "gradient_steps": [m["learner"]["num_gradient_steps"] for m in metas],
-            "episodes": [m["counters"]["episodes"] for m in metas]}
+    return {
+        "replicas": len(dirs),
+        "steps": [m["counters"]["step"] for m in metas],
+        "gradient_steps": [m["learner"]["num_gradient_steps"] for m in metas],
+        "episodes": [m["counters"]["episodes"] for m in metas],
+    }
 
 
 def _figures(steps: int, timing: dict[str, Any], learners: int = 1) -> dict[str, Any]:
     """Wall and CPU seconds of a run of ``learners`` x ``steps`` learner-steps, and the rates."""
     wall, cpu = timing["seconds"], timing["cpu_seconds"]
-    return {"steps": steps, "learners": learners, "seconds": wall, "cpu_seconds": cpu,
-            "steps_per_s": steps / wall, "steps_per_cpu_s": steps / cpu,
-            "learner_steps_per_s": learners * steps / wall, "learner_steps_per_cpu_s": learners * steps / cpu,
-            "max_rss_mb": max(p["max_rss_mb"] for p in timing["processes"])}
+    return {
+        "steps": steps,
+        "learners": learners,
+        "seconds": wall,
+        "cpu_seconds": cpu,
+        "steps_per_s": steps / wall,
+        "steps_per_cpu_s": steps / cpu,
+        "learner_steps_per_s": learners * steps / wall,
+        "learner_steps_per_cpu_s": learners * steps / cpu,
+        "max_rss_mb": max(p["max_rss_mb"] for p in timing["processes"]),
+    }
 
 
 # ----------------------------------------------------------------------------- 5. lone learner
@@ -202,13 +248,19 @@ def measure_lone(who: str, steps: int, seed: int) -> dict[str, Any]:
             run_dir = Path(tmp) / "run"
             timing = run_together([train_command(run_dir, steps, seed, agent, {**LONE_MAP, "num_agents": 1})])
             report = trainer_report(run_dir)
-        done = {"gradient_steps": report["gradient_steps"][0], "episodes": report["episodes"][0],
-                "steps_done": report["steps"][0]}
+        done = {
+            "gradient_steps": report["gradient_steps"][0],
+            "episodes": report["episodes"][0],
+            "steps_done": report["steps"][0],
+        }
     else:
         timing = run_together([reference_command(who, steps, seed)])
         report = timing["processes"][0]["report"]
-        done = {"gradient_steps": report["gradient_steps"], "episodes": report["episodes"],
-                "steps_done": report["steps"]}
+        done = {
+            "gradient_steps": report["gradient_steps"],
+            "episodes": report["episodes"],
+            "steps_done": report["steps"],
+        }
     return {**_figures(steps, timing), **done}
 
 
@@ -226,9 +278,15 @@ def measure_ours_replicas(replicas: int, steps: int, seed: int, agent: AgentConf
         run_dir = Path(tmp) / "run"
         timing = run_together([train_command(run_dir, steps, seed, agent, TEAM_MAP, threads, replicas)])
         report = trainer_report(run_dir)
-    return {**_figures(steps, timing, replicas * TEAM_MAP["num_agents"]), "replicas": replicas, "threads": threads,
-            "replica_dirs": report["replicas"], "replica_steps": report["steps"],
-            "gradient_steps": report["gradient_steps"][0], "episodes": sum(report["episodes"])}
+    return {
+        **_figures(steps, timing, replicas * TEAM_MAP["num_agents"]),
+        "replicas": replicas,
+        "threads": threads,
+        "replica_dirs": report["replicas"],
+        "replica_steps": report["steps"],
+        "gradient_steps": report["gradient_steps"][0],
+        "episodes": sum(report["episodes"]),
+    }
 
 
 def measure_sb3_parallel(processes: int, steps: int, seed: int, learning_starts: int) -> dict[str, Any]:
@@ -240,10 +298,15 @@ def measure_sb3_parallel(processes: int, steps: int, seed: int, learning_starts:
     :param seed: process i gets ``seed + i``
     :param learning_starts: env steps before the first update
     """
-    timing = run_together([reference_command("sb3", steps, seed + i, "bench", learning_starts)
-                           for i in range(processes)])
+    timing = run_together(
+        [reference_command("sb3", steps, seed + i, "bench", learning_starts) for i in range(processes)]
+    )
     reports = [p["report"] for p in timing["processes"]]
-    return {**_figures(steps, timing, processes), "processes": processes,
-            "process_seconds": [p["seconds"] for p in timing["processes"]],
-            "process_steps": [r["steps"] for r in reports], "gradient_steps": [r["gradient_steps"] for r in reports],
-            "episodes": [r["episodes"] for r in reports]}
+    return {
+        **_figures(steps, timing, processes),
+        "processes": processes,
+        "process_seconds": [p["seconds"] for p in timing["processes"]],
+        "process_steps": [r["steps"] for r in reports],
+        "gradient_steps": [r["gradient_steps"] for r in reports],
+        "episodes": [r["episodes"] for r in reports],
+    }

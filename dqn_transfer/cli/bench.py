@@ -49,23 +49,46 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="dqn-transfer-bench",
         description="Benchmark table: env throughput, DQN training vs SB3, team size, gradient-update overhead, "
-                    "whole processes (one learner vs SB3 and bare PyTorch; replica sweeps vs SB3).")
-    parser.add_argument("--profile", choices=PROFILES, default="full",
-                        help="full (default) or quick: small sizes, a smoke run (a few minutes)")
+        "whole processes (one learner vs SB3 and bare PyTorch; replica sweeps vs SB3).",
+    )
+    parser.add_argument(
+        "--profile",
+        choices=PROFILES,
+        default="full",
+        help="full (default) or quick: small sizes, a smoke run (a few minutes)",
+    )
     parser.add_argument("--quick", dest="profile", action="store_const", const="quick", help="--profile quick")
-    parser.add_argument("--out", type=Path, default=Path("outputs/bench.json"),
-                        help="JSON output path (default outputs/bench.json)")
+    parser.add_argument(
+        "--out", type=Path, default=Path("outputs/bench.json"), help="JSON output path (default outputs/bench.json)"
+    )
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--repeats", type=positive_int, default=3,
-                        help="interleaved repeats per measurement; the median is reported (default 3)")
-    parser.add_argument("--threads", type=positive_int, default=1,
-                        help="torch threads of sections 1-4 (default 1, fastest for these tiny networks); "
-                             "section 4 also times torch's default thread count. Section 5's processes run on "
-                             "one thread, section 6's process of ours on every core")
-    parser.add_argument("--sections", type=section_list, default=[],
-                        help=f"comma-separated sections to measure (default: all: {','.join(SECTIONS)})")
-    parser.add_argument("--only", choices=SECTIONS, action="append", default=[],
-                        help="measure this section too (repeatable; the same as listing it in --sections)")
+    parser.add_argument(
+        "--repeats",
+        type=positive_int,
+        default=3,
+        help="interleaved repeats per measurement; the median is reported (default 3)",
+    )
+    parser.add_argument(
+        "--threads",
+        type=positive_int,
+        default=1,
+        help="torch threads of sections 1-4 (default 1, fastest for these tiny networks); "
+        "section 4 also times torch's default thread count. Section 5's processes run on "
+        "one thread, section 6's process of ours on every core",
+    )
+    parser.add_argument(
+        "--sections",
+        type=section_list,
+        default=[],
+        help=f"comma-separated sections to measure (default: all: {','.join(SECTIONS)})",
+    )
+    parser.add_argument(
+        "--only",
+        choices=SECTIONS,
+        action="append",
+        default=[],
+        help="measure this section too (repeatable; the same as listing it in --sections)",
+    )
     return parser
 
 

@@ -13,9 +13,9 @@ import json
 import sys
 from collections.abc import Mapping
 
-from dqn_transfer.storage.checkpoint import CheckpointError, CheckpointInfo, find_checkpoints, verify_checkpoint
 from dqn_transfer.cli.console import exit_with
 from dqn_transfer.sharing.model_card import ExportError, export_team
+from dqn_transfer.storage.checkpoint import CheckpointError, CheckpointInfo, find_checkpoints, verify_checkpoint
 from dqn_transfer.storage.run_dir import RunDir
 
 
@@ -25,9 +25,11 @@ def _format_list_row(info: CheckpointInfo, replicas: bool) -> str:
     eval_return = last_eval.get("team_return") if isinstance(last_eval, Mapping) else None
     eval_text = "-" if eval_return is None else f"{float(eval_return):.2f}"
     name = f"{info.path.parent.parent.name}/{info.path.name}" if replicas else info.path.name  # seed_3/agent_0...
-    return (f"{name}  algorithm={meta.get('algorithm', '-')}  steps={meta.get('steps', '-')}"
-            f"  episodes={meta.get('episodes', '-')}  eval_return={eval_text}"
-            f"  size={_human_size(info.size_bytes)}")
+    return (
+        f"{name}  algorithm={meta.get('algorithm', '-')}  steps={meta.get('steps', '-')}"
+        f"  episodes={meta.get('episodes', '-')}  eval_return={eval_text}"
+        f"  size={_human_size(info.size_bytes)}"
+    )
 
 
 def _format_show(info: CheckpointInfo) -> str:
@@ -50,13 +52,21 @@ def _human_size(n_bytes: int) -> str:
 def main(argv: list[str] | None = None) -> int:
     """``list`` / ``show`` / ``verify`` checkpoints (exit 1 with one ``error:`` line per bad file), or
     ``export`` a team (exit 1 with one ``error:`` line, nothing written)."""
-    parser = argparse.ArgumentParser(prog="dqn-transfer-ckpt",
-                                     description="Inspect dqn_transfer safetensors checkpoints, or export a team.")
+    parser = argparse.ArgumentParser(
+        prog="dqn-transfer-ckpt", description="Inspect dqn_transfer safetensors checkpoints, or export a team."
+    )
     parser.add_argument("command", choices=["list", "show", "verify", "export"])
-    parser.add_argument("path", help="a checkpoint file, a run directory or a checkpoints directory (export: the "
-                                     "run, replica or agent file to export)")
-    parser.add_argument("out_dir", nargs="?", metavar="OUT_DIR",
-                        help="export: a new (or empty) folder for the agents' files and the model card")
+    parser.add_argument(
+        "path",
+        help="a checkpoint file, a run directory or a checkpoints directory (export: the "
+        "run, replica or agent file to export)",
+    )
+    parser.add_argument(
+        "out_dir",
+        nargs="?",
+        metavar="OUT_DIR",
+        help="export: a new (or empty) folder for the agents' files and the model card",
+    )
     args = parser.parse_args(argv)
     if (args.command == "export") != (args.out_dir is not None):
         print("error: OUT_DIR goes with export only: dqn-transfer-ckpt export RUN_DIR OUT_DIR", file=sys.stderr)

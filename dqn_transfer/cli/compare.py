@@ -24,14 +24,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--metric", default="team_return", help="metrics.jsonl key (default: team_return)")
     parser.add_argument("--threshold", type=float, default=None, help="value for time_to_threshold")
     parser.add_argument("--seed", type=int, default=0, help="bootstrap RNG seed")
-    parser.add_argument("--transfer-offset", type=int, default=0, metavar="STEPS",
-                        help="env steps the transfer runs spent before their step 0 (pretraining, a curriculum's "
-                             "earlier stages): their curves are shifted by it, to compare at equal total steps")
+    parser.add_argument(
+        "--transfer-offset",
+        type=int,
+        default=0,
+        metavar="STEPS",
+        help="env steps the transfer runs spent before their step 0 (pretraining, a curriculum's "
+        "earlier stages): their curves are shifted by it, to compare at equal total steps",
+    )
     args = parser.parse_args(argv)
     try:
         with skipped_runs_on_stderr():
-            results = compare_runs(args.transfer, args.baseline, args.metric, args.threshold, args.seed,
-                                   args.transfer_offset)
+            results = compare_runs(
+                args.transfer, args.baseline, args.metric, args.threshold, args.seed, args.transfer_offset
+            )
     except (EvaluationError, ValueError, OSError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 1

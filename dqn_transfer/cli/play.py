@@ -17,10 +17,10 @@ import os
 import sys
 from pathlib import Path
 
-from dqn_transfer.storage.checkpoint import CheckpointError, atomic_write
 from dqn_transfer.cli.console import exit_with
-from dqn_transfer.sharing.team import TeamError, load_team
 from dqn_transfer.evaluation.watch import gif_bytes, outcome, replay_in_terminal, watch_team
+from dqn_transfer.sharing.team import TeamError, load_team
+from dqn_transfer.storage.checkpoint import CheckpointError, atomic_write
 
 
 class PlayError(Exception):
@@ -41,12 +41,22 @@ def writable_gif_path(path: Path) -> Path:
 
 def main(argv: list[str] | None = None) -> int:
     """Play, print each episode's outcome, write or show the frames; one ``error:`` line on bad input."""
-    parser = argparse.ArgumentParser(prog="dqn-transfer-play", description=__doc__.split("\n\n")[0],
-                                     epilog=__doc__.split("\n\n", 2)[2], formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("path", metavar="RUN_DIR", type=Path,
-                        help="a run or replica directory, an exported folder, or one agent's checkpoint file")
+    parser = argparse.ArgumentParser(
+        prog="dqn-transfer-play",
+        description=__doc__.split("\n\n")[0],
+        epilog=__doc__.split("\n\n", 2)[2],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "path",
+        metavar="RUN_DIR",
+        type=Path,
+        help="a run or replica directory, an exported folder, or one agent's checkpoint file",
+    )
     parser.add_argument("--episodes", type=int, default=1, metavar="N", help="greedy episodes to play (default 1)")
-    parser.add_argument("--seed", type=int, default=0, metavar="S", help="seeds the chest ties of the episodes (default 0)")
+    parser.add_argument(
+        "--seed", type=int, default=0, metavar="S", help="seeds the chest ties of the episodes (default 0)"
+    )
     parser.add_argument("--gif", type=Path, metavar="OUT.gif", help="write every frame of every episode to this GIF")
     parser.add_argument("--ansi", action="store_true", help="replay the episodes in the terminal")
     args = parser.parse_args(argv)

@@ -25,16 +25,23 @@ from dqn_transfer.analysis.runs import EvaluationError, find_run_dirs, skipped_r
 
 def main(argv: list[str] | None = None) -> int:
     """Write the figure and say what it shows; exit 1 with one ``error:`` line on bad input."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("runs", nargs="+", metavar="RUN_DIR", help="run directories (or directories above them)")
     parser.add_argument("--out", required=True, type=Path, help="output image, e.g. fig.png")
-    parser.add_argument("--metric", default="team_return",
-                        help="metrics.jsonl key: team_return (default), success_rate, trap_rate, episode_length")
+    parser.add_argument(
+        "--metric",
+        default="team_return",
+        help="metrics.jsonl key: team_return (default), success_rate, trap_rate, episode_length",
+    )
     parser.add_argument("--title", default=None)
-    parser.add_argument("--total-steps", action="store_true",
-                        help="start each run's curve at the steps spent before it (its source's pretraining, "
-                             "a curriculum's stages): conditions compare at equal total budgets")
+    parser.add_argument(
+        "--total-steps",
+        action="store_true",
+        help="start each run's curve at the steps spent before it (its source's pretraining, "
+        "a curriculum's stages): conditions compare at equal total budgets",
+    )
     args = parser.parse_args(argv)
     try:
         with skipped_runs_on_stderr():

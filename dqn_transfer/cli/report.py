@@ -40,23 +40,43 @@ from dqn_transfer.experiments.sweeps import EXPERIMENTS, PROFILES, ReproduceErro
 
 def main(argv: list[str] | None = None) -> int:
     """Run the sweeps and write the report; exit 1 with one ``error:`` message on a failure."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter,
-                                     epilog=__doc__.split("\n\n", 1)[1])
-    parser.add_argument("results", nargs="?", type=Path,
-                        help="a results directory holding data/: only write its report (into --out, default itself)")
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=__doc__.split("\n\n", 1)[1],
+    )
+    parser.add_argument(
+        "results",
+        nargs="?",
+        type=Path,
+        help="a results directory holding data/: only write its report (into --out, default itself)",
+    )
     parser.add_argument("--profile", choices=sorted(PROFILES), default="quick")
     parser.add_argument("--out", type=Path, help="output directory (runs/, data/, figures, REPORT.md)")
-    parser.add_argument("--only", default=",".join(EXPERIMENTS),
-                        help=f"comma-separated subset of {','.join(EXPERIMENTS)} (default: all)")
-    parser.add_argument("--launcher", default=None,
-                        help="Hydra launcher: joblib (default; the sweep extra, else basic), basic (one job at "
-                             "a time), submitit_slurm (the slurm extra), ...")
+    parser.add_argument(
+        "--only",
+        default=",".join(EXPERIMENTS),
+        help=f"comma-separated subset of {','.join(EXPERIMENTS)} (default: all)",
+    )
+    parser.add_argument(
+        "--launcher",
+        default=None,
+        help="Hydra launcher: joblib (default; the sweep extra, else basic), basic (one job at "
+        "a time), submitit_slurm (the slurm extra), ...",
+    )
     parser.add_argument("--n-jobs", type=int, default=2, help="parallel jobs with --launcher joblib (default 2)")
-    parser.add_argument("--extra", action="append", default=[], metavar="OVERRIDE",
-                        help="extra Hydra override for every sweep, e.g. hydra.launcher.partition=PART (repeatable)")
-    parser.add_argument("--report-only", action="store_true",
-                        help="run nothing: export the runs already in OUT/runs/ and write the report")
+    parser.add_argument(
+        "--extra",
+        action="append",
+        default=[],
+        metavar="OVERRIDE",
+        help="extra Hydra override for every sweep, e.g. hydra.launcher.partition=PART (repeatable)",
+    )
+    parser.add_argument(
+        "--report-only",
+        action="store_true",
+        help="run nothing: export the runs already in OUT/runs/ and write the report",
+    )
     args = parser.parse_args(argv)
     start = time.perf_counter()
     try:
@@ -71,8 +91,9 @@ def main(argv: list[str] | None = None) -> int:
             only = [name.strip() for name in args.only.split(",") if name.strip()]
             unknown = [name for name in only if name not in EXPERIMENTS]
             if unknown:
-                raise ReproduceError(f"--only: unknown experiment(s) {', '.join(unknown)} "
-                                     f"(choose from {', '.join(EXPERIMENTS)})")
+                raise ReproduceError(
+                    f"--only: unknown experiment(s) {', '.join(unknown)} (choose from {', '.join(EXPERIMENTS)})"
+                )
             if args.n_jobs < 1:
                 raise ReproduceError(f"--n-jobs must be >= 1, got {args.n_jobs}")
             launcher = None if args.report_only else choose_launcher(args.launcher)  # refused before anything runs

@@ -32,7 +32,6 @@ from hydra.utils import get_original_cwd
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from dqn_transfer.storage.checkpoint import CheckpointError, load_training_state
 from dqn_transfer.config import (
     CONFIG_DIR,
     SB3_NAMES,
@@ -43,10 +42,11 @@ from dqn_transfer.config import (
     validate,
 )
 from dqn_transfer.config.help import config_groups, group_options, help_text
-from dqn_transfer.sources.curriculum import curriculum_sources
 from dqn_transfer.documented import describe
-from dqn_transfer.storage.run_dir import RunClaim, RunDir, RunDirError
+from dqn_transfer.sources.curriculum import curriculum_sources
 from dqn_transfer.sources.resolve import transfer_sources
+from dqn_transfer.storage.checkpoint import CheckpointError, load_training_state
+from dqn_transfer.storage.run_dir import RunClaim, RunDir, RunDirError
 from dqn_transfer.training.trainer import Interrupted, train
 from dqn_transfer.transfer.mapping import TransferError
 
@@ -61,12 +61,18 @@ STAGE_ELEMENT = re.compile(r"curriculum\.stages\.\d+\.([^.]+)(\..*)?")
 STAGE_KEYS = [f.name for f in dataclasses.fields(StageConfig)]
 # Other libraries' names for our agent keys (SB3's, and CleanRL's dqn.py where they differ), so a user
 # who types the name they know is pointed at ours.
-AGENT_ALIASES = {**{sb3: ours for ours, sb3 in SB3_NAMES.items()}, "net_arch": "hidden",
-                 "target_network_frequency": "target_update", "train_frequency": "train_freq",
-                 "start_e": "eps_start", "end_e": "eps_end"}
+AGENT_ALIASES = {
+    **{sb3: ours for ours, sb3 in SB3_NAMES.items()},
+    "net_arch": "hidden",
+    "target_network_frequency": "target_update",
+    "train_frequency": "train_freq",
+    "start_e": "eps_start",
+    "end_e": "eps_end",
+}
 
 
 # ------------------------------------------------------------------------------------ the command line
+
 
 def check_overrides(argv: list[str]) -> None:
     """Refuse a key outside the schema (``+`` appends included) or an option no group has, naming the
@@ -82,20 +88,29 @@ def check_overrides(argv: list[str]) -> None:
         if key in CONFIG_GROUPS:
             check_group_option(key, override)
         elif (stage := STAGE_ELEMENT.fullmatch(key)) and stage.group(1) not in STAGE_KEYS:
-            raise ConfigError(f"unknown curriculum stage key '{stage.group(1)}' in '{override.input_line}' "
-                              f"(a stage has {', '.join(STAGE_KEYS)})")
+            raise ConfigError(
+                f"unknown curriculum stage key '{stage.group(1)}' in '{override.input_line}' "
+                f"(a stage has {', '.join(STAGE_KEYS)})"
+            )
         elif not key.startswith("hydra") and key not in keys and not any(key.startswith(f"{k}.") for k in keys):
             # (an element of a list key, like agent.hidden.0, is Hydra's to check)
             alias = AGENT_ALIASES.get(key.rsplit(".", 1)[-1])
             nearest = [f"agent.{alias}"] if alias else difflib.get_close_matches(key, keys, n=1)
-            hint = f" (did you mean {nearest[0]}?)" if nearest else f"; the keys are listed by `{Path(sys.argv[0]).name} --cfg job`"
+            hint = (
+                f" (did you mean {nearest[0]}?)"
+                if nearest
+                else f"; the keys are listed by `{Path(sys.argv[0]).name} --cfg job`"
+            )
             raise ConfigError(f"unknown config key '{key}' in '{override.input_line}'{hint}")
 
 
 def check_group_option(group: str, override) -> None:
     options = group_options(group)
-    chosen = list(override.sweep_string_iterator()) if override.is_sweep_override() else [
-        override.get_value_element_as_str()]
+    chosen = (
+        list(override.sweep_string_iterator())
+        if override.is_sweep_override()
+        else [override.get_value_element_as_str()]
+    )
     for option in chosen:
         if option not in options and option != "null":
             nearest = difflib.get_close_matches(option, options, n=1)
@@ -104,6 +119,7 @@ def check_group_option(group: str, override) -> None:
 
 
 # ------------------------------------------------------------------------------------ the run directory
+
 
 class ClaimRunDir(Callback):
     """Hydra callback: claim the run directory *before* Hydra writes its ``.hydra/`` record there (a
@@ -122,8 +138,12 @@ class ClaimRunDir(Callback):
         sweep = Path(config.hydra.sweep.dir)
         used = sorted(d.name for d in sweep.iterdir() if d.is_dir() and RunDir(d).holds_run()) if sweep.is_dir() else []
         if used:
-            _exit_with(RunDirError(f"{sweep} already holds the runs of a sweep ({', '.join(used[:5])}"
-                                   f"{', ...' if len(used) > 5 else ''}); choose another hydra.sweep.dir"))
+            _exit_with(
+                RunDirError(
+                    f"{sweep} already holds the runs of a sweep ({', '.join(used[:5])}"
+                    f"{', ...' if len(used) > 5 else ''}); choose another hydra.sweep.dir"
+                )
+            )
 
     def on_job_start(self, config: DictConfig, **kwargs: Any) -> None:
         if config.hydra.mode != RunMode.MULTIRUN:
@@ -136,8 +156,7 @@ class ClaimRunDir(Callback):
         run = RunDir(config.hydra.runtime.output_dir)
         requeued = run.has_run()
         if not requeued:
-            for leftover in (run.tensorboard, run.checkpoints, run.replicas_index, run.metrics,
-                             *run.replica_dirs()):
+            for leftover in (run.tensorboard, run.checkpoints, run.replicas_index, run.metrics, *run.replica_dirs()):
                 shutil.rmtree(leftover) if leftover.is_dir() else leftover.unlink(missing_ok=True)
         ClaimRunDir.requeued = requeued
         self._take(run, resume=config.resume or requeued, fresh=not requeued)
@@ -172,8 +191,7 @@ def resume_config(run: RunDir, cfg: DictConfig, overrides: list[str]) -> TrainCo
         meta = json.loads(source.read_text()) if replicas else load_training_state(source)[1]
         saved = OmegaConf.merge(OmegaConf.structured(TrainConfig), meta["config"])
     except (OSError, ValueError, KeyError, TypeError, OmegaConfBaseException) as err:
-        raise ConfigError(f"{source}: its saved config does not fit this version of dqn_transfer "
-                          f"({err})") from None
+        raise ConfigError(f"{source}: its saved config does not fit this version of dqn_transfer ({err})") from None
     for override in overrides:
         key = override.split("=", 1)[0].lstrip("+~")
         if key == "resume" or key.startswith("hydra"):
@@ -183,8 +201,10 @@ def resume_config(run: RunDir, cfg: DictConfig, overrides: list[str]) -> TrainCo
             OmegaConf.update(saved, key, wanted)
         elif wanted != (have := OmegaConf.select(saved, key)):
             shown = "" if isinstance(have, DictConfig) else f" ({key}={have})"
-            raise ConfigError(f"resume=true: '{override}' differs from the run's own setting{shown}; a resumed "
-                              f"run may change only {', '.join(RESUMABLE_KEYS)}")
+            raise ConfigError(
+                f"resume=true: '{override}' differs from the run's own setting{shown}; a resumed "
+                f"run may change only {', '.join(RESUMABLE_KEYS)}"
+            )
     saved.resume = True
     # Hydra has just written the resume command's composition there; record the run's own instead.
     OmegaConf.save(saved, run.config)
@@ -192,6 +212,7 @@ def resume_config(run: RunDir, cfg: DictConfig, overrides: list[str]) -> TrainCo
 
 
 # ------------------------------------------------------------------------------------ logging
+
 
 def log_warning(message, category, filename, lineno, file=None, line=None) -> None:
     """Warnings (e.g. "a layout fixes the map; ignoring ...") as one line of the run's log, not a
@@ -260,8 +281,9 @@ def app(cfg: DictConfig) -> float:
         validate(config)
         log.info("run directory: %s", run)  # before a transfer source's pretraining, which can take minutes
         launch_dir = Path(get_original_cwd())
-        sources = (curriculum_sources(config, launch_dir) if config.curriculum.stages
-                   else transfer_sources(config, launch_dir))
+        sources = (
+            curriculum_sources(config, launch_dir) if config.curriculum.stages else transfer_sources(config, launch_dir)
+        )
         summary = train(config, run.path, sources=sources)
     except USER_ERRORS as err:
         report_user_error(err)
@@ -269,11 +291,15 @@ def app(cfg: DictConfig) -> float:
         sys.exit(1)
     except Interrupted as stop:
         if stop.run_dir.resolve() == run.path.resolve():
-            log.warning("interrupted at step %d; resume with: python train.py resume=true hydra.run.dir=%s",
-                        stop.step, run)
+            log.warning(
+                "interrupted at step %d; resume with: python train.py resume=true hydra.run.dir=%s", stop.step, run
+            )
         elif config.curriculum.stages:  # a stage before this run, which never started
-            log.warning("interrupted in a curriculum stage, kept at its last checkpoint in %s; run the command "
-                        "again to resume it", stop.run_dir)
+            log.warning(
+                "interrupted in a curriculum stage, kept at its last checkpoint in %s; run the command "
+                "again to resume it",
+                stop.run_dir,
+            )
             leave_nothing_behind(claim)
         else:  # the source's pretraining was interrupted; it keeps nothing, and this run never started
             log.warning("interrupted while pretraining the transfer source (nothing kept); run the command again")
@@ -281,8 +307,12 @@ def app(cfg: DictConfig) -> float:
         sys.exit(stop.exit_code)
     except KeyboardInterrupt:
         resumable = run.has_run()
-        log.warning("stopped at once%s", f"; resume from the last checkpoint with: python train.py resume=true "
-                                         f"hydra.run.dir={run}" if resumable else " before any checkpoint")
+        log.warning(
+            "stopped at once%s",
+            f"; resume from the last checkpoint with: python train.py resume=true hydra.run.dir={run}"
+            if resumable
+            else " before any checkpoint",
+        )
         if not resumable and not run.has_metrics():
             leave_nothing_behind(claim)  # nothing worth keeping: no stub
         sys.exit(130)

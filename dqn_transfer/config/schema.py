@@ -51,11 +51,13 @@ class AgentConfig:
     exploration_fraction: float = documented(0.5, "fraction of total_steps over which epsilon decays linearly")
     max_grad_norm: float = documented(10.0, "gradient-norm clip, per agent")
     share_parameters: bool = documented(False, "one network for all agents (parameter-sharing baseline)")
-    engine: Engine = documented(Engine.torch, "DQN arithmetic: torch (any device) | numpy (CPU, no torch import: "
-                                              "fastest for small networks)")
+    engine: Engine = documented(
+        Engine.torch, "DQN arithmetic: torch (any device) | numpy (CPU, no torch import: fastest for small networks)"
+    )
 
 
-# Each AgentConfig key -> Stable-Baselines3 DQN's keyword for the same quantity ("hidden" becomes policy_kwargs.net_arch).
+# Each AgentConfig key -> Stable-Baselines3 DQN's keyword for the same quantity ("hidden" becomes
+# policy_kwargs.net_arch).
 SB3_NAMES = {
     "lr": "learning_rate",
     "gamma": "gamma",
@@ -73,31 +75,42 @@ SB3_NAMES = {
 }
 
 
-
 @dataclass
 class TransferConfig:
     """Warm start from a pretrained agent, and knowledge exchange inside the team (docs/transfer.md)."""
 
     enabled: bool = documented(False, "start the target agents from a source agent (the group transfer=on)")
-    source: Optional[str] = documented(None, "checkpoint file, run directory or exported folder; null: pretrain one "
-                                             "(transfer.source_task)")
-    source_agent: Any = documented(0, "which agent_{i}.safetensors of a directory (or member of a team source): one "
-                                      "index for every target, or a list with one per target (another team size)")
+    source: Optional[str] = documented(
+        None, "checkpoint file, run directory or exported folder; null: pretrain one (transfer.source_task)"
+    )
+    source_agent: Any = documented(
+        0,
+        "which agent_{i}.safetensors of a directory (or member of a team source): one "
+        "index for every target, or a list with one per target (another team size)",
+    )
     pretrain_steps: int = documented(20_000, "env steps of source-task pretraining when no source is given")
-    source_task: SourceTask = documented(SourceTask.single, "what a pretrained source learns: single (TreasureHunt-v0, "
-                                                            "agent 0 alone) | team (this run's own game; targets "
-                                                            "start from member source_agent)")
+    source_task: SourceTask = documented(
+        SourceTask.single,
+        "what a pretrained source learns: single (TreasureHunt-v0, "
+        "agent 0 alone) | team (this run's own game; targets "
+        "start from member source_agent)",
+    )
     source_map_shift: int = documented(0, "pretrain on the generated map of env.map_seed + this; 0: this run's map")
     cache_dir: Optional[str] = documented(None, "pretrained-source cache; null: <launch dir>/outputs/pretrained")
     targets: Optional[List[int]] = documented(None, "agents that receive the transfer; null: all")
-    offset: List[int] = documented(factory=lambda: [0, 0], doc="[row, col] of the source map's top-left cell in "
-                                                               "this run's (larger) map")
-    fill: Fill = documented(Fill.zero, "this run's cells outside the source map: zero (no input weights) | nearest "
-                                       "(the nearest source cell's)")
+    offset: List[int] = documented(
+        factory=lambda: [0, 0], doc="[row, col] of the source map's top-left cell in this run's (larger) map"
+    )
+    fill: Fill = documented(
+        Fill.zero,
+        "this run's cells outside the source map: zero (no input weights) | nearest (the nearest source cell's)",
+    )
     reset_optimizer: bool = documented(True, "start Adam moments afresh (the source's belong to another task)")
     epsilon_start: float = documented(0.3, "transferred agents explore less than agent.eps_start")
     freeze: List[int] = documented(factory=list, doc="indices of layers kept fixed")
-    exchange: Exchange = documented(Exchange.none, "knowledge exchange inside the team during training: none | best | shared_replay")
+    exchange: Exchange = documented(
+        Exchange.none, "knowledge exchange inside the team during training: none | best | shared_replay"
+    )
     exchange_every: int = documented(20, "episodes between exchanges")
     exchange_tau: float = documented(0.5, "'best': weight of the best agent in the soft copy")
 
@@ -117,10 +130,12 @@ class StageConfig:
 
     env: Dict[str, Any] = documented(factory=dict, doc="env keys this stage changes, e.g. {size: 5, num_treasures: 1}")
     steps: int = documented(10_000, "env steps of this stage")
-    offset: List[int] = documented(factory=lambda: [0, 0], doc="where the previous stage's map sits in this one "
-                                                               "(transfer.offset)")
-    source_agent: Any = documented(0, "the previous stage's agent(s) this stage's agents start from "
-                                      "(transfer.source_agent)")
+    offset: List[int] = documented(
+        factory=lambda: [0, 0], doc="where the previous stage's map sits in this one (transfer.offset)"
+    )
+    source_agent: Any = documented(
+        0, "the previous stage's agent(s) this stage's agents start from (transfer.source_agent)"
+    )
 
 
 @dataclass
@@ -128,8 +143,9 @@ class CurriculumConfig:
     """Stages trained before the run, each warm-starting the next; the run is the last stage and
     warm-starts from the one before (docs/curriculum.md)."""
 
-    stages: List[StageConfig] = documented(factory=list, doc="the stages before this run, easiest first; empty: "
-                                                             "no curriculum")
+    stages: List[StageConfig] = documented(
+        factory=list, doc="the stages before this run, easiest first; empty: no curriculum"
+    )
     cache_dir: Optional[str] = documented(None, "finished stages are kept here; null: <launch dir>/outputs/curriculum")
 
 
@@ -148,8 +164,10 @@ class TrainConfig:
     progress: bool = documented(True, "tqdm progress bar")
     resume: bool = documented(False, "continue the run in hydra.run.dir from its last checkpoint")
     device: Device = documented(Device.cpu, "cpu | cuda | auto")
-    threads: int = documented(1, "torch CPU threads (agent.engine=torch): tiny networks run fastest on one, and sweep "
-                                 "jobs don't oversubscribe")
+    threads: int = documented(
+        1,
+        "torch CPU threads (agent.engine=torch): tiny networks run fastest on one, and sweep jobs don't oversubscribe",
+    )
 
 
 def register_configs() -> None:
@@ -169,15 +187,34 @@ def _check(condition: bool, message: str) -> None:
 
 # Range rules per key (a dotted path into the config): the bounds a type cannot express.
 _AT_LEAST = {
-    "env.size": 2, "env.num_treasures": 1, "env.max_steps": 1, "env.view_radius": 0,
-    "agent.batch_size": 1, "agent.buffer_size": 1, "agent.learning_starts": 0, "agent.train_freq": 1,
-    "agent.gradient_steps": 1, "agent.target_update": 1,
-    "total_steps": 0, "eval_every": 1, "eval_episodes": 1, "checkpoint_every": 1, "threads": 1,
-    "transfer.pretrain_steps": 1, "transfer.exchange_every": 1, "replicas.seeds": 1, "replicas.maps": 1,
+    "env.size": 2,
+    "env.num_treasures": 1,
+    "env.max_steps": 1,
+    "env.view_radius": 0,
+    "agent.batch_size": 1,
+    "agent.buffer_size": 1,
+    "agent.learning_starts": 0,
+    "agent.train_freq": 1,
+    "agent.gradient_steps": 1,
+    "agent.target_update": 1,
+    "total_steps": 0,
+    "eval_every": 1,
+    "eval_episodes": 1,
+    "checkpoint_every": 1,
+    "threads": 1,
+    "transfer.pretrain_steps": 1,
+    "transfer.exchange_every": 1,
+    "replicas.seeds": 1,
+    "replicas.maps": 1,
 }
 _POSITIVE = ("agent.lr", "agent.max_grad_norm")
-_IN_UNIT_INTERVAL = ("agent.gamma", "agent.eps_start", "agent.eps_end", "agent.exploration_fraction",
-                     "transfer.epsilon_start")  # [0, 1]
+_IN_UNIT_INTERVAL = (
+    "agent.gamma",
+    "agent.eps_start",
+    "agent.eps_end",
+    "agent.exploration_fraction",
+    "transfer.epsilon_start",
+)  # [0, 1]
 _IN_HALF_OPEN_UNIT = ("agent.tau", "transfer.exchange_tau")  # (0, 1]
 
 
@@ -201,34 +238,51 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
     for key in _IN_HALF_OPEN_UNIT:
         _check(0.0 < _value(cfg, key) <= 1.0, f"{key} must be in (0, 1], got {_value(cfg, key)}")
     _check(0.0 <= env.complexity < 1.0, f"env.complexity must be in [0, 1), got {env.complexity}")
-    _check(len(agent.hidden) >= 1 and all(h >= 1 for h in agent.hidden),
-           f"agent.hidden must be a non-empty list of positive sizes, got {list(agent.hidden)}")
-    _check(transfer.enabled or not transfer.freeze,
-           f"transfer.freeze={list(transfer.freeze)} keeps transferred layers fixed: it needs transfer=on")
+    _check(
+        len(agent.hidden) >= 1 and all(h >= 1 for h in agent.hidden),
+        f"agent.hidden must be a non-empty list of positive sizes, got {list(agent.hidden)}",
+    )
+    _check(
+        transfer.enabled or not transfer.freeze,
+        f"transfer.freeze={list(transfer.freeze)} keeps transferred layers fixed: it needs transfer=on",
+    )
     is_tabular = Algorithm(agent.algorithm).is_tabular
     if is_tabular:
         _check(not transfer.freeze, "transfer.freeze applies to network layers; tabular learners have none")
         _check(not agent.share_parameters, "agent.share_parameters applies to the DQN learners only")
     else:
         layers = len(agent.hidden) + 1
-        _check(all(-layers <= i < layers for i in transfer.freeze),
-               f"transfer.freeze={list(transfer.freeze)}: the network has {layers} layers (0..{layers - 1})")
-    _check(Engine(agent.engine) is Engine.torch or Device(cfg.device) is not Device.cuda,
-           "agent.engine=numpy runs on the CPU: use device=cpu (or agent.engine=torch for device=cuda)")
-    _check(cfg.replicas.maps == 1 or (env.layout is None and env.layout_file is None),
-           f"replicas.maps={cfg.replicas.maps} needs a generated map; a layout fixes the map (use replicas.seeds)")
+        _check(
+            all(-layers <= i < layers for i in transfer.freeze),
+            f"transfer.freeze={list(transfer.freeze)}: the network has {layers} layers (0..{layers - 1})",
+        )
+    _check(
+        Engine(agent.engine) is Engine.torch or Device(cfg.device) is not Device.cuda,
+        "agent.engine=numpy runs on the CPU: use device=cpu (or agent.engine=torch for device=cuda)",
+    )
+    _check(
+        cfg.replicas.maps == 1 or (env.layout is None and env.layout_file is None),
+        f"replicas.maps={cfg.replicas.maps} needs a generated map; a layout fixes the map (use replicas.seeds)",
+    )
     _check_offset("transfer.offset", transfer.offset)
-    _check(transfer.enabled or (list(transfer.offset) == [0, 0] and Fill(transfer.fill) is Fill.zero),
-           f"transfer.offset={list(transfer.offset)} / transfer.fill={Fill(transfer.fill).value} place a source's "
-           "map in this run's: they need transfer=on")
+    _check(
+        transfer.enabled or (list(transfer.offset) == [0, 0] and Fill(transfer.fill) is Fill.zero),
+        f"transfer.offset={list(transfer.offset)} / transfer.fill={Fill(transfer.fill).value} place a source's "
+        "map in this run's: they need transfer=on",
+    )
     _check_source_agent("transfer.source_agent", transfer.source_agent)
     _check_pretraining(cfg)
     _check_curriculum(cfg)
     if agent.share_parameters:
-        _check(transfer.targets is None, "transfer.targets: with agent.share_parameters=true all agents share one "
-                                         "network, so all of them are transferred (leave targets unset)")
-        _check(transfer.exchange != Exchange.best, "transfer.exchange=best: with agent.share_parameters=true "
-                                                    "there is only one network to exchange")
+        _check(
+            transfer.targets is None,
+            "transfer.targets: with agent.share_parameters=true all agents share one "
+            "network, so all of them are transferred (leave targets unset)",
+        )
+        _check(
+            transfer.exchange != Exchange.best,
+            "transfer.exchange=best: with agent.share_parameters=true there is only one network to exchange",
+        )
 
 
 def _check_pretraining(cfg: DictConfig | TrainConfig) -> None:
@@ -241,16 +295,26 @@ def _check_pretraining(cfg: DictConfig | TrainConfig) -> None:
     if not given:
         return
     what = " / ".join(given) + (" says" if len(given) == 1 else " say")
-    _check(transfer.enabled, f"{what} how the transfer source is pretrained: {'it needs' if len(given) == 1 else 'they need'} "
-                             "transfer=on")
-    _check(transfer.source is None, f"{what} how the transfer source is pretrained, but transfer.source="
-                                    f"{transfer.source} is not pretrained: leave one of them unset")
+    _check(
+        transfer.enabled,
+        f"{what} how the transfer source is pretrained: {'it needs' if len(given) == 1 else 'they need'} transfer=on",
+    )
+    _check(
+        transfer.source is None,
+        f"{what} how the transfer source is pretrained, but transfer.source="
+        f"{transfer.source} is not pretrained: leave one of them unset",
+    )
     if shift != 0:
-        _check(env.layout is None and env.layout_file is None,
-               f"transfer.source_map_shift={shift} shifts env.map_seed, which needs a generated map; "
-               "env.layout / env.layout_file fix the map")
-        _check(env.map_seed + shift >= 0, f"transfer.source_map_shift={shift}: the source's map seed "
-                                          f"env.map_seed + shift = {env.map_seed + shift} must be >= 0")
+        _check(
+            env.layout is None and env.layout_file is None,
+            f"transfer.source_map_shift={shift} shifts env.map_seed, which needs a generated map; "
+            "env.layout / env.layout_file fix the map",
+        )
+        _check(
+            env.map_seed + shift >= 0,
+            f"transfer.source_map_shift={shift}: the source's map seed "
+            f"env.map_seed + shift = {env.map_seed + shift} must be >= 0",
+        )
 
 
 def _check_curriculum(cfg: DictConfig | TrainConfig) -> None:
@@ -258,11 +322,16 @@ def _check_curriculum(cfg: DictConfig | TrainConfig) -> None:
     if not stages:
         return
     _check(cfg.transfer.enabled, "curriculum: its last stage warm-starts this run, which needs transfer=on")
-    _check(cfg.transfer.source is None, f"curriculum: this run starts from its last stage, not from "
-                                        f"transfer.source={cfg.transfer.source} (leave it unset)")
-    _check(SourceTask(cfg.transfer.source_task) is SourceTask.single and cfg.transfer.source_map_shift == 0,
-           "curriculum: this run starts from its last stage, not from a pretrained source (leave "
-           "transfer.source_task and transfer.source_map_shift unset)")
+    _check(
+        cfg.transfer.source is None,
+        f"curriculum: this run starts from its last stage, not from "
+        f"transfer.source={cfg.transfer.source} (leave it unset)",
+    )
+    _check(
+        SourceTask(cfg.transfer.source_task) is SourceTask.single and cfg.transfer.source_map_shift == 0,
+        "curriculum: this run starts from its last stage, not from a pretrained source (leave "
+        "transfer.source_task and transfer.source_map_shift unset)",
+    )
     for n, stage in enumerate(stages):
         unknown = sorted(set(stage.env) - set(ENV_KEYS))
         _check(not unknown, f"curriculum.stages[{n}].env: unknown env key(s) {unknown}")
@@ -288,9 +357,16 @@ def _check_source_agent(key: str, value: Any) -> None:
 def replica_configs(cfg: TrainConfig) -> list[TrainConfig]:
     """The lone-run config of every replica, map-major: ``(map_seed, seed)`` for map seeds
     ``env.map_seed ..`` and seeds ``seed ..`` (one config, itself with ``replicas`` 1 x 1, if no replicas)."""
-    return [dataclasses.replace(cfg, seed=cfg.seed + s, replicas=ReplicasConfig(),
-                                env=dataclasses.replace(cfg.env, map_seed=cfg.env.map_seed + m))
-            for m in range(cfg.replicas.maps) for s in range(cfg.replicas.seeds)]
+    return [
+        dataclasses.replace(
+            cfg,
+            seed=cfg.seed + s,
+            replicas=ReplicasConfig(),
+            env=dataclasses.replace(cfg.env, map_seed=cfg.env.map_seed + m),
+        )
+        for m in range(cfg.replicas.maps)
+        for s in range(cfg.replicas.seeds)
+    ]
 
 
 def to_plain(cfg: DictConfig | TrainConfig | AgentConfig | TransferConfig | EnvConfig) -> dict[str, Any]:
@@ -298,4 +374,3 @@ def to_plain(cfg: DictConfig | TrainConfig | AgentConfig | TransferConfig | EnvC
     and hashes."""
     node = cfg if isinstance(cfg, DictConfig) else OmegaConf.structured(cfg)
     return OmegaConf.to_container(node, resolve=True, enum_to_str=True)  # type: ignore[return-value]
-

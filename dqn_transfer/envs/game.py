@@ -54,8 +54,18 @@ COLOURS = {
     "grid": (200, 200, 200),
 }
 AGENT_COLOURS = np.array(
-    [(31, 119, 180), (44, 160, 44), (148, 103, 189), (23, 190, 207), (227, 119, 194),
-     (255, 127, 14), (140, 86, 75), (127, 127, 127), (188, 189, 34), (0, 0, 128)],
+    [
+        (31, 119, 180),
+        (44, 160, 44),
+        (148, 103, 189),
+        (23, 190, 207),
+        (227, 119, 194),
+        (255, 127, 14),
+        (140, 86, 75),
+        (127, 127, 127),
+        (188, 189, 34),
+        (0, 0, 128),
+    ],
     dtype=np.uint8,
 )
 
@@ -93,9 +103,7 @@ def _check_int(name: str, value: object, low: int) -> int:
     return int(value)
 
 
-def _best_matching(
-    cost: np.ndarray, rows: np.ndarray, cols: np.ndarray
-) -> tuple[int, int, np.ndarray, np.ndarray]:
+def _best_matching(cost: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple[int, int, np.ndarray, np.ndarray]:
     """Minimum-cost maximum matching of ``rows`` to ``cols``: (pairs, total, rows, cols)."""
     if len(rows) == 0 or len(cols) == 0:
         return 0, 0, rows[:0], cols[:0]
@@ -147,9 +155,7 @@ def assign_agents(cost: np.ndarray) -> np.ndarray:
     return current
 
 
-def _state_array(
-    state: Mapping[str, Any], key: str, shape: tuple[int, ...], kinds: str, game: str
-) -> np.ndarray:
+def _state_array(state: Mapping[str, Any], key: str, shape: tuple[int, ...], kinds: str, game: str) -> np.ndarray:
     """``state[key]`` as an array of ``shape`` and dtype kind in ``kinds``, else ``ValueError``."""
     try:
         value = np.asarray(state[key])
@@ -204,8 +210,7 @@ class TreasureHuntGame:
             num_agents = grid_map.num_agents
         elif isinstance(num_agents, bool) or not 1 <= num_agents <= grid_map.num_agents:
             raise ValueError(
-                f"num_agents must be between 1 and the map's {grid_map.num_agents} starts, "
-                f"got {num_agents!r}"
+                f"num_agents must be between 1 and the map's {grid_map.num_agents} starts, got {num_agents!r}"
             )
         self.num_agents = int(num_agents)
         self.num_treasures = grid_map.num_treasures
@@ -299,11 +304,18 @@ class TreasureHuntGame:
 
     def _settings(self) -> dict:
         """The constructor arguments of this game, besides its map."""
-        return dict(mode=self.mode, reward_mode=self.reward_mode, obs_encoding=self.obs_encoding,
-                    view_radius=self.view_radius, max_steps=self.max_steps,
-                    treasure_reward=self.treasure_reward, trap_reward=self.trap_reward,
-                    step_reward=self.step_reward, num_agents=self.num_agents,
-                    include_treasures=self.include_treasures)
+        return dict(
+            mode=self.mode,
+            reward_mode=self.reward_mode,
+            obs_encoding=self.obs_encoding,
+            view_radius=self.view_radius,
+            max_steps=self.max_steps,
+            treasure_reward=self.treasure_reward,
+            trap_reward=self.trap_reward,
+            step_reward=self.step_reward,
+            num_agents=self.num_agents,
+            include_treasures=self.include_treasures,
+        )
 
     def replica(self) -> TreasureHuntGame:
         """An independent game with the same map and rules (e.g. for evaluation), built without
@@ -312,8 +324,16 @@ class TreasureHuntGame:
 
     def single_agent_game(self) -> TreasureHuntGame:
         """The source task of transfer: agent 0 alone on this map, observing position [+ view]."""
-        return TreasureHuntGame(self.map, **{**self._settings(), "mode": Mode.competitive, "reward_mode": RewardMode.individual,
-                                             "num_agents": 1, "include_treasures": False})
+        return TreasureHuntGame(
+            self.map,
+            **{
+                **self._settings(),
+                "mode": Mode.competitive,
+                "reward_mode": RewardMode.individual,
+                "num_agents": 1,
+                "include_treasures": False,
+            },
+        )
 
     # ------------------------------------------------------------------ state
     @property
@@ -368,12 +388,10 @@ class TreasureHuntGame:
         (another map or rules) raises ``ValueError`` and leaves the game as it was.
         """
         agents, k, cells = self.num_agents, self.num_treasures, self.size**2
-        game = (f"this game has {agents} agents, {k} chests, obs_dim {self.obs_dim} "
-                f"on a {self.size} x {self.size} grid")
+        game = f"this game has {agents} agents, {k} chests, obs_dim {self.obs_dim} on a {self.size} x {self.size} grid"
         if not isinstance(state, Mapping):
             raise ValueError(f"game state must be a mapping, got {type(state).__name__}")
-        keys = {"pos", "live", "chest_full", "belief", "assigned", "obs", "t",
-                "treasures_collected"}
+        keys = {"pos", "live", "chest_full", "belief", "assigned", "obs", "t", "treasures_collected"}
         if set(state) != keys:
             missing, unknown = sorted(keys - set(state)), sorted(map(str, set(state) - keys))
             raise ValueError(f"game state keys do not match: missing {missing}, unknown {unknown}")
@@ -387,16 +405,16 @@ class TreasureHuntGame:
         collected = _state_int(state, "treasures_collected", k)
         outside = np.flatnonzero((pos < 0) | (pos >= cells))
         if outside.size:
-            raise ValueError(f"game state 'pos' puts agent {int(outside[0])} at cell "
-                             f"{int(pos[outside[0]])}, outside the {self.size} x {self.size} grid")
+            raise ValueError(
+                f"game state 'pos' puts agent {int(outside[0])} at cell "
+                f"{int(pos[outside[0]])}, outside the {self.size} x {self.size} grid"
+            )
         cells_at = [divmod(cell, self.size) for cell in pos.tolist()]
         blocked = [a for a, cell in enumerate(cells_at) if cell in self.map.obstacles]
         if blocked:
             raise ValueError(f"game state 'pos' puts agent {blocked[0]} on an obstacle of this map")
         if ((assigned < -1) | (assigned >= k)).any():
-            raise ValueError(
-                f"game state 'assigned' holds {assigned.tolist()}: chests are -1..{k - 1} here"
-            )
+            raise ValueError(f"game state 'assigned' holds {assigned.tolist()}: chests are -1..{k - 1} here")
         for name, value in (("belief", belief), ("obs", obs)):
             if not np.array_equal(value.astype(np.float32), value):  # also rejects nan
                 raise ValueError(f"game state {name!r} holds values that are not float32 numbers")
@@ -430,9 +448,7 @@ class TreasureHuntGame:
         self._write_obs(self._live_idx, self._pos, None, env_changed=True)
         return self._obs.copy()
 
-    def step(
-        self, actions: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
         """Move every live agent at once; actions of non-live agents are ignored."""
         idx = self._live_idx
         if idx.size == 0:
@@ -511,9 +527,7 @@ class TreasureHuntGame:
             picks = assign_agents(cost)
             self._assigned[live] = np.where(picks >= 0, full[picks], -1)
 
-    def _write_obs(
-        self, rows: np.ndarray, new: np.ndarray, old: np.ndarray | None, env_changed: bool
-    ) -> None:
+    def _write_obs(self, rows: np.ndarray, new: np.ndarray, old: np.ndarray | None, env_changed: bool) -> None:
         """Refresh the observation rows of the agents that just moved (others keep their last)."""
         obs = self._obs
         if self.obs_encoding is ObsEncoding.onehot:
@@ -576,9 +590,9 @@ class TreasureHuntGame:
         pad = px // 4
         for agent in self._live_idx.tolist():
             r, c = divmod(int(self._pos[agent]), n)
-            img[r * px + pad : (r + 1) * px - pad, c * px + pad : (c + 1) * px - pad] = (
-                AGENT_COLOURS[agent % len(AGENT_COLOURS)]
-            )
+            img[r * px + pad : (r + 1) * px - pad, c * px + pad : (c + 1) * px - pad] = AGENT_COLOURS[
+                agent % len(AGENT_COLOURS)
+            ]
         return img
 
 

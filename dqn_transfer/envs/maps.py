@@ -129,9 +129,7 @@ def parse_layout(text: str) -> GridMap:
     width = len(lines[0])
     for r, line in enumerate(lines):
         if len(line) != width:
-            raise ValueError(
-                f"layout has ragged rows: row 0 has {width} cells but row {r} has {len(line)}"
-            )
+            raise ValueError(f"layout has ragged rows: row 0 has {width} cells but row {r} has {len(line)}")
     size = len(lines)
     if width != size:
         raise ValueError(f"layout is not square: {size} rows of {width} cells (it must be n x n)")
@@ -142,9 +140,7 @@ def parse_layout(text: str) -> GridMap:
     for r, line in enumerate(lines):
         for c, ch in enumerate(line):
             if ch not in LEGEND:
-                raise ValueError(
-                    f"unknown character {ch!r} at {_name((r, c))} (legend: . # T X 0-9)"
-                )
+                raise ValueError(f"unknown character {ch!r} at {_name((r, c))} (legend: . # T X 0-9)")
             if ch == OBSTACLE:
                 obstacles.add((r, c))
             elif ch == CHEST:
@@ -154,17 +150,14 @@ def parse_layout(text: str) -> GridMap:
             elif ch.isdigit():
                 if int(ch) in starts:
                     raise ValueError(
-                        f"start digit {ch} appears twice: at {_name(starts[int(ch)])} "
-                        f"and at {_name((r, c))}"
+                        f"start digit {ch} appears twice: at {_name(starts[int(ch)])} and at {_name((r, c))}"
                     )
                 starts[int(ch)] = (r, c)
     if not starts:
         raise ValueError("layout has no agent start: put the digit 0 on a cell")
     missing = sorted(set(range(max(starts) + 1)) - set(starts))
     if missing:
-        raise ValueError(
-            f"start digits must be 0..m-1 without gaps: found {sorted(starts)}, missing {missing}"
-        )
+        raise ValueError(f"start digits must be 0..m-1 without gaps: found {sorted(starts)}, missing {missing}")
     if not chests:
         raise ValueError("layout has no treasure chest 'T'")
 
@@ -221,13 +214,12 @@ def optimal_team_return(
     until the horizon or a trap, which is no clean optimum. Also ``None`` if the agents cannot all
     reach chests of their own (impossible on a valid map, where every start reaches every chest).
     """
-    if isinstance(num_agents, bool) or not isinstance(num_agents, (int, np.integer)) or not (
-        1 <= num_agents <= grid_map.num_agents
+    if (
+        isinstance(num_agents, bool)
+        or not isinstance(num_agents, (int, np.integer))
+        or not (1 <= num_agents <= grid_map.num_agents)
     ):
-        raise ValueError(
-            f"num_agents must be between 1 and the map's {grid_map.num_agents} starts, "
-            f"got {num_agents!r}"
-        )
+        raise ValueError(f"num_agents must be between 1 and the map's {grid_map.num_agents} starts, got {num_agents!r}")
     if num_agents > grid_map.num_treasures:
         return None
     # Imported here, as in the deliberative coordinator: scipy.optimize is slow to import.
@@ -255,10 +247,7 @@ def _check_int(name: str, value: object, low: int, high: int | None = None) -> i
 def _neighbour_table(size: int, steps: Iterable[Cell]) -> list[list[int]]:
     """Flat-index neighbours of every cell: generation floods thousands of times, so it works on
     integers and a ``bytearray`` of blocked cells rather than tuples and sets."""
-    return [
-        [r * size + c for r, c in _neighbours(divmod(i, size), size, steps)]
-        for i in range(size * size)
-    ]
+    return [[r * size + c for r, c in _neighbours(divmod(i, size), size, steps)] for i in range(size * size)]
 
 
 def _joined(targets: list[int], nbrs: list[list[int]], blocked: bytearray) -> bool:
@@ -281,9 +270,7 @@ def _splits(cell: int, nbrs: list[list[int]], blocked: bytearray) -> bool:
     return len(open_nbs) > 1 and not _joined(open_nbs, nbrs, blocked)
 
 
-def _place_obstacles(
-    count: int, nbrs: list[list[int]], rng: np.random.Generator
-) -> bytearray:
+def _place_obstacles(count: int, nbrs: list[list[int]], rng: np.random.Generator) -> bytearray:
     """Add obstacles one at a time at random, rejecting any that would split the open cells.
 
     Always succeeds while at least one open cell would remain: a leaf of a spanning tree of the
@@ -365,9 +352,7 @@ def generate_layout(
             f"num_agents defaults to num_treasures={num_treasures}, more than the {MAX_AGENTS} "
             "start digits: give num_agents"
         )
-    num_agents = _check_int(
-        "num_agents", num_treasures if num_agents is None else num_agents, 1, MAX_AGENTS
-    )
+    num_agents = _check_int("num_agents", num_treasures if num_agents is None else num_agents, 1, MAX_AGENTS)
     if isinstance(complexity, bool) or not isinstance(complexity, (int, float, np.floating)):
         raise ValueError(f"complexity must be a number in [0, 1), got {complexity!r}")
     if not 0.0 <= complexity < 1.0:
@@ -393,9 +378,7 @@ def generate_layout(
     for _ in range(obstacle_attempts):
         obstacles = _place_obstacles(num_obstacles, nbrs, rng)
         for _ in range(object_attempts):
-            placed = _place_objects(
-                obstacles, num_treasures, num_traps, num_agents, nbrs, nbrs8, rng
-            )
+            placed = _place_objects(obstacles, num_treasures, num_traps, num_agents, nbrs, nbrs8, rng)
             if placed is not None:
                 return _render(size, obstacles, *placed)
     raise ValueError(
@@ -406,9 +389,7 @@ def generate_layout(
     )
 
 
-def _render(
-    size: int, obstacles: bytearray, chests: list[int], traps: list[int], starts: list[int]
-) -> str:
+def _render(size: int, obstacles: bytearray, chests: list[int], traps: list[int], starts: list[int]) -> str:
     grid = [OBSTACLE if blocked else FREE for blocked in obstacles]
     for mark, cells in ((CHEST, chests), (TRAP, traps)):
         for cell in cells:
@@ -456,18 +437,19 @@ def resolve_map(
             )
         )
     grid_map = parse_layout(layout)
-    given = {"size": size, "num_treasures": num_treasures, "num_traps": num_traps,
-             "num_agents": num_agents}
-    actual = {"size": grid_map.size, "num_treasures": grid_map.num_treasures,
-              "num_traps": grid_map.num_traps, "num_agents": grid_map.num_agents}
+    given = {"size": size, "num_treasures": num_treasures, "num_traps": num_traps, "num_agents": num_agents}
+    actual = {
+        "size": grid_map.size,
+        "num_treasures": grid_map.num_treasures,
+        "num_traps": grid_map.num_traps,
+        "num_agents": grid_map.num_agents,
+    }
     differing = [
         f"{key}={value} (layout: {actual[key]})"
         for key, value in given.items()
         if value is not None and value != actual[key]
     ]
-    if complexity is not None and round(complexity * grid_map.size * grid_map.size) != len(
-        grid_map.obstacles
-    ):
+    if complexity is not None and round(complexity * grid_map.size * grid_map.size) != len(grid_map.obstacles):
         differing.append(f"complexity={complexity} (layout: {len(grid_map.obstacles)} obstacles)")
     if map_seed not in (None, 0):
         differing.append(f"map_seed={map_seed} (a layout is not generated)")

@@ -37,8 +37,15 @@ def agent_colour(agent: int) -> tuple[int, int, int]:
     return tuple(int(v) for v in AGENT_COLOURS[agent % len(AGENT_COLOURS)])  # type: ignore[return-value]
 
 
-def draw_state(grid_map: GridMap, positions: np.ndarray, live: np.ndarray, chest_full: np.ndarray,
-               trails: Sequence[np.ndarray] = (), caption: Sequence[str] = (), cell_px: int = 40) -> Image.Image:
+def draw_state(
+    grid_map: GridMap,
+    positions: np.ndarray,
+    live: np.ndarray,
+    chest_full: np.ndarray,
+    trails: Sequence[np.ndarray] = (),
+    caption: Sequence[str] = (),
+    cell_px: int = 40,
+) -> Image.Image:
     """One picture of a game state.
 
     ``positions [K, 2]`` (row, col) of every agent, ``live [K]``, ``chest_full [k]`` (chests in the
@@ -79,8 +86,12 @@ def _draw_cells(draw: ImageDraw.ImageDraw, grid_map: GridMap, chest_full: np.nda
     edge = max(2, cell_px // 14)
     for chest, (r, c) in enumerate(grid_map.chests):
         full = bool(chest_full[chest])
-        draw.rectangle(_box(r, c, cell_px, 0.12), fill=COLOURS["chest_full"] if full else COLOURS["free"],
-                       outline=CHEST_EDGE, width=edge)
+        draw.rectangle(
+            _box(r, c, cell_px, 0.12),
+            fill=COLOURS["chest_full"] if full else COLOURS["free"],
+            outline=CHEST_EDGE,
+            width=edge,
+        )
     for i in range(n + 1):  # grid lines
         draw.line((0, i * cell_px, n * cell_px, i * cell_px), fill=COLOURS["grid"])
         draw.line((i * cell_px, 0, i * cell_px, n * cell_px), fill=COLOURS["grid"])

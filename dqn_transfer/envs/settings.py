@@ -27,15 +27,23 @@ class EnvConfig:
     layout: Optional[str] = documented(None, "an ASCII map (rows of . # T X 0-9) instead of a generated one")
     layout_file: Optional[str] = documented(None, "a path to an ASCII map")
     max_steps: Optional[int] = documented(None, "truncation horizon in joint steps; null: n * n")
-    mode: Mode = documented(Mode.competitive, "how `treasures` is kept: competitive (no communication), "
-                                              "cooperative (announcements), deliberative (a coordinator)")
+    mode: Mode = documented(
+        Mode.competitive,
+        "how `treasures` is kept: competitive (no communication), "
+        "cooperative (announcements), deliberative (a coordinator)",
+    )
     reward_mode: RewardMode = documented(RewardMode.individual, "team: every live agent receives the step's sum")
-    obs_encoding: ObsEncoding = documented(ObsEncoding.onehot, "`position` as one-hot of the cell or (row, col) in [0, 1]")
+    obs_encoding: ObsEncoding = documented(
+        ObsEncoding.onehot, "`position` as one-hot of the cell or (row, col) in [0, 1]"
+    )
     view_radius: int = documented(0, "> 0 adds an egocentric (2r+1)^2 `view` segment")
     treasure_reward: float = documented(100.0, "entering a full chest (the agent is then done)")
     trap_reward: float = documented(-100.0, "entering a trap (the agent is then done)")
     step_reward: float = documented(-1.0, "every other move, an empty chest included")
-    render_mode: Optional[str] = documented(None, "ansi | rgb_array | human for the faces' render(); training does not render")
+    render_mode: Optional[str] = documented(
+        None, "ansi | rgb_array | human for the faces' render(); training does not render"
+    )
+
 
 ENV_KEYS = tuple(f.name for f in fields(EnvConfig))
 # The keys that shape the map itself; the rest are rules, observations and rewards.

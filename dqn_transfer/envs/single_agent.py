@@ -28,9 +28,7 @@ class TreasureHuntEnv(gymnasium.Env):
     def obs_layout(self) -> list[tuple[str, int]]:
         return self.game.obs_layout()
 
-    def reset(
-        self, *, seed: int | None = None, options: dict | None = None
-    ) -> tuple[np.ndarray, dict]:
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         super().reset(seed=seed)
         obs = self.game.reset(self.np_random)[0]
         if self.render_mode == "human":

@@ -35,12 +35,9 @@ class TreasureHuntParallelEnv(ParallelEnv):
         self._index = {name: i for i, name in enumerate(self.possible_agents)}
         dim = self.game.obs_dim
         self.observation_spaces = {
-            name: spaces.Box(0.0, 1.0, shape=(dim,), dtype=np.float32)
-            for name in self.possible_agents
+            name: spaces.Box(0.0, 1.0, shape=(dim,), dtype=np.float32) for name in self.possible_agents
         }
-        self.action_spaces = {
-            name: spaces.Discrete(self.game.num_actions) for name in self.possible_agents
-        }
+        self.action_spaces = {name: spaces.Discrete(self.game.num_actions) for name in self.possible_agents}
         self._actions = np.zeros(self.game.num_agents, dtype=np.int64)
         self._rng = np.random.default_rng()
 

@@ -51,8 +51,13 @@ def greedy_policy(learner: Learner, episode_rng: np.random.Generator | None = No
     return lambda obs, live: learner.act(obs, live, epsilon=0.0, greedy=True, ties=ties)
 
 
-def play_episode(game: TreasureHuntGame, policy: Policy, rng: np.random.Generator,
-                 on_step: StepCallback | None = None, on_reset: Callable[[], None] | None = None) -> EpisodeResult:
+def play_episode(
+    game: TreasureHuntGame,
+    policy: Policy,
+    rng: np.random.Generator,
+    on_step: StepCallback | None = None,
+    on_reset: Callable[[], None] | None = None,
+) -> EpisodeResult:
     """Reset ``game`` with ``rng`` (it draws the winners of chest ties) and play one episode;
     ``on_reset`` sees the game right after the reset, ``on_step`` after every step."""
     obs = game.reset(rng)
@@ -77,9 +82,15 @@ def play_episode(game: TreasureHuntGame, policy: Policy, rng: np.random.Generato
         elif game.treasures_collected == chests:
             cleared_at = length
     steps_after_clear = length - cleared_at if cleared_at >= 0 else 0
-    return EpisodeResult(team_return, length, game.treasures_collected,
-                         game.treasures_collected / game.num_treasures, trapped / game.num_agents,
-                         steps_after_clear, return_after_clear)
+    return EpisodeResult(
+        team_return,
+        length,
+        game.treasures_collected,
+        game.treasures_collected / game.num_treasures,
+        trapped / game.num_agents,
+        steps_after_clear,
+        return_after_clear,
+    )
 
 
 def evaluation_rng(seed: int, evaluation: int, episode: int) -> np.random.Generator:
@@ -88,8 +99,14 @@ def evaluation_rng(seed: int, evaluation: int, episode: int) -> np.random.Genera
     return np.random.default_rng([seed, EVALUATION_STREAM, evaluation, episode])
 
 
-def evaluate(learner: Learner, game: TreasureHuntGame, episodes: int, seed: int, evaluation: int,
-             first: EpisodeResult | None = None) -> dict[str, float]:
+def evaluate(
+    learner: Learner,
+    game: TreasureHuntGame,
+    episodes: int,
+    seed: int,
+    evaluation: int,
+    first: EpisodeResult | None = None,
+) -> dict[str, float]:
     """Greedy episodes, each seeded by :func:`evaluation_rng`; ``first``: episode 0 as the caller already
     played it (e.g. recorded for a picture), not played again."""
     results = [] if first is None else [first]

@@ -22,7 +22,14 @@ from PIL import Image
 from dqn_transfer.agents.base import Learner
 from dqn_transfer.envs.game import COLOURS, TreasureHuntGame, text_grid
 from dqn_transfer.envs.pictures import agent_colour, draw_state
-from dqn_transfer.evaluation.rollout import EpisodeResult, Policy, evaluation_rng, greedy_policy, play_episode, team_return_of
+from dqn_transfer.evaluation.rollout import (
+    EpisodeResult,
+    Policy,
+    evaluation_rng,
+    greedy_policy,
+    play_episode,
+    team_return_of,
+)
 
 GIF_FRAME_MS = 250  # the faces' render_fps of 4
 GIF_LAST_FRAME_MS = 1500  # a pause on each episode's outcome
@@ -80,23 +87,36 @@ def watch_team(game: TreasureHuntGame, learner: Learner, episodes: int, seed: in
 def outcome(episode: RecordedEpisode) -> str:
     """One line: what the team achieved."""
     r = episode.result
-    return (f"{r.length} steps, team return {r.team_return:g}, chests {r.treasures_collected}/{episode.game.num_treasures}, "
-            f"trapped agents {round(r.trap_rate * episode.game.num_agents)}/{episode.game.num_agents}")
+    return (
+        f"{r.length} steps, team return {r.team_return:g}, "
+        f"chests {r.treasures_collected}/{episode.game.num_treasures}, "
+        f"trapped agents {round(r.trap_rate * episode.game.num_agents)}/{episode.game.num_agents}"
+    )
 
 
 # ------------------------------------------------------------------------------------ pictures
 
+
 def frame_caption(episode: RecordedEpisode, index: int, label: str = "") -> list[str]:
     frame, game = episode.frames[index], episode.game
-    return [f"{label}step {frame.step}/{game.max_steps}",
-            f"team return {frame.team_return:g}  full chests {int(frame.chest_full.sum())}/{game.num_treasures}"]
+    return [
+        f"{label}step {frame.step}/{game.max_steps}",
+        f"team return {frame.team_return:g}  full chests {int(frame.chest_full.sum())}/{game.num_treasures}",
+    ]
 
 
 def frame_picture(episode: RecordedEpisode, index: int, label: str = "", cell_px: int = GIF_CELL_PX) -> Image.Image:
     """Frame ``index`` with the trails that led to it."""
     frame = episode.frames[index]
-    return draw_state(episode.game.map, frame.positions, frame.live, frame.chest_full, episode.trails(index),
-                      frame_caption(episode, index, label), cell_px)
+    return draw_state(
+        episode.game.map,
+        frame.positions,
+        frame.live,
+        frame.chest_full,
+        episode.trails(index),
+        frame_caption(episode, index, label),
+        cell_px,
+    )
 
 
 def episode_pictures(episodes: Sequence[RecordedEpisode]) -> Iterable[tuple[Image.Image, int]]:
@@ -113,8 +133,16 @@ def gif_bytes(episodes: Sequence[RecordedEpisode]) -> bytes:
     pictures, durations = zip(*episode_pictures(episodes))
     buffer = io.BytesIO()
     # disposal 1 and optimize off: every frame is kept whole, none merged into its neighbour.
-    pictures[0].save(buffer, format="GIF", save_all=True, append_images=list(pictures[1:]), duration=list(durations),
-                     loop=0, disposal=1, optimize=False)
+    pictures[0].save(
+        buffer,
+        format="GIF",
+        save_all=True,
+        append_images=list(pictures[1:]),
+        duration=list(durations),
+        loop=0,
+        disposal=1,
+        optimize=False,
+    )
     return buffer.getvalue()
 
 
@@ -125,6 +153,7 @@ def map_picture(game: TreasureHuntGame, cell_px: int = GIF_CELL_PX) -> Image.Ima
 
 
 # ------------------------------------------------------------------------------------ the terminal
+
 
 def _coloured(text: str, rgb: tuple[int, int, int]) -> str:
     return f"\x1b[1;38;2;{rgb[0]};{rgb[1]};{rgb[2]}m{text}\x1b[0m"
@@ -139,8 +168,14 @@ def frame_text(episode: RecordedEpisode, index: int, colour: bool) -> str:
     frame = episode.frames[index]
     grid = text_grid(episode.game.map, frame.positions, frame.live, frame.chest_full)
     if colour:
-        grid = "".join(_coloured(ch, agent_colour(int(ch))) if ch.isdigit() else
-                       _coloured(ch, CELL_COLOURS[ch]) if ch in CELL_COLOURS else ch for ch in grid)
+        grid = "".join(
+            _coloured(ch, agent_colour(int(ch)))
+            if ch.isdigit()
+            else _coloured(ch, CELL_COLOURS[ch])
+            if ch in CELL_COLOURS
+            else ch
+            for ch in grid
+        )
     return grid + "\n" + "  ".join(frame_caption(episode, index))
 
 
@@ -164,8 +199,10 @@ def replay_in_terminal(episodes: Sequence[RecordedEpisode], stream: TextIO | Non
 
 # ------------------------------------------------------------------------------------ TensorBoard
 
-def evaluation_views(learner: Learner, game: TreasureHuntGame, seed: int, evaluation: int
-                     ) -> tuple[np.ndarray, list[np.ndarray], EpisodeResult]:
+
+def evaluation_views(
+    learner: Learner, game: TreasureHuntGame, seed: int, evaluation: int
+) -> tuple[np.ndarray, list[np.ndarray], EpisodeResult]:
     """What TensorBoard shows of an evaluation: its first episode, played here from the evaluation's
     own generator, as its last frame with every trail, ``[H, W, 3]`` uint8, and per agent the Q-values
     of every observation it acted on in that episode; and the episode's result, for

@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -44,10 +45,25 @@ COMPETITIVE, COOPERATIVE, DELIBERATIVE = (m.value for m in Mode)
 NO_EXCHANGE, SHARED_NETWORK = "none", "shared network"
 SCRATCH, MATCHED = "scratch", "scratch_matched"
 TRANSFER_CONDITIONS = ("same_map", "same_map_one", "other_map", "team_member")
-COLORS = {COMPETITIVE: "tab:red", COOPERATIVE: "tab:blue", DELIBERATIVE: "tab:green", NO_EXCHANGE: "tab:gray",
-          "best": "tab:purple", "shared_replay": "tab:orange", SHARED_NETWORK: "tab:brown", SCRATCH: "tab:gray",
-          MATCHED: "black", "same_map": "tab:purple", "same_map_one": "tab:pink", "other_map": "tab:olive",
-          "team_member": "tab:cyan", "room_scratch": "tab:gray", "room_curriculum": "tab:purple", "sarsa": "tab:blue", "double_dqn": "tab:red"}
+COLORS = {
+    COMPETITIVE: "tab:red",
+    COOPERATIVE: "tab:blue",
+    DELIBERATIVE: "tab:green",
+    NO_EXCHANGE: "tab:gray",
+    "best": "tab:purple",
+    "shared_replay": "tab:orange",
+    SHARED_NETWORK: "tab:brown",
+    SCRATCH: "tab:gray",
+    MATCHED: "black",
+    "same_map": "tab:purple",
+    "same_map_one": "tab:pink",
+    "other_map": "tab:olive",
+    "team_member": "tab:cyan",
+    "room_scratch": "tab:gray",
+    "room_curriculum": "tab:purple",
+    "sarsa": "tab:blue",
+    "double_dqn": "tab:red",
+}
 SUPPORTED, NOT_SUPPORTED, CONTRADICTED, INCONCLUSIVE = "SUPPORTED", "NOT SUPPORTED", "CONTRADICTED", "INCONCLUSIVE"
 SCORE_LABEL = "team return / the map's optimal return"  # the score's axis label (plots.METRIC_LABELS["score"])
 
@@ -132,8 +148,9 @@ def by_map(runs: Sequence[RunData], fn: Callable[[RunData], float]) -> np.ndarra
     return np.array([[fn(r) for r in maps[m]] for m in sorted(maps)]).T
 
 
-def improvement(a: Sequence[RunData], b: Sequence[RunData], fn: Callable[[RunData], float],
-                rng: np.random.Generator) -> Estimate:
+def improvement(
+    a: Sequence[RunData], b: Sequence[RunData], fn: Callable[[RunData], float], rng: np.random.Generator
+) -> Estimate:
     """P(a run of ``a`` scores higher than a run of ``b`` on the same map), rliable's, stratified by map;
     over the maps both conditions ran, so that the two score tables' columns are the same maps."""
     shared = {r.map_seed for r in a} & {r.map_seed for r in b}
@@ -163,9 +180,11 @@ def interval_text(values: np.ndarray, rng: np.random.Generator) -> tuple[str, di
     t = intervals["t"]
     if not t.has_ci:
         return fmt(t), intervals
-    return (f"{t.mean:+.3g}, t [{t.low:+.3g}, {t.high:+.3g}], BCa [{intervals['bca'].low:+.3g}, "
-            f"{intervals['bca'].high:+.3g}], pct [{intervals['percentile'].low:+.3g}, "
-            f"{intervals['percentile'].high:+.3g}] (n={t.n})"), intervals
+    return (
+        f"{t.mean:+.3g}, t [{t.low:+.3g}, {t.high:+.3g}], BCa [{intervals['bca'].low:+.3g}, "
+        f"{intervals['bca'].high:+.3g}], pct [{intervals['percentile'].low:+.3g}, "
+        f"{intervals['percentile'].high:+.3g}] (n={t.n})"
+    ), intervals
 
 
 def t_text(intervals: dict[str, Estimate]) -> str:
@@ -176,13 +195,17 @@ def t_text(intervals: dict[str, Estimate]) -> str:
 
 def describe(runs: Sequence[RunData]) -> str:
     """How much evidence: steps per run, evaluations, maps and seeds."""
+
     def values(key: Callable[[dict], Any]) -> str:
         return "/".join(f"{v:,}" for v in sorted({key(r.config) for r in runs}))
+
     maps = len({r.map_seed for r in runs})
     seeds = len({r.seed for r in runs})
-    return (f"{values(lambda c: c['total_steps'])} env steps per run, a greedy evaluation of "
-            f"{values(lambda c: c['eval_episodes'])} episodes every {values(lambda c: c['eval_every'])} steps; "
-            f"{maps} map{'s' if maps > 1 else ''} x {seeds} seed{'s' if seeds > 1 else ''} per condition")
+    return (
+        f"{values(lambda c: c['total_steps'])} env steps per run, a greedy evaluation of "
+        f"{values(lambda c: c['eval_episodes'])} episodes every {values(lambda c: c['eval_every'])} steps; "
+        f"{maps} map{'s' if maps > 1 else ''} x {seeds} seed{'s' if seeds > 1 else ''} per condition"
+    )
 
 
 def _color(label: str) -> str | None:
@@ -208,15 +231,20 @@ def section_hypothesis(runs: Sequence[RunData], ctx: Context) -> Section:
     question = "Main hypothesis: a group that exchanges knowledge learns better than the same group without"
     primary = f"{PRIMARY_LEARNER}, cooperative: P(exchange=best > none) in score"
     cells = group(runs, lambda r: (learner(r), mode(r), exchange_condition(r)))
-    rows = ["| learner | mode | condition | score, mean [95% CI] | final score IQM [95% CI] | "
-            "paired difference from none (t, BCa, percentile) | P(condition > none) [95% CI] |",
-            "|---|---|---|---:|---:|---:|---:|"]
+    rows = [
+        "| learner | mode | condition | score, mean [95% CI] | final score IQM [95% CI] | "
+        "paired difference from none (t, BCa, percentile) | P(condition > none) [95% CI] |",
+        "|---|---|---|---:|---:|---:|---:|",
+    ]
     panels, profiles = [], []
     verdict, result = INCONCLUSIVE, "no runs of the primary comparison"
     for algorithm in _learners(runs):
         for team_mode in (COOPERATIVE, DELIBERATIVE):
-            conditions = {c: cells[(algorithm, team_mode, c)] for c in (NO_EXCHANGE, "best", "shared_replay", SHARED_NETWORK)
-                          if (algorithm, team_mode, c) in cells}
+            conditions = {
+                c: cells[(algorithm, team_mode, c)]
+                for c in (NO_EXCHANGE, "best", "shared_replay", SHARED_NETWORK)
+                if (algorithm, team_mode, c) in cells
+            }
             if NO_EXCHANGE not in conditions:
                 continue
             control = conditions[NO_EXCHANGE]
@@ -231,24 +259,52 @@ def section_hypothesis(runs: Sequence[RunData], ctx: Context) -> Section:
                 rows.append(f"| {algorithm} | {team_mode} | {condition} | {cell_score} | {final} | {diff} | {fmt(p)} |")
                 if (algorithm, team_mode, condition) == (PRIMARY_LEARNER, COOPERATIVE, "best"):
                     verdict, result = poi_verdict(p), f"P = {fmt(p)}; score difference {t_text(intervals)}"
-            panels.append(("score", {f"{algorithm}, {team_mode}, {c}": [r.score_curve() for r in members]
-                                     for c, members in conditions.items()}))
-            profiles.append((f"{algorithm}, {team_mode}", {c: by_map(members, final_score)
-                                                           for c, members in conditions.items()}))
+            panels.append(
+                (
+                    "score",
+                    {
+                        f"{algorithm}, {team_mode}, {c}": [r.score_curve() for r in members]
+                        for c, members in conditions.items()
+                    },
+                )
+            )
+            profiles.append(
+                (f"{algorithm}, {team_mode}", {c: by_map(members, final_score) for c, members in conditions.items()})
+            )
     figures = []
     if panels:
-        figures.append(curves_figure(ctx.out / "hypothesis.png", panels, "Knowledge exchange in a team of 4", ctx.rng,
-                                     color_of=_color, watermark=ctx.watermark).name)
-        figures.append(profile_figure(ctx.out / "hypothesis_profiles.png", profiles,
-                                      "Performance profiles of the final score (rliable)", ctx.rng, color_of=_color,
-                                      watermark=ctx.watermark).name)
-    md = [f"Setting: teams of 4 on claim 2's 8x8 maps, cooperative and deliberative, at the same env-step budget; "
-          f"{describe(runs)}. `best`: every 20 episodes the best agent's values are soft-copied (weight 0.5) into the "
-          "others; `shared_replay`: every agent also learns from its teammates' transitions; `shared network`: one "
-          "Double DQN network for the team (parameter sharing, the standard multi-agent baseline).", "",
-          *(f"![{f}]({f})\n" for f in figures), *rows, "",
-          f"Primary comparison: {primary}. Verdict: **{verdict}** ({result}).",
-          "Everything else in the table is exploratory."]
+        figures.append(
+            curves_figure(
+                ctx.out / "hypothesis.png",
+                panels,
+                "Knowledge exchange in a team of 4",
+                ctx.rng,
+                color_of=_color,
+                watermark=ctx.watermark,
+            ).name
+        )
+        figures.append(
+            profile_figure(
+                ctx.out / "hypothesis_profiles.png",
+                profiles,
+                "Performance profiles of the final score (rliable)",
+                ctx.rng,
+                color_of=_color,
+                watermark=ctx.watermark,
+            ).name
+        )
+    md = [
+        f"Setting: teams of 4 on claim 2's 8x8 maps, cooperative and deliberative, at the same env-step budget; "
+        f"{describe(runs)}. `best`: every 20 episodes the best agent's values are soft-copied (weight 0.5) into the "
+        "others; `shared_replay`: every agent also learns from its teammates' transitions; `shared network`: one "
+        "Double DQN network for the team (parameter sharing, the standard multi-agent baseline).",
+        "",
+        *(f"![{f}]({f})\n" for f in figures),
+        *rows,
+        "",
+        f"Primary comparison: {primary}. Verdict: **{verdict}** ({result}).",
+        "Everything else in the table is exploratory.",
+    ]
     return Section(question, primary, result, verdict, "\n".join(md), figures)
 
 
@@ -264,12 +320,17 @@ def _after_clear(members: Sequence[RunData], metric: str, digits: str) -> str:
 
 def section_claim1(runs: Sequence[RunData], ctx: Context) -> Section:
     question = "Claim 1: with one treasure, cooperation gives no advantage over competition"
-    primary = (f"{PRIMARY_LEARNER}: paired difference cooperative - competitive in mean team return over training, "
-               f"t interval, against a margin of +{CLAIM1_MARGIN:g}")
+    primary = (
+        f"{PRIMARY_LEARNER}: paired difference cooperative - competitive in mean team return over training, "
+        f"t interval, against a margin of +{CLAIM1_MARGIN:g}"
+    )
     cells = group(runs, lambda r: (learner(r), mode(r)))
-    rows = ["| learner | competitive | cooperative | cooperative - competitive (t, BCa, percentile) | "
-            "P(cooperative > competitive) | after the chest is taken: episodes with an agent still playing, "
-            "comp / coop | its return after it, comp / coop |", "|---|---:|---:|---:|---:|---:|---:|"]
+    rows = [
+        "| learner | competitive | cooperative | cooperative - competitive (t, BCa, percentile) | "
+        "P(cooperative > competitive) | after the chest is taken: episodes with an agent still playing, "
+        "comp / coop | its return after it, comp / coop |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
     verdict, result, panels = INCONCLUSIVE, "no runs of the primary comparison", []
     for algorithm in _learners(runs):
         comp, coop = cells.get((algorithm, COMPETITIVE)), cells.get((algorithm, COOPERATIVE))
@@ -279,11 +340,17 @@ def section_claim1(runs: Sequence[RunData], ctx: Context) -> Section:
         p = improvement(coop, comp, raw_score, ctx.rng)
         after = [_after_clear(g, "after_clear_rate", ".2f") for g in (comp, coop)]
         after_return = [_after_clear(g, "return_after_clear", ".1f") for g in (comp, coop)]
-        rows.append(f"| {algorithm} | {fmt(estimate([raw_score(r) for r in comp], ctx.rng))} | "
-                    f"{fmt(estimate([raw_score(r) for r in coop], ctx.rng))} | {diff} | {fmt(p)} | "
-                    f"{' / '.join(after)} | {' / '.join(after_return)} |")
-        panels.append(("team_return", {f"{algorithm}, {m}": [r.curve() for r in g]
-                                       for m, g in ((COMPETITIVE, comp), (COOPERATIVE, coop))}))
+        rows.append(
+            f"| {algorithm} | {fmt(estimate([raw_score(r) for r in comp], ctx.rng))} | "
+            f"{fmt(estimate([raw_score(r) for r in coop], ctx.rng))} | {diff} | {fmt(p)} | "
+            f"{' / '.join(after)} | {' / '.join(after_return)} |"
+        )
+        panels.append(
+            (
+                "team_return",
+                {f"{algorithm}, {m}": [r.curve() for r in g] for m, g in ((COMPETITIVE, comp), (COOPERATIVE, coop))},
+            )
+        )
         if algorithm == PRIMARY_LEARNER:
             t = intervals["t"]
             if not t.has_ci:
@@ -297,19 +364,33 @@ def section_claim1(runs: Sequence[RunData], ctx: Context) -> Section:
             result = f"difference {t_text(intervals)} return units"
     figures = []
     if panels:
-        figures.append(curves_figure(ctx.out / "claim1.png", panels, "One treasure: competitive vs cooperative",
-                                     ctx.rng, color_of=_color, watermark=ctx.watermark).name)
-    md = [f"Setting: 2 agents, 1 chest, 1 trap on generated 6x6 maps; {describe(runs)}.", "",
-          *(f"![{f}]({f})\n" for f in figures), *rows, "",
-          "Does the announcement have any decision value here? Once the only chest is taken nothing is left to "
-          "find: every further move costs 1 wherever the agent goes, and the episode ends only at the horizon or "
-          "in a trap (-100). Knowing that the chest is gone therefore cannot raise the team's return; it could only "
-          "change where the remaining agent wanders. The last two columns measure how often that situation arises "
-          f"in the final {FINAL_TAIL:.0%} of evaluations and what it costs in each mode. By the game's rules, "
-          "claim 1 holds by construction on one-chest maps, whatever the learner.", "",
-          f"Primary comparison: {primary}. Rule: SUPPORTED if the interval lies below +{CLAIM1_MARGIN:g}, NOT "
-          f"SUPPORTED if it lies above, INCONCLUSIVE otherwise. Verdict: **{verdict}** ({result}).",
-          "Everything else in the table is exploratory."]
+        figures.append(
+            curves_figure(
+                ctx.out / "claim1.png",
+                panels,
+                "One treasure: competitive vs cooperative",
+                ctx.rng,
+                color_of=_color,
+                watermark=ctx.watermark,
+            ).name
+        )
+    md = [
+        f"Setting: 2 agents, 1 chest, 1 trap on generated 6x6 maps; {describe(runs)}.",
+        "",
+        *(f"![{f}]({f})\n" for f in figures),
+        *rows,
+        "",
+        "Does the announcement have any decision value here? Once the only chest is taken nothing is left to "
+        "find: every further move costs 1 wherever the agent goes, and the episode ends only at the horizon or "
+        "in a trap (-100). Knowing that the chest is gone therefore cannot raise the team's return; it could only "
+        "change where the remaining agent wanders. The last two columns measure how often that situation arises "
+        f"in the final {FINAL_TAIL:.0%} of evaluations and what it costs in each mode. By the game's rules, "
+        "claim 1 holds by construction on one-chest maps, whatever the learner.",
+        "",
+        f"Primary comparison: {primary}. Rule: SUPPORTED if the interval lies below +{CLAIM1_MARGIN:g}, NOT "
+        f"SUPPORTED if it lies above, INCONCLUSIVE otherwise. Verdict: **{verdict}** ({result}).",
+        "Everything else in the table is exploratory.",
+    ]
     return Section(question, primary, result, verdict, "\n".join(md), figures)
 
 
@@ -324,8 +405,13 @@ def slope(diffs: dict[int, np.ndarray], rng: np.random.Generator) -> tuple[float
     means = np.array([diffs[int(m)].mean() for m in sizes])
     centred = sizes - sizes.mean()
     point = float(centred @ means / (centred @ centred))
-    resampled = np.stack([d[rng.integers(0, d.size, size=(SLOPE_RESAMPLES, d.size))].mean(axis=1)
-                          for d in (diffs[int(m)] for m in sizes)], axis=1)  # [resamples, sizes]
+    resampled = np.stack(
+        [
+            d[rng.integers(0, d.size, size=(SLOPE_RESAMPLES, d.size))].mean(axis=1)
+            for d in (diffs[int(m)] for m in sizes)
+        ],
+        axis=1,
+    )  # [resamples, sizes]
     slopes = (resampled - resampled.mean(axis=1, keepdims=True)) @ centred / (centred @ centred)
     low, high = np.quantile(slopes, [0.025, 0.975])
     x = np.concatenate([np.full(diffs[int(m)].size, m) for m in sizes])
@@ -333,8 +419,11 @@ def slope(diffs: dict[int, np.ndarray], rng: np.random.Generator) -> tuple[float
     fit = scipy.stats.linregress(x, y)
     half = scipy.stats.t.ppf(0.975, x.size - 2) * fit.stderr
     n = int(x.size)
-    return point, Estimate(point, float(low), float(high), n), Estimate(float(fit.slope), fit.slope - half,
-                                                                        fit.slope + half, n)
+    return (
+        point,
+        Estimate(point, float(low), float(high), n),
+        Estimate(float(fit.slope), fit.slope - half, fit.slope + half, n),
+    )
 
 
 def trend_verdict(slopes: Sequence[Estimate]) -> str:
@@ -347,16 +436,25 @@ def trend_verdict(slopes: Sequence[Estimate]) -> str:
 
 def section_claim2(runs: Sequence[RunData], ctx: Context) -> Section:
     question = "Claim 2: as the team grows, deliberative > cooperative > competitive"
-    primary = (f"{PRIMARY_LEARNER}: slopes over team size of the paired differences deliberative - cooperative "
-               "and cooperative - competitive in score, bootstrap CIs")
+    primary = (
+        f"{PRIMARY_LEARNER}: slopes over team size of the paired differences deliberative - cooperative "
+        "and cooperative - competitive in score, bootstrap CIs"
+    )
     cells = group(runs, lambda r: (learner(r), team_size(r), mode(r)))
     sizes = sorted({m for _, m, _ in cells})
-    rows = ["| learner | m | competitive | cooperative | deliberative | coop - comp | delib - coop |",
-            "|---|---:|---:|---:|---:|---:|---:|"]
-    final_rows = [f"| learner | m | final score (last {FINAL_TAIL:.0%} of evaluations), IQM [95% CI]: competitive | "
-                  "cooperative | deliberative |", "|---|---:|---:|---:|---:|"]
-    trend_rows = ["| learner | difference | slope per extra agent, bootstrap [95% CI] | t [95% CI] | verdict |",
-                  "|---|---|---:|---:|---|"]
+    rows = [
+        "| learner | m | competitive | cooperative | deliberative | coop - comp | delib - coop |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    final_rows = [
+        f"| learner | m | final score (last {FINAL_TAIL:.0%} of evaluations), IQM [95% CI]: competitive | "
+        "cooperative | deliberative |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    trend_rows = [
+        "| learner | difference | slope per extra agent, bootstrap [95% CI] | t [95% CI] | verdict |",
+        "|---|---|---:|---:|---|",
+    ]
     level_panels, trend_series = [], {"deliberative - cooperative": {}, "cooperative - competitive": {}}
     verdict, result = INCONCLUSIVE, "no runs of the primary comparison"
     for algorithm in _learners(runs):
@@ -370,11 +468,16 @@ def section_claim2(runs: Sequence[RunData], ctx: Context) -> Section:
                 level[team_mode][m] = estimate([score(r) for r in members], ctx.rng)
             diffs["cooperative - competitive"][m] = paired(modes[COOPERATIVE], modes[COMPETITIVE], score)
             diffs["deliberative - cooperative"][m] = paired(modes[DELIBERATIVE], modes[COOPERATIVE], score)
-            cc, dc = (interval_text(diffs[k][m], ctx.rng)[0] for k in ("cooperative - competitive",
-                                                                         "deliberative - cooperative"))
+            cc, dc = (
+                interval_text(diffs[k][m], ctx.rng)[0]
+                for k in ("cooperative - competitive", "deliberative - cooperative")
+            )
             rows.append(f"| {algorithm} | {m} | " + " | ".join(fmt(level[t][m]) for t in level) + f" | {cc} | {dc} |")
-            final_rows.append(f"| {algorithm} | {m} | " + " | ".join(fmt(iqm(by_map(modes[t], final_score), ctx.rng))
-                                                                 for t in level) + " |")
+            final_rows.append(
+                f"| {algorithm} | {m} | "
+                + " | ".join(fmt(iqm(by_map(modes[t], final_score), ctx.rng)) for t in level)
+                + " |"
+            )
         if len(diffs["cooperative - competitive"]) < 2:
             continue
         level_panels.append((f"{algorithm}: {SCORE_LABEL}", level))
@@ -395,22 +498,46 @@ def section_claim2(runs: Sequence[RunData], ctx: Context) -> Section:
             result = "; ".join(f"{name} slope {fmt(s)}" for name, s in zip(diffs, slopes))
     figures = []
     if level_panels:
-        figures.append(errorbar_figure(ctx.out / "claim2.png", level_panels, "team size m (agents = chests = traps; "
-                                       "the map grows with m)", "Score by team size and mode (mean, 95% bootstrap CI)",
-                                       color_of=_color, watermark=ctx.watermark).name)
-        figures.append(errorbar_figure(ctx.out / "claim2_trend.png",
-                                       [(f"{name} (score)", series) for name, series in trend_series.items()],
-                                       "team size m", "Gaps between modes by team size (paired by map and seed)",
-                                       color_of=_color, watermark=ctx.watermark, zero_line=True).name)
-    md = [f"Setting: teams of m = {', '.join(map(str, sizes))} agents with as many chests and traps on generated maps "
-          f"that grow with the team (6x6, 7x7, 8x8, 10x10); {describe(runs)}. Score = {SCORE_LABEL}, averaged over "
-          "training.", "", *(f"![{f}]({f})\n" for f in figures), *rows, "", *trend_rows, "",
-          "Every run has the same env-step budget, so larger teams on larger maps end further from convergence "
-          "(final scores below): a gap's trend over m mixes the modes' effect with how far learning got.", "",
-          *final_rows, "",
-          f"Primary comparison: {primary}. Rule: SUPPORTED if both slopes' intervals lie above 0, CONTRADICTED if "
-          f"either lies below 0, NOT SUPPORTED otherwise. Verdict: **{verdict}** ({result}). The same rule applied "
-          "to Double DQN is exploratory."]
+        figures.append(
+            errorbar_figure(
+                ctx.out / "claim2.png",
+                level_panels,
+                "team size m (agents = chests = traps; the map grows with m)",
+                "Score by team size and mode (mean, 95% bootstrap CI)",
+                color_of=_color,
+                watermark=ctx.watermark,
+            ).name
+        )
+        figures.append(
+            errorbar_figure(
+                ctx.out / "claim2_trend.png",
+                [(f"{name} (score)", series) for name, series in trend_series.items()],
+                "team size m",
+                "Gaps between modes by team size (paired by map and seed)",
+                color_of=_color,
+                watermark=ctx.watermark,
+                zero_line=True,
+            ).name
+        )
+    md = [
+        f"Setting: teams of m = {', '.join(map(str, sizes))} agents with as many chests and traps on generated maps "
+        f"that grow with the team (6x6, 7x7, 8x8, 10x10); {describe(runs)}. Score = {SCORE_LABEL}, averaged over "
+        "training.",
+        "",
+        *(f"![{f}]({f})\n" for f in figures),
+        *rows,
+        "",
+        *trend_rows,
+        "",
+        "Every run has the same env-step budget, so larger teams on larger maps end further from convergence "
+        "(final scores below): a gap's trend over m mixes the modes' effect with how far learning got.",
+        "",
+        *final_rows,
+        "",
+        f"Primary comparison: {primary}. Rule: SUPPORTED if both slopes' intervals lie above 0, CONTRADICTED if "
+        f"either lies below 0, NOT SUPPORTED otherwise. Verdict: **{verdict}** ({result}). The same rule applied "
+        "to Double DQN is exploratory.",
+    ]
     return Section(question, primary, result, verdict, "\n".join(md), figures)
 
 
@@ -448,17 +575,22 @@ def section_transfer(runs: Sequence[RunData], ctx: Context) -> Section:
     question = "Claim 3: starting from a trained agent speeds up learning"
     primary = f"{PRIMARY_LEARNER}: P(same_map > scratch_matched) in score"
     cells = group(runs, lambda r: (learner(r), _infer_condition(r.config)))
-    rows = ["| learner | condition | source cost (steps) | score | jumpstart (first evaluation) | "
-            "score difference (t, BCa, percentile) | P(condition > baseline) | reached 80% | P(sooner) | "
-            "break-even reuses |", "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    rows = [
+        "| learner | condition | source cost (steps) | score | jumpstart (first evaluation) | "
+        "score difference (t, BCa, percentile) | P(condition > baseline) | reached 80% | P(sooner) | "
+        "break-even reuses |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     verdict, result, panels, total_panels = INCONCLUSIVE, "no runs of the primary comparison", [], []
     for algorithm in _learners(runs):
         baseline = cells.get((algorithm, MATCHED))
         if not baseline:
             continue
         order = [SCRATCH, *TRANSFER_CONDITIONS]
-        rows.append(f"| {algorithm} | {MATCHED} (the baseline) | 0 | {fmt(estimate([score(r) for r in baseline], ctx.rng))} "
-                    f"| — | — | — | {sum(not math.isnan(_time_to_threshold(r)) for r in baseline)}/{len(baseline)} | — | — |")
+        rows.append(
+            f"| {algorithm} | {MATCHED} (the baseline) | 0 | {fmt(estimate([score(r) for r in baseline], ctx.rng))} "
+            f"| — | — | — | {sum(not math.isnan(_time_to_threshold(r)) for r in baseline)}/{len(baseline)} | — | — |"
+        )
         for condition in order:
             members = cells.get((algorithm, condition))
             if not members:
@@ -471,8 +603,10 @@ def section_transfer(runs: Sequence[RunData], ctx: Context) -> Section:
             saved = float(np.mean(paired(baseline, members, _budgeted_time)))
             reuses = "—" if cost == 0 else (f"{cost / saved:.1f}" if saved > 0 else "never")
             reached = sum(not math.isnan(_time_to_threshold(r)) for r in members)
-            rows.append(f"| {algorithm} | {condition} | {cost:,} | {fmt(estimate([score(r) for r in members], ctx.rng))} "
-                        f"| {fmt(jump)} | {diff} | {fmt(p)} | {reached}/{len(members)} | {fmt(sooner)} | {reuses} |")
+            rows.append(
+                f"| {algorithm} | {condition} | {cost:,} | {fmt(estimate([score(r) for r in members], ctx.rng))} "
+                f"| {fmt(jump)} | {diff} | {fmt(p)} | {reached}/{len(members)} | {fmt(sooner)} | {reuses} |"
+            )
             if (algorithm, condition) == (PRIMARY_LEARNER, "same_map"):
                 verdict, result = poi_verdict(p), f"P = {fmt(p)}; score difference {t_text(intervals)}"
         groups = {c: cells[(algorithm, c)] for c in [MATCHED, *order] if (algorithm, c) in cells}
@@ -480,24 +614,44 @@ def section_transfer(runs: Sequence[RunData], ctx: Context) -> Section:
         total_panels.append(("score", {f"{algorithm}, {c}": [on_total_steps(r) for r in g] for c, g in groups.items()}))
     figures = []
     if panels:
-        figures.append(curves_figure(ctx.out / "transfer.png", panels, "Transfer: target-task steps", ctx.rng,
-                                     color_of=_color, watermark=ctx.watermark).name)
-        figures.append(curves_figure(ctx.out / "transfer_total_steps.png", total_panels,
-                                     "Transfer: total steps (each run starts after its source's pretraining)", ctx.rng,
-                                     color_of=_color, watermark=ctx.watermark,
-                                     xlabel="environment steps, the source's pretraining included",
-                                     marks=[(c, "sources pretrained") for c in sorted({r.steps_before for r in runs} - {0})]
-                                     ).name)
-    md = [f"Setting: teams of 2 on claim 2's 6x6 maps; {describe(runs)}. The baseline is `{MATCHED}`: random start "
-          "with the transferred agents' exploration (epsilon from 0.3), so exploration alone cannot pass for "
-          "transfer; `scratch` (epsilon from 1.0) is shown against it too. Jumpstart and score differences are "
-          "paired by map and seed. Time to threshold: steps until the score first reaches "
-          f"{THRESHOLD:.0%} of the optimal return; P(sooner) counts a run that never gets there as slower than "
-          "every run that does. Break-even reuses: the source's cost divided by the mean steps to threshold it "
-          "saves a target run (a run that never gets there counted at its budget): how many runs must start from "
-          "one source before it has paid for itself.", "", *(f"![{f}]({f})\n" for f in figures), *rows, "",
-          f"Primary comparison: {primary}. Rule: SUPPORTED if the interval lies above 0.5, CONTRADICTED if below, "
-          f"NOT SUPPORTED otherwise. Verdict: **{verdict}** ({result}). Everything else is exploratory."]
+        figures.append(
+            curves_figure(
+                ctx.out / "transfer.png",
+                panels,
+                "Transfer: target-task steps",
+                ctx.rng,
+                color_of=_color,
+                watermark=ctx.watermark,
+            ).name
+        )
+        figures.append(
+            curves_figure(
+                ctx.out / "transfer_total_steps.png",
+                total_panels,
+                "Transfer: total steps (each run starts after its source's pretraining)",
+                ctx.rng,
+                color_of=_color,
+                watermark=ctx.watermark,
+                xlabel="environment steps, the source's pretraining included",
+                marks=[(c, "sources pretrained") for c in sorted({r.steps_before for r in runs} - {0})],
+            ).name
+        )
+    md = [
+        f"Setting: teams of 2 on claim 2's 6x6 maps; {describe(runs)}. The baseline is `{MATCHED}`: random start "
+        "with the transferred agents' exploration (epsilon from 0.3), so exploration alone cannot pass for "
+        "transfer; `scratch` (epsilon from 1.0) is shown against it too. Jumpstart and score differences are "
+        "paired by map and seed. Time to threshold: steps until the score first reaches "
+        f"{THRESHOLD:.0%} of the optimal return; P(sooner) counts a run that never gets there as slower than "
+        "every run that does. Break-even reuses: the source's cost divided by the mean steps to threshold it "
+        "saves a target run (a run that never gets there counted at its budget): how many runs must start from "
+        "one source before it has paid for itself.",
+        "",
+        *(f"![{f}]({f})\n" for f in figures),
+        *rows,
+        "",
+        f"Primary comparison: {primary}. Rule: SUPPORTED if the interval lies above 0.5, CONTRADICTED if below, "
+        f"NOT SUPPORTED otherwise. Verdict: **{verdict}** ({result}). Everything else is exploratory.",
+    ]
     return Section(question, primary, result, verdict, "\n".join(md), figures)
 
 
@@ -513,11 +667,16 @@ def _mean_between(run: RunData, start: float, end: float) -> float:
 def section_curriculum(runs: Sequence[RunData], ctx: Context) -> Section:
     question = "Curriculum: a small map first beats the large map from scratch at the same total steps"
     primary = "none (exploratory: not in the verdict rules)"
-    cells = group(runs, lambda r: (learner(r), "room_curriculum" if r.config.get("curriculum", {}).get("stages")
-                                   else "room_scratch"))
-    rows = ["| learner | steps before (room) | score at the curriculum's start: curriculum - scratch | score over the "
-            "shared steps: curriculum - scratch (t, BCa, percentile) | final score (equal budget): curriculum / "
-            "scratch | P(curriculum > scratch), final |", "|---|---:|---:|---:|---:|---:|"]
+    cells = group(
+        runs,
+        lambda r: (learner(r), "room_curriculum" if r.config.get("curriculum", {}).get("stages") else "room_scratch"),
+    )
+    rows = [
+        "| learner | steps before (room) | score at the curriculum's start: curriculum - scratch | score over the "
+        "shared steps: curriculum - scratch (t, BCa, percentile) | final score (equal budget): curriculum / "
+        "scratch | P(curriculum > scratch), final |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
     panels, results = [], []
     for algorithm in _learners(runs):
         curriculum, scratch = cells.get((algorithm, "room_curriculum")), cells.get((algorithm, "room_scratch"))
@@ -527,26 +686,48 @@ def section_curriculum(runs: Sequence[RunData], ctx: Context) -> Section:
         end = min(float(on_total_steps(r)[0][-1]) for r in curriculum + scratch)
         at_start = {r.unit: float(np.interp(start, *on_total_steps(r))) for r in scratch}
         jump = estimate([on_total_steps(r)[1][0] - at_start[r.unit] for r in curriculum if r.unit in at_start], ctx.rng)
-        diff = (interval_text(paired(curriculum, scratch, lambda r: _mean_between(r, start, end)), ctx.rng)[0]
-                if end > start else "no shared steps (unequal budgets)")
+        diff = (
+            interval_text(paired(curriculum, scratch, partial(_mean_between, start=start, end=end)), ctx.rng)[0]
+            if end > start
+            else "no shared steps (unequal budgets)"
+        )
         p = improvement(curriculum, scratch, final_score, ctx.rng)
         finals = " / ".join(fmt(estimate([final_score(r) for r in g], ctx.rng)) for g in (curriculum, scratch))
         rows.append(f"| {algorithm} | {start:,} | {fmt(jump)} | {diff} | {finals} | {fmt(p)} |")
         results.append(f"{algorithm}: P = {fmt(p)}")
-        panels.append(("score", {f"{algorithm}, {c}": [on_total_steps(r) for r in g]
-                                 for c, g in (("room_scratch", scratch), ("room_curriculum", curriculum))}))
+        panels.append(
+            (
+                "score",
+                {
+                    f"{algorithm}, {c}": [on_total_steps(r) for r in g]
+                    for c, g in (("room_scratch", scratch), ("room_curriculum", curriculum))
+                },
+            )
+        )
     figures = []
     if panels:
-        figures.append(curves_figure(ctx.out / "curriculum.png", panels, "Curriculum vs scratch at equal total steps",
-                                     ctx.rng, color_of=_color, watermark=ctx.watermark,
-                                     xlabel="environment steps, the room stage's included",
-                                     marks=[(c, "room stage ends") for c in sorted({r.steps_before for r in runs} - {0})]
-                                     ).name)
-    md = [f"Setting: an 8x8 map with 2 chests, 2 traps and 2 agents; the curriculum first trains one agent on the "
-          f"5x5 room it contains (at (1, 1)), then both agents start from it; {describe(runs)} (the curriculum's "
-          "own steps exclude the room's). Both conditions spend the same total env steps.", "",
-          *(f"![{f}]({f})\n" for f in figures), *rows, "",
-          "This comparison was added after the main rules and is exploratory: no verdict."]
+        figures.append(
+            curves_figure(
+                ctx.out / "curriculum.png",
+                panels,
+                "Curriculum vs scratch at equal total steps",
+                ctx.rng,
+                color_of=_color,
+                watermark=ctx.watermark,
+                xlabel="environment steps, the room stage's included",
+                marks=[(c, "room stage ends") for c in sorted({r.steps_before for r in runs} - {0})],
+            ).name
+        )
+    md = [
+        f"Setting: an 8x8 map with 2 chests, 2 traps and 2 agents; the curriculum first trains one agent on the "
+        f"5x5 room it contains (at (1, 1)), then both agents start from it; {describe(runs)} (the curriculum's "
+        "own steps exclude the room's). Both conditions spend the same total env steps.",
+        "",
+        *(f"![{f}]({f})\n" for f in figures),
+        *rows,
+        "",
+        "This comparison was added after the main rules and is exploratory: no verdict.",
+    ]
     return Section(question, primary, "; ".join(results) or "no runs", "EXPLORATORY", "\n".join(md), figures)
 
 

@@ -78,9 +78,15 @@ class RunData:
         return (steps, values / self.optimal_return) if self.optimal_return else (steps, values)
 
     def to_json(self) -> dict[str, Any]:
-        return {"experiment": self.experiment, "name": self.name, "steps_before": self.steps_before,
-                "optimal_return": self.optimal_return, "steps": list(self.steps),
-                "metrics": {k: list(v) for k, v in self.metrics.items()}, "config": self.config}
+        return {
+            "experiment": self.experiment,
+            "name": self.name,
+            "steps_before": self.steps_before,
+            "optimal_return": self.optimal_return,
+            "steps": list(self.steps),
+            "metrics": {k: list(v) for k, v in self.metrics.items()},
+            "config": self.config,
+        }
 
 
 def _rounded(value: float) -> float:
@@ -94,8 +100,9 @@ def map_optimum(config: dict[str, Any]) -> float | None:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # a layout overriding generation keys: the trainer already said so
         grid = resolve_map(**{key: env.get(key) for key in keys})
-    return optimal_team_return(grid, grid.num_agents, float(env.get("treasure_reward", 100.0)),
-                               float(env.get("step_reward", -1.0)))
+    return optimal_team_return(
+        grid, grid.num_agents, float(env.get("treasure_reward", 100.0)), float(env.get("step_reward", -1.0))
+    )
 
 
 def export_sweep(sweep_dir: Path, experiment: str) -> list[RunData]:
@@ -108,10 +115,22 @@ def export_sweep(sweep_dir: Path, experiment: str) -> list[RunData]:
             records = read_metrics(run.dir)
         by_step = {int(r["step"]): r for r in records if "step" in r}
         steps = tuple(sorted(by_step))
-        metrics = {m: tuple(_rounded(float(by_step[s][m])) for s in steps) for m in METRICS
-                   if all(m in by_step[s] for s in steps)}
-        runs.append(RunData(experiment, run.dir.relative_to(sweep_dir).as_posix(), run.config, steps, metrics,
-                            source_steps(records), map_optimum(run.config)))
+        metrics = {
+            m: tuple(_rounded(float(by_step[s][m])) for s in steps)
+            for m in METRICS
+            if all(m in by_step[s] for s in steps)
+        }
+        runs.append(
+            RunData(
+                experiment,
+                run.dir.relative_to(sweep_dir).as_posix(),
+                run.config,
+                steps,
+                metrics,
+                source_steps(records),
+                map_optimum(run.config),
+            )
+        )
     return sorted(runs, key=lambda r: natural_key(Path(r.name)))
 
 
@@ -132,9 +151,17 @@ def read_data(path: Path) -> list[RunData]:
     for number, line in enumerate(lines, start=1):
         try:
             r = json.loads(line)
-            runs.append(RunData(r["experiment"], r["name"], r["config"], tuple(r["steps"]),
-                                {k: tuple(v) for k, v in r["metrics"].items()}, int(r["steps_before"]),
-                                r["optimal_return"]))
+            runs.append(
+                RunData(
+                    r["experiment"],
+                    r["name"],
+                    r["config"],
+                    tuple(r["steps"]),
+                    {k: tuple(v) for k, v in r["metrics"].items()},
+                    int(r["steps_before"]),
+                    r["optimal_return"],
+                )
+            )
         except (json.JSONDecodeError, KeyError, TypeError, ValueError):
             raise DataError(f"{path}: line {number} is not a run record") from None
     return runs

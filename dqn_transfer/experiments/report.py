@@ -69,25 +69,43 @@ def export_data(out: Path) -> Path:
                 walls[name] = stamp["wall_seconds"]
     if not exported:
         raise ReproduceError(f"{out / RUNS_DIR} holds no runs of {', '.join(EXPERIMENTS)}: run the experiments first")
-    write_manifest(data_dir, {"profile": "/".join(sorted(profiles)), **code_state(), "machine": machine(),
-                              "runs": exported, "wall_seconds": walls, "date": _dt.date.today().isoformat()})
+    write_manifest(
+        data_dir,
+        {
+            "profile": "/".join(sorted(profiles)),
+            **code_state(),
+            "machine": machine(),
+            "runs": exported,
+            "wall_seconds": walls,
+            "date": _dt.date.today().isoformat(),
+        },
+    )
     return data_dir
 
 
 def _header(manifest: dict[str, Any], smoke: bool) -> list[str]:
     lines = ["# The study answered: knowledge exchange, cooperation and transfer in the treasure hunt", ""]
     if smoke:
-        lines += [f"> **{PROFILES['quick'].description}** Run `python scripts/reproduce.py --profile full` for "
-                  "evidence.", ""]
+        lines += [
+            f"> **{PROFILES['quick'].description}** Run `python scripts/reproduce.py --profile full` for evidence.",
+            "",
+        ]
     walls = manifest.get("wall_seconds", {})
     total = sum(walls.values())
-    lines += [f"Data: `{DATA_DIR}/` beside this report (one JSON line per run: its config and every evaluation), "
-              f"made on {manifest.get('date', '?')} with the `{manifest.get('profile', '?')}` profile by code "
-              f"{manifest.get('commit', '?')} on {manifest.get('machine', '?')}. Verdict rules: `{RULES_FILE}`, "
-              f"committed at {manifest.get('rules_commit', '?')}, before these runs.", ""]
+    lines += [
+        f"Data: `{DATA_DIR}/` beside this report (one JSON line per run: its config and every evaluation), "
+        f"made on {manifest.get('date', '?')} with the `{manifest.get('profile', '?')}` profile by code "
+        f"{manifest.get('commit', '?')} on {manifest.get('machine', '?')}. Verdict rules: `{RULES_FILE}`, "
+        f"committed at {manifest.get('rules_commit', '?')}, before these runs.",
+        "",
+    ]
     if walls:
-        lines += ["Wall time of the sweeps (2 jobs at a time): " + ", ".join(f"{n} {w:.0f} s" for n, w in walls.items())
-                  + f"; {total / 60:.1f} min in all.", ""]
+        lines += [
+            "Wall time of the sweeps (2 jobs at a time): "
+            + ", ".join(f"{n} {w:.0f} s" for n, w in walls.items())
+            + f"; {total / 60:.1f} min in all.",
+            "",
+        ]
     return lines
 
 
@@ -99,8 +117,12 @@ def write_report(data_dir: Path, out: Path, seed: int = 0) -> Path:
     ctx = Context(out, np.random.default_rng(seed), SMOKE_MARK if smoke else None)
     sections: list[Section] = []
     for function, experiments in SECTIONS.values():
-        runs = [run for name in experiments if (data_dir / f"{name}.jsonl").exists()
-                for run in read_data(data_dir / f"{name}.jsonl")]
+        runs = [
+            run
+            for name in experiments
+            if (data_dir / f"{name}.jsonl").exists()
+            for run in read_data(data_dir / f"{name}.jsonl")
+        ]
         if runs:
             try:
                 sections.append(function(runs, ctx))
@@ -111,17 +133,26 @@ def write_report(data_dir: Path, out: Path, seed: int = 0) -> Path:
     lines = _header(manifest, smoke)
     lines += ["## Summary", "", "| question | primary comparison | result | verdict |", "|---|---|---|---|"]
     lines += [f"| {s.question} | {s.primary} | {s.result} | **{s.verdict}** |" for s in sections]
-    lines += ["", "Each question has one primary comparison, fixed in the verdict rules before the runs; every other "
-              "number is exploratory. An interval that contains the null value means no difference was detected "
-              "with this many runs, not that there is none. Intervals are 95%: paired differences by map and seed "
-              "with t, BCa and percentile-bootstrap intervals; IQM and probability of improvement (P) from rliable's "
-              "stratified bootstrap over maps.", ""]
+    lines += [
+        "",
+        "Each question has one primary comparison, fixed in the verdict rules before the runs; every other "
+        "number is exploratory. An interval that contains the null value means no difference was detected "
+        "with this many runs, not that there is none. Intervals are 95%: paired differences by map and seed "
+        "with t, BCa and percentile-bootstrap intervals; IQM and probability of improvement (P) from rliable's "
+        "stratified bootstrap over maps.",
+        "",
+    ]
     for s in sections:
         lines += [f"## {s.question}", "", s.markdown, ""]
-    lines += ["## How to reproduce", "", "```bash",
-              "python scripts/reproduce.py --profile full --out results        # the runs, the data, this report",
-              "dqn-transfer-report results --out /tmp/report                  # this report again, from results/data/",
-              "```", ""]
+    lines += [
+        "## How to reproduce",
+        "",
+        "```bash",
+        "python scripts/reproduce.py --profile full --out results        # the runs, the data, this report",
+        "dqn-transfer-report results --out /tmp/report                  # this report again, from results/data/",
+        "```",
+        "",
+    ]
     out.mkdir(parents=True, exist_ok=True)
     report = out / "REPORT.md"
     report.write_text("\n".join(lines))

@@ -4,8 +4,8 @@ Each experiment is ``python -m dqn_transfer.cli.train -m experiment=<name>`` (``
 in a subprocess, with the profile's overrides: one job per condition, its seeds batched inside the
 job as replicas (``replicas.seeds``, one run directory each); ``--launcher joblib`` (the default, from
 the ``sweep`` extra; without it, Hydra's basic launcher) runs ``--n-jobs`` jobs at a time,
-``submitit_slurm`` one SLURM job per condition. The ``full`` profile uses the experiment files' own step counts; ``quick`` shrinks
-them and the seeds.
+``submitit_slurm`` one SLURM job per condition. The ``full`` profile uses the experiment files' own
+step counts; ``quick`` shrinks them and the seeds.
 
 A sweep directory already complete for the same settings is reused (so a failed report or a second
 ``--only`` does not rerun it); one holding other or unfinished runs is an error, never overwritten.
@@ -64,14 +64,15 @@ PROFILES = {
             "claim1": ["total_steps=600", "eval_every=100", "replicas.seeds=1", "replicas.maps=3"],
             "claim2": ["env=study/m2,study/m3", "total_steps=1500", "eval_every=500", *_SHORT],
             "transfer": ["total_steps=1500", "eval_every=250", "transfer.pretrain_steps=1000", *_SHORT],
-            "curriculum": ["total_steps=1500", "eval_every=250",
-                           "agent.learning_starts=200", "replicas.seeds=2"],
+            "curriculum": ["total_steps=1500", "eval_every=250", "agent.learning_starts=200", "replicas.seeds=2"],
         },
         description="SMOKE RUN: 2-3 maps, one seed and 1,500 steps per run, claim 2 at two team sizes; it checks "
-                    "that the pipeline works end to end and is NOT evidence for or against any claim."),
+        "that the pipeline works end to end and is NOT evidence for or against any claim.",
+    ),
     "full": Profile(
-        description="the evidence: the maps, seeds and step counts of dqn_transfer/conf/experiment/*.yaml (10 to 20 runs per "
-                    "condition)."),
+        description="the evidence: the maps, seeds and step counts of dqn_transfer/conf/experiment/*.yaml "
+        "(10 to 20 runs per condition)."
+    ),
 }
 
 
@@ -88,8 +89,10 @@ def sweep_overrides(name: str, profile: str, out: Path) -> list[str]:
     if name not in EXPERIMENTS:
         raise ReproduceError(f"unknown experiment {name!r} (choose from {', '.join(EXPERIMENTS)})")
     # Sources and stages cached once for every job of the sweep, inside OUT.
-    shared = {"transfer": [f"transfer.cache_dir={_quote(out / 'pretrained')}"],
-              "curriculum": [f"curriculum.cache_dir={_quote(out / 'curriculum_stages')}"]}.get(name, [])
+    shared = {
+        "transfer": [f"transfer.cache_dir={_quote(out / 'pretrained')}"],
+        "curriculum": [f"curriculum.cache_dir={_quote(out / 'curriculum_stages')}"],
+    }.get(name, [])
     return shared + PROFILES[profile].overrides.get(name, [])
 
 
@@ -124,8 +127,11 @@ def choose_launcher(requested: str | None) -> str:
     if requested is None:
         if DEFAULT_LAUNCHER in installed:
             return DEFAULT_LAUNCHER
-        print(f"the {DEFAULT_LAUNCHER} launcher is not installed: running one job at a time with Hydra's basic "
-              f"launcher (for --n-jobs at a time: {_pip_install(DEFAULT_LAUNCHER)})", flush=True)
+        print(
+            f"the {DEFAULT_LAUNCHER} launcher is not installed: running one job at a time with Hydra's basic "
+            f"launcher (for --n-jobs at a time: {_pip_install(DEFAULT_LAUNCHER)})",
+            flush=True,
+        )
         return "basic"
     if requested in installed:
         return requested
@@ -182,8 +188,10 @@ def failure_message(name: str, sweep_dir: Path, log_path: Path, expected: int, r
     """Which runs failed, with the tail of each one's log, or of the sweep log if no run explains it."""
     runs = job_dirs(sweep_dir)
     bad = [d for d in runs if not run_is_complete(d)]
-    parts = [f"experiment {name} failed (exit code {returncode}): {len(runs) - len(bad)}/{expected} runs "
-             f"complete in {sweep_dir}"]
+    parts = [
+        f"experiment {name} failed (exit code {returncode}): {len(runs) - len(bad)}/{expected} runs "
+        f"complete in {sweep_dir}"
+    ]
     for run in bad[:5]:
         files = RunDir(run)
         what = " ".join(yaml.safe_load(files.overrides.read_text()) or []) if files.overrides.exists() else "?"
@@ -204,8 +212,9 @@ def read_stamp(sweep_dir: Path) -> dict | None:
         return None
 
 
-def run_experiment(name: str, profile: str, out: Path, launcher: str, n_jobs: int,
-                   extra: Sequence[str] = (), poll_seconds: float = 2.0) -> float:
+def run_experiment(
+    name: str, profile: str, out: Path, launcher: str, n_jobs: int, extra: Sequence[str] = (), poll_seconds: float = 2.0
+) -> float:
     """One Hydra multirun into ``OUT/runs/<name>``; returns its wall time (0 when reused)."""
     sweep_dir = out / RUNS_DIR / name
     overrides = sweep_overrides(name, profile, out)
@@ -219,11 +228,22 @@ def run_experiment(name: str, profile: str, out: Path, launcher: str, n_jobs: in
             print(f"[{name}] reusing the {expected} complete runs in {sweep_dir}", flush=True)
             return 0.0
         what = "runs of other settings" if previous is not None and not same else "unfinished runs"
-        raise ReproduceError(f"{sweep_dir} already holds {what}; delete it or choose another --out "
-                             "(--report-only analyses what is there)")
-    command = [sys.executable, "-m", "dqn_transfer.cli.train", "-m", f"experiment={name}", *overrides,
-               f"hydra.sweep.dir={_quote(sweep_dir)}", "progress=false",
-               *launcher_overrides(launcher, n_jobs), *extra]
+        raise ReproduceError(
+            f"{sweep_dir} already holds {what}; delete it or choose another --out "
+            "(--report-only analyses what is there)"
+        )
+    command = [
+        sys.executable,
+        "-m",
+        "dqn_transfer.cli.train",
+        "-m",
+        f"experiment={name}",
+        *overrides,
+        f"hydra.sweep.dir={_quote(sweep_dir)}",
+        "progress=false",
+        *launcher_overrides(launcher, n_jobs),
+        *extra,
+    ]
     log_path = out / "logs" / f"{name}.log"
     log_path.parent.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ)

@@ -29,12 +29,12 @@ from typing import Any
 import numpy as np
 import yaml
 
-from dqn_transfer.storage.checkpoint import CheckpointError, atomic_write_all
 from dqn_transfer.documented import format_default
 from dqn_transfer.enums import Algorithm
 from dqn_transfer.envs.settings import DEFAULTS, MAP_KEYS, EnvConfig
-from dqn_transfer.sharing.team import TeamError, TrainedTeam, load_team
 from dqn_transfer.evaluation.watch import RecordedEpisode, gif_bytes, watch_team
+from dqn_transfer.sharing.team import TeamError, TrainedTeam, load_team
+from dqn_transfer.storage.checkpoint import CheckpointError, atomic_write_all
 
 CARD_FILE, MAP_FILE, GIF_FILE = "README.md", "map.txt", "replay.gif"
 EVAL_EPISODES, EVAL_SEED = 10, 0
@@ -95,6 +95,7 @@ def write_folder(out_dir: Path, files: dict[Path, bytes]) -> None:
 
 # ------------------------------------------------------------------------------------ the card
 
+
 def evaluation(episodes: list[RecordedEpisode]) -> dict[str, Any]:
     """The card's metrics: means over the greedy episodes, with the seeds that reproduce them."""
     results = [episode.result for episode in episodes]
@@ -122,11 +123,19 @@ def warm_start_command(team: TrainedTeam) -> str:
     """``python train.py ...`` that warm-starts a run of the same game and network from the folder
     ``$FOLDER``: the map, the mode, the learner, its network and every rule that differs from the default."""
     meta, env = team.meta, team.meta["env"]
-    overrides = [f"agent={meta['algorithm']}", f"mode={meta['mode']}", "transfer=on",
-                 "transfer.source=$FOLDER", f"env.layout_file=$FOLDER/{MAP_FILE}"]
-    defaults = {f.name: format_plain(getattr(DEFAULTS, f.name)) for f in fields(EnvConfig) if f.name not in NOT_IN_COMMAND}
-    overrides += [f"env.{key}={format_default(env[key])}" for key, default in defaults.items()
-                  if env.get(key, default) != default]  # a key newer than the checkpoint has its default
+    overrides = [
+        f"agent={meta['algorithm']}",
+        f"mode={meta['mode']}",
+        "transfer=on",
+        "transfer.source=$FOLDER",
+        f"env.layout_file=$FOLDER/{MAP_FILE}",
+    ]
+    defaults = {
+        f.name: format_plain(getattr(DEFAULTS, f.name)) for f in fields(EnvConfig) if f.name not in NOT_IN_COMMAND
+    }
+    overrides += [
+        f"env.{key}={format_default(env[key])}" for key, default in defaults.items() if env.get(key, default) != default
+    ]  # a key newer than the checkpoint has its default
     if "hidden" in meta["network"]:
         overrides.append(f"'agent.hidden={format_default(meta['network']['hidden'])}'")
     return "python train.py " + " ".join(overrides)
@@ -147,23 +156,39 @@ def model_card(team: TrainedTeam, episodes: list[RecordedEpisode]) -> str:
         "library_name": LIBRARY_NAME,
         "license": "mit",
         "tags": ["reinforcement-learning", "multi-agent", *algorithm_tags(algorithm), "treasure-hunt", "pettingzoo"],
-        "model-index": [{
-            "name": name,
-            "results": [{
-                "task": {"type": "reinforcement-learning", "name": "reinforcement-learning"},
-                "dataset": {"name": f"{ENV_ID} ({meta['mode']}, {size}, {game.num_agents} agents)", "type": ENV_ID},
-                "metrics": [{"type": "mean_reward", "name": "mean team return",
-                             "value": f"{metrics['team_return_mean']:.2f} +/- {metrics['team_return_std']:.2f}",
-                             "verified": False}],
-            }],
-        }],
+        "model-index": [
+            {
+                "name": name,
+                "results": [
+                    {
+                        "task": {"type": "reinforcement-learning", "name": "reinforcement-learning"},
+                        "dataset": {
+                            "name": f"{ENV_ID} ({meta['mode']}, {size}, {game.num_agents} agents)",
+                            "type": ENV_ID,
+                        },
+                        "metrics": [
+                            {
+                                "type": "mean_reward",
+                                "name": "mean team return",
+                                "value": f"{metrics['team_return_mean']:.2f} +/- {metrics['team_return_std']:.2f}",
+                                "verified": False,
+                            }
+                        ],
+                    }
+                ],
+            }
+        ],
         "env": {key: value for key, value in meta["env"].items() if key != "layout"},
         "mode": meta["mode"],
         "algorithm": algorithm.value,
         "agents": game.num_agents,
         "network": meta["network"],
-        "training": {"seed": meta["seed"], "steps": meta["steps"], "episodes": meta["episodes"],
-                     "last_evaluation": meta.get("last_eval") or None},
+        "training": {
+            "seed": meta["seed"],
+            "steps": meta["steps"],
+            "episodes": meta["episodes"],
+            "last_evaluation": meta.get("last_eval") or None,
+        },
         "evaluation": metrics,
     }
     agent_files = ", ".join(f"`agent_{i}.safetensors`" for i in range(len(unique(team.files))))
@@ -174,9 +199,9 @@ def model_card(team: TrainedTeam, episodes: list[RecordedEpisode]) -> str:
 # {name}
 
 A team of {game.num_agents} {algorithm.value} agents trained with dqn_transfer on the treasure hunt
-({meta['mode']} mode, a {size} map with {game.num_treasures} chests and {game.map.num_traps} traps) for
-{meta['steps']} steps (seed {meta['seed']}). Each agent observes the expanded state
-{', '.join(f'`{name}` ({size_})' for name, size_ in meta['obs_layout'])} and acts greedily on its Q-values.
+({meta["mode"]} mode, a {size} map with {game.num_treasures} chests and {game.map.num_traps} traps) for
+{meta["steps"]} steps (seed {meta["seed"]}). Each agent observes the expanded state
+{", ".join(f"`{name}` ({size_})" for name, size_ in meta["obs_layout"])} and acts greedily on its Q-values.
 
 ![the team's first evaluation episode]({GIF_FILE})
 
@@ -190,12 +215,12 @@ A team of {game.num_agents} {algorithm.value} agents trained with dqn_transfer o
 
 ## Evaluation
 
-{metrics['episodes']} greedy episodes, episode i drawing its chest ties from the seed ({EVAL_SEED}, i);
-`{metrics['reproduce']}` plays them again (`$FOLDER`: where this folder is).
+{metrics["episodes"]} greedy episodes, episode i drawing its chest ties from the seed ({EVAL_SEED}, i);
+`{metrics["reproduce"]}` plays them again (`$FOLDER`: where this folder is).
 
 | mean team return | std | success rate (chests taken) | trap rate | episode length |
 |---:|---:|---:|---:|---:|
-| {metrics['team_return_mean']:g} | {metrics['team_return_std']:g} | {metrics['success_rate']:g} | {metrics['trap_rate']:g} | {metrics['episode_length']:g} |
+| {metrics["team_return_mean"]:g} | {metrics["team_return_std"]:g} | {metrics["success_rate"]:g} | {metrics["trap_rate"]:g} | {metrics["episode_length"]:g} |
 
 ## Warm-start from it
 
@@ -217,4 +242,4 @@ at zero weight. Watch the team: `dqn-transfer-play $FOLDER`; check the files: `d
 - {agent_files}: each agent's tensors (safetensors, never a pickle) and a JSON `meta` (algorithm,
   observation layout, network, env, training steps, a SHA-256 digest of the tensors)
 - `{MAP_FILE}`: the map; `{GIF_FILE}`: the team's first evaluation episode, one frame per step
-"""
+"""  # noqa: E501 (a Markdown table row)

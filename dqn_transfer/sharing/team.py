@@ -14,9 +14,9 @@ from pathlib import Path
 from typing import Any
 
 from dqn_transfer.agents import Learner, make_learner
-from dqn_transfer.storage.checkpoint import CheckpointError, find_checkpoints, load_agent_checkpoint
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.envs import TreasureHuntGame, make_game
+from dqn_transfer.storage.checkpoint import CheckpointError, find_checkpoints, load_agent_checkpoint
 from dqn_transfer.storage.run_dir import RunDir
 
 
@@ -34,8 +34,10 @@ class TrainedTeam:
     @property
     def description(self) -> str:
         meta, game = self.meta, self.game
-        return (f"{meta['algorithm']} team of {game.num_agents}, {meta['mode']} mode, {game.size}x{game.size} map, "
-                f"trained {meta['steps']} steps")
+        return (
+            f"{meta['algorithm']} team of {game.num_agents}, {meta['mode']} mode, {game.size}x{game.size} map, "
+            f"trained {meta['steps']} steps"
+        )
 
 
 def team_files(path: Path) -> list[Path]:
@@ -44,8 +46,9 @@ def team_files(path: Path) -> list[Path]:
         raise TeamError(f"{path}: no such file or directory")
     replicas = RunDir(path).replica_dirs()
     if replicas:
-        raise TeamError(f"{path} is a run of {len(replicas)} replicas: pass one replica's directory "
-                        f"(e.g. {replicas[0]})")
+        raise TeamError(
+            f"{path} is a run of {len(replicas)} replicas: pass one replica's directory (e.g. {replicas[0]})"
+        )
     try:
         return find_checkpoints(path)
     except CheckpointError as err:
@@ -70,8 +73,9 @@ def load_team(path: str | Path) -> TrainedTeam:
         for file, (_, other) in zip(files, loaded):
             if other["env"] != meta["env"] or other["algorithm"] != meta["algorithm"]:
                 raise TeamError(f"{file} was trained on another map or with another learner than {files[0].name}")
-        learner = make_learner(AgentConfig(**meta["agent"]), game.num_agents, game.obs_layout(), game.num_actions,
-                               seed=0)
+        learner = make_learner(
+            AgentConfig(**meta["agent"]), game.num_agents, game.obs_layout(), game.num_actions, seed=0
+        )
         for i, (tensors, _) in enumerate(loaded):
             learner.load_agent_tensors(i, tensors)
     except CheckpointError as err:

@@ -35,8 +35,8 @@ from dqn_transfer.config import (
     to_plain,
     validate,
 )
-from dqn_transfer.sources.run_cache import RunCache
 from dqn_transfer.sources.resolve import resolve_source
+from dqn_transfer.sources.run_cache import RunCache
 from dqn_transfer.training.trainer import build_game, train
 from dqn_transfer.transfer.warm_start import transfer_targets
 
@@ -57,11 +57,21 @@ def stage_config(config: TrainConfig, n: int) -> TrainConfig:
         env = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(config.env), dict(stage.env)))
     except OmegaConfBaseException as err:
         raise ConfigError(f"curriculum.stages[{n}].env: {str(err).splitlines()[0]}") from None
-    transfer = TransferConfig() if n == 0 else dataclasses.replace(
-        config.transfer, enabled=True, source=None, targets=None, source_agent=stage.source_agent,
-        offset=list(stage.offset))
-    staged = dataclasses.replace(config, env=env, total_steps=stage.steps, transfer=transfer,
-                                 curriculum=CurriculumConfig(), resume=False)
+    transfer = (
+        TransferConfig()
+        if n == 0
+        else dataclasses.replace(
+            config.transfer,
+            enabled=True,
+            source=None,
+            targets=None,
+            source_agent=stage.source_agent,
+            offset=list(stage.offset),
+        )
+    )
+    staged = dataclasses.replace(
+        config, env=env, total_steps=stage.steps, transfer=transfer, curriculum=CurriculumConfig(), resume=False
+    )
     try:
         validate(staged)
         build_game(staged)
@@ -75,7 +85,9 @@ def stage_hash(config: TrainConfig, layout: str, previous: str | None) -> str:
     the hash of the stage it starts from."""
     plain = {key: value for key, value in to_plain(config).items() if key not in NOT_IN_STAGE_HASH}
     plain["env"] = {**plain["env"], "layout_file": None, "layout": layout}
-    plain["transfer"] = {key: value for key, value in plain["transfer"].items() if key not in NOT_IN_STAGE_TRANSFER_HASH}
+    plain["transfer"] = {
+        key: value for key, value in plain["transfer"].items() if key not in NOT_IN_STAGE_TRANSFER_HASH
+    }
     key = {"config": plain, "previous": previous}
     return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
 
@@ -87,8 +99,12 @@ def curriculum_sources(config: TrainConfig, launch_dir: Path) -> list[list[Path]
         return None
     validate(config)
     stages = config.curriculum.stages
-    cache = RunCache(launch_dir / Path(config.curriculum.cache_dir or "outputs/curriculum").expanduser(),
-                     "the curriculum cache", "curriculum.cache_dir", resumable=True)
+    cache = RunCache(
+        launch_dir / Path(config.curriculum.cache_dir or "outputs/curriculum").expanduser(),
+        "the curriculum cache",
+        "curriculum.cache_dir",
+        resumable=True,
+    )
     keys: list[str | None] = [None] * len(replica_configs(config))
     previous: list[Path] | None = None
     for n, stage in enumerate(stages):
@@ -96,29 +112,57 @@ def curriculum_sources(config: TrainConfig, launch_dir: Path) -> list[list[Path]
         configs = replica_configs(batch)
         games = [build_game(c) for c in configs]
         keys = [stage_hash(c, game.map.layout, key) for c, game, key in zip(configs, games, keys)]
-        sources = None if previous is None else [
-            resolve_source(TransferConfig(source=str(run), source_agent=stage.source_agent), launch_dir,
-                           game.num_agents) for run, game in zip(previous, games)]
+        sources = (
+            None
+            if previous is None
+            else [
+                resolve_source(
+                    TransferConfig(source=str(run), source_agent=stage.source_agent), launch_dir, game.num_agents
+                )
+                for run, game in zip(previous, games)
+            ]
+        )
 
         label = f"stage {n + 1} of {len(stages) + 1} ({_describe(stage.env)})"
-        trained = cache.fill(keys, functools.partial(RunCache.finished, steps=stage.steps),
-                             functools.partial(_train_stage, label, batch, configs, sources))
+        trained = cache.fill(
+            keys,
+            functools.partial(RunCache.finished, steps=stage.steps),
+            functools.partial(_train_stage, label, batch, configs, sources),
+        )
         previous = [cache.entry(key).path for key in keys]
         for i, run in enumerate(previous):
             log.info("curriculum: %s %s %s", label, "trained into" if i in trained else "reused from", run)
     num_targets = len(transfer_targets(config, build_game(config).num_agents))
-    return [resolve_source(dataclasses.replace(config.transfer, source=str(run)), launch_dir, num_targets)
-            for run in previous]
+    return [
+        resolve_source(dataclasses.replace(config.transfer, source=str(run)), launch_dir, num_targets)
+        for run in previous
+    ]
 
 
-def _train_stage(label: str, batch: TrainConfig, configs: list[TrainConfig], sources: list[list[Path]] | None,
-                 indices: list[int], work_dir: Path, resume: bool) -> None:
+def _train_stage(
+    label: str,
+    batch: TrainConfig,
+    configs: list[TrainConfig],
+    sources: list[list[Path]] | None,
+    indices: list[int],
+    work_dir: Path,
+    resume: bool,
+) -> None:
     """Train (or resume) a stage's replicas ``indices`` (all of ``batch``'s, or one) into ``work_dir``."""
     run = batch if len(indices) > 1 else configs[indices[0]]
-    log.info("curriculum: %s %s, %d steps%s, in %s", "resuming" if resume else "training", label, run.total_steps,
-             f" for {len(indices)} replicas" if len(indices) > 1 else "", work_dir)
-    train(dataclasses.replace(run, resume=resume), work_dir,
-          sources=None if resume or sources is None else [sources[i] for i in indices])
+    log.info(
+        "curriculum: %s %s, %d steps%s, in %s",
+        "resuming" if resume else "training",
+        label,
+        run.total_steps,
+        f" for {len(indices)} replicas" if len(indices) > 1 else "",
+        work_dir,
+    )
+    train(
+        dataclasses.replace(run, resume=resume),
+        work_dir,
+        sources=None if resume or sources is None else [sources[i] for i in indices],
+    )
 
 
 def _describe(env: dict) -> str:

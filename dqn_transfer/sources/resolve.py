@@ -21,11 +21,11 @@ import logging
 from pathlib import Path
 from typing import Any
 
-from dqn_transfer.storage.checkpoint import CheckpointError, find_checkpoints
 from dqn_transfer.config import TrainConfig, TransferConfig, replica_configs, to_plain, validate
 from dqn_transfer.enums import Mode, SourceTask
 from dqn_transfer.envs.settings import ENV_KEYS
 from dqn_transfer.sources.run_cache import RunCache
+from dqn_transfer.storage.checkpoint import CheckpointError, find_checkpoints
 from dqn_transfer.storage.run_dir import RunDir, agent_file_name
 from dqn_transfer.training.trainer import build_game, train
 from dqn_transfer.transfer.mapping import TransferError
@@ -76,8 +76,12 @@ def source_hash(plain: dict[str, Any], layout: str, task: SourceTask | str = Sou
     env = {key: plain["env"][key] for key in ENV_KEYS if key not in left_out}
     env["layout_file"] = None  # the layout text below identifies the map, wherever the file lives
     env["layout"] = layout
-    key = {"env": env, "agent": plain["agent"], "seed": plain["seed"],
-           "pretrain_steps": plain["transfer"]["pretrain_steps"]}
+    key = {
+        "env": env,
+        "agent": plain["agent"],
+        "seed": plain["seed"],
+        "pretrain_steps": plain["transfer"]["pretrain_steps"],
+    }
     if team:
         key["source_task"] = SourceTask.team.value
     return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
@@ -95,8 +99,11 @@ def pretrained_sources(config: TrainConfig, layouts: list[str], launch_dir: Path
     the lone pretraining of its seed and map), and each replica's directory becomes its entry.
     """
     # Relative to the launch dir, like transfer.source: the process cwd may be a run dir (chdir, SLURM).
-    cache = RunCache(launch_dir / Path(config.transfer.cache_dir or "outputs/pretrained").expanduser(),
-                     "the pretraining cache", "transfer.cache_dir")
+    cache = RunCache(
+        launch_dir / Path(config.transfer.cache_dir or "outputs/pretrained").expanduser(),
+        "the pretraining cache",
+        "transfer.cache_dir",
+    )
     replicas = replica_configs(config)
     task = SourceTask(config.transfer.source_task)
     keys = [source_hash(to_plain(source_map(c)), layout, task) for c, layout in zip(replicas, layouts)]
@@ -106,19 +113,30 @@ def pretrained_sources(config: TrainConfig, layouts: list[str], launch_dir: Path
     def pretrain(indices: list[int], work_dir: Path, resume: bool) -> None:
         pretraining = source_config(config if len(indices) > 1 else replicas[indices[0]])
         where = cache.entry(keys[indices[0]]) if len(indices) == 1 else cache.root
-        on_map = (f" on map seed {pretraining.env.map_seed} (env.map_seed {'+' if shift > 0 else '-'} {abs(shift)})"
-                  if shift else "")
+        on_map = (
+            f" on map seed {pretraining.env.map_seed} (env.map_seed {'+' if shift > 0 else '-'} {abs(shift)})"
+            if shift
+            else ""
+        )
         if task is SourceTask.team:
             what = "a source team" if len(indices) == 1 else f"{len(indices)} source teams, one per replica,"
-            log.info("transfer: pretraining %s on this run's game%s (mode %s) for %d steps into %s", what, on_map,
-                     Mode(pretraining.env.mode).value, steps, where)
+            log.info(
+                "transfer: pretraining %s on this run's game%s (mode %s) for %d steps into %s",
+                what,
+                on_map,
+                Mode(pretraining.env.mode).value,
+                steps,
+                where,
+            )
         else:
             what = "a source agent" if len(indices) == 1 else f"{len(indices)} source agents, one per replica,"
             log.info("transfer: pretraining %s on TreasureHunt-v0%s for %d steps into %s", what, on_map, steps, where)
         train(pretraining, work_dir, source_task=task is SourceTask.single)
 
     for i in cache.fill(keys, lambda entry: _reuse(entry, steps), pretrain):
-        log.info("transfer: the pretrained source is cached in %s", cache.entry(keys[i]))  # the trainer named the temp dir
+        log.info(
+            "transfer: the pretrained source is cached in %s", cache.entry(keys[i])
+        )  # the trainer named the temp dir
     return [cache.entry(key) for key in keys]
 
 
@@ -136,8 +154,10 @@ def source_agents(transfer: TransferConfig, num_targets: int) -> list[int]:
     wanted = transfer.source_agent
     per_target = [wanted] * num_targets if isinstance(wanted, int) else list(wanted)
     if len(per_target) != num_targets:
-        raise TransferError(f"transfer.source_agent lists {len(per_target)} source agents for {num_targets} target "
-                            "agents: give one per target (transfer.targets, default all), or one index for all")
+        raise TransferError(
+            f"transfer.source_agent lists {len(per_target)} source agents for {num_targets} target "
+            "agents: give one per target (transfer.targets, default all), or one index for all"
+        )
     return per_target
 
 
@@ -148,9 +168,11 @@ def team_members(transfer: TransferConfig, num_agents: int, num_targets: int) ->
     per_target = source_agents(transfer, num_targets)
     bad = sorted({index for index in per_target if index >= num_agents})
     if bad:
-        raise TransferError(f"transfer.source_agent={wanted if isinstance(wanted, int) else list(wanted)}: the "
-                            f"source team (transfer.source_task=team) is this run's team of {num_agents} agents "
-                            f"(0..{num_agents - 1}), which has no agent {', '.join(map(str, bad))}")
+        raise TransferError(
+            f"transfer.source_agent={wanted if isinstance(wanted, int) else list(wanted)}: the "
+            f"source team (transfer.source_task=team) is this run's team of {num_agents} agents "
+            f"(0..{num_agents - 1}), which has no agent {', '.join(map(str, bad))}"
+        )
     return per_target
 
 
@@ -164,19 +186,25 @@ def resolve_source(transfer: TransferConfig, launch_dir: Path, num_targets: int)
     wanted = transfer.source_agent
     if path.is_file():
         if not isinstance(wanted, int):
-            raise TransferError(f"transfer.source_agent={list(wanted)} picks agents of a run directory, but "
-                                f"transfer.source is one agent's file ({path})")
+            raise TransferError(
+                f"transfer.source_agent={list(wanted)} picks agents of a run directory, but "
+                f"transfer.source is one agent's file ({path})"
+            )
         return files[:1] * num_targets
     replicas = RunDir(path).replica_dirs()
     if replicas:
-        raise CheckpointError(f"{path} is a run of {len(replicas)} replicas: pass one replica's directory as "
-                              f"transfer.source (e.g. {replicas[0]})")
+        raise CheckpointError(
+            f"{path} is a run of {len(replicas)} replicas: pass one replica's directory as "
+            f"transfer.source (e.g. {replicas[0]})"
+        )
     per_target = source_agents(transfer, num_targets)
     by_name = {file.name: file for file in files}
     missing = sorted({index for index in per_target if agent_file_name(index) not in by_name})
     if missing:
-        raise CheckpointError(f"{path}: has no {', '.join(agent_file_name(i) for i in missing)} "
-                              f"(transfer.source_agent={wanted}; found {', '.join(f.name for f in files)})")
+        raise CheckpointError(
+            f"{path}: has no {', '.join(agent_file_name(i) for i in missing)} "
+            f"(transfer.source_agent={wanted}; found {', '.join(f.name for f in files)})"
+        )
     return [by_name[agent_file_name(index)] for index in per_target]
 
 
@@ -198,9 +226,11 @@ def transfer_sources(config: TrainConfig, launch_dir: Path) -> list[list[Path]] 
     if SourceTask(config.transfer.source_task) is SourceTask.team:
         members = team_members(config.transfer, games[0].num_agents, num_targets)
     elif not isinstance(config.transfer.source_agent, int):
-        raise TransferError(f"transfer.source_agent={list(config.transfer.source_agent)} picks agents of "
-                            "transfer.source or of a team source; the pretrained source is one agent (set "
-                            "transfer.source, or transfer.source_task=team)")
+        raise TransferError(
+            f"transfer.source_agent={list(config.transfer.source_agent)} picks agents of "
+            "transfer.source or of a team source; the pretrained source is one agent (set "
+            "transfer.source, or transfer.source_task=team)"
+        )
     else:
         members = [0] * num_targets
     source_games = games if config.transfer.source_map_shift == 0 else [build_game(source_map(c)) for c in replicas]

@@ -57,8 +57,9 @@ class RunCache:
         checkpoint = entry.agent_checkpoint(0)
         return checkpoint.exists() and load_agent_checkpoint(checkpoint)[1].get("steps") == steps
 
-    def fill(self, keys: list[str], complete: Callable[[RunDir], bool],
-             train_into: Callable[[list[int], Path, bool], None]) -> list[int]:
+    def fill(
+        self, keys: list[str], complete: Callable[[RunDir], bool], train_into: Callable[[list[int], Path, bool], None]
+    ) -> list[int]:
         """Make the entry of every key complete; returns the indices of those trained now.
 
         ``complete(entry)`` says whether an entry is finished (checked before and, under the locks,
@@ -79,8 +80,11 @@ class RunCache:
             # Under the locks nobody else trains these keys: what is there was left by a killed run,
             # except the work directories about to be resumed.
             for i in missing:
-                for leftover in [*self.root.glob(f".{keys[i]}.tmp-*"), *self.root.glob(f".{keys[i]}.partial*"),
-                                 entries[i].path]:
+                for leftover in [
+                    *self.root.glob(f".{keys[i]}.tmp-*"),
+                    *self.root.glob(f".{keys[i]}.partial*"),
+                    entries[i].path,
+                ]:
                     if leftover not in work_dirs:
                         self.remove(leftover, keys[i])
             for group, work in zip(groups, work_dirs):
@@ -92,8 +96,14 @@ class RunCache:
             return self.root / f".{key}.tmp-{os.getpid()}-{secrets.token_hex(4)}"
         return self.root / (f".{key}.partial" if replicas == 1 else f".{key}.partial-{replicas}-replicas")
 
-    def _train(self, group: list[int], work: Path, entries: list[RunDir], key: str,
-               train_into: Callable[[list[int], Path, bool], None]) -> None:
+    def _train(
+        self,
+        group: list[int],
+        work: Path,
+        entries: list[RunDir],
+        key: str,
+        train_into: Callable[[list[int], Path, bool], None],
+    ) -> None:
         """Train ``group`` into ``work`` (resuming it if it holds a checkpoint), then move each run to its entry."""
         resume = self.resumable and RunDir(work).has_run()
         if not resume:
@@ -129,8 +139,9 @@ class RunCache:
         try:
             return fn(*args, **kwargs)
         except OSError as err:
-            raise TransferError(f"cannot use {self.name} {where}: {err.strerror} "
-                                f"(set {self.setting} to a writable directory)") from None
+            raise TransferError(
+                f"cannot use {self.name} {where}: {err.strerror} (set {self.setting} to a writable directory)"
+            ) from None
 
     @staticmethod
     def remove(path: Path, key: str) -> None:

@@ -84,14 +84,12 @@ def encode_training_state(arrays: Mapping[str, np.ndarray], meta: Mapping[str, A
     return _encode(arrays, meta, TRAINING_STATE_KIND, safetensors.numpy.save)
 
 
-def save_agent_checkpoint(path: str | os.PathLike, tensors: Mapping[str, np.ndarray],
-                          meta: Mapping[str, Any]) -> None:
+def save_agent_checkpoint(path: str | os.PathLike, tensors: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> None:
     """Atomically write one agent's checkpoint file."""
     atomic_write(Path(path), encode_agent_checkpoint(tensors, meta))
 
 
-def save_training_state(path: str | os.PathLike, arrays: Mapping[str, np.ndarray],
-                        meta: Mapping[str, Any]) -> None:
+def save_training_state(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> None:
     """Atomically write a resume-state file."""
     atomic_write(Path(path), encode_training_state(arrays, meta))
 
@@ -209,8 +207,9 @@ def _read(path: Path, kind: str | None) -> tuple[CheckpointInfo, bytes]:
     header = _parse_header(path, data)
     meta = _parse_meta(path, header)
     if kind is not None and meta.get("kind", kind) != kind:
-        raise CheckpointError(f"{path}: is {_KIND_NAMES.get(meta['kind'], repr(meta['kind']))}, "
-                              f"not {_KIND_NAMES[kind]}")
+        raise CheckpointError(
+            f"{path}: is {_KIND_NAMES.get(meta['kind'], repr(meta['kind']))}, not {_KIND_NAMES[kind]}"
+        )
     try:
         entries = safetensors.deserialize(data)
     except safetensors.SafetensorError as e:
@@ -222,13 +221,16 @@ def _read(path: Path, kind: str | None) -> tuple[CheckpointInfo, bytes]:
 
 
 def _read_bytes(path: Path) -> bytes:
-    refusal = (f"{path} is a pickle/PyTorch file, not a safetensors checkpoint; "
-               "refusing to load it (pickles can run code)")
+    refusal = (
+        f"{path} is a pickle/PyTorch file, not a safetensors checkpoint; refusing to load it (pickles can run code)"
+    )
     if not path.exists():
         raise CheckpointError(f"{path}: no such checkpoint file")
     if path.is_dir():
-        raise CheckpointError(f"{path}: is a directory, not a checkpoint file "
-                              "(give agent_<i>.safetensors, or use the CLI on the directory)")
+        raise CheckpointError(
+            f"{path}: is a directory, not a checkpoint file "
+            "(give agent_<i>.safetensors, or use the CLI on the directory)"
+        )
     if path.suffix.lower() in _PICKLE_SUFFIXES:
         raise CheckpointError(refusal)
     try:
@@ -250,7 +252,7 @@ def _looks_like_safetensors(data: bytes) -> bool:
     if len(data) <= _HEADER_LEN_BYTES:
         return False
     n = int.from_bytes(data[:_HEADER_LEN_BYTES], "little")
-    return n <= len(data) - _HEADER_LEN_BYTES and data[_HEADER_LEN_BYTES:_HEADER_LEN_BYTES + 1] == b"{"
+    return n <= len(data) - _HEADER_LEN_BYTES and data[_HEADER_LEN_BYTES : _HEADER_LEN_BYTES + 1] == b"{"
 
 
 def _parse_header(path: Path, data: bytes) -> dict[str, Any]:
@@ -258,13 +260,13 @@ def _parse_header(path: Path, data: bytes) -> dict[str, Any]:
         raise CheckpointError(f"{path}: truncated file ({len(data)} bytes), not a safetensors checkpoint")
     n = int.from_bytes(data[:_HEADER_LEN_BYTES], "little")
     if n > len(data) - _HEADER_LEN_BYTES:
-        raise CheckpointError(f"{path}: truncated or not a safetensors file (header length {n} "
-                              f"exceeds the file size {len(data)})")
+        raise CheckpointError(
+            f"{path}: truncated or not a safetensors file (header length {n} exceeds the file size {len(data)})"
+        )
     try:
-        header = json.loads(data[_HEADER_LEN_BYTES:_HEADER_LEN_BYTES + n])
+        header = json.loads(data[_HEADER_LEN_BYTES : _HEADER_LEN_BYTES + n])
     except (UnicodeDecodeError, json.JSONDecodeError):
-        raise CheckpointError(f"{path}: invalid safetensors header (not JSON); "
-                              "not a safetensors checkpoint") from None
+        raise CheckpointError(f"{path}: invalid safetensors header (not JSON); not a safetensors checkpoint") from None
     if not isinstance(header, dict):
         raise CheckpointError(f"{path}: invalid safetensors header (not a JSON object)")
     return header
@@ -273,8 +275,7 @@ def _parse_header(path: Path, data: bytes) -> dict[str, Any]:
 def _parse_meta(path: Path, header: dict[str, Any]) -> dict[str, Any]:
     metadata = header.get("__metadata__")
     if not isinstance(metadata, dict) or META_KEY not in metadata:
-        raise CheckpointError(f"{path}: no '{META_KEY}' in the safetensors metadata; "
-                              "not a dqn_transfer checkpoint")
+        raise CheckpointError(f"{path}: no '{META_KEY}' in the safetensors metadata; not a dqn_transfer checkpoint")
     try:
         meta = json.loads(metadata[META_KEY])
     except (TypeError, json.JSONDecodeError):
@@ -285,8 +286,10 @@ def _parse_meta(path: Path, header: dict[str, Any]) -> dict[str, Any]:
     if not isinstance(version, int) or isinstance(version, bool):
         raise CheckpointError(f"{path}: meta has no integer format_version; not a dqn_transfer checkpoint")
     if version > FORMAT_VERSION:
-        raise CheckpointError(f"{path}: format_version {version} is newer than this dqn_transfer "
-                              f"supports ({FORMAT_VERSION}); upgrade dqn_transfer to load it")
+        raise CheckpointError(
+            f"{path}: format_version {version} is newer than this dqn_transfer "
+            f"supports ({FORMAT_VERSION}); upgrade dqn_transfer to load it"
+        )
     if not isinstance(meta.get("digest"), str):
         raise CheckpointError(f"{path}: meta has no tensor digest; cannot verify the file")
     return meta
@@ -310,8 +313,7 @@ def check_compatible(meta: Mapping[str, Any], expected: Mapping[str, Any]) -> No
             have = env.get("size") if isinstance(env, Mapping) else None
             have = meta.get("size") if have is None else have
             if have is not None and int(have) != int(want):
-                raise CheckpointError(f"checkpoint was trained on a {have}x{have} map; "
-                                      f"this run uses {want}x{want}")
+                raise CheckpointError(f"checkpoint was trained on a {have}x{have} map; this run uses {want}x{want}")
             continue
         if key not in meta:
             raise CheckpointError(f"checkpoint meta does not record {key!r}; cannot check compatibility")
@@ -319,12 +321,14 @@ def check_compatible(meta: Mapping[str, Any], expected: Mapping[str, Any]) -> No
         if key == "algorithm":
             fam_have, fam_want = _family(have), _family(want)
             if fam_have != fam_want:
-                raise CheckpointError(f"checkpoint holds a {fam_have} agent ({have}); "
-                                      f"this run uses a {fam_want} agent ({want})")
+                raise CheckpointError(
+                    f"checkpoint holds a {fam_have} agent ({have}); this run uses a {fam_want} agent ({want})"
+                )
         elif key == "obs_layout":
             if _layout_str(have) != _layout_str(want):
-                raise CheckpointError(f"checkpoint obs_layout [{_layout_str(have)}] differs from "
-                                      f"this run's [{_layout_str(want)}]")
+                raise CheckpointError(
+                    f"checkpoint obs_layout [{_layout_str(have)}] differs from this run's [{_layout_str(want)}]"
+                )
         elif key == "num_actions":
             if int(have) != int(want):
                 raise CheckpointError(f"checkpoint has {have} actions; this run has {want}")
@@ -375,5 +379,7 @@ def find_checkpoints(path: str | os.PathLike) -> list[Path]:
 
 
 if __name__ == "__main__":  # the command line moved to dqn_transfer.cli.ckpt; say so instead of doing nothing
-    raise SystemExit("error: dqn_transfer.storage.checkpoint is a library module; inspect checkpoints with "
-                     "`dqn-transfer-ckpt list|show|verify PATH` (or `python -m dqn_transfer.cli.ckpt`)")
+    raise SystemExit(
+        "error: dqn_transfer.storage.checkpoint is a library module; inspect checkpoints with "
+        "`dqn-transfer-ckpt list|show|verify PATH` (or `python -m dqn_transfer.cli.ckpt`)"
+    )

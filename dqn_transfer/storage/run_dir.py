@@ -119,8 +119,11 @@ class RunDir:
 
     def run_files(self) -> list[str]:
         """The names of the run's own files and folders that exist (its log and config included)."""
-        return [p.name for p in (self.hydra_dir, self.metrics, self.tensorboard, self.checkpoints, self.log,
-                                 self.replicas_index) if p.exists()]
+        return [
+            p.name
+            for p in (self.hydra_dir, self.metrics, self.tensorboard, self.checkpoints, self.log, self.replicas_index)
+            if p.exists()
+        ]
 
     def holds_run(self) -> bool:
         """Whether anything of a run is here: a new run must not mix its files with it."""
@@ -152,8 +155,9 @@ class RunClaim:
         path = self.run.path.absolute()
         for ancestor in (path, *path.parents):
             if ancestor.exists() and not ancestor.is_dir():
-                raise RunDirError(f"cannot use {path} as a run directory: {ancestor} is a file "
-                                  "(choose another hydra.run.dir)")
+                raise RunDirError(
+                    f"cannot use {path} as a run directory: {ancestor} is a file (choose another hydra.run.dir)"
+                )
         missing = [p for p in (path, *path.parents) if not p.exists()]
         self._created = path if fresh else (missing[-1] if missing else None)
         self._entries_before = set() if fresh or not path.exists() else set(os.listdir(path))
@@ -166,8 +170,9 @@ class RunClaim:
             fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             self.release()
-            raise RunDirError(f"{path} is in use by another running process; wait for it or choose another "
-                              "hydra.run.dir") from None
+            raise RunDirError(
+                f"{path} is in use by another running process; wait for it or choose another hydra.run.dir"
+            ) from None
         if not fresh and not resume and self.run.holds_run():
             self.release()
             raise RunDirError(existing_run_message(self.run))
@@ -193,7 +198,10 @@ class RunClaim:
 def existing_run_message(run: RunDir) -> str:
     """Why a new run may not start in ``run``, and what to do instead."""
     if run.has_run():
-        return (f"{run} already holds a run; pass resume=true to continue it, or choose another "
-                "hydra.run.dir for a new one")
-    return (f"{run} already holds files of a run ({', '.join(sorted(run.run_files()))}) but no checkpoint "
-            "to resume from; choose another hydra.run.dir (or delete it)")
+        return (
+            f"{run} already holds a run; pass resume=true to continue it, or choose another hydra.run.dir for a new one"
+        )
+    return (
+        f"{run} already holds files of a run ({', '.join(sorted(run.run_files()))}) but no checkpoint "
+        "to resume from; choose another hydra.run.dir (or delete it)"
+    )

@@ -16,8 +16,9 @@ import io
 import json
 import math
 import time
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 from PIL import Image
@@ -26,7 +27,8 @@ from PIL import Image
 from tensorboard.compat.proto.event_pb2 import Event, SessionLog
 from tensorboard.compat.proto.summary_pb2 import HistogramProto, Summary, SummaryMetadata
 from tensorboard.compat.proto.tensor_pb2 import TensorProto
-from tensorboard.plugins.custom_scalar import layout_pb2, metadata as custom_scalar_metadata
+from tensorboard.plugins.custom_scalar import layout_pb2
+from tensorboard.plugins.custom_scalar import metadata as custom_scalar_metadata
 from tensorboard.plugins.hparams import summary_v2 as hparams_summary
 from tensorboard.plugins.text import summary_v2 as text_summary
 from tensorboard.summary.writer.event_file_writer import EventFileWriter
@@ -52,8 +54,15 @@ def histogram(values: np.ndarray, bins: int = 30) -> HistogramProto:
     """TensorBoard's histogram of ``values``: ``bucket[i]`` values up to ``bucket_limit[i]``."""
     values = np.asarray(values, dtype=np.float64).ravel()
     counts, edges = np.histogram(values, bins=bins)
-    return HistogramProto(min=values.min(), max=values.max(), num=values.size, sum=values.sum(),
-                          sum_squares=float(values @ values), bucket_limit=edges[1:].tolist(), bucket=counts.tolist())
+    return HistogramProto(
+        min=values.min(),
+        max=values.max(),
+        num=values.size,
+        sum=values.sum(),
+        sum_squares=float(values @ values),
+        bucket_limit=edges[1:].tolist(),
+        bucket=counts.tolist(),
+    )
 
 
 class RunLogger:
@@ -67,8 +76,9 @@ class RunLogger:
         self.writer = EventFileWriter(str(tb_dir))
         self.num_agents = num_agents
         if purge_step:  # TensorBoard drops the earlier events at or after the step of a restart
-            self.writer.add_event(Event(step=purge_step, wall_time=time.time(),
-                                        session_log=SessionLog(status=SessionLog.START)))
+            self.writer.add_event(
+                Event(step=purge_step, wall_time=time.time(), session_log=SessionLog(status=SessionLog.START))
+            )
         else:  # a resumed run already has its layout, hparams and text
             self._write_layout()
             self._write_config(config)
@@ -84,22 +94,30 @@ class RunLogger:
             "treasures and traps": ["team/treasures_collected", "team/trap_rate"],
             "eval success and trap rates": ["eval/success_rate", "eval/trap_rate"],
         }
-        layout = layout_pb2.Layout(category=[
-            layout_pb2.Category(title=title, chart=[
-                layout_pb2.Chart(title=name, multiline=layout_pb2.MultilineChartContent(tag=tags))
-                for name, tags in charts.items()])
-            for title, charts in (("agents", per_agent), ("team", team))])
+        layout = layout_pb2.Layout(
+            category=[
+                layout_pb2.Category(
+                    title=title,
+                    chart=[
+                        layout_pb2.Chart(title=name, multiline=layout_pb2.MultilineChartContent(tag=tags))
+                        for name, tags in charts.items()
+                    ],
+                )
+                for title, charts in (("agents", per_agent), ("team", team))
+            ]
+        )
         # What tensorboard.plugins.custom_scalar.summary.pb writes, without its TensorFlow import.
         tensor = TensorProto(dtype="DT_STRING", string_val=[layout.SerializeToString()])
         metadata = SummaryMetadata.FromString(custom_scalar_metadata.create_summary_metadata().SerializeToString())
-        self._add(Summary(value=[Summary.Value(tag=custom_scalar_metadata.CONFIG_SUMMARY_TAG, tensor=tensor,
-                                               metadata=metadata)]))
+        self._add(
+            Summary(
+                value=[Summary.Value(tag=custom_scalar_metadata.CONFIG_SUMMARY_TAG, tensor=tensor, metadata=metadata)]
+            )
+        )
 
     def _write_config(self, config: Mapping[str, Any]) -> None:
         flat = flatten(config)
-        hparam_values = {
-            key: value for key, value in flat.items() if isinstance(value, (int, float, str, bool))
-        }
+        hparam_values = {key: value for key, value in flat.items() if isinstance(value, (int, float, str, bool))}
         hparam_values.update({key: "null" for key, value in flat.items() if value is None})
         metrics = [hparams_summary.Metric(tag) for tag in ("eval/team_return", "eval/success_rate")]
         self._add(hparams_summary.hparams_config_pb([hparams_summary.HParam(key) for key in hparam_values], metrics))

@@ -40,6 +40,11 @@ from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
 from dqn_transfer.agents import Learner, Transition, UpdateStats, joined, linear_schedule, make_replicas
+from dqn_transfer.config import ConfigError, TrainConfig, replica_configs, to_plain, validate
+from dqn_transfer.enums import Algorithm, Exchange
+from dqn_transfer.envs import TreasureHuntGame, make_game
+from dqn_transfer.evaluation.rollout import evaluate, team_return_of
+from dqn_transfer.evaluation.watch import evaluation_views
 from dqn_transfer.storage.checkpoint import (
     CheckpointError,
     atomic_write,
@@ -48,16 +53,11 @@ from dqn_transfer.storage.checkpoint import (
     encode_training_state,
     load_training_state,
 )
-from dqn_transfer.config import ConfigError, TrainConfig, replica_configs, to_plain, validate
-from dqn_transfer.enums import Algorithm, Exchange
-from dqn_transfer.envs import TreasureHuntGame, make_game
-from dqn_transfer.transfer.exchange import exchange_best, exchange_replay
-from dqn_transfer.training.tensorboard import RunLogger
-from dqn_transfer.evaluation.rollout import evaluate, team_return_of
 from dqn_transfer.storage.run_dir import RunDir, existing_run_message
 from dqn_transfer.timing import Stopwatch
+from dqn_transfer.training.tensorboard import RunLogger
+from dqn_transfer.transfer.exchange import exchange_best, exchange_replay
 from dqn_transfer.transfer.warm_start import apply_transfer, lineage_table
-from dqn_transfer.evaluation.watch import evaluation_views
 
 log = logging.getLogger("dqn_transfer.train")
 
@@ -90,7 +90,7 @@ class StopRequest:
         self.signum: int | None = None
         self._previous: dict[int, Any] = {}
 
-    def __enter__(self) -> "StopRequest":
+    def __enter__(self) -> StopRequest:
         if threading.current_thread() is threading.main_thread():
             self._previous = {signum: signal.signal(signum, self._handle) for signum in self.SIGNALS}
         return self
@@ -103,8 +103,11 @@ class StopRequest:
         if self.signum is not None and signum == signal.SIGINT:
             raise KeyboardInterrupt
         self.signum = signum
-        log.warning("%s received: stopping after this step, with a checkpoint%s",
-                    signal.Signals(signum).name, " (Ctrl-C again to stop at once)" if signum == signal.SIGINT else "")
+        log.warning(
+            "%s received: stopping after this step, with a checkpoint%s",
+            signal.Signals(signum).name,
+            " (Ctrl-C again to stop at once)" if signum == signal.SIGINT else "",
+        )
 
 
 def build_game(config: TrainConfig, source_task: bool = False) -> TreasureHuntGame:
@@ -123,11 +126,17 @@ def exploration_steps(config: TrainConfig) -> int:
 def epsilons_at(config: TrainConfig, step: int, transferred: np.ndarray, duration: int) -> np.ndarray:
     """Per-agent exploration rate: linear decay over ``duration`` steps, from ``transfer.epsilon_start``
     for transferred agents."""
-    return np.array([
-        linear_schedule(config.transfer.epsilon_start if is_transferred else config.agent.eps_start,
-                        config.agent.eps_end, duration, step)
-        for is_transferred in transferred
-    ])
+    return np.array(
+        [
+            linear_schedule(
+                config.transfer.epsilon_start if is_transferred else config.agent.eps_start,
+                config.agent.eps_end,
+                duration,
+                step,
+            )
+            for is_transferred in transferred
+        ]
+    )
 
 
 @dataclass
@@ -166,8 +175,13 @@ class EpisodeStats:
         self.team_return = 0.0
 
     def state_dict(self) -> dict[str, Any]:
-        return {"returns": self.returns.tolist(), "lengths": self.lengths.tolist(), "traps": self.traps,
-                "team_return": self.team_return, "recent_team_returns": list(self.recent_team_returns)}
+        return {
+            "returns": self.returns.tolist(),
+            "lengths": self.lengths.tolist(),
+            "traps": self.traps,
+            "team_return": self.team_return,
+            "recent_team_returns": list(self.recent_team_returns),
+        }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.returns[:] = state["returns"]
@@ -181,8 +195,15 @@ class Replica:
     counters, episode in progress, exchange window and logs. ``learner`` is its team's view of the
     batched learner. With no replicas the trainer has one, in the run directory itself."""
 
-    def __init__(self, index: int, config: TrainConfig, run_dir: Path, game: TreasureHuntGame, learner: Learner,
-                 source: Path | Sequence[Path] | None) -> None:
+    def __init__(
+        self,
+        index: int,
+        config: TrainConfig,
+        run_dir: Path,
+        game: TreasureHuntGame,
+        learner: Learner,
+        source: Path | Sequence[Path] | None,
+    ) -> None:
         self.index, self.config, self.run_dir = index, config, RunDir(run_dir)
         self.game, self.eval_game, self.learner, self.source = game, game.replica(), learner, source
         k = game.num_agents
@@ -235,8 +256,14 @@ class Trainer:
     ``source_task`` trains the single-agent source task of the map instead of the team.
     """
 
-    def __init__(self, config: TrainConfig, run_dir: Path, *,
-                 sources: Sequence[Path | Sequence[Path]] | None = None, source_task: bool = False):
+    def __init__(
+        self,
+        config: TrainConfig,
+        run_dir: Path,
+        *,
+        sources: Sequence[Path | Sequence[Path]] | None = None,
+        source_task: bool = False,
+    ):
         validate(config)
         self.config = config
         self.run_dir = RunDir(run_dir)
@@ -245,13 +272,27 @@ class Trainer:
         configs = replica_configs(config)
         games = [build_game(c, source_task) for c in configs]
         first = games[0]
-        self.learner = make_replicas(config.agent, first.num_agents, first.obs_layout(), first.num_actions,
-                                     seeds=[c.seed for c in configs], device=config.device, threads=config.threads)
+        self.learner = make_replicas(
+            config.agent,
+            first.num_agents,
+            first.obs_layout(),
+            first.num_actions,
+            seeds=[c.seed for c in configs],
+            device=config.device,
+            threads=config.threads,
+        )
         sources = list(sources) if sources is not None else [None] * len(configs)
         self.replicas = [
-            Replica(r, c, self.run_dir.path if len(configs) == 1 else self.run_dir.path / replica_name(c, config),
-                    game, self.learner.replica(r), source)
-            for r, (c, game, source) in enumerate(zip(configs, games, sources))]
+            Replica(
+                r,
+                c,
+                self.run_dir.path if len(configs) == 1 else self.run_dir.path / replica_name(c, config),
+                game,
+                self.learner.replica(r),
+                source,
+            )
+            for r, (c, game, source) in enumerate(zip(configs, games, sources))
+        ]
         # Time spent outside the loop proper (what a benchmark subtracts to compare with bare loops).
         self.evaluation_time, self.checkpoint_time = Stopwatch(), Stopwatch()
 
@@ -268,21 +309,26 @@ class Trainer:
             if missing:
                 raise ConfigError(
                     f"resume=true but {missing[0]} holds no {self.run_dir.training_state.name}: pass the run "
-                    "directory to resume with hydra.run.dir=PATH")
+                    "directory to resume with hydra.run.dir=PATH"
+                )
             for rep in self.replicas:
                 self._load_state(rep)
             steps = sorted({rep.counters.step for rep in self.replicas})
             if len(steps) > 1:
-                raise CheckpointError(f"{self.run_dir}: the replicas' checkpoints are at different steps {steps} "
-                                      "(a checkpoint write was cut short); resume each replica on its own")
+                raise CheckpointError(
+                    f"{self.run_dir}: the replicas' checkpoints are at different steps {steps} "
+                    "(a checkpoint write was cut short); resume each replica on its own"
+                )
             return
         if held:
             raise ConfigError(existing_run_message(held[0]))
         if self.config.transfer.enabled and not self.source_task:
             for rep in self.replicas:
                 if rep.source is None:
-                    raise ConfigError("transfer.enabled: the trainer needs the source checkpoint "
-                                      "(dqn_transfer.sources.resolve.transfer_sources finds or pretrains it)")
+                    raise ConfigError(
+                        "transfer.enabled: the trainer needs the source checkpoint "
+                        "(dqn_transfer.sources.resolve.transfer_sources finds or pretrains it)"
+                    )
                 rep.transfer_info = apply_transfer(rep.config, rep.learner, rep.game, rep.source)
 
     def _write_replica_configs(self) -> None:
@@ -310,8 +356,12 @@ class Trainer:
             try:
                 for rep in self.replicas:
                     # Everything logged at the checkpoint's step came before it: purge only what came after.
-                    rep.logger = RunLogger(rep.run_dir.tensorboard, rep.game.num_agents, rep.plain_config,
-                                           purge_step=rep.counters.step + 1 if self.config.resume else None)
+                    rep.logger = RunLogger(
+                        rep.run_dir.tensorboard,
+                        rep.game.num_agents,
+                        rep.plain_config,
+                        purge_step=rep.counters.step + 1 if self.config.resume else None,
+                    )
                 return self._train(stop)
             finally:
                 for rep in self.replicas:
@@ -333,8 +383,14 @@ class Trainer:
                 self.run_evaluation(rep)  # step 0, or a resumed checkpoint's step whose eval was lost
             rep.start_episodes()
         shared_replay = config.transfer.exchange is Exchange.shared_replay
-        bar = tqdm(total=config.total_steps, initial=self.step, disable=not config.progress,
-                   unit="step", dynamic_ncols=True, file=sys.stderr)
+        bar = tqdm(
+            total=config.total_steps,
+            initial=self.step,
+            disable=not config.progress,
+            unit="step",
+            dynamic_ncols=True,
+            file=sys.stderr,
+        )
         sps_clock, sps_step = time.perf_counter(), self.step
         while self.step < config.total_steps:
             # 1. act: one batched forward for every agent of every replica
@@ -373,8 +429,12 @@ class Trainer:
                 for rep in replicas:
                     self._log_training(rep, sps)
                 recent = [r for rep in replicas for r in rep.episode.recent_team_returns]
-                bar.set_postfix(team_return=f"{np.mean(recent):.1f}" if recent else "-",
-                                eps=f"{epsilon.mean():.2f}", sps=f"{sps:.0f}", refresh=False)
+                bar.set_postfix(
+                    team_return=f"{np.mean(recent):.1f}" if recent else "-",
+                    eps=f"{epsilon.mean():.2f}",
+                    sps=f"{sps:.0f}",
+                    refresh=False,
+                )
                 bar.update(step - bar.n)
             # 6. checkpoint when due, and at a signal (a checkpoint between two steps resumes exactly)
             if step >= replicas[0].counters.next_checkpoint or stop.signum is not None:
@@ -391,11 +451,14 @@ class Trainer:
                 self.run_evaluation(rep)
         self.save_checkpoint()
         rep = replicas[0]
-        log.info("done: %d steps, %s episodes; last eval %s; checkpoints in %s; watch with "
-                 "`tensorboard --logdir %s`", self.step, "/".join(str(r.counters.episodes) for r in replicas),
-                 rep.last_eval if len(replicas) == 1 else f"(mean of {len(replicas)} replicas) {self._mean_last_eval()}",
-                 rep.run_dir.checkpoints if len(replicas) == 1 else f"{self.run_dir}/*/checkpoints",
-                 rep.run_dir.tensorboard if len(replicas) == 1 else self.run_dir)
+        log.info(
+            "done: %d steps, %s episodes; last eval %s; checkpoints in %s; watch with `tensorboard --logdir %s`",
+            self.step,
+            "/".join(str(r.counters.episodes) for r in replicas),
+            rep.last_eval if len(replicas) == 1 else f"(mean of {len(replicas)} replicas) {self._mean_last_eval()}",
+            rep.run_dir.checkpoints if len(replicas) == 1 else f"{self.run_dir}/*/checkpoints",
+            rep.run_dir.tensorboard if len(replicas) == 1 else self.run_dir,
+        )
         return self._summary()
 
     def _end_episode(self, rep: Replica) -> None:
@@ -409,7 +472,9 @@ class Trainer:
             self._exchange(rep)
 
     def _mean_last_eval(self) -> dict[str, float]:
-        return {key: float(np.mean([rep.last_eval[key] for rep in self.replicas])) for key in self.replicas[0].last_eval}
+        return {
+            key: float(np.mean([rep.last_eval[key] for rep in self.replicas])) for key in self.replicas[0].last_eval
+        }
 
     def _summary(self) -> dict[str, Any]:
         lone = self.replicas[0]
@@ -418,11 +483,21 @@ class Trainer:
             "episodes": lone.counters.episodes,
             # A lone run's last evaluation; with replicas the mean over them, each replica's in "replicas".
             "last_eval": lone.last_eval if len(self.replicas) == 1 else self._mean_last_eval(),
-            "replicas": [{"run_dir": str(rep.run_dir), "seed": rep.config.seed, "map_seed": rep.config.env.map_seed,
-                          "episodes": rep.counters.episodes, "last_eval": rep.last_eval} for rep in self.replicas],
+            "replicas": [
+                {
+                    "run_dir": str(rep.run_dir),
+                    "seed": rep.config.seed,
+                    "map_seed": rep.config.env.map_seed,
+                    "episodes": rep.counters.episodes,
+                    "last_eval": rep.last_eval,
+                }
+                for rep in self.replicas
+            ],
             # Seconds spent evaluating and checkpointing (wall, CPU): not part of the loop proper.
-            "overhead": {"wall": self.evaluation_time.wall + self.checkpoint_time.wall,
-                         "cpu": self.evaluation_time.cpu + self.checkpoint_time.cpu},
+            "overhead": {
+                "wall": self.evaluation_time.wall + self.checkpoint_time.wall,
+                "cpu": self.evaluation_time.cpu + self.checkpoint_time.cpu,
+            },
         }
 
     @staticmethod
@@ -440,8 +515,12 @@ class Trainer:
         with warnings.catch_warnings():  # all-NaN columns (no update yet) are expected and skipped
             warnings.simplefilter("ignore", RuntimeWarning)
             if window:
-                logger.agent_scalars("td_loss", np.nanmean(np.asarray([s.td_loss for s in window], dtype=float), axis=0), step)
-                logger.agent_scalars("q_mean", np.nanmean(np.asarray([s.q_mean for s in window], dtype=float), axis=0), step)
+                logger.agent_scalars(
+                    "td_loss", np.nanmean(np.asarray([s.td_loss for s in window], dtype=float), axis=0), step
+                )
+                logger.agent_scalars(
+                    "q_mean", np.nanmean(np.asarray([s.q_mean for s in window], dtype=float), axis=0), step
+                )
         logger.scalar("train/epsilon", float(rep.epsilon(step).mean()), step)
         logger.scalar("train/sps", sps, step)
         rep.window = []
@@ -461,15 +540,27 @@ class Trainer:
     def run_evaluation(self, rep: Replica) -> None:
         with self.evaluation_time:
             step = rep.counters.step
-            picture, q_values, first = evaluation_views(rep.learner, rep.eval_game, rep.config.seed,
-                                                        rep.counters.evaluations)
-            result = evaluate(rep.learner, rep.eval_game, rep.config.eval_episodes, rep.config.seed,
-                              rep.counters.evaluations, first=first)
+            picture, q_values, first = evaluation_views(
+                rep.learner, rep.eval_game, rep.config.seed, rep.counters.evaluations
+            )
+            result = evaluate(
+                rep.learner,
+                rep.eval_game,
+                rep.config.eval_episodes,
+                rep.config.seed,
+                rep.counters.evaluations,
+                first=first,
+            )
             rep.counters.evaluations += 1
             rep.last_eval = result
             rep.last_eval_step = step
-            record: dict[str, Any] = {"step": step, **result, "episodes": rep.counters.episodes,
-                                      "epsilon": float(rep.epsilon(step).mean()), "wall_time": time.time()}
+            record: dict[str, Any] = {
+                "step": step,
+                **result,
+                "episodes": rep.counters.episodes,
+                "epsilon": float(rep.epsilon(step).mean()),
+                "wall_time": time.time(),
+            }
             if step == 0 and rep.transfer_info is not None:
                 record["transfer_source"] = rep.transfer_info
             with rep.run_dir.metrics.open("a") as stream:
@@ -478,9 +569,14 @@ class Trainer:
             rep.logger.scalar("eval/success_rate", result["success_rate"], step)
             rep.logger.scalar("eval/trap_rate", result["trap_rate"], step)
             rep.logger.evaluation_views(picture, q_values, step)
-        log.info("eval step %d%s: team_return %.1f success_rate %.2f trap_rate %.2f", step,
-                 f" {rep.run_dir.path.name}" if len(self.replicas) > 1 else "",
-                 result["team_return"], result["success_rate"], result["trap_rate"])
+        log.info(
+            "eval step %d%s: team_return %.1f success_rate %.2f trap_rate %.2f",
+            step,
+            f" {rep.run_dir.path.name}" if len(self.replicas) > 1 else "",
+            result["team_return"],
+            result["success_rate"],
+            result["trap_rate"],
+        )
 
     # ------------------------------------------------------------- checkpoints
     def agent_meta(self, rep: Replica, index: int, plain: dict[str, Any]) -> dict[str, Any]:
@@ -493,9 +589,17 @@ class Trainer:
             "num_actions": game.num_actions,
             "network": rep.learner.network_meta(),
             # The map as played: ``make_game(**meta["env"])`` rebuilds it from the layout alone.
-            "env": {**plain["env"], "layout": game.map.layout, "layout_file": None,
-                    "size": game.size, "num_treasures": game.num_treasures, "num_traps": game.map.num_traps,
-                    "num_agents": game.map.num_agents, "complexity": None, "map_seed": None},
+            "env": {
+                **plain["env"],
+                "layout": game.map.layout,
+                "layout_file": None,
+                "size": game.size,
+                "num_treasures": game.num_treasures,
+                "num_traps": game.map.num_traps,
+                "num_agents": game.map.num_agents,
+                "complexity": None,
+                "map_seed": None,
+            },
             "mode": plain["env"]["mode"],
             "source_task": self.source_task,
             "agent": plain["agent"],
@@ -521,11 +625,15 @@ class Trainer:
                 arrays: dict[str, np.ndarray] = {}
                 for i in range(rep.game.num_agents):
                     tensors = rep.learner.agent_tensors(i)
-                    agent_files[rep.run_dir.agent_checkpoint(i)] = encode_agent_checkpoint(tensors, self.agent_meta(rep, i, plain))
+                    agent_files[rep.run_dir.agent_checkpoint(i)] = encode_agent_checkpoint(
+                        tensors, self.agent_meta(rep, i, plain)
+                    )
                     arrays.update({f"agent_{i}/{name}": t for name, t in tensors.items()})
                 learner_arrays, learner_meta = rep.learner.training_state()
                 arrays.update({f"learner/{name}": a for name, a in learner_arrays.items()})
-                arrays["exchange/returns"] = np.asarray(rep.window_returns, dtype=np.float64).reshape(-1, rep.game.num_agents)
+                arrays["exchange/returns"] = np.asarray(rep.window_returns, dtype=np.float64).reshape(
+                    -1, rep.game.num_agents
+                )
                 for name, column in zip(Transition._fields, zip(*rep.shared_transitions)):
                     arrays[f"exchange/{name}"] = np.stack(column)
                 meta = {
@@ -538,8 +646,9 @@ class Trainer:
                     "config": plain,  # what resume=true continues with
                     "layout": rep.game.map.layout,  # the map itself: a layout file may have changed since
                     # The episode in progress (None before the loop starts or after it ends).
-                    "episode": None if rep.obs is None or rep.game.done else
-                    {"game": rep.game.state_dict(), "stats": rep.episode.state_dict()},
+                    "episode": None
+                    if rep.obs is None or rep.game.done
+                    else {"game": rep.game.state_dict(), "stats": rep.episode.state_dict()},
                 }
                 state_files[rep.run_dir.training_state] = encode_training_state(arrays, meta)
             atomic_write_all({**agent_files, **state_files})
@@ -550,20 +659,25 @@ class Trainer:
         if meta.get("obs_layout") != expected_layout or meta.get("algorithm") != self.algorithm.value:
             raise CheckpointError(
                 f"{rep.run_dir.checkpoints}: the run was made with algorithm {meta.get('algorithm')} and obs layout "
-                f"{meta.get('obs_layout')}; this config gives {self.algorithm.value} and {expected_layout}")
+                f"{meta.get('obs_layout')}; this config gives {self.algorithm.value} and {expected_layout}"
+            )
         if meta.get("layout") != rep.game.map.layout:
-            raise CheckpointError(f"{rep.run_dir.checkpoints}: the run was trained on another map:\n"
-                                  f"{meta.get('layout')}\nthis config gives\n{rep.game.map.layout}")
+            raise CheckpointError(
+                f"{rep.run_dir.checkpoints}: the run was trained on another map:\n"
+                f"{meta.get('layout')}\nthis config gives\n{rep.game.map.layout}"
+            )
         for i in range(rep.game.num_agents):
             prefix = f"agent_{i}/"
-            rep.learner.load_agent_tensors(i, {k[len(prefix):]: v for k, v in arrays.items() if k.startswith(prefix)})
-        rep.learner.load_training_state({k[len("learner/"):]: v for k, v in arrays.items()
-                                         if k.startswith("learner/")}, meta["learner"])
+            rep.learner.load_agent_tensors(i, {k[len(prefix) :]: v for k, v in arrays.items() if k.startswith(prefix)})
+        rep.learner.load_training_state(
+            {k[len("learner/") :]: v for k, v in arrays.items() if k.startswith("learner/")}, meta["learner"]
+        )
         rep.counters = Counters(**meta["counters"])
         rep.window_returns = list(arrays.get("exchange/returns", []))
         if "exchange/obs" in arrays:
-            rep.shared_transitions = [Transition(*fields) for fields in
-                                      zip(*(arrays[f"exchange/{name}"] for name in Transition._fields))]
+            rep.shared_transitions = [
+                Transition(*fields) for fields in zip(*(arrays[f"exchange/{name}"] for name in Transition._fields))
+            ]
         rep.last_eval = meta["last_eval"]
         rep.transfer_info = meta["transfer"]
         rep.episode_state = meta.get("episode")  # None at an episode end (and in older checkpoints)
@@ -589,7 +703,12 @@ def replica_name(replica: TrainConfig, config: TrainConfig) -> str:
     return f"seed_{replica.seed}" + (f"-map_{replica.env.map_seed}" if config.replicas.maps > 1 else "")
 
 
-def train(config: TrainConfig, run_dir: Path, *, sources: Sequence[Path | Sequence[Path]] | None = None,
-          source_task: bool = False) -> dict[str, Any]:
+def train(
+    config: TrainConfig,
+    run_dir: Path,
+    *,
+    sources: Sequence[Path | Sequence[Path]] | None = None,
+    source_task: bool = False,
+) -> dict[str, Any]:
     """Run (or resume) one training run (or batch of replicas) into ``run_dir``; returns a short summary."""
     return Trainer(config, run_dir, sources=sources, source_task=source_task).run()

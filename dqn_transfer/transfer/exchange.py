@@ -31,8 +31,13 @@ def exchange_best(learner: Learner, window_returns: np.ndarray, tau: float) -> i
     for i in range(learner.num_agents):
         if i != best:
             own = learner.get_member_weights(i)
-            learner.set_member_weights(i, {name: own[name] if name in frozen else
-                                           (1 - tau) * own[name] + tau * best_weights[name] for name in own})
+            learner.set_member_weights(
+                i,
+                {
+                    name: own[name] if name in frozen else (1 - tau) * own[name] + tau * best_weights[name]
+                    for name in own
+                },
+            )
     return best
 
 
@@ -45,8 +50,9 @@ def _soft_copy_tables(learner: TabularLearner, best: int, tau: float) -> None:
             continue
         for key in list(dict.fromkeys([*learner.tables[i], *best_table])):
             obs = np.frombuffer(key, dtype=np.float32)
-            learner.tables[i][key] = ((1 - tau) * learner.agent_q_values(i, obs)
-                                      + tau * learner.agent_q_values(best, obs)).astype(np.float32)
+            learner.tables[i][key] = (
+                (1 - tau) * learner.agent_q_values(i, obs) + tau * learner.agent_q_values(best, obs)
+            ).astype(np.float32)
 
 
 def exchange_replay(learner: Learner, transitions: Sequence[Transition], step: int) -> None:
@@ -56,8 +62,10 @@ def exchange_replay(learner: Learner, transitions: Sequence[Transition], step: i
     window = Transition(*(np.stack(column) for column in zip(*transitions)))  # fields [T, K, ...]
     for giver in range(learner.num_agents):
         taken = window.live[:, giver]  # only the steps where the giver was acting
-        experience = [column[taken, giver] for column in
-                      (window.obs, window.actions, window.rewards, window.next_obs, window.terminated)]
+        experience = [
+            column[taken, giver]
+            for column in (window.obs, window.actions, window.rewards, window.next_obs, window.terminated)
+        ]
         for receiver in range(learner.num_agents):
             if receiver == giver:
                 continue
@@ -67,8 +75,16 @@ def exchange_replay(learner: Learner, transitions: Sequence[Transition], step: i
                 learner.add_experience(receiver, *experience)
 
 
-def _update_on(learner: TabularLearner, receiver: int, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray,
-               next_obs: np.ndarray, terminated: np.ndarray, step: int) -> None:
+def _update_on(
+    learner: TabularLearner,
+    receiver: int,
+    obs: np.ndarray,
+    actions: np.ndarray,
+    rewards: np.ndarray,
+    next_obs: np.ndarray,
+    terminated: np.ndarray,
+    step: int,
+) -> None:
     """One table update of ``receiver`` per transition, as if it had been its own. Each is marked
     truncated where not terminated: that bootstraps like any non-terminal step, but leaves SARSA's
     cached next action, which belongs to the receiver's own next step, alone."""
@@ -76,5 +92,15 @@ def _update_on(learner: TabularLearner, receiver: int, obs: np.ndarray, actions:
     live = np.zeros(k, dtype=bool)
     live[receiver] = True  # the receiver's row of each joint transition is the only one read
     for o, a, r, o2, done in zip(obs, actions, rewards, next_obs, terminated):
-        learner.update(Transition(np.repeat(o[None], k, axis=0), np.full(k, a), np.full(k, r, dtype=np.float32),
-                                  np.repeat(o2[None], k, axis=0), np.full(k, done), np.full(k, not done), live), step)
+        learner.update(
+            Transition(
+                np.repeat(o[None], k, axis=0),
+                np.full(k, a),
+                np.full(k, r, dtype=np.float32),
+                np.repeat(o2[None], k, axis=0),
+                np.full(k, done),
+                np.full(k, not done),
+                live,
+            ),
+            step,
+        )

@@ -30,7 +30,8 @@ state by state instead (its keys are looked up by their exact bytes).
 
 Tensor names follow the learners: DQN ``q.layers.{l}.weight`` ``[out, in]`` / ``q.layers.{l}.bias``
 ``[out]`` and the same under ``target.``; tabular ``keys`` ``[N, D]`` / ``values`` ``[N, A]`` plus
-optional fallback tables consulted in turn for an unseen observation ``x`` (:func:`~dqn_transfer.agents.tabular.fallback_names`:
+optional fallback tables consulted in turn for an unseen observation ``x``
+(:func:`~dqn_transfer.agents.tabular.fallback_names`:
 ``fallback_keys`` ``[M, Ds]``, ``fallback_values`` ``[M, A]``, ``fallback_projection`` ``[Ds]`` int64,
 looked up as ``x[fallback_projection]``; then ``fallback1_*``, ...).
 
@@ -122,12 +123,16 @@ class Embedding:
     def __post_init__(self) -> None:
         ns, nt = self.source.size, self.target.size
         if ns > nt:
-            raise TransferError(f"the source's {ns}x{ns} map does not fit in this run's {nt}x{nt} map "
-                                "(a target map must be at least as large as its source)")
+            raise TransferError(
+                f"the source's {ns}x{ns} map does not fit in this run's {nt}x{nt} map "
+                "(a target map must be at least as large as its source)"
+            )
         row, col = self.offset
         if not (0 <= row <= nt - ns and 0 <= col <= nt - ns):
-            raise TransferError(f"transfer.offset=[{row}, {col}] puts the source's {ns}x{ns} map off this run's "
-                                f"{nt}x{nt} map (each offset must be in 0..{nt - ns})")
+            raise TransferError(
+                f"transfer.offset=[{row}, {col}] puts the source's {ns}x{ns} map off this run's "
+                f"{nt}x{nt} map (each offset must be in 0..{nt - ns})"
+            )
         if self.source.encoding != self.target.encoding:
             raise TransferError(f"obs_encoding differs: source {self.source.encoding}, target {self.target.encoding}")
         if self.fill not in FILLS:
@@ -188,12 +193,15 @@ def _check_against_maps(layout: list[tuple[str, int]], geometry: MapGeometry, wh
     expected = {"position": geometry.position_codes.shape[1], **{name: len(geometry.chests) for name in CHEST_SEGMENTS}}
     for name, size in layout:
         if name in expected and size != expected[name]:
-            raise TransferError(f"the {which} obs layout has {name}:{size}, but its {geometry.size}x{geometry.size} "
-                                f"map with {len(geometry.chests)} chest(s) gives {name}:{expected[name]}")
+            raise TransferError(
+                f"the {which} obs layout has {name}:{size}, but its {geometry.size}x{geometry.size} "
+                f"map with {len(geometry.chests)} chest(s) gives {name}:{expected[name]}"
+            )
 
 
-def plan_segment_mapping(source_layout: Layout, target_layout: Layout,
-                         embedding: Embedding | None = None) -> SegmentPlan:
+def plan_segment_mapping(
+    source_layout: Layout, target_layout: Layout, embedding: Embedding | None = None
+) -> SegmentPlan:
     """Match segments by name; refuse a shared segment whose size differs unless ``embedding`` maps it."""
     source = _normalise_layout(source_layout, "source")
     target = _normalise_layout(target_layout, "target")
@@ -271,8 +279,10 @@ def _position_map(embedding: Embedding, matrix: np.ndarray, shift: np.ndarray, s
         matrix[s + cells[read], t + read] = 1.0
         return
     if embedding.fill != "zero":
-        raise TransferError("transfer.fill=nearest needs obs_encoding=onehot: a network's coords input maps "
-                            "every cell by one affine transform")
+        raise TransferError(
+            "transfer.fill=nearest needs obs_encoding=onehot: a network's coords input maps "
+            "every cell by one affine transform"
+        )
     # coords: source r / (ns - 1) with r = R - offset, for target R / (nt - 1).
     for axis in (0, 1):
         matrix[s + axis, t + axis] = (nt - 1) / (ns - 1)
@@ -319,9 +329,7 @@ def transfer_dqn_tensors(
     layers = _dqn_layers(source_tensors)
     source_in = layers[0][0].shape[1]
     if source_in != plan.source_dim:
-        raise TransferError(
-            f"source network takes {source_in} inputs but its obs layout has {plan.source_dim} values"
-        )
+        raise TransferError(f"source network takes {source_in} inputs but its obs layout has {plan.source_dim} values")
     source_hidden = [weight.shape[0] for weight, _ in layers[:-1]]
     if source_hidden != list(target_hidden):
         raise TransferError(f"hidden layers differ: source {source_hidden}, target {list(target_hidden)}")
@@ -331,8 +339,10 @@ def transfer_dqn_tensors(
     _warn_dropped(plan, embedding)
     matrix, shift = input_map(plan, embedding)
     weight, bias = (np.asarray(tensor) for tensor in layers[0])
-    first = ((weight.astype(np.float64) @ matrix).astype(weight.dtype),
-             (bias.astype(np.float64) + weight.astype(np.float64) @ shift).astype(bias.dtype))
+    first = (
+        (weight.astype(np.float64) @ matrix).astype(weight.dtype),
+        (bias.astype(np.float64) + weight.astype(np.float64) @ shift).astype(bias.dtype),
+    )
 
     out: dict[str, np.ndarray] = {}
     for l, (weight, bias) in enumerate([first, *layers[1:]]):
@@ -343,13 +353,16 @@ def transfer_dqn_tensors(
     return out
 
 
-def map_input_moments(plan: SegmentPlan, embedding: Embedding | None, exp_avg: np.ndarray,
-                      exp_avg_sq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def map_input_moments(
+    plan: SegmentPlan, embedding: Embedding | None, exp_avg: np.ndarray, exp_avg_sq: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Adam's moments of a first-layer weight stored ``[in, out]``, mapped like the weight: the gradient
     of ``W M`` is the source's gradient times ``M``, and its square times ``M * M``."""
     matrix, _ = input_map(plan, embedding)
-    return ((matrix.T @ exp_avg.astype(np.float64)).astype(exp_avg.dtype),
-            ((matrix * matrix).T @ exp_avg_sq.astype(np.float64)).astype(exp_avg_sq.dtype))
+    return (
+        (matrix.T @ exp_avg.astype(np.float64)).astype(exp_avg.dtype),
+        ((matrix * matrix).T @ exp_avg_sq.astype(np.float64)).astype(exp_avg_sq.dtype),
+    )
 
 
 # ----------------------------------------------------------------------------------------- tabular
@@ -388,8 +401,9 @@ def _column_targets(plan: SegmentPlan, embedding: Embedding | None) -> np.ndarra
     return targets
 
 
-def _rekey_positions(keys: np.ndarray, columns: np.ndarray, plan: SegmentPlan, embedding: Embedding | None
-                     ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+def _rekey_positions(
+    keys: np.ndarray, columns: np.ndarray, plan: SegmentPlan, embedding: Embedding | None
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
     """Each key's rows in the target, by position: ``(source row of each new row, their target position
     codes or None, the target columns of those codes)``. One row per target cell that reads the key's
     source cell (several with ``fill=nearest``); without an embedding, positions are copied as columns."""
@@ -405,23 +419,36 @@ def _rekey_positions(keys: np.ndarray, columns: np.ndarray, plan: SegmentPlan, e
     cell_of = {code.tobytes(): cell for cell, code in enumerate(embedding.source.position_codes.astype(codes.dtype))}
     cells = [cell_of.get(code.tobytes(), -1) for code in codes]
     if -1 in cells:
-        raise TransferError(f"source table key {codes[cells.index(-1)].tolist()} is not a position of its "
-                            f"{embedding.source.size}x{embedding.source.size} map")
+        raise TransferError(
+            f"source table key {codes[cells.index(-1)].tolist()} is not a position of its "
+            f"{embedding.source.size}x{embedding.source.size} map"
+        )
     readers = embedding.source_cells()
     targets_of = {cell: np.flatnonzero(readers == cell) for cell in set(cells)}
     rows = np.repeat(np.arange(len(keys)), [len(targets_of[cell]) for cell in cells])
     target_cells = np.concatenate([targets_of[cell] for cell in cells]) if cells else np.zeros(0, dtype=np.int64)
-    return (rows, embedding.target.position_codes[target_cells].astype(keys.dtype),
-            np.arange(position.target.start, position.target.stop))
+    return (
+        rows,
+        embedding.target.position_codes[target_cells].astype(keys.dtype),
+        np.arange(position.target.start, position.target.stop),
+    )
 
 
-def _rekey_table(keys: np.ndarray, values: np.ndarray, columns: np.ndarray, plan: SegmentPlan,
-                 embedding: Embedding | None, num_actions: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _rekey_table(
+    keys: np.ndarray,
+    values: np.ndarray,
+    columns: np.ndarray,
+    plan: SegmentPlan,
+    embedding: Embedding | None,
+    num_actions: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A table keyed on source ``columns``, re-keyed on target columns: ``(keys, values, projection)``
     with the target column of each key column in ``projection``."""
     if keys.ndim != 2 or keys.shape[1] != len(columns) or values.shape != (keys.shape[0], num_actions):
-        raise TransferError(f"source table is malformed: keys {list(keys.shape)}, values {list(values.shape)}, "
-                            f"{len(columns)} key columns, {num_actions} actions")
+        raise TransferError(
+            f"source table is malformed: keys {list(keys.shape)}, values {list(values.shape)}, "
+            f"{len(columns)} key columns, {num_actions} actions"
+        )
     if columns.size and (columns.min() < 0 or columns.max() >= plan.source_dim):
         raise TransferError(f"source fallback projection points outside its {plan.source_dim} obs columns")
     rows, position_codes, position_columns = _rekey_positions(keys, columns, plan, embedding)
@@ -478,8 +505,7 @@ def transfer_tabular_tensors(
 
     learned = (keys, values, np.arange(plan.source_dim, dtype=np.int64))
     tables = fallbacks if fallbacks and keys.shape[0] == 0 else [learned, *fallbacks]
-    out = {"keys": np.zeros((0, plan.target_dim), dtype=np.float32),
-           "values": np.zeros((0, actions), dtype=np.float32)}
+    out = {"keys": np.zeros((0, plan.target_dim), dtype=np.float32), "values": np.zeros((0, actions), dtype=np.float32)}
     for level, (table_keys, table_values, columns) in enumerate(tables):
         mapped = _rekey_table(table_keys, table_values, columns.astype(np.int64), plan, embedding, actions)
         for name, array, dtype in zip(fallback_names(level), mapped, (np.float32, np.float32, np.int64)):

@@ -19,11 +19,16 @@ from typing import Any
 import numpy as np
 
 from dqn_transfer.agents import BatchedDQN, Learner
-from dqn_transfer.storage.checkpoint import CheckpointError, check_compatible, load_agent_checkpoint, load_training_state
 from dqn_transfer.config import TrainConfig, TransferConfig
 from dqn_transfer.enums import Algorithm, Fill
 from dqn_transfer.envs.game import TreasureHuntGame, make_game
 from dqn_transfer.envs.settings import ENV_KEYS
+from dqn_transfer.storage.checkpoint import (
+    CheckpointError,
+    check_compatible,
+    load_agent_checkpoint,
+    load_training_state,
+)
 from dqn_transfer.storage.run_dir import TRAINING_STATE_FILE
 from dqn_transfer.transfer.mapping import (
     Embedding,
@@ -66,8 +71,12 @@ def source_embedding(meta: Mapping[str, Any], game: TreasureHuntGame, transfer: 
         source_game = make_game(**{key: value for key, value in env.items() if key in ENV_KEYS})
     except ValueError as err:
         raise TransferError(f"the source's recorded map is invalid: {err}") from None
-    return Embedding(map_geometry(source_game), map_geometry(game), (int(transfer.offset[0]), int(transfer.offset[1])),
-                     Fill(transfer.fill).value)
+    return Embedding(
+        map_geometry(source_game),
+        map_geometry(game),
+        (int(transfer.offset[0]), int(transfer.offset[1])),
+        Fill(transfer.fill).value,
+    )
 
 
 @dataclass
@@ -82,13 +91,21 @@ class MappedSource:
 
     def record(self) -> dict[str, Any]:
         """What the run records about this source: the file, and the mapping onto this run's map."""
-        record = {"source": str(self.path.resolve()), "digest": self.meta["digest"],
-                  "source_agent": self.meta.get("agent_index"), "source_algorithm": self.meta.get("algorithm"),
-                  "source_obs_layout": self.meta["obs_layout"], "source_steps": self.meta.get("steps")}
+        record = {
+            "source": str(self.path.resolve()),
+            "digest": self.meta["digest"],
+            "source_agent": self.meta.get("agent_index"),
+            "source_algorithm": self.meta.get("algorithm"),
+            "source_obs_layout": self.meta["obs_layout"],
+            "source_steps": self.meta.get("steps"),
+        }
         if self.embedding is not None:
-            record["mapping"] = {"source_size": self.embedding.source.size, "offset": list(self.embedding.offset),
-                                 "fill": self.embedding.fill,
-                                 "dropped_chests": [list(cell) for cell in self.embedding.dropped_chests()]}
+            record["mapping"] = {
+                "source_size": self.embedding.source.size,
+                "offset": list(self.embedding.offset),
+                "fill": self.embedding.fill,
+                "dropped_chests": [list(cell) for cell in self.embedding.dropped_chests()],
+            }
         # The source's own origin, so a chain of warm starts (a curriculum) is recorded whole.
         record["source_transfer"] = self.meta.get("transfer")
         return record
@@ -104,11 +121,13 @@ def map_source(config: TrainConfig, game: TreasureHuntGame, path: Path) -> Mappe
         embedding = source_embedding(meta, game, config.transfer)
         plan = plan_segment_mapping(meta["obs_layout"], target_layout, embedding)
         if algorithm.is_tabular:
-            mapped = transfer_tabular_tensors(tensors, meta["obs_layout"], target_layout,
-                                              num_actions=game.num_actions, embedding=embedding)
+            mapped = transfer_tabular_tensors(
+                tensors, meta["obs_layout"], target_layout, num_actions=game.num_actions, embedding=embedding
+            )
         else:
-            mapped = transfer_dqn_tensors(tensors, meta["obs_layout"], target_layout,
-                                          list(config.agent.hidden), game.num_actions, embedding)
+            mapped = transfer_dqn_tensors(
+                tensors, meta["obs_layout"], target_layout, list(config.agent.hidden), game.num_actions, embedding
+            )
     except (CheckpointError, ValueError) as err:  # TransferError is a ValueError
         raise TransferError(f"transfer source {path}: {err}") from None
     except (KeyError, IndexError, TypeError) as err:  # a meta or tensor this format never writes
@@ -116,8 +135,9 @@ def map_source(config: TrainConfig, game: TreasureHuntGame, path: Path) -> Mappe
     return MappedSource(path, mapped, meta, plan, embedding)
 
 
-def apply_transfer(config: TrainConfig, learner: Learner, game: TreasureHuntGame,
-                   source: Path | Sequence[Path]) -> dict[str, Any]:
+def apply_transfer(
+    config: TrainConfig, learner: Learner, game: TreasureHuntGame, source: Path | Sequence[Path]
+) -> dict[str, Any]:
     """Load ``source`` (one checkpoint for every target agent, or one per target) into the target
     agents; returns what the run records about its sources."""
     transfer = config.transfer
@@ -135,24 +155,35 @@ def apply_transfer(config: TrainConfig, learner: Learner, game: TreasureHuntGame
         learner.load_agent_tensors(i, source_i.tensors)
     if not transfer.reset_optimizer:
         if Algorithm(config.agent.algorithm).is_tabular:
-            raise TransferError("transfer.reset_optimizer=false needs a DQN learner (tabular learners have no optimizer)")
+            raise TransferError(
+                "transfer.reset_optimizer=false needs a DQN learner (tabular learners have no optimizer)"
+            )
         if len(targets) != game.num_agents:  # Adam keeps one step count per stacked parameter
-            raise TransferError("transfer.reset_optimizer=false needs every agent as a target "
-                                f"(transfer.targets={targets}): the agents share Adam's step count")
+            raise TransferError(
+                "transfer.reset_optimizer=false needs every agent as a target "
+                f"(transfer.targets={targets}): the agents share Adam's step count"
+            )
         carry_optimizer_state(learner, per_target, targets)
     if transfer.freeze:  # indices were checked against agent.hidden by config.validate
         learner.freeze(transfer.freeze)
     first = per_target[0]
-    log.info("transfer: agents %s start from %s (digest %s...)", targets,
-             first.path if len(mapped) == 1 else ", ".join(str(path) for path in files), first.meta["digest"][:12])
+    log.info(
+        "transfer: agents %s start from %s (digest %s...)",
+        targets,
+        first.path if len(mapped) == 1 else ", ".join(str(path) for path in files),
+        first.meta["digest"][:12],
+    )
     return {
         **first.record(),
         "pretrained": bool(first.meta.get("source_task")),  # trained on the single-agent source task
         "targets": targets,
         # With another source agent per target (another team size): which file each target took.
-        "per_target": None if len(mapped) == 1 else [
+        "per_target": None
+        if len(mapped) == 1
+        else [
             {"source": str(s.path.resolve()), "digest": s.meta["digest"], "source_agent": s.meta.get("agent_index")}
-            for s in per_target],
+            for s in per_target
+        ],
     }
 
 
@@ -171,8 +202,10 @@ def lineage_table(record: Mapping[str, Any]) -> str:
     for n, step in enumerate(lineage(record), start=1):
         mapping = step.get("mapping") or {}
         size = mapping.get("source_size")
-        rows.append(f"| {n} | {step['source']} | {f'{size}x{size}' if size else '-'} | {step.get('source_steps')} "
-                    f"| {mapping.get('offset', '-')} | {step['digest'][:12]} |")
+        rows.append(
+            f"| {n} | {step['source']} | {f'{size}x{size}' if size else '-'} | {step.get('source_steps')} "
+            f"| {mapping.get('offset', '-')} | {step['digest'][:12]} |"
+        )
     return "\n".join(rows)
 
 
@@ -185,8 +218,10 @@ def carry_optimizer_state(learner: BatchedDQN, sources: list[MappedSource], targ
     states = {source.path: _source_moments(source) for source in sources}
     steps = sorted({step for _, step in states.values()})
     if len(steps) > 1:  # Adam keeps one step count per stacked parameter
-        raise TransferError(f"transfer.reset_optimizer=false: the sources' optimizers are at different steps "
-                            f"{steps}; use reset_optimizer=true")
+        raise TransferError(
+            f"transfer.reset_optimizer=false: the sources' optimizers are at different steps "
+            f"{steps}; use reset_optimizer=true"
+        )
     for i, source in zip(targets, sources):
         learner.set_member_optimizer_state(i, states[source.path][0], steps[0])
 
@@ -195,12 +230,19 @@ def _source_moments(source: MappedSource) -> tuple[dict[str, dict[str, np.ndarra
     """The Adam moments of ``source``'s agent from its run's resume state, mapped onto this run, and their step."""
     meta, state_path = source.meta, source.path.parent / TRAINING_STATE_FILE
     if not state_path.exists():
-        raise TransferError(f"transfer.reset_optimizer=false needs the source's optimizer state, but {state_path} "
-                            "does not exist (share the run's whole checkpoints/ directory, or use reset_optimizer=true)")
+        raise TransferError(
+            f"transfer.reset_optimizer=false needs the source's optimizer state, but {state_path} "
+            "does not exist (share the run's whole checkpoints/ directory, or use reset_optimizer=true)"
+        )
     arrays, state_meta = load_training_state(state_path)
-    if state_meta.get("counters", {}).get("step") != meta.get("steps") or state_meta.get("obs_layout") != meta["obs_layout"]:
-        raise TransferError(f"{state_path} is not the resume state of {source.path.name} (other steps or obs layout); "
-                            "use reset_optimizer=true")
+    if (
+        state_meta.get("counters", {}).get("step") != meta.get("steps")
+        or state_meta.get("obs_layout") != meta["obs_layout"]
+    ):
+        raise TransferError(
+            f"{state_path} is not the resume state of {source.path.name} (other steps or obs layout); "
+            "use reset_optimizer=true"
+        )
     member = 0 if meta["network"].get("share_parameters") else int(meta["agent_index"])
     moments: dict[str, dict[str, np.ndarray]] = {}
     step = 0
