@@ -20,6 +20,7 @@ from typing import Any
 
 from dqn_transfer.agents.base import Learner, ObsLayout, Transition, UpdateStats, epsilon_greedy, joined
 from dqn_transfer.agents.dqn_base import BatchedDQN, DQNReplica
+from dqn_transfer.agents.dqn_update import double_dqn_targets, dqn_targets
 from dqn_transfer.agents.replay import ReplayBatch, ReplayBuffer
 from dqn_transfer.agents.replicas import LearnerReplicas
 from dqn_transfer.agents.schedules import linear_schedule
@@ -30,8 +31,6 @@ from dqn_transfer.enums import Algorithm, Device, Engine
 # The torch engine's public names, by module (imported on first access: see __getattr__).
 _TORCH_NAMES = {
     "DQNLearner": "dqn_transfer.agents.dqn",
-    "double_dqn_targets": "dqn_transfer.agents.dqn",
-    "dqn_targets": "dqn_transfer.agents.dqn",
     "BatchedMLP": "dqn_transfer.agents.networks",
 }
 

@@ -27,6 +27,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from dqn_transfer.agents.dqn_update import clip_coefficient
 from dqn_transfer.agents.stacked import StackedLayout
 
 
@@ -164,7 +165,7 @@ class BatchedMLP(nn.Module, StackedLayout):
                 torch.sum(grad, dim=1, out=grads[2 * l + 1])
             if l > min(wanted):
                 grad = torch.bmm(grad, self.layer(l)[0].transpose(1, 2))
-                grad = torch.ops.aten.threshold_backward(grad, inputs[l], 0)
+                grad.masked_fill_(inputs[l] <= 0, 0.0)  # ReLU: the gradient passes where its output was positive
 
     # ------------------------------------------------------------------------- members
     def member_state(self, m: int) -> dict[str, np.ndarray]:
@@ -217,7 +218,7 @@ class BatchedMLP(nn.Module, StackedLayout):
         # clip_grad_norm_'s arithmetic per member: the sum of each tensor's squares, then over tensors.
         torch.mul(self.flat_grad, self.flat_grad, out=self._squares)
         norms = torch.stack([self._squares_by_member[i].sum(1) for i in tensors]).sum(0).sqrt()
-        scale = (max_norm / (norms + 1e-6)).clamp(max=1.0)
+        scale = clip_coefficient(norms, max_norm)
         # A factor of exactly 1 changes nothing: skip the multiplication when nobody is clipped.
         if self.flat.device.type != "cpu" or bool((scale < 1.0).any()):
             # Untrained tensors' gradients are zero and stay zero.
