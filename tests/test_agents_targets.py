@@ -1,4 +1,5 @@
-"""Bootstrapped targets (of tensors and numpy arrays alike), the epsilon schedule and epsilon-greedy, checked against hand arithmetic."""
+"""Bootstrapped targets (of tensors and numpy arrays alike), the epsilon schedule and epsilon-greedy,
+checked against hand arithmetic."""
 
 import numpy as np
 import pytest

@@ -5,13 +5,14 @@ one per replica)."""
 
 from __future__ import annotations
 
+from typing import TypeAlias
+
 import numpy as np
 import pytest
 import torch
 from torch import nn
 
 from dqn_transfer.agents import DQNLearner, ReplayBatch
-from dqn_transfer.agents.dqn_base import BatchedDQN
 from dqn_transfer.agents.dqn_update import reference_update
 from dqn_transfer.agents.numpy_dqn import NumpyDQNLearner
 from dqn_transfer.config import AgentConfig
@@ -20,7 +21,8 @@ from dqn_transfer.enums import Algorithm
 LAYOUT = [("position", 5), ("treasures", 3)]
 D, A, K, SEEDS, B = 8, 4, 2, [3, 4], 16
 RTOL, ATOL = 1e-5, 1e-6
-ENGINES = {"torch": DQNLearner, "numpy": NumpyDQNLearner}
+ENGINES: dict[str, type[DQNLearner | NumpyDQNLearner]] = {"torch": DQNLearner, "numpy": NumpyDQNLearner}
+Learner: TypeAlias = DQNLearner | NumpyDQNLearner
 
 
 def batch(rows: int, seed: int) -> ReplayBatch:
@@ -58,7 +60,7 @@ def linear_layers(network: nn.Sequential) -> list[nn.Linear]:
 class Reference:
     """One ``nn.Sequential`` online / target pair and ``torch.optim.Adam`` per member of ``learner``."""
 
-    def __init__(self, learner: BatchedDQN, double: bool) -> None:
+    def __init__(self, learner: Learner, double: bool) -> None:
         self.learner, self.double = learner, double
         sizes = learner.q_network.sizes
         self.online = [sequential(sizes, learner.q_network.member_state(m)) for m in range(learner.num_members)]
@@ -91,11 +93,11 @@ class Reference:
         return np.concatenate(losses), np.concatenate(q_means)
 
 
-def learner_rows_per_member(learner: BatchedDQN) -> int:
+def learner_rows_per_member(learner: Learner) -> int:
     return learner.num_agents if learner.share_parameters else 1
 
 
-def make(engine: str, max_grad_norm: float, **kwargs) -> BatchedDQN:
+def make(engine: str, max_grad_norm: float, **kwargs) -> Learner:
     hp = AgentConfig(hidden=[16, 16], batch_size=B, buffer_size=32, lr=1e-2, max_grad_norm=max_grad_norm, **kwargs)
     learner = ENGINES[engine](K, LAYOUT, A, hp, seed=SEEDS)
     # A target network unlike the online one (otherwise Double DQN's target would be DQN's).
@@ -106,7 +108,7 @@ def make(engine: str, max_grad_norm: float, **kwargs) -> BatchedDQN:
     return learner
 
 
-def check_against_reference(learner: BatchedDQN, clip_active: bool, double: bool | None = None, steps: int = 3) -> None:
+def check_against_reference(learner: Learner, clip_active: bool, double: bool | None = None, steps: int = 3) -> None:
     """``steps`` training steps of ``learner`` and of the reference (DQN or Double DQN as the learner, or as
     ``double`` says), compared after each."""
     reference = Reference(learner, learner.double if double is None else double)
@@ -135,6 +137,7 @@ def check_against_reference(learner: BatchedDQN, clip_active: bool, double: bool
                     assert layer.weight.grad is None
                     assert not np.asarray(grad_w).any()
                 else:
+                    assert layer.weight.grad is not None and layer.bias.grad is not None
                     np.testing.assert_allclose(np.asarray(grad_w).T, layer.weight.grad.numpy(), rtol=RTOL, atol=ATOL)
                     np.testing.assert_allclose(np.asarray(grad_b), layer.bias.grad.numpy(), rtol=RTOL, atol=ATOL)
                 np.testing.assert_allclose(

@@ -2,8 +2,11 @@
 
 The networks are one :class:`~dqn_transfer.agents.networks.BatchedMLP`, trained without autograd by
 its hand-written backward and :class:`~dqn_transfer.agents.adam.FlatAdam`, both bit-identical to
-``loss.backward()`` and ``torch.optim.Adam`` (the tests check it). The replay batch comes from the
-host and is moved to the device. Read the algorithm in :mod:`dqn_transfer.agents.dqn_base`.
+``loss.backward()`` and ``torch.optim.Adam`` (the tests check it; ``scripts/time_dqn_backward.py``
+measures what they save: about 6 % of a step for 40 networks, a quarter for 4). The target, the loss
+and its gradient and the clip rule are :mod:`dqn_transfer.agents.dqn_update`'s, whose
+``reference_update`` states the algorithm; the schedule is :mod:`dqn_transfer.agents.dqn_base`'s.
+The replay batch comes from the host and is moved to the device.
 """
 
 from __future__ import annotations
@@ -21,7 +24,6 @@ from dqn_transfer.agents.networks import BatchedMLP
 from dqn_transfer.agents.replay import ReplayBatch
 from dqn_transfer.config import AgentConfig, ConfigError
 from dqn_transfer.enums import Device
-
 
 # Relative lead of the best action's Q-value over the second best above which numpy's argmax is
 # torch's: their float32 results differ by a few units in the 7th digit, this is 1000x that.

@@ -2,9 +2,11 @@
 
 For networks this small (a few 64x64 MLPs) a gradient step is a few dozen tiny array operations, and
 what they cost is per-call overhead, not arithmetic: numpy's is a fraction of torch's, and a process
-that never imports torch starts seconds sooner. The arithmetic is the torch engine's, written out
-(forward, Huber loss, the chain rule through ReLU layers, per-member gradient clip, Adam), in float32,
-but with numpy's kernels: results agree with the torch engine to float32 rounding, not bit for bit,
+that never imports torch starts seconds sooner. The algorithm's decisions (target, Huber loss and its
+gradient, clip rule) are :mod:`dqn_transfer.agents.dqn_update`'s, shared with the torch engine; this
+module holds the numeric kernels (forward, the chain rule through ReLU layers, per-member gradient
+norms, Adam's arithmetic), in float32 with numpy's kernels: results agree with the torch engine and
+with ``dqn_update.reference_update`` to float32 rounding, not bit for bit,
 and the initial weights come from numpy's generator (same distribution as ``nn.Linear``'s, other
 numbers). ``agent.engine`` is therefore part of what a run is (its config and checkpoints record it).
 """
