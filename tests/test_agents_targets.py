@@ -1,4 +1,5 @@
-"""Bootstrapped targets, the epsilon schedule and epsilon-greedy, checked against hand arithmetic."""
+"""Bootstrapped targets (of tensors and numpy arrays alike), the epsilon schedule and epsilon-greedy,
+checked against hand arithmetic."""
 
 import numpy as np
 import pytest
@@ -56,6 +57,20 @@ def test_targets_work_on_batched_agent_shapes():
         torch.tensor([[0.0], [1.0]]), torch.tensor([[[1.0, 2.0]], [[3.0, 0.0]]]), torch.tensor([[False], [False]]), 0.5
     )
     torch.testing.assert_close(y, torch.tensor([[1.0], [2.5]]))  # 0 + 0.5*2 ; 1 + 0.5*3
+
+
+def test_targets_of_numpy_arrays_are_the_targets_of_tensors():
+    """The targets are array-generic (the numpy engine calls the same functions): same values, float32."""
+    rewards, online, target, terminated = (t.numpy() for t in (REWARDS, NEXT_Q_ONLINE, NEXT_Q_TARGET, TERMINATED))
+    for got, want in [
+        (dqn_targets(rewards, target, terminated, GAMMA), dqn_targets(REWARDS, NEXT_Q_TARGET, TERMINATED, GAMMA)),
+        (
+            double_dqn_targets(rewards, online, target, terminated, GAMMA),
+            double_dqn_targets(REWARDS, NEXT_Q_ONLINE, NEXT_Q_TARGET, TERMINATED, GAMMA),
+        ),
+    ]:
+        assert isinstance(got, np.ndarray) and got.dtype == np.float32
+        np.testing.assert_array_equal(got, want.numpy())
 
 
 @pytest.mark.parametrize(

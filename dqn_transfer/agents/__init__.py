@@ -6,10 +6,11 @@ one home of every hyperparameter's default). Every learner implements
 ``get_member_weights`` / ``set_member_weights`` and ``add_experience``, the tabular one ``add_fallback``.
 
 The DQN family has two engines (``agent.engine``): ``torch`` (:mod:`~dqn_transfer.agents.dqn`) and
-``numpy`` (:mod:`~dqn_transfer.agents.numpy_dqn`). An engine's module is imported when a learner of it
-is built, so that a process that trains a tabular or numpy learner never imports torch (3-4 s of
-start-up); the torch engine's names below (``DQNLearner``, ``BatchedMLP``, ...) are imported on first
-use.
+``numpy`` (:mod:`~dqn_transfer.agents.numpy_dqn`), which share :mod:`~dqn_transfer.agents.dqn_update`
+(the gradient step, stated once; it imports torch only when its reference update is called). An
+engine's module is imported when a learner of it is built, so that a process that trains a tabular or
+numpy learner never imports torch (3-4 s of start-up); the torch engine's names below
+(``DQNLearner``, ``BatchedMLP``, ...) are imported on first use.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from typing import Any
 
 from dqn_transfer.agents.base import Learner, ObsLayout, Transition, UpdateStats, epsilon_greedy, joined
 from dqn_transfer.agents.dqn_base import BatchedDQN, DQNReplica
+from dqn_transfer.agents.dqn_update import double_dqn_targets, dqn_targets
 from dqn_transfer.agents.replay import ReplayBatch, ReplayBuffer
 from dqn_transfer.agents.replicas import LearnerReplicas
 from dqn_transfer.agents.schedules import linear_schedule
@@ -30,8 +32,6 @@ from dqn_transfer.enums import Algorithm, Device, Engine
 # The torch engine's public names, by module (imported on first access: see __getattr__).
 _TORCH_NAMES = {
     "DQNLearner": "dqn_transfer.agents.dqn",
-    "double_dqn_targets": "dqn_transfer.agents.dqn",
-    "dqn_targets": "dqn_transfer.agents.dqn",
     "BatchedMLP": "dqn_transfer.agents.networks",
 }
 

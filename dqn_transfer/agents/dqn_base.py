@@ -1,11 +1,12 @@
 """DQN and Double DQN for R replicas of a team of K agents, batched into one network module and one optimizer.
 
-The algorithm is CleanRL's ``dqn.py`` per agent (read :meth:`BatchedDQN.update`, then an engine's
-``train_on``): store the transition; every ``train_freq`` env steps after ``learning_starts``, take
-``gradient_steps`` steps of Huber loss between ``Q(s, a)`` and the bootstrapped target on a uniform
-replay batch (Adam, gradient-norm clip); every ``target_update`` env steps move the target network
-``tau`` of the way to the online one (``tau == 1``: a hard copy) — the same rule as SB3's
-``target_update_interval``/``tau`` and CleanRL's ``target_network_frequency``/``tau``.
+The algorithm is CleanRL's ``dqn.py`` per agent (read :meth:`BatchedDQN.update`, then
+:func:`~dqn_transfer.agents.dqn_update.reference_update`, the gradient step every engine's ``train_on``
+takes for all agents at once): store the transition; every ``train_freq`` env steps after
+``learning_starts``, take ``gradient_steps`` steps of Huber loss between ``Q(s, a)`` and the
+bootstrapped target on a uniform replay batch (Adam, gradient-norm clip); every ``target_update``
+env steps move the target network ``tau`` of the way to the online one (``tau == 1``: a hard copy) —
+the same rule as SB3's ``target_update_interval``/``tau`` and CleanRL's ``target_network_frequency``/``tau``.
 
 What is particular here: all R x K agents are one batched network (stacked weights), their replay is
 one ``[R * K, capacity, ...]`` storage, and one Adam step updates everyone. The loss is the *sum* of

@@ -11,11 +11,11 @@ All tensors live in one flat ``[P]`` Parameter (layer by layer: ``weight_0``, ``
 ``weight_1``, ...), so a target sync is one copy and Adam is a few kernels over one buffer.
 
 Training does not go through autograd: :meth:`BatchedMLP.forward_cached` keeps the activations and
-:meth:`BatchedMLP.backward` applies the chain rule with the same kernels, in the same order,
-that autograd's derivative formulas call for ``baddbmm`` and ``relu`` (so the gradients are
-bit-identical to ``loss.backward()``, which the tests check), at a fifth of the cost: on networks this
-small, the autograd engine's bookkeeping costs more than the arithmetic. ``forward`` itself stays
-differentiable.
+:meth:`BatchedMLP.backward` applies the chain rule with the same public kernels, in the same order,
+as autograd's derivative formulas for ``baddbmm`` and ``relu`` (so the gradients are bit-identical to
+``loss.backward()``, which the tests check), without the autograd engine's bookkeeping, which on
+networks this small costs as much as the arithmetic (``scripts/time_dqn_backward.py``). ``forward``
+itself stays differentiable.
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from dqn_transfer.agents.dqn_update import clip_coefficient
 from dqn_transfer.agents.stacked import StackedLayout
 
 
@@ -152,8 +153,8 @@ class BatchedMLP(nn.Module, StackedLayout):
         ``grad_out`` = d loss / d output and the ``inputs`` of :meth:`forward_cached`.
 
         Autograd's formulas, kernel for kernel: for ``y = baddbmm(b, x, W)``, ``dW = x^T @ dy``,
-        ``db = dy`` summed over the batch, ``dx = dy @ W^T``; for ``h = relu(z)``,
-        ``dz = threshold_backward(dh, h, 0)``. Layers not listed keep their gradient untouched (zero)
+        ``db = dy`` summed over the batch, ``dx = dy @ W^T``; for ``h = relu(z)``, ``dz = dh`` where
+        ``h > 0``, else 0 (``threshold_backward``'s result). Layers not listed keep their gradient untouched (zero)
         and are not computed; the backward stops below the lowest listed layer.
         """
         grads, wanted = self.grads, set(layers)
@@ -164,7 +165,7 @@ class BatchedMLP(nn.Module, StackedLayout):
                 torch.sum(grad, dim=1, out=grads[2 * l + 1])
             if l > min(wanted):
                 grad = torch.bmm(grad, self.layer(l)[0].transpose(1, 2))
-                grad = torch.ops.aten.threshold_backward(grad, inputs[l], 0)
+                grad.masked_fill_(inputs[l] <= 0, 0.0)  # ReLU: the gradient passes where its output was positive
 
     # ------------------------------------------------------------------------- members
     def member_state(self, m: int) -> dict[str, np.ndarray]:
@@ -199,8 +200,8 @@ class BatchedMLP(nn.Module, StackedLayout):
 
     @torch.no_grad()
     def clip_grad_norm_(self, max_norm: float, layers: Sequence[int] | None = None) -> torch.Tensor:
-        """``torch.nn.utils.clip_grad_norm_`` applied to each member separately, to the gradients of
-        ``layers`` (default: all) in :attr:`grads`; returns the norms ``[M]``.
+        """``torch.nn.utils.clip_grad_norm_`` (``dqn_update.clip_coefficient``) applied to each member
+        separately, to the gradients of ``layers`` (default: all) in :attr:`grads`; returns the norms ``[M]``.
 
         One global norm over the stacked gradients would let one agent's large gradient shrink
         every other agent's step; per member, each agent is clipped as its own network would be.
@@ -217,7 +218,7 @@ class BatchedMLP(nn.Module, StackedLayout):
         # clip_grad_norm_'s arithmetic per member: the sum of each tensor's squares, then over tensors.
         torch.mul(self.flat_grad, self.flat_grad, out=self._squares)
         norms = torch.stack([self._squares_by_member[i].sum(1) for i in tensors]).sum(0).sqrt()
-        scale = (max_norm / (norms + 1e-6)).clamp(max=1.0)
+        scale = clip_coefficient(norms, max_norm)
         # A factor of exactly 1 changes nothing: skip the multiplication when nobody is clipped.
         if self.flat.device.type != "cpu" or bool((scale < 1.0).any()):
             # Untrained tensors' gradients are zero and stay zero.

@@ -2,9 +2,11 @@
 
 For networks this small (a few 64x64 MLPs) a gradient step is a few dozen tiny array operations, and
 what they cost is per-call overhead, not arithmetic: numpy's is a fraction of torch's, and a process
-that never imports torch starts seconds sooner. The arithmetic is the torch engine's, written out
-(forward, Huber loss, the chain rule through ReLU layers, per-member gradient clip, Adam), in float32,
-but with numpy's kernels: results agree with the torch engine to float32 rounding, not bit for bit,
+that never imports torch starts seconds sooner. The algorithm's decisions (target, Huber loss and its
+gradient, clip rule) are :mod:`dqn_transfer.agents.dqn_update`'s, shared with the torch engine; this
+module holds the numeric kernels (forward, the chain rule through ReLU layers, per-member gradient
+norms, Adam's arithmetic), in float32 with numpy's kernels: results agree with the torch engine and
+with ``dqn_update.reference_update`` to float32 rounding, not bit for bit,
 and the initial weights come from numpy's generator (same distribution as ``nn.Linear``'s, other
 numbers). ``agent.engine`` is therefore part of what a run is (its config and checkpoints record it).
 """
@@ -17,6 +19,7 @@ import numpy as np
 
 from dqn_transfer.agents.base import ObsLayout, UpdateStats
 from dqn_transfer.agents.dqn_base import BatchedDQN
+from dqn_transfer.agents.dqn_update import clip_coefficient, double_dqn_targets, dqn_targets, huber, td_loss_grad
 from dqn_transfer.agents.replay import ReplayBatch
 from dqn_transfer.agents.stacked import SMALLEST_NORMAL, AdamState, StackedLayout
 from dqn_transfer.config import AgentConfig
@@ -109,7 +112,7 @@ class NumpyMLP(StackedLayout):
         squares = sum(
             np.einsum("mi,mi->m", g, g) for g in (self.grads[i].reshape(self.num_members, -1) for i in tensors)
         )
-        scale = np.minimum(max_norm / (np.sqrt(squares) + 1e-6), 1.0).astype(np.float32)
+        scale = clip_coefficient(np.sqrt(squares), max_norm)
         if (scale < 1.0).any():
             for i in tensors:
                 self.grads[i] *= scale.reshape(-1, *([1] * (len(self.shapes[i]) - 1)))
@@ -247,23 +250,22 @@ class NumpyDQNLearner(BatchedDQN):
         obs, actions, rewards, next_obs, terminated = batch
         rows, cols = self._batch_grid(actions.shape)  # (row, sample) of each Q(s, a) picked below
         next_q_target = self._predict(self.target_network, next_obs)
-        if self.double:  # the online network picks the next action, the target network scores it
-            next_q = next_q_target[rows, cols, self._predict(self.q_network, next_obs).argmax(axis=-1)]
+        if self.double:
+            targets = double_dqn_targets(
+                rewards, self._predict(self.q_network, next_obs), next_q_target, terminated, self.gamma
+            )
         else:
-            next_q = next_q_target.max(axis=-1)
-        targets = rewards + np.float32(self.gamma) * next_q * (1.0 - terminated)  # truncation bootstraps
+            targets = dqn_targets(rewards, next_q_target, terminated, self.gamma)
 
         inputs: list[np.ndarray] = []
         q_values = self._predict(self.q_network, obs, inputs=inputs)
         q_taken = q_values[rows, cols, actions]  # Q(s, a) [rows, B]
         error = q_taken - targets
-        magnitude = np.abs(error)
-        agent_losses = np.where(magnitude < 1.0, 0.5 * error * error, magnitude - 0.5).mean(axis=1)
+        agent_losses = huber(error).mean(axis=1)
         valid = self.replay.size > 0
 
-        # d loss / d Q: the Huber derivative (the error, clipped to [-1, 1]) through the weighted batch
-        # mean, scattered onto the actions taken.
-        grad_taken = np.clip(error, -1.0, 1.0) * (self.loss_weights(valid)[:, None] / np.float32(q_taken.shape[1]))
+        # d loss / d Q(s, a), scattered onto the actions taken, then back through the network.
+        grad_taken = td_loss_grad(error, self.loss_weights(valid))
         grad_q = np.zeros_like(q_values)
         grad_q[rows, cols, actions] = grad_taken
         if self.share_parameters:

@@ -1,0 +1,159 @@
+"""The DQN / Double DQN update, in one place: the target, the loss, the clip and the Adam step.
+
+Read :func:`reference_update` top to bottom: it is the algorithm, CleanRL's ``dqn.py`` update for one
+network in plain torch with autograd and ``torch.optim.Adam``::
+
+    td_target = r + gamma * max_a Q_target(s', a) * (1 - terminated)        (Double DQN: see below)
+    loss      = mean_batch Huber(Q(s, a) - td_target)                        (smooth L1, beta = 1)
+    loss.backward(); clip_grad_norm_(max_grad_norm); adam.step()
+
+The engines (:mod:`~dqn_transfer.agents.dqn` in torch, :mod:`~dqn_transfer.agents.numpy_dqn` in numpy)
+run the same update for all R x K agents at once with hand-written backward passes and a flat Adam,
+which is what makes them fast; the tests (``tests/test_dqn_update.py``) check each engine's loss,
+gradients and updated weights against :func:`reference_update` on the same weights and batch. The
+algorithm's decisions the engines need are the functions above it, array-generic (numpy arrays and
+torch tensors alike) and written once: :func:`dqn_targets` / :func:`double_dqn_targets` (with the
+termination mask), :func:`huber` and :func:`huber_grad` (the loss and its derivative, reduced by
+:func:`td_loss_grad`), :func:`clip_coefficient` (the clip rule). An engine keeps only numeric kernels:
+forward and backward matrix products, the gradient norms, Adam's arithmetic.
+
+This module imports no torch at import time (the numpy engine uses it and never imports torch);
+:func:`reference_update` imports torch when called.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    import torch
+
+Array = Any  # a numpy array or a torch tensor (every function below takes either and returns the same kind)
+
+
+def _xp(array: Array) -> Any:
+    """The array's namespace: numpy, or torch for a tensor (already imported if there is a tensor)."""
+    return np if isinstance(array, np.ndarray) else sys.modules["torch"]
+
+
+def _take_last(values: Array, index: Array) -> Array:
+    """``values[..., index[...]]``: one entry of the last axis per leading position."""
+    if isinstance(values, np.ndarray):
+        return np.take_along_axis(values, index[..., None], -1)[..., 0]
+    return values.gather(-1, index.unsqueeze(-1)).squeeze(-1)
+
+
+def _bootstrap(rewards: Array, next_q: Array, terminated: Array, gamma: float) -> Array:
+    """``r + gamma * next_q * (1 - terminated)``.
+
+    Only termination (a chest or a trap: the episode really ended) cuts the bootstrap. A step truncated
+    by the time limit still has a future, and is not marked terminated: the timeout rule, applied where
+    the replay stores transitions (:mod:`~dqn_transfer.agents.replay`), as SB3's
+    ``handle_timeout_termination``.
+    """
+    if isinstance(terminated, np.ndarray):
+        terminated = terminated.astype(rewards.dtype, copy=False)
+    else:
+        terminated = terminated.to(rewards.dtype)
+    return rewards + gamma * next_q * (1.0 - terminated)
+
+
+def dqn_targets(rewards: Array, next_q_target: Array, terminated: Array, gamma: float) -> Array:
+    """DQN's target ``y = r + gamma * max_a Q_target(s', a) * (1 - terminated)``.
+
+    ``rewards``, ``terminated`` ``[..., B]``, ``next_q_target`` ``[..., B, A]``; ``gamma``: the discount
+    (``agent.gamma``).
+    """
+    return _bootstrap(rewards, _xp(next_q_target).amax(next_q_target, -1), terminated, gamma)
+
+
+def double_dqn_targets(
+    rewards: Array, next_q_online: Array, next_q_target: Array, terminated: Array, gamma: float
+) -> Array:
+    """Double DQN's target ``y = r + gamma * Q_target(s', argmax_a Q_online(s', a)) * (1 - terminated)``.
+
+    The online network picks the action and the target network scores it, which removes the
+    overestimation of taking the max of one noisy estimate (van Hasselt et al., 2016). Ties go to the
+    first best action.
+    """
+    next_actions = _xp(next_q_online).argmax(next_q_online, -1)
+    return _bootstrap(rewards, _take_last(next_q_target, next_actions), terminated, gamma)
+
+
+def huber(error: Array) -> Array:
+    """The Huber loss of the TD error ``Q(s, a) - y`` (``smooth_l1_loss`` with ``beta = 1``), element-wise:
+    ``error^2 / 2`` within 1 of zero, ``|error| - 1/2`` beyond (the same floats as ``smooth_l1_loss``)."""
+    xp = _xp(error)
+    magnitude = xp.abs(error)
+    return xp.where(magnitude < 1.0, 0.5 * error * error, magnitude - 0.5)
+
+
+def huber_grad(error: Array) -> Array:
+    """d :func:`huber` / d error: the TD error clipped to ``[-1, 1]``."""
+    return _xp(error).clip(error, -1.0, 1.0)
+
+
+def td_loss_grad(error: Array, weights: Array) -> Array:
+    """d loss / d ``Q(s, a)`` ``[rows, B]`` for the engines' loss ``sum_rows weights[row] * mean_batch
+    huber(error[row])`` (``weights`` ``[rows]``: see ``BatchedDQN.loss_weights``)."""
+    return huber_grad(error) * (weights[:, None] / error.shape[-1])
+
+
+def clip_coefficient(norms: Array, max_norm: float) -> Array:
+    """What ``clip_grad_norm_`` multiplies the gradients by, given their norm(s): at most 1, so that a
+    norm above ``max_norm`` (``agent.max_grad_norm``) becomes ``max_norm`` (``1e-6``: torch's guard)."""
+    return _xp(norms).clip(max_norm / (norms + 1e-6), None, 1.0)
+
+
+def reference_update(
+    q_network: torch.nn.Module,
+    target_network: torch.nn.Module,
+    optimizer: torch.optim.Optimizer,
+    batch: tuple[torch.Tensor, ...],
+    weights: torch.Tensor,
+    *,
+    gamma: float,
+    double: bool,
+    max_grad_norm: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """One gradient step of one Q-network (an ``nn.Module`` and its Adam), with autograd: the algorithm.
+
+    ``batch`` is ``(obs [n, B, D], actions [n, B], rewards [n, B], next_obs [n, B, D], terminated [n, B])``
+    for the n agents the network serves: one for an agent's own network, a replica's K with
+    ``share_parameters``. ``weights`` ``[n]`` is each agent's share of the loss (``loss_weights``: 1 for
+    its own network, 1/K for a shared one, 0 for an agent with no data yet). ``optimizer`` is
+    ``torch.optim.Adam(q_network.parameters(), lr=agent.lr)`` (torch's defaults otherwise); a parameter
+    that does not require a gradient (a frozen layer) is neither clipped nor stepped. Returns each agent's
+    mean loss and mean ``Q(s, a)`` ``[n]``.
+
+    The engines take this step for every network at once; the gradient clip is per network (per agent,
+    or per replica's shared network), never over all of them together.
+    """
+    import torch
+    import torch.nn.functional as F
+
+    obs, actions, rewards, next_obs, terminated = batch
+
+    # The target: no gradient flows into it. DQN takes the target network's max over the next actions;
+    # Double DQN lets the online network choose the action and the target network score it.
+    with torch.no_grad():
+        next_q_target = target_network(next_obs)
+        if double:
+            td_target = double_dqn_targets(rewards, q_network(next_obs), next_q_target, terminated, gamma)
+        else:
+            td_target = dqn_targets(rewards, next_q_target, terminated, gamma)
+
+    # The loss: Huber between Q(s, a) and the target, averaged over each agent's batch, weighted over agents.
+    q_taken = q_network(obs).gather(-1, actions.unsqueeze(-1)).squeeze(-1)
+    agent_losses = F.smooth_l1_loss(q_taken, td_target, reduction="none").mean(dim=-1)
+    loss = (weights * agent_losses).sum()
+
+    # The step: gradient, its norm clipped to max_grad_norm (agent.max_grad_norm), Adam.
+    optimizer.zero_grad()
+    loss.backward()
+    torch.nn.utils.clip_grad_norm_(q_network.parameters(), max_grad_norm)
+    optimizer.step()
+    return agent_losses.detach(), q_taken.detach().mean(dim=-1)
