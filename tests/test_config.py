@@ -40,6 +40,12 @@ def test_defaults_are_the_documented_ones():
     assert config.agent.hidden == [64, 64]
 
 
+def test_the_schema_default_agent_is_the_command_lines():
+    """One truth: `python train.py` with no `agent=` builds the learner `AgentConfig()` describes."""
+    assert compose_config().agent == AgentConfig()
+    assert AgentConfig().algorithm is Algorithm.double_dqn
+
+
 def test_transfer_takes_an_offset_a_fill_and_a_source_agent_per_target():
     config = compose_config(
         "transfer=on", "transfer.offset=[2,1]", "transfer.fill=nearest", "transfer.source_agent=[1,0,1]"
