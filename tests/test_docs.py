@@ -12,10 +12,10 @@ ROOT = Path(__file__).resolve().parents[1]
 DOCS = sorted([ROOT / "README.md", *(ROOT / "docs").glob("*.md")])
 
 CODE_SPAN = re.compile(r"`([^`\n]+)`")
-DOTTED = re.compile(r"(?<![\w./-])dqn_transfer(?:\.[A-Za-z_]\w*)+")
+DOTTED = re.compile(r"(?<![\w./-])dqn_transfer(?:\.(?:[A-Za-z_]\w*|<[\w|]+>))+")  # <a|b>: one per alternative
 PATH = re.compile(r"(?<![\w./-])dqn_transfer/[\w./{},-]*")  # {a,b}: one name per alternative
 FROM_IMPORT = re.compile(r"^\s*from\s+([\w.]+)\s+import\s+([\w\s,]+?)\s*(?:#.*)?$")
-BRACES = re.compile(r"\{([^{}]*)\}")
+ALTERNATIVES = re.compile(r"\{([^{}]*)\}|<([^<>]*)>")
 
 # Names that other branches' docs still carry and fix in their own rewrite (empty this after the merge).
 PENDING: set[str] = set()
@@ -34,7 +34,9 @@ def named_in_docs() -> list[tuple[str, str]]:
                 continue
             where = f"{doc.relative_to(ROOT)}:{number}"
             for code in [line] if fenced else CODE_SPAN.findall(line):
-                names = DOTTED.findall(code) + [p for path in PATH.findall(code) for p in expand(path)]
+                names = [
+                    name for found_name in DOTTED.findall(code) + PATH.findall(code) for name in expand(found_name)
+                ]
                 imported = FROM_IMPORT.search(code)
                 if imported and imported.group(1).startswith("dqn_transfer"):
                     names += [f"{imported.group(1)}.{name.split()[0]}" for name in imported.group(2).split(",")]
@@ -42,13 +44,15 @@ def named_in_docs() -> list[tuple[str, str]]:
     return found
 
 
-def expand(path: str) -> list[str]:
-    """``a/m{2,3}.yaml`` as the shell reads it: ``a/m2.yaml``, ``a/m3.yaml``."""
-    match = BRACES.search(path)
+def expand(name: str) -> list[str]:
+    """``a/m{2,3}.yaml`` as the shell reads it (``a/m2.yaml``, ``a/m3.yaml``), and ``a.<b|c>`` as the
+    docs' usage lines mean it (``a.b``, ``a.c``)."""
+    match = ALTERNATIVES.search(name)
     if match is None:
-        return [path]
-    head, tail = path[: match.start()], path[match.end() :]
-    return [name for choice in match.group(1).split(",") for name in expand(head + choice + tail)]
+        return [name]
+    head, tail = name[: match.start()], name[match.end() :]
+    choices = match.group(1).split(",") if match.group(1) is not None else match.group(2).split("|")
+    return [expanded for choice in choices for expanded in expand(head + choice + tail)]
 
 
 def is_module(dotted: str) -> bool:
@@ -64,7 +68,9 @@ def resolves(name: str) -> bool:
     if "/" in name:
         return (ROOT / name).exists()
     parts = name.split(".")
-    for end in range(len(parts), 0, -1):
+    if is_module(name):
+        return True  # without importing it (some import torch)
+    for end in range(len(parts) - 1, 0, -1):
         if not is_module(".".join(parts[:end])):
             continue
         obj = importlib.import_module(".".join(parts[:end]))
@@ -92,6 +98,7 @@ def test_resolves_tells_what_exists_from_what_does_not():
         "dqn_transfer/conf/env/study/m2.yaml",
         "dqn_transfer/conf/env/study/m3.yaml",
     ]
+    assert expand("dqn_transfer.cli.<train|play>") == ["dqn_transfer.cli.train", "dqn_transfer.cli.play"]
     assert not resolves("dqn_transfer.checkpoint")  # the module before it moved to storage/
     assert not resolves("dqn_transfer.envs.maps.no_such_function")
     assert not resolves("dqn_transfer/run_dir.py")
