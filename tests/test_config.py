@@ -1,5 +1,6 @@
 """Every config option composes through Hydra; typos, wrong types and out-of-range values are refused."""
 
+import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
 from hydra.errors import ConfigCompositionException
@@ -38,6 +39,12 @@ def test_defaults_are_the_documented_ones():
     assert config.env.size == 6 and config.env.mode is Mode.competitive
     assert config.transfer.enabled is False
     assert config.agent.hidden == [64, 64]
+
+
+def test_the_schema_default_agent_is_the_command_lines():
+    """One truth: `python train.py` with no `agent=` builds the learner `AgentConfig()` describes."""
+    assert compose_config().agent == AgentConfig()
+    assert AgentConfig().algorithm is Algorithm.double_dqn
 
 
 def test_transfer_takes_an_offset_a_fill_and_a_source_agent_per_target():
@@ -127,18 +134,24 @@ def test_the_command_line_and_the_python_api_build_the_same_learner(option, algo
     assert composed == api
     layout, actions = [("position", 9)], 4
     a, b = (make_learner(hp, 2, layout, actions, seed=0) for hp in (composed, api))
-    for name in (
-        "algorithm",
-        "lr",
-        "gamma",
-        "batch_size",
-        "learning_starts",
-        "train_freq",
-        "gradient_steps",
-        "target_update",
-        "tau",
-        "hidden",
-        "max_grad_norm",
-        "share_parameters",
-    ):
-        assert getattr(a, name, None) == getattr(b, name, None), name
+    assert type(a) is type(b)
+    # the keys each learner reads (docs/learners.md): tabular ones read only these three
+    read = ["algorithm", "lr", "gamma"]
+    if not algorithm.is_tabular:
+        read += [
+            "batch_size",
+            "learning_starts",
+            "train_freq",
+            "gradient_steps",
+            "target_update",
+            "tau",
+            "hidden",
+            "max_grad_norm",
+            "share_parameters",
+        ]
+    for name in read:
+        value = getattr(api, name)
+        assert getattr(a, name) == getattr(b, name) == (value.value if name == "algorithm" else value), name
+    for i in range(2):  # and the same seed gives the same starting weights or tables
+        ta, tb = a.agent_tensors(i), b.agent_tensors(i)
+        assert ta.keys() == tb.keys() and all(np.array_equal(ta[k], tb[k]) for k in ta), i

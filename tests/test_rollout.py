@@ -90,11 +90,21 @@ def test_a_chest_left_full_is_never_cleared():
     assert (result.steps_after_clear, result.return_after_clear) == (0, 0.0)
 
 
-def test_episode_result_keeps_its_five_positional_fields():
-    result = EpisodeResult(1.0, 2, 3, 0.5, 0.25)
-    assert (result.steps_after_clear, result.return_after_clear) == (0, 0.0)
-    team_return, length, collected, success, trap = result[:5]
-    assert (team_return, length, collected, success, trap) == (1.0, 2, 3, 0.5, 0.25)
+def test_the_first_five_fields_count_return_steps_chests_and_traps():
+    # agent 1 at (3,0) steps RIGHT into the trap at (3,1) on step 1 (-100) and leaves the game; agent 0
+    # takes the chest at (0,3) on step 3 (-1, -1, +100) and leaves it too: with nobody left playing the
+    # episode ends there, with one of the two chests full and one of the two agents trapped
+    game = game_of("0..T\n....\n....\n1X.T")
+    result = play_episode(game, scripted([RIGHT], [RIGHT]), np.random.default_rng(0))
+    assert result == EpisodeResult(
+        team_return=98.0 - 100.0,
+        length=3,
+        treasures_collected=1,
+        success_rate=0.5,
+        trap_rate=0.5,
+        steps_after_clear=0,  # the map was never cleared
+        return_after_clear=0.0,
+    )
 
 
 class StubLearner:

@@ -68,7 +68,7 @@ class ReplayBuffer:
         self.rngs = list(rngs)
         self.rows_per_rng = num_rows // len(self.rngs)
         d = obs_dim
-        self.columns = {
+        self.columns: dict[str, slice | int] = {
             "obs": slice(0, d),
             "next_obs": slice(d, 2 * d),
             "rewards": 2 * d,
@@ -159,7 +159,7 @@ class ReplayBuffer:
         filled = int(size.max(initial=0))
         stored = self.storage[rows, :filled]
         # Contiguous copies: safetensors writes an array's raw buffer, and a slice is only a view.
-        arrays = {
+        arrays: dict[str, np.ndarray] = {
             name: np.ascontiguousarray(stored[..., self.columns[name]].astype(dtype))
             for name, dtype in FIELD_DTYPES.items()
         }

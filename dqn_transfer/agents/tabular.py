@@ -52,7 +52,7 @@ def fallback_names(level: int) -> tuple[str, str, str]:
 
 def fallback_tables(tensors: Mapping[str, np.ndarray]) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """The fallback tables in ``tensors``, in lookup order (levels 0, 1, ... up to the first missing)."""
-    tables = []
+    tables: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     while True:
         names = fallback_names(len(tables))
         present = [name for name in names if name in tensors]
@@ -60,7 +60,8 @@ def fallback_tables(tensors: Mapping[str, np.ndarray]) -> list[tuple[np.ndarray,
             return tables
         if len(present) != len(names):
             raise ValueError(f"fallback table is incomplete: has only {present}")
-        tables.append(tuple(np.asarray(tensors[name]) for name in names))
+        keys, values, projection = (np.asarray(tensors[name]) for name in names)
+        tables.append((keys, values, projection))
 
 
 class _Fallback:
@@ -194,7 +195,7 @@ class TabularLearner(TeamShape):
         actions = np.zeros(self.num_agents, dtype=np.int64)
         if not greedy:
             self.epsilon = np.array(epsilon, dtype=float) if np.ndim(epsilon) else np.full(self.num_agents, epsilon)
-        for i in np.flatnonzero(live):
+        for i in np.flatnonzero(live).tolist():
             if greedy:
                 best = _best_actions(self.agent_q_values(i, obs[i]))
                 actions[i] = best[0] if len(best) == 1 or ties is None else best[int(ties.integers(len(best)))]
@@ -220,7 +221,7 @@ class TabularLearner(TeamShape):
         actions, terminated, truncated = transition.actions, transition.terminated, transition.truncated
         td_loss = np.full(self.num_agents, np.nan)
         q_mean = np.full(self.num_agents, np.nan)
-        for i in np.flatnonzero(transition.live):
+        for i in np.flatnonzero(transition.live).tolist():
             self.next_action[i] = _NO_ACTION
             row, a = self._entry(i, obs[i]), int(actions[i])
             target = rewards[i]
@@ -260,7 +261,8 @@ class TabularLearner(TeamShape):
             values[n] = row
         tensors = {"keys": keys, "values": values}
         for level, fallback in enumerate(self.fallbacks[i]):
-            for name, array in zip(fallback_names(level), (fallback.keys, fallback.values, fallback.projection)):
+            arrays: tuple[np.ndarray, ...] = (fallback.keys, fallback.values, fallback.projection)
+            for name, array in zip(fallback_names(level), arrays):
                 tensors[name] = array.copy()
         return tensors
 

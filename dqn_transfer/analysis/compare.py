@@ -31,9 +31,10 @@ from dqn_transfer.analysis.transfer_metrics import (
 def _seed_order(run_dirs: Sequence[Path]) -> list[int]:
     """Indices of the runs sorted by seed; the given order if some run does not record its seed."""
     seeds = [run_seed(d) for d in run_dirs]
-    if None in seeds:
+    known = [seed for seed in seeds if seed is not None]
+    if len(known) != len(seeds):
         return list(range(len(run_dirs)))
-    return sorted(range(len(run_dirs)), key=lambda i: seeds[i])
+    return sorted(range(len(run_dirs)), key=known.__getitem__)
 
 
 def _pair_by_seed(transfer_dirs: Sequence[Path], baseline_dirs: Sequence[Path]) -> list[tuple[int, int]]:

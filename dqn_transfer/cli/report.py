@@ -99,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
             launcher = None if args.report_only else choose_launcher(args.launcher)  # refused before anything runs
             out = args.out.expanduser().resolve()
             out.mkdir(parents=True, exist_ok=True)
-            if not args.report_only:
+            if launcher is not None:  # None with --report-only
                 print(f"profile {args.profile}: {PROFILES[args.profile].description}", flush=True)
                 for name in only:
                     run_experiment(name, args.profile, out, launcher, args.n_jobs, args.extra)

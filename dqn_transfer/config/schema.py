@@ -35,7 +35,9 @@ class AgentConfig:
     exploration schedule); the tabular ones read ``algorithm``, ``lr`` and ``gamma``.
     """
 
-    algorithm: Algorithm = documented(Algorithm.dqn, "sarsa | qlearning (tabular) or dqn | double_dqn (networks)")
+    algorithm: Algorithm = documented(
+        Algorithm.double_dqn, "sarsa | qlearning (tabular) or dqn | double_dqn (networks)"
+    )
     lr: float = documented(1e-3, "Adam step size (DQN) or alpha (tabular)")
     gamma: float = documented(0.99, "discount")
     batch_size: int = documented(64, "transitions per agent per gradient step")

@@ -31,13 +31,15 @@ import math
 from collections.abc import Mapping
 from dataclasses import fields
 from enum import Enum
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
 from dqn_transfer.enums import Mode, ObsEncoding, RewardMode, values
 from dqn_transfer.envs.maps import GridMap, resolve_map
 from dqn_transfer.envs.settings import DEFAULTS, MAP_KEYS, EnvConfig
+
+E = TypeVar("E", bound=Enum)
 
 RENDER_MODES = ("ansi", "rgb_array", "human")  # human: the ansi frame printed to the terminal
 ACTION_MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))  # 0 up, 1 down, 2 left, 3 right
@@ -73,10 +75,10 @@ AGENT_COLOURS = np.array(
 def check_choice(name: str, value: object, choices: tuple[str, ...]) -> str:
     if value not in choices:
         raise ValueError(f"{name} must be one of {', '.join(choices)}; got {value!r}")
-    return value  # type: ignore[return-value]
+    return value
 
 
-def check_enum(name: str, value: object, enum: type[Enum]) -> Enum:
+def check_enum(name: str, value: object, enum: type[E]) -> E:
     """``value`` as a member of ``enum``: a member, or its spelling (the faces take strings)."""
     if isinstance(value, enum):
         return value

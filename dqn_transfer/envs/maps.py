@@ -136,7 +136,10 @@ def parse_layout(text: str) -> GridMap:
     if size < 2:
         raise ValueError("layout must be at least 2 x 2")
 
-    obstacles, chests, traps, starts = set(), [], [], {}
+    obstacles: set[Cell] = set()
+    chests: list[Cell] = []
+    traps: list[Cell] = []
+    starts: dict[int, Cell] = {}
     for r, line in enumerate(lines):
         for c, ch in enumerate(line):
             if ch not in LEGEND:

@@ -30,7 +30,10 @@ QUARTERS = [(0.3, 0.3), (0.7, 0.3), (0.3, 0.7), (0.7, 0.7)]
 @lru_cache(maxsize=8)
 def font(size: int) -> ImageFont.FreeTypeFont:
     """Pillow's own scalable font (no system font needed) at ``size`` pixels."""
-    return ImageFont.load_default(size=size)
+    loaded = ImageFont.load_default(size=size)
+    if not isinstance(loaded, ImageFont.FreeTypeFont):  # Pillow built without FreeType: no scalable font
+        raise RuntimeError("drawing needs Pillow with FreeType support (its scalable default font)")
+    return loaded
 
 
 def agent_colour(agent: int) -> tuple[int, int, int]:
@@ -54,7 +57,7 @@ def draw_state(
     """
     n = grid_map.size
     text = font(max(10, cell_px * 3 // 10 + 2))
-    line_px = text.size + 4
+    line_px = int(text.size) + 4
     height = n * cell_px + (len(caption) * line_px + 6 if caption else 0)
     image = Image.new("RGB", (n * cell_px, height), CAPTION_BACKGROUND)
     draw = ImageDraw.Draw(image)

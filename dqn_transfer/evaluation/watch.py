@@ -210,7 +210,7 @@ def evaluation_views(
     rng = evaluation_rng(seed, evaluation, 0)
     episode = record_episode(game, greedy_policy(learner, rng), rng)
     picture = frame_picture(episode, len(episode.frames) - 1, cell_px=TENSORBOARD_CELL_PX)
-    q_values = [[] for _ in range(game.num_agents)]
+    q_values: list[list[np.ndarray]] = [[] for _ in range(game.num_agents)]
     for obs, live in episode.observations:
         values = learner.q_values(obs)
         for agent in np.flatnonzero(live):

@@ -408,9 +408,9 @@ def _rekey_positions(
     codes or None, the target columns of those codes)``. One row per target cell that reads the key's
     source cell (several with ``fill=nearest``); without an embedding, positions are copied as columns."""
     position = next((seg for seg in plan.shared if seg.name == "position"), None)
-    in_position = np.zeros(len(columns), dtype=bool)
-    if embedding is not None and position is not None:
-        in_position = (columns >= position.source.start) & (columns < position.source.stop)
+    if embedding is None or position is None:
+        return np.arange(len(keys)), None, np.zeros(0, dtype=np.int64)
+    in_position = (columns >= position.source.start) & (columns < position.source.stop)
     if not in_position.any():
         return np.arange(len(keys)), None, np.zeros(0, dtype=np.int64)
     if in_position.sum() != position.source.stop - position.source.start:
