@@ -29,6 +29,7 @@ from dqn_transfer.analysis.transfer_metrics import Curve, common_steps
 N_RESAMPLES = 10000
 BAND_RESAMPLES = 2000  # a band is one interval per evaluation step: fewer resamples keep figures quick
 RLIABLE_RESAMPLES = 2000  # stratified-bootstrap resamples of the IQM and the probability of improvement
+Values = Sequence[float] | np.ndarray  # one value per run
 
 
 def _resampled_means(values: np.ndarray, rng: np.random.Generator, n_resamples: int) -> np.ndarray:
@@ -91,7 +92,7 @@ class Estimate:
         return f"{self.mean:.4g} {ci}"
 
 
-def estimate(values: Sequence[float], rng: np.random.Generator) -> Estimate:
+def estimate(values: Values, rng: np.random.Generator) -> Estimate:
     """:func:`bootstrap_ci` of the finite values (a run that never reached a threshold has none);
     ``n`` says how many values it rests on."""
     values = [v for v in values if math.isfinite(v)]
@@ -136,24 +137,24 @@ def curve_band(
     return steps, mean, low, high
 
 
-def mean_intervals(values: Sequence[float], rng: np.random.Generator, confidence: float = 0.95) -> dict[str, Estimate]:
+def mean_intervals(values: Values, rng: np.random.Generator, confidence: float = 0.95) -> dict[str, Estimate]:
     """The mean over runs with three 95% intervals: ``percentile`` (:func:`bootstrap_ci`), ``t`` (Student's
     t, which holds at small n for roughly normal values) and ``bca`` (bias-corrected and accelerated
     bootstrap, scipy's). Fewer than two values, or values all equal, give no interval (``nan``)."""
-    values = np.asarray([v for v in values if math.isfinite(v)], dtype=np.float64)
-    n = values.size
-    if n < 2 or np.all(values == values[0]):
-        mean = float(values.mean()) if n else math.nan
+    finite = np.asarray([v for v in values if math.isfinite(v)], dtype=np.float64)
+    n = finite.size
+    if n < 2 or np.all(finite == finite[0]):
+        mean = float(finite.mean()) if n else math.nan
         return {method: Estimate(mean, math.nan, math.nan, n) for method in ("percentile", "t", "bca")}
-    mean = float(values.mean())
-    t_low, t_high = scipy.stats.t.interval(confidence, n - 1, loc=mean, scale=scipy.stats.sem(values))
+    mean = float(finite.mean())
+    t_low, t_high = scipy.stats.t.interval(confidence, n - 1, loc=mean, scale=scipy.stats.sem(finite))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # near-degenerate samples: scipy warns and returns nan, shown as "n/a"
         bca = scipy.stats.bootstrap(
-            (values,), np.mean, confidence_level=confidence, method="BCa", n_resamples=N_RESAMPLES, random_state=rng
+            (finite,), np.mean, confidence_level=confidence, method="BCa", n_resamples=N_RESAMPLES, random_state=rng
         ).confidence_interval
     return {
-        "percentile": Estimate(*bootstrap_ci(values, rng, confidence=confidence), n),
+        "percentile": Estimate(*bootstrap_ci(finite, rng, confidence=confidence), n),
         "t": Estimate(mean, float(t_low), float(t_high), n),
         "bca": Estimate(mean, float(bca.low), float(bca.high), n),
     }
