@@ -3,9 +3,9 @@
 - Means over seeds with a 95% percentile bootstrap: resample the seeds with replacement, take the
   mean of each resample, and read the ``(1 - confidence)/2`` and ``(1 + confidence)/2`` quantiles of
   those means. Runs of different conditions that share a seed share its map, initial weights and
-  exploration noise, so differences between conditions are paired by seed where they can be
-  (:func:`difference`). At small n a percentile interval is too narrow, so :func:`mean_intervals`
-  gives the t and BCa intervals beside it.
+  exploration noise, so differences between conditions are paired by seed where they can be. At
+  small n a percentile interval is too narrow, so :func:`mean_intervals` gives the t and BCa intervals
+  beside it.
 - The field's robust aggregates, from ``rliable`` (Agarwal et al. 2021, "Deep RL at the edge of the
   statistical precipice"): the interquartile mean (:func:`iqm`) and the probability of improvement
   (:func:`improvement_probability`), each with rliable's stratified bootstrap (runs resampled within
@@ -79,12 +79,6 @@ class Estimate:
     def has_ci(self) -> bool:
         return math.isfinite(self.low) and math.isfinite(self.high)
 
-    def excludes_zero_above(self) -> bool:
-        return self.has_ci and self.low > 0
-
-    def contains_zero(self) -> bool:
-        return self.has_ci and self.low <= 0 <= self.high
-
     def __str__(self) -> str:
         if not math.isfinite(self.mean):
             return "n/a"
@@ -99,27 +93,6 @@ def estimate(values: Values, rng: np.random.Generator) -> Estimate:
     if not values:
         return Estimate(math.nan, math.nan, math.nan, 0)
     return Estimate(*bootstrap_ci(values, rng), len(values))
-
-
-def difference(
-    a: dict[int, float],
-    b: dict[int, float],
-    rng: np.random.Generator,
-    n_resamples: int = N_RESAMPLES,
-    confidence: float = 0.95,
-) -> Estimate:
-    """Mean of ``a - b`` (each ``{seed: value}``) with a bootstrap CI: paired by seed when both have
-    the same seeds (same map, same initial values and exploration noise cancel), else two
-    independent samples, each resampled on its own."""
-    if set(a) == set(b):
-        return estimate([a[s] - b[s] for s in sorted(a)], rng)
-    av, bv = np.array(list(a.values())), np.array(list(b.values()))
-    mean = float(av.mean() - bv.mean())
-    if av.size < 2 or bv.size < 2:
-        return Estimate(mean, math.nan, math.nan, min(av.size, bv.size))
-    diffs = _resampled_means(av, rng, n_resamples) - _resampled_means(bv, rng, n_resamples)
-    low, high = _percentiles(diffs, confidence)
-    return Estimate(mean, float(low), float(high), min(av.size, bv.size))
 
 
 def curve_band(
