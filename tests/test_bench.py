@@ -23,7 +23,7 @@ from omegaconf import OmegaConf
 from torch import nn
 
 from dqn_transfer.agents import DQNLearner, make_learner
-from dqn_transfer.benchmark import processes, suite, whole_process
+from dqn_transfer.benchmark import processes, suite, tables, whole_process
 from dqn_transfer.benchmark.config import (
     BENCH_AGENT,
     BENCH_MAP,
@@ -344,26 +344,32 @@ def test_processes_command_line_prints_what_it_did(capsys):
 
 
 @pytest.fixture(scope="module")
-def process_document():
+def process_benchmark():
     return suite.run_benchmark(
         "quick", 0, 1, 1, sizes=PROCESS_SIZES, sections=("lone", "replicas"), progress=lambda what: None
     )
 
 
+@pytest.fixture(scope="module")
+def process_document(process_benchmark):
+    return process_benchmark.to_json()
+
+
 @pytest.mark.slow
 def test_lone_section_runs_four_whole_processes_that_train(process_document):
     lone = process_document["lone"]
-    assert set(lone["raw"]) == {"ours", "ours_torch", "sb3", "bare"} and lone["steps"] == PROCESS_SIZES.lone_steps
+    contenders = lone["contenders"]
+    assert set(contenders) == {"ours", "ours_torch", "sb3", "bare"} and lone["steps"] == PROCESS_SIZES.lone_steps
     expected = gradient_steps(PROCESS_SIZES.lone_steps, LONE_AGENT.learning_starts, LONE_AGENT.train_freq)
-    for who, runs in lone["raw"].items():
+    for who, runs in ((who, c["raw"]) for who, c in contenders.items()):
         assert len(runs) == 1
         assert runs[0]["steps_done"] == PROCESS_SIZES.lone_steps, who
         assert runs[0]["gradient_steps"] == expected == 25, who
         assert runs[0]["cpu_seconds"] > 0 and runs[0]["max_rss_mb"] > 0
-    assert lone["contenders"]["ours"]["ours_over_this"] == 1.0
-    assert lone["ours_over_sb3"] == lone["contenders"]["sb3"]["ours_over_this"]
+    assert contenders["ours"]["ours_over_this"] == 1.0
+    assert contenders["sb3"]["figures"]["gradient_steps"] == expected
     assert lone["hyperparameters"] == {**dataclasses.asdict(LONE_AGENT), "algorithm": "dqn", "engine": "torch"}
-    assert len(lone["loadavg_start"]) == len(lone["loadavg_end"]) == 3
+    assert len(lone["load"]["start"]) == len(lone["load"]["end"]) == 3
 
 
 @pytest.mark.slow
@@ -385,19 +391,19 @@ def test_replicas_section_runs_one_process_of_r_replicas_and_sb3_side_by_side(pr
         assert run["gradient_steps"] == expected == 10
         assert run["threads"] == 1
         assert run["learner_steps_per_s"] == pytest.approx(4 * row["replicas"] * rep["steps"] / run["seconds"])
-    sb3 = rep["sb3"]["raw"][0]
+    sb3 = rep["sb3_raw"][0]
     assert sb3["processes"] == rep["sb3_processes"] == cores
     assert sb3["process_steps"] == [rep["steps"]] * cores and sb3["gradient_steps"] == [expected] * cores
     assert sb3["learner_steps_per_s"] == pytest.approx(cores * rep["steps"] / sb3["seconds"])
     assert sb3["seconds"] >= max(sb3["process_seconds"])  # until the last one exits
     assert rep["hyperparameters"]["learning_starts"] == PROCESS_SIZES.replica_learning_starts
-    assert process_document["settings"]["replica_counts"] == [1, 2]
+    assert process_document["settings"]["sizes"]["replica_counts"] == [1, 2]
     assert json.loads(json.dumps(process_document)) == process_document
 
 
 @pytest.mark.slow
-def test_tables_of_the_whole_process_sections(process_document):
-    table = suite.render_markdown(process_document)
+def test_tables_of_the_whole_process_sections(process_benchmark, process_document):
+    table = tables.render_markdown(process_benchmark)
     assert [line.split()[1] for line in table.splitlines() if line.startswith("## ")] == ["5.", "6."]
     assert [row.split(":")[0] for row in table_rows(table, "## 5.")] == [
         "ours",
@@ -415,10 +421,15 @@ def test_tables_of_the_whole_process_sections(process_document):
 
 # ----------------------------------------------------------------------------- the document and its table
 @pytest.fixture(scope="module")
-def document():
+def benchmark():
     return suite.run_benchmark(
         "quick", 0, 1, 1, sizes=TINY_SIZES, agent=TINY, sections=IN_PROCESS, progress=lambda what: None
     )
+
+
+@pytest.fixture(scope="module")
+def document(benchmark):
+    return benchmark.to_json()
 
 
 def table_rows(table: str, heading: str) -> list[str]:
@@ -433,10 +444,10 @@ def test_document_holds_every_section_and_is_json(document):
     assert [row["torch_threads"] for row in document["training"]] == [1]
     for who in ("ours", "sb3"):
         assert [run["gradient_steps"] for run in document["training"][0]["raw"][who]] == [30 - TINY.learning_starts]
-    update = document["update"]
-    assert {f"{name}_us" for name in ("bare", "in_memory", "ours", "sample", "sb3")} <= set(update)
-    assert update["bare_over_bare"] == 1.0
-    assert ("ours_default_threads_us" in update) == (suite.DEFAULT_THREADS != 1)
+    timings = document["update"]["timings"]
+    assert {"bare", "in_memory", "ours", "sample", "sb3"} <= set(timings)
+    assert timings["bare"]["over_bare"] == 1.0
+    assert ("ours_default_threads" in timings) == (suite.DEFAULT_THREADS != 1)
     assert document["settings"]["hyperparameters"] == {
         **dataclasses.asdict(TINY),
         "algorithm": "dqn",
@@ -446,14 +457,14 @@ def test_document_holds_every_section_and_is_json(document):
     assert json.loads(json.dumps(document)) == document  # plain JSON types throughout
 
 
-def test_table_has_the_four_sections_and_a_row_per_agent_count(document):
-    table = suite.render_markdown(document)
+def test_table_has_the_four_sections_and_a_row_per_agent_count(benchmark, document):
+    table = tables.render_markdown(benchmark)
     headings = [line for line in table.splitlines() if line.startswith("## ")]
     assert [h.split()[1] for h in headings] == ["1.", "2.", "3.", "4."]
     assert table_rows(table, "## 1.") == ["1", "4", "8"]
     assert table_rows(table, "## 2.") == ["1"]
     assert table_rows(table, "## 3.") == ["1", "2", "4", "8"]
-    assert len(table_rows(table, "## 4.")) == 5 + 2 * ("ours_default_threads_us" in document["update"])
+    assert len(table_rows(table, "## 4.")) == 5 + 2 * ("ours_default_threads" in document["update"]["timings"])
 
 
 # ----------------------------------------------------------------------------- the command line
@@ -465,7 +476,7 @@ def test_cli_prints_the_table_and_writes_the_document(tmp_path, monkeypatch, cap
     saved = json.loads(out.read_text())
     assert saved["markdown"].strip() == stdout.strip()
     assert "## 1." in stdout and "## 2." not in stdout and "env" in saved and "training" not in saved
-    assert saved["settings"]["env_steps"] == TINY_SIZES.env_steps
+    assert saved["settings"]["sizes"]["env_steps"] == TINY_SIZES.env_steps
     assert "env throughput" in stderr and f"wrote {out}" in stderr
 
 

@@ -17,10 +17,8 @@ from rliable import metrics as rlm
 from dqn_transfer.analysis.compare import compare_runs, format_table
 from dqn_transfer.analysis.runs import EvaluationError, learning_curve, read_metrics
 from dqn_transfer.analysis.stats import (
-    Estimate,
     bootstrap_ci,
     curve_band,
-    difference,
     improvement_probability,
     iqm,
     mean_intervals,
@@ -154,18 +152,6 @@ def test_bootstrap_ci_single_value_has_no_interval():
     assert mean == 7.0 and math.isnan(low) and math.isnan(high)
     with pytest.raises(ValueError):
         bootstrap_ci([], np.random.default_rng(0))
-
-
-def test_difference_is_paired_by_seed_else_two_samples():
-    rng = np.random.default_rng(0)
-    a = {0: 10.0, 1: 20.0, 2: 30.0}
-    # same seeds: the seed's share cancels, every paired difference is 1, so the CI is [1, 1]
-    assert difference(a, {0: 9.0, 1: 19.0, 2: 29.0}, rng) == Estimate(1.0, 1.0, 1.0, 3)
-    # other seeds: two independent samples, the same mean difference but each sample's spread in the CI
-    unpaired = difference(a, {5: 9.0, 6: 19.0, 7: 29.0}, rng)
-    assert (unpaired.mean, unpaired.n) == (1.0, 3) and unpaired.low < -5.0 and unpaired.high > 7.0
-    single = difference(a, {5: 3.0}, rng)  # one value on a side: no interval
-    assert single.mean == 17.0 and not single.has_ci
 
 
 def test_curve_band_over_the_common_steps():

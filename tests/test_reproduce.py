@@ -18,10 +18,11 @@ from dqn_transfer.cli import plot, report
 from dqn_transfer.config import CONFIG_DIR, register_configs, validate
 from dqn_transfer.enums import Algorithm, Mode
 from dqn_transfer.enums import values as enum_values
-from dqn_transfer.experiments import claims, sweeps
-from dqn_transfer.experiments.claims import slope
+from dqn_transfer.experiments import claims, scoring, sweeps
 from dqn_transfer.experiments.raw_data import RunData, export_sweep, read_data, write_data, write_manifest
+from dqn_transfer.experiments.render import Context, render
 from dqn_transfer.experiments.report import write_report
+from dqn_transfer.experiments.scoring import slope
 from dqn_transfer.experiments.sweeps import (
     EXPERIMENTS,
     ReproduceError,
@@ -73,6 +74,8 @@ def _write_run(
             "mode": mode,
             "layout": None,
             "layout_file": None,
+            "step_reward": -1.0,
+            "trap_reward": -100.0,
         },
         "agent": {"algorithm": algorithm, "eps_start": 1.0},
         "transfer": {"enabled": transfer, "source": None, "pretrain_steps": 500, "epsilon_start": 0.3},
@@ -111,14 +114,29 @@ def _record(
     **transfer_keys,
 ) -> RunData:
     """One run's raw data as the export writes it (only the config keys the report reads)."""
+    env = {"size": 6, "num_treasures": agents, "num_traps": agents, "complexity": 0.1, "layout": None}
     config = {
         "seed": seed,
         "total_steps": int(STEPS[-1]),
         "eval_every": 100,
         "eval_episodes": 5,
-        "env": {"map_seed": map_seed, "mode": mode, "num_agents": agents},
+        "env": {
+            **env,
+            "map_seed": map_seed,
+            "mode": mode,
+            "num_agents": agents,
+            "step_reward": -1.0,
+            "trap_reward": -100.0,
+        },
         "agent": {"algorithm": algorithm, "eps_start": eps_start, "share_parameters": share},
-        "transfer": {"enabled": transfer, "exchange": exchange, "epsilon_start": 0.3, **transfer_keys},
+        "transfer": {
+            "enabled": transfer,
+            "exchange": exchange,
+            "exchange_every": 20,
+            "exchange_tau": 0.5,
+            "epsilon_start": 0.3,
+            **transfer_keys,
+        },
         "curriculum": curriculum or {"stages": []},
     }
     zeros = tuple(0.0 for _ in STEPS)
@@ -223,7 +241,7 @@ def _study_data(
             for u in units
         ]
     # curriculum: 300 steps on a room, then the map for the last 700; scratch 1,000 on the map
-    room = {"stages": [{"env": {"size": 5}, "steps": 300}]}
+    room = {"stages": [{"env": {"size": 5, "num_agents": 1}, "steps": 300}]}
     runs["curriculum"] = [
         _record(
             "curriculum",
@@ -306,11 +324,16 @@ def test_the_curriculum_is_compared_on_total_steps():
     ramp = np.linspace(10.0, 60.0, STEPS.size)  # +5 per 100 steps
     scratch = _record("curriculum", "0/0", ramp, map_seed=0, seed=0)
     curriculum = _record(
-        "curriculum", "1/0", ramp, map_seed=0, seed=0, steps_before=300, curriculum={"stages": [{"steps": 300}]}
+        "curriculum",
+        "1/0",
+        ramp,
+        map_seed=0,
+        seed=0,
+        steps_before=300,
+        curriculum={"stages": [{"env": {"size": 5}, "steps": 300}]},
     )
-    section = claims.section_curriculum(
-        [scratch, curriculum], claims.Context(Path("/nonexistent"), np.random.default_rng(0))
-    )
+    ctx = Context(Path("/nonexistent"), np.random.default_rng(0))
+    section = render(claims.curriculum([scratch, curriculum], ctx.rng), ctx)
     row = next(line for line in section.markdown.splitlines() if line.startswith("| sarsa |"))
     # at total step 300: curriculum 10 (its step 0) - scratch 25 (its step 300) = -0.15 of the optimum 100
     assert row.split("|")[3].strip().startswith("-0.15")
@@ -649,4 +672,4 @@ def test_the_probability_of_improvement_compares_runs_on_the_same_maps_only():
     better = runs({0: 0.0, 1: 90.0, 2: 90.0})
     worse = runs({1: 10.0, 2: 10.0, 3: 100.0})
     # maps 1 and 2 only: better wins both (maps 0 and 3 have nothing to be compared with)
-    assert claims.improvement(better, worse, claims.score, np.random.default_rng(0)).mean == 1.0
+    assert scoring.improvement(better, worse, scoring.score, np.random.default_rng(0)).mean == 1.0

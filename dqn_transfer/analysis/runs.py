@@ -17,18 +17,16 @@ import json
 import os
 import sys
 import warnings
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 import yaml
 
 from dqn_transfer.analysis.transfer_metrics import Curve
 from dqn_transfer.storage.run_dir import CONFIG_FILE, HYDRA_DIR, LOG_FILE, METRICS_FILE, RunDir, natural_key
-
-K = TypeVar("K")
 
 
 class EvaluationError(Exception):
@@ -252,13 +250,6 @@ class Run:
     dir: Path
     config: dict[str, Any]
 
-    @property
-    def seed(self) -> int:
-        return int(self.config.get("seed", 0))
-
-    def curve(self, metric: str = "team_return") -> Curve:
-        return learning_curve(self.dir, metric)
-
 
 def load_runs(directory: Path) -> list[Run]:
     """Every usable run below ``directory`` with its config; [] if there is none (or no such directory).
@@ -271,18 +262,3 @@ def load_runs(directory: Path) -> list[Run]:
     run_dirs, skipped = scan_run_dirs([directory], need_config=True)
     _warn_skipped(skipped)
     return [Run(run_dir, load_config(run_dir)) for run_dir in run_dirs]  # type: ignore[arg-type]
-
-
-def group(runs: Sequence[Run], key: Callable[[Run], K]) -> dict[K, list[Run]]:
-    """Runs by ``key``, each group in seed order (so groups of the same seeds line up)."""
-    groups: dict[K, list[Run]] = {}
-    for run in runs:
-        groups.setdefault(key(run), []).append(run)
-    for members in groups.values():
-        members.sort(key=lambda r: r.seed)
-    return groups
-
-
-def per_seed(runs: Sequence[Run], fn: Callable[[Curve], float], metric: str = "team_return") -> dict[int, float]:
-    """``{seed: fn(curve)}`` over runs, the form :func:`dqn_transfer.analysis.stats.difference` pairs by."""
-    return {r.seed: float(fn(r.curve(metric))) for r in runs}

@@ -3,9 +3,9 @@
 - Means over seeds with a 95% percentile bootstrap: resample the seeds with replacement, take the
   mean of each resample, and read the ``(1 - confidence)/2`` and ``(1 + confidence)/2`` quantiles of
   those means. Runs of different conditions that share a seed share its map, initial weights and
-  exploration noise, so differences between conditions are paired by seed where they can be
-  (:func:`difference`). At small n a percentile interval is too narrow, so :func:`mean_intervals`
-  gives the t and BCa intervals beside it.
+  exploration noise, so differences between conditions are paired by seed where they can be. At
+  small n a percentile interval is too narrow, so :func:`mean_intervals` gives the t and BCa intervals
+  beside it.
 - The field's robust aggregates, from ``rliable`` (Agarwal et al. 2021, "Deep RL at the edge of the
   statistical precipice"): the interquartile mean (:func:`iqm`) and the probability of improvement
   (:func:`improvement_probability`), each with rliable's stratified bootstrap (runs resampled within
@@ -29,6 +29,7 @@ from dqn_transfer.analysis.transfer_metrics import Curve, common_steps
 N_RESAMPLES = 10000
 BAND_RESAMPLES = 2000  # a band is one interval per evaluation step: fewer resamples keep figures quick
 RLIABLE_RESAMPLES = 2000  # stratified-bootstrap resamples of the IQM and the probability of improvement
+Values = Sequence[float] | np.ndarray  # one value per run
 
 
 def _resampled_means(values: np.ndarray, rng: np.random.Generator, n_resamples: int) -> np.ndarray:
@@ -78,12 +79,6 @@ class Estimate:
     def has_ci(self) -> bool:
         return math.isfinite(self.low) and math.isfinite(self.high)
 
-    def excludes_zero_above(self) -> bool:
-        return self.has_ci and self.low > 0
-
-    def contains_zero(self) -> bool:
-        return self.has_ci and self.low <= 0 <= self.high
-
     def __str__(self) -> str:
         if not math.isfinite(self.mean):
             return "n/a"
@@ -91,34 +86,13 @@ class Estimate:
         return f"{self.mean:.4g} {ci}"
 
 
-def estimate(values: Sequence[float], rng: np.random.Generator) -> Estimate:
+def estimate(values: Values, rng: np.random.Generator) -> Estimate:
     """:func:`bootstrap_ci` of the finite values (a run that never reached a threshold has none);
     ``n`` says how many values it rests on."""
     values = [v for v in values if math.isfinite(v)]
     if not values:
         return Estimate(math.nan, math.nan, math.nan, 0)
     return Estimate(*bootstrap_ci(values, rng), len(values))
-
-
-def difference(
-    a: dict[int, float],
-    b: dict[int, float],
-    rng: np.random.Generator,
-    n_resamples: int = N_RESAMPLES,
-    confidence: float = 0.95,
-) -> Estimate:
-    """Mean of ``a - b`` (each ``{seed: value}``) with a bootstrap CI: paired by seed when both have
-    the same seeds (same map, same initial values and exploration noise cancel), else two
-    independent samples, each resampled on its own."""
-    if set(a) == set(b):
-        return estimate([a[s] - b[s] for s in sorted(a)], rng)
-    av, bv = np.array(list(a.values())), np.array(list(b.values()))
-    mean = float(av.mean() - bv.mean())
-    if av.size < 2 or bv.size < 2:
-        return Estimate(mean, math.nan, math.nan, min(av.size, bv.size))
-    diffs = _resampled_means(av, rng, n_resamples) - _resampled_means(bv, rng, n_resamples)
-    low, high = _percentiles(diffs, confidence)
-    return Estimate(mean, float(low), float(high), min(av.size, bv.size))
 
 
 def curve_band(
@@ -136,24 +110,24 @@ def curve_band(
     return steps, mean, low, high
 
 
-def mean_intervals(values: Sequence[float], rng: np.random.Generator, confidence: float = 0.95) -> dict[str, Estimate]:
+def mean_intervals(values: Values, rng: np.random.Generator, confidence: float = 0.95) -> dict[str, Estimate]:
     """The mean over runs with three 95% intervals: ``percentile`` (:func:`bootstrap_ci`), ``t`` (Student's
     t, which holds at small n for roughly normal values) and ``bca`` (bias-corrected and accelerated
     bootstrap, scipy's). Fewer than two values, or values all equal, give no interval (``nan``)."""
-    values = np.asarray([v for v in values if math.isfinite(v)], dtype=np.float64)
-    n = values.size
-    if n < 2 or np.all(values == values[0]):
-        mean = float(values.mean()) if n else math.nan
+    finite = np.asarray([v for v in values if math.isfinite(v)], dtype=np.float64)
+    n = finite.size
+    if n < 2 or np.all(finite == finite[0]):
+        mean = float(finite.mean()) if n else math.nan
         return {method: Estimate(mean, math.nan, math.nan, n) for method in ("percentile", "t", "bca")}
-    mean = float(values.mean())
-    t_low, t_high = scipy.stats.t.interval(confidence, n - 1, loc=mean, scale=scipy.stats.sem(values))
+    mean = float(finite.mean())
+    t_low, t_high = scipy.stats.t.interval(confidence, n - 1, loc=mean, scale=scipy.stats.sem(finite))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # near-degenerate samples: scipy warns and returns nan, shown as "n/a"
         bca = scipy.stats.bootstrap(
-            (values,), np.mean, confidence_level=confidence, method="BCa", n_resamples=N_RESAMPLES, random_state=rng
+            (finite,), np.mean, confidence_level=confidence, method="BCa", n_resamples=N_RESAMPLES, random_state=rng
         ).confidence_interval
     return {
-        "percentile": Estimate(*bootstrap_ci(values, rng, confidence=confidence), n),
+        "percentile": Estimate(*bootstrap_ci(finite, rng, confidence=confidence), n),
         "t": Estimate(mean, float(t_low), float(t_high), n),
         "bca": Estimate(mean, float(bca.low), float(bca.high), n),
     }

@@ -22,7 +22,8 @@ import time
 from importlib.util import find_spec
 from pathlib import Path
 
-from dqn_transfer.benchmark.suite import NEEDS_SB3, PROFILES, SECTIONS, render_markdown, run_benchmark
+from dqn_transfer.benchmark.suite import NEEDS_SB3, PROFILES, SECTIONS, run_benchmark
+from dqn_transfer.benchmark.tables import render_markdown
 from dqn_transfer.storage.checkpoint import CheckpointError, atomic_write
 
 
@@ -120,16 +121,16 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     start = time.perf_counter()
     results = run_benchmark(args.profile, args.seed, args.repeats, args.threads, sections=sections)
-    results["total_seconds"] = time.perf_counter() - start
+    total_seconds = time.perf_counter() - start
     table = render_markdown(results)
-    results["markdown"] = table
     print(table)
+    document = {**results.to_json(), "total_seconds": total_seconds, "markdown": table}
     try:
-        atomic_write(args.out, (json.dumps(results, indent=2) + "\n").encode())
+        atomic_write(args.out, (json.dumps(document, indent=2) + "\n").encode())
     except CheckpointError as err:  # atomic_write words its failure for checkpoints
         print(f"error: could not save the results (the table is above): {err}", file=sys.stderr)
         return 1
-    print(f"wrote {args.out} ({results['total_seconds']:.0f} s)", file=sys.stderr)
+    print(f"wrote {args.out} ({total_seconds:.0f} s)", file=sys.stderr)
     return 0
 
 

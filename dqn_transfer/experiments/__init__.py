@@ -11,8 +11,11 @@ The study's questions, each answered by experiments (Hydra multiruns of ``dqn_tr
 - :mod:`~dqn_transfer.experiments.sweeps`: profiles (quick / full), the sweeps' overrides, running a
   multirun and checking that it finished;
 - :mod:`~dqn_transfer.experiments.raw_data`: every run's evaluations as compact JSON lines, and reading them back;
-- :mod:`~dqn_transfer.experiments.claims`: one report section per question, with its primary comparison
-  and verdict (the rules: ``results/VERDICT_RULES.md``);
+- :mod:`~dqn_transfer.experiments.scoring`: a run's scores, and how runs are paired and compared;
+- :mod:`~dqn_transfer.experiments.settings`: what the runs were run with, from the configs stored with their data;
+- :mod:`~dqn_transfer.experiments.claims`: each question's typed result (:mod:`~dqn_transfer.experiments.results`)
+  computed from its raw data, with its primary comparison and verdict (the rules: ``results/VERDICT_RULES.md``);
+- :mod:`~dqn_transfer.experiments.render`: the renderer, a result to its Markdown and figures;
 - :mod:`~dqn_transfer.experiments.report`: ``REPORT.md`` and its figures from the raw data alone.
 
 All statistics come from :mod:`dqn_transfer.analysis`.

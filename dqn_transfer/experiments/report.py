@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from dqn_transfer.experiments.claims import SECTIONS, Context, Section
+from dqn_transfer.experiments.claims import SECTIONS
 from dqn_transfer.experiments.raw_data import (
     DATA_DIR,
     DataError,
@@ -27,6 +27,7 @@ from dqn_transfer.experiments.raw_data import (
     write_data,
     write_manifest,
 )
+from dqn_transfer.experiments.render import Context, Section, render
 from dqn_transfer.experiments.sweeps import EXPERIMENTS, PROFILES, RUNS_DIR, ReproduceError, read_stamp
 
 PACKAGE_DIR = Path(__file__).resolve().parent
@@ -116,7 +117,7 @@ def write_report(data_dir: Path, out: Path, seed: int = 0) -> Path:
     smoke = "quick" in manifest.get("profile", "")
     ctx = Context(out, np.random.default_rng(seed), SMOKE_MARK if smoke else None)
     sections: list[Section] = []
-    for function, experiments in SECTIONS.values():
+    for compute, experiments in SECTIONS.values():
         runs = [
             run
             for name in experiments
@@ -125,7 +126,8 @@ def write_report(data_dir: Path, out: Path, seed: int = 0) -> Path:
         ]
         if runs:
             try:
-                sections.append(function(runs, ctx))
+                result = compute(runs, ctx.rng)  # its numbers, then its figures: one generator, a fixed order
+                sections.append(render(result, ctx))
             except (KeyError, ValueError, DataError) as err:
                 raise ReproduceError(f"cannot analyse the {'/'.join(experiments)} data in {data_dir}: {err}") from err
     if not sections:

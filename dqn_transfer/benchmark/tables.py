@@ -1,0 +1,329 @@
+"""The benchmark's Markdown table, from its typed records (:mod:`~dqn_transfer.benchmark.records`)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Sequence
+from typing import Any
+
+from dqn_transfer.benchmark.records import Benchmark, Load, ProcessFigures
+from dqn_transfer.config import AgentConfig
+
+
+def _fmt(x: float, digits: int = 0) -> str:
+    return f"{x:,.{digits}f}"
+
+
+def _x(ratio: float) -> str:
+    return f"{ratio:.2f}x"
+
+
+def _part(
+    heading: str, text: str, columns: Sequence[str], rows: Iterable[Sequence[str]], label_column: bool = False
+) -> list[str]:
+    """One section of the table: heading, explanation, and a Markdown table whose columns are right-aligned
+    numbers (the first one left-aligned when it holds labels)."""
+    align = ["---" if label_column else "---:"] + ["---:"] * (len(columns) - 1)
+    return [
+        heading,
+        "",
+        text,
+        "",
+        f"| {' | '.join(columns)} |",
+        f"|{'|'.join(align)}|",
+        *(f"| {' | '.join(row)} |" for row in rows),
+    ]
+
+
+def _env_table(res: Benchmark) -> list[str]:
+    s = res.settings
+    return _part(
+        f"## 1. Environment throughput (random actions, {s.sizes.env_steps:,} joint steps, resets included)",
+        f"Map: {s.env_map} generated for K starts. Wall clock.",
+        ["agents", "PettingZoo ParallelEnv steps/s", "numpy core steps/s", "core / PettingZoo"],
+        (
+            [
+                str(row.num_agents),
+                _fmt(row.pettingzoo_steps_per_s),
+                _fmt(row.core_steps_per_s),
+                _x(row.core_over_pettingzoo),
+            ]
+            for row in res.env or []
+        ),
+    )
+
+
+def _training_table(res: Benchmark) -> list[str]:
+    s = res.settings
+    hp = s.hyperparameters
+    return _part(
+        f"## 2. DQN training on TreasureHunt-v0 ({s.sizes.train_steps:,} env steps, "
+        f"{max(0, s.sizes.train_steps - hp.learning_starts):,} gradient steps)",
+        f"Map: {s.source_map} (one chest, 6 moves from the start). Ours: `Trainer(source_task=True).run()` "
+        "(the training loop with its TensorBoard logging; progress bar off; its greedy evaluations and "
+        'checkpoint writes timed and subtracted). SB3: `DQN("MlpPolicy", gymnasium.make("TreasureHunt-v0"), '
+        f"...).learn()`. Matched: net_arch {hp.hidden}, lr {hp.lr}, batch {hp.batch_size}, buffer "
+        f"{hp.buffer_size:,}, learning_starts {hp.learning_starts}, train_freq {hp.train_freq}, "
+        f"gradient_steps {hp.gradient_steps}, target_update {hp.target_update} (tau {hp.tau}), "
+        f"gamma {hp.gamma}, epsilon {hp.eps_start} -> {hp.eps_end} over {hp.exploration_fraction} "
+        f"of the run, max_grad_norm {hp.max_grad_norm}, Huber loss, Adam, CPU. Greedy success: fraction of "
+        "greedy episodes reaching the chest after training (same episode loop for both), mean over repeats.",
+        [
+            "torch threads",
+            "ours steps/s",
+            "SB3 steps/s",
+            "ours / SB3 (wall)",
+            "ours / SB3 (CPU)",
+            "ours greedy success",
+            "SB3 greedy success",
+        ],
+        (
+            [
+                str(row.torch_threads),
+                _fmt(row.ours.steps_per_s),
+                _fmt(row.sb3.steps_per_s),
+                _x(row.ours_over_sb3),
+                _x(row.ours_over_sb3_cpu),
+                _fmt(row.ours.greedy_success, 2),
+                _fmt(row.sb3.greedy_success, 2),
+            ]
+            for row in res.training or []
+        ),
+    )
+
+
+def _team_table(res: Benchmark) -> list[str]:
+    s = res.settings
+    return _part(
+        f"## 3. Per-step cost as the team grows ({s.sizes.team_steps} timed joint steps, "
+        "every one with a gradient update)",
+        f"ms per joint env step = act + env step + replay store + gradient update (batch "
+        f"{s.hyperparameters.batch_size} per agent), wall clock, after {s.team_learning_starts} untimed "
+        f"replay-filling steps; map {s.env_map} generated for K starts, same hyperparameters. Batched: one "
+        "DQNLearner for the K agents (stacked weights, one Adam step). Separate: K single-agent DQNLearners "
+        "stepped in a Python loop.",
+        [
+            "K",
+            "batched ms/step",
+            "batched ms/agent-step",
+            "batched vs K=1",
+            "separate ms/step",
+            "separate ms/agent-step",
+            "separate / batched (wall)",
+            "separate / batched (CPU)",
+        ],
+        (
+            [
+                str(row.num_agents),
+                _fmt(row.batched.ms_per_step, 2),
+                _fmt(row.batched.ms_per_agent_step, 2),
+                _x(row.batched_over_k1),
+                _fmt(row.separate.ms_per_step, 2),
+                _fmt(row.separate.ms_per_agent_step, 2),
+                _x(row.separate_over_batched),
+                _x(row.separate_over_batched_cpu),
+            ]
+            for row in res.team or []
+        ),
+    )
+
+
+UPDATE_LABELS = {
+    "bare": "bare PyTorch, nn.Sequential, pre-sampled batch",
+    "in_memory": "ours without the replay sample: DQNLearner.train_on(pre-sampled batch)",
+    "ours": "DQNLearner.gradient_step (replay sample + update + per-agent loss/Q stats)",
+    "sample": "of which ReplayBuffer.sample",
+    "sb3": "SB3 DQN.train, per gradient step (replay sample included)",
+    "bare_default_threads": "bare PyTorch, nn.Sequential, {threads} threads (torch default)",
+    "ours_default_threads": "DQNLearner.gradient_step, {threads} threads (torch default)",
+}
+
+
+def _update_table(res: Benchmark) -> list[str]:
+    u = res.update
+    assert u is not None
+    return _part(
+        f"## 4. Time per gradient update (K = 1, obs 100, batch {res.settings.hyperparameters.batch_size}, "
+        f"{u.updates:,} updates per timing)",
+        "Bare = CleanRL-style update of an nn.Sequential on a batch already in memory as tensors (target "
+        "max under no_grad, gather, Huber loss, backward, clip_grad_norm_, Adam step).",
+        ["update", "wall us/update", "CPU us/update", "vs bare (wall)", "vs bare (CPU)"],
+        (
+            [
+                label.format(threads=u.default_threads),
+                _fmt(u.timings[key].wall_us),
+                _fmt(u.timings[key].cpu_us),
+                _x(u.timings[key].over_bare),
+                _x(u.timings[key].over_bare_cpu),
+            ]
+            for key, label in UPDATE_LABELS.items()
+            if key in u.timings
+        ),
+        label_column=True,
+    )
+
+
+def _machine_line(res: Benchmark, load: Load) -> str:
+    """The machine, and the load average (1 min) when the section started and ended."""
+    m = res.machine
+    during = (
+        f"; load average (1 min) {load.start[0]:.2f} at the start of this section, {load.end[0]:.2f} at its end"
+        if load.start and load.end
+        else ""
+    )
+    return f"Machine: {m.cpu_model}, {m.cpus_available} cores{during}."
+
+
+def _hyperparameters(hp: AgentConfig) -> str:
+    return (
+        f"MLP {hp.hidden}, Adam lr {hp.lr:g}, batch {hp.batch_size}, replay {hp.buffer_size:,}, "
+        f"learning_starts {hp.learning_starts:,}, train_freq {hp.train_freq}, gradient_steps "
+        f"{hp.gradient_steps}, target copy every {hp.target_update:,} steps (tau {hp.tau}), gamma "
+        f"{hp.gamma}, epsilon {hp.eps_start} -> {hp.eps_end} over {hp.exploration_fraction} of the "
+        f"run, Huber loss, max_grad_norm {hp.max_grad_norm}, CPU"
+    )
+
+
+def _map(kwargs: dict[str, Any]) -> str:
+    return (
+        f"{kwargs['size']}x{kwargs['size']} map ({kwargs['num_treasures']} chest(s), {kwargs['num_traps']} "
+        f"trap(s), complexity {kwargs['complexity']}, map seed {kwargs['map_seed']})"
+    )
+
+
+LONE_LABELS = {
+    "ours": "ours: `python -m dqn_transfer.cli.train agent.engine=numpy` (`train.py`)",
+    "ours_torch": "ours, torch engine (the default): `python -m dqn_transfer.cli.train`",
+    "sb3": 'SB3: `DQN("MlpPolicy", gymnasium.make("TreasureHunt-v0")).learn()`',
+    "bare": "bare PyTorch: a CleanRL-style dqn.py loop",
+}
+
+
+def _process_cells(f: ProcessFigures) -> list[str]:
+    return [
+        _fmt(f.seconds, 1),
+        _fmt(f.steps_per_s),
+        _fmt(f.cpu_seconds, 1),
+        _fmt(f.steps_per_cpu_s),
+        _fmt(f.max_rss_mb),
+    ]
+
+
+def _lone_table(res: Benchmark) -> list[str]:
+    lone = res.lone
+    assert lone is not None
+    c = lone.contenders
+    return _part(
+        f"## 5. Whole process, one DQN learner ({lone.steps:,} env steps, "
+        f"{c['ours'].figures.gradient_steps:,} gradient steps)",
+        f"{_machine_line(res, lone.load)} Settings: one agent on a {_map(lone.map)}, each program trains "
+        f"{lone.steps:,} env steps with {_hyperparameters(lone.hyperparameters)}, one torch thread. Wall: "
+        "from spawn to exit (imports, setup, and ours' two one-episode evaluations, TensorBoard logging and "
+        "final checkpoint included); CPU: user + system of the process (os.wait4). Ours observes the "
+        "team game's position + chest-state inputs, SB3 and bare the position inputs of TreasureHunt-v0. "
+        "ours / this: ours' steps/s over this program's, paired by repeat (> 1: ours is faster).",
+        [
+            "program",
+            "wall s",
+            "steps/s",
+            "CPU s",
+            "steps/CPU-s",
+            "peak RSS MB",
+            "gradient steps",
+            "ours / this (wall)",
+            "ours / this (CPU)",
+        ],
+        (
+            [
+                label,
+                *_process_cells(c[who].figures),
+                _fmt(c[who].figures.gradient_steps),
+                _x(c[who].ours_over_this),
+                _x(c[who].ours_over_this_cpu),
+            ]
+            for who, label in LONE_LABELS.items()
+            if who in c
+        ),
+        label_column=True,
+    )
+
+
+def _replicas_table(res: Benchmark) -> list[str]:
+    rep = res.replicas
+    assert rep is not None
+    sb3, k = rep.sb3, rep.team_agents
+    return _part(
+        f"## 6. Sweep throughput: R replicas of a {k}-agent team in one process, against SB3 one learner "
+        f"per process ({rep.steps:,} env steps per process)",
+        f"{_machine_line(res, rep.load)} Settings: a cooperative team of {k} DQN agents on a {_map(rep.map)}, "
+        f"{rep.steps:,} joint env steps, {_hyperparameters(rep.hyperparameters)}. Ours: ONE "
+        "`python -m dqn_transfer.cli.train replicas.seeds=R agent.engine=E "
+        f"threads={rep.ours_threads}` process (R x {k} "
+        f"learners, one batched learner); learner-steps/s = steps x R x {k} / whole-process wall. SB3: "
+        f"{rep.sb3_processes} `DQN.learn` processes (TreasureHunt-v0 of the map, one learner each, one "
+        f"torch thread) started together; learner-steps/s = {rep.sb3_processes} x steps / wall until the "
+        f"last exits: {_fmt(sb3.steps_per_s)} (CPU: {_fmt(sb3.steps_per_cpu_s)} per "
+        f"CPU-s), peak RSS {_fmt(sb3.max_rss_mb)} MB per process. Measured once per repeat and paired with "
+        "every R of that repeat (> 1: ours is faster).",
+        [
+            "engine",
+            "R",
+            "learners",
+            "ours wall s",
+            "ours learner-steps/s",
+            "ours learner-steps/CPU-s",
+            "ours peak RSS MB",
+            "SB3 learner-steps/s",
+            "ours / SB3 (wall)",
+            "ours / SB3 (CPU)",
+        ],
+        (
+            [
+                row.engine,
+                str(row.replicas),
+                str(row.learners),
+                _fmt(row.figures.seconds, 1),
+                _fmt(row.figures.steps_per_s),
+                _fmt(row.figures.steps_per_cpu_s),
+                _fmt(row.figures.max_rss_mb),
+                _fmt(sb3.steps_per_s),
+                _x(row.ours_over_sb3),
+                _x(row.ours_over_sb3_cpu),
+            ]
+            for row in rep.rows
+        ),
+    )
+
+
+# (the section measured?, its part of the table), in table order
+TABLES: dict[str, tuple[Callable[[Benchmark], object], Callable[[Benchmark], list[str]]]] = {
+    "env": (lambda r: r.env, _env_table),
+    "training": (lambda r: r.training, _training_table),
+    "team": (lambda r: r.team, _team_table),
+    "update": (lambda r: r.update, _update_table),
+    "lone": (lambda r: r.lone, _lone_table),
+    "replicas": (lambda r: r.replicas, _replicas_table),
+}
+
+
+def render_markdown(res: Benchmark) -> str:
+    """The table of a benchmark: a header, then one part per measured section."""
+    s, m = res.settings, res.machine
+    load = (
+        f"; load average (1 min) at start {m.load.start[0]:.2f}, at end {m.load.end[0]:.2f}"
+        if m.load.start and m.load.end
+        else ""
+    )
+    lines = [
+        f"# dqn_transfer benchmark ({s.profile})",
+        "",
+        f"Method: {res.method} R = {s.repeats}, seed {s.seed}, torch threads {s.threads} unless stated.",
+        "",
+        f"Machine: {m.cpu_model}, {m.cpus_available} CPU(s) available ({m.cpu_count} total), "
+        f"torch {m.torch} (default {m.torch_default_threads} threads), SB3 {m.stable_baselines3}, "
+        f"gymnasium {m.gymnasium}, PettingZoo {m.pettingzoo}, Python {m.python}{load}.",
+    ]
+    for measured, table in TABLES.values():
+        if measured(res) is not None:
+            lines += ["", *table(res)]
+    lines.append("")
+    return "\n".join(lines)
