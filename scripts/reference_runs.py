@@ -5,9 +5,9 @@
     python scripts/reference_runs.py --compare A B    # the files whose digests differ (exit 1 if any)
 
 Every run goes through the command line (``python -m dqn_transfer.cli.train``, ``-ckpt``, ``-play``)
-from inside ``OUT`` with the same run directories; ``OUT``'s own path, where a file holds it, is hashed as
-``<OUT>``, so two recordings made in different places compare. A digest is the SHA-256 of a file's
-bytes, except for the few things that hold a clock or a process:
+inside one fixed working directory (``WORK_DIR``, then moved to ``OUT``), so every path written into a
+file (configs, checkpoint headers, cache keys) is the same in two recordings. A digest is the SHA-256
+of a file's bytes, except for the few things that hold a clock or a process:
 ``metrics.jsonl`` lines lose ``wall_time``; TensorBoard events, logs and Hydra's own record are left out.
 Each run is small (about a thousand steps); the whole set takes a few minutes on 2 cores.
 """
@@ -20,6 +20,7 @@ import json
 import shutil
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 TRAIN = [sys.executable, "-m", "dqn_transfer.cli.train"]
@@ -74,8 +75,27 @@ RESUMED = ["agent.learning_starts=200", "mode=cooperative"]
 SKIPPED_NAMES = {"train.log", "hydra.yaml", "overrides.yaml"}
 
 
+# Paths are written into files (and into the curriculum cache's keys): every recording is made here.
+WORK_DIR = Path(tempfile.gettempdir()) / "dqn_transfer_reference_runs"
+
+
 def record(out: Path) -> None:
-    out.mkdir(parents=True, exist_ok=False)
+    if out.exists():
+        sys.exit(f"{out} exists: choose a new directory for the recording")
+    try:
+        WORK_DIR.mkdir()
+    except FileExistsError:
+        sys.exit(f"{WORK_DIR} exists: another recording is under way (or remove what a stopped one left)")
+    try:
+        record_into(WORK_DIR)
+        write_digests(WORK_DIR)
+        shutil.move(WORK_DIR, out)
+    finally:
+        shutil.rmtree(WORK_DIR, ignore_errors=True)
+    print(f"recorded into {out}")
+
+
+def record_into(out: Path) -> None:
     common = [f"transfer.cache_dir={out / 'pretrained'}", f"curriculum.cache_dir={out / 'curriculum'}"]
     for name, overrides in RUNS.items():
         run(TRAIN + SMALL + overrides + common + [f"hydra.run.dir=runs/{name}"], out, name)
@@ -99,7 +119,6 @@ def record(out: Path) -> None:
         out,
         "play",
     )
-    write_digests(out)
 
 
 def run(command: list[str], cwd: Path, name: str) -> None:
@@ -109,10 +128,8 @@ def run(command: list[str], cwd: Path, name: str) -> None:
         sys.exit(f"{name} failed ({done.returncode}):\n{done.stderr[-3000:]}")
 
 
-def digest(path: Path, out: Path) -> str:
-    # The recording's own directory is written into some files (configs, sources): hashed as <OUT>, two
-    # recordings made in different places compare.
-    data = path.read_bytes().replace(str(out).encode(), b"<OUT>")
+def digest(path: Path) -> str:
+    data = path.read_bytes()
     if path.name == "metrics.jsonl":
         lines = [json.loads(line) for line in data.decode().splitlines()]
         data = "\n".join(json.dumps({k: v for k, v in line.items() if k != "wall_time"}) for line in lines).encode()
@@ -129,7 +146,7 @@ def write_digests(out: Path) -> None:
         and ".lock" not in p.name
         and p.name != "DIGESTS.txt"
     )
-    lines = [f"{digest(p, out)}  {p.relative_to(out)}" for p in files]
+    lines = [f"{digest(p)}  {p.relative_to(out)}" for p in files]
     (out / "DIGESTS.txt").write_text("\n".join(lines) + "\n")
     print(f"{len(lines)} files digested into {out / 'DIGESTS.txt'}")
 
@@ -160,11 +177,7 @@ def main() -> int:
         return compare(*args.compare)
     if args.out is None:
         parser.error("give OUT or --compare A B")
-    try:
-        record(args.out.resolve())
-    except BaseException:
-        shutil.rmtree(args.out, ignore_errors=True)
-        raise
+    record(args.out.resolve())
     return 0
 
 
