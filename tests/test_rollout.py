@@ -100,7 +100,7 @@ def test_episode_result_keeps_its_five_positional_fields():
 class StubLearner:
     """Greedy actions without a network: agent 0 always RIGHT, agent 1 always DOWN (ONE_CHEST's script)."""
 
-    def act(self, obs, live, epsilon=0.0, greedy=True, ties=None):
+    def greedy(self, obs, live, ties=None):
         return np.array([RIGHT, DOWN])
 
 
