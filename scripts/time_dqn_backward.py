@@ -27,7 +27,7 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from dqn_transfer.agents import DQNLearner, ReplayBatch
+from dqn_transfer.agents import DQNLearner, Experience, ReplayBatch
 from dqn_transfer.agents.dqn_update import double_dqn_targets, dqn_targets, huber
 from dqn_transfer.config import AgentConfig
 
@@ -46,7 +46,7 @@ def learner_and_batch(replicas: int) -> tuple[DQNLearner, ReplayBatch]:
         (rng.random((rows, B)) < 0.1).astype(np.float32),
     )
     for row in range(rows):
-        learner.add_experience(row, *(field[row] for field in data))
+        learner.learn_from(row, Experience(*(field[row] for field in data)))
     return learner, data
 
 

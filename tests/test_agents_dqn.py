@@ -159,7 +159,7 @@ def test_share_parameters_one_network_for_all_agents():
         assert all(np.array_equal(first[name], t) for name, t in learner.agent_tensors(i).items())
     # Same observation -> same greedy action for every agent.
     obs = np.repeat(np.random.default_rng(0).random((1, D), dtype=np.float32), 3, axis=0)
-    actions = learner.act(obs, np.ones(3, bool), epsilon=0.0, greedy=True)
+    actions = learner.greedy(obs, np.ones(3, bool))
     assert len(set(actions.tolist())) == 1
     # Setting "agent 2's" weights sets everyone's.
     new = {name: np.zeros_like(t) for name, t in learner.get_member_weights(2).items()}
@@ -321,16 +321,16 @@ def test_greedy_actions_are_torchs_argmax_ties_included(share_parameters):
 
     for _ in range(200):
         obs = rng.random((3, D), dtype=np.float32)
-        assert np.array_equal(learner.act(obs, np.ones(3, bool), 0.0, greedy=True), torch_argmax(obs))
+        assert np.array_equal(learner.greedy(obs, np.ones(3, bool)), torch_argmax(obs))
     weight, bias = learner.q_network.layer(1)
     with torch.no_grad():
         weight.zero_()
         bias.zero_()  # every Q-value 0: a tie everywhere
     obs = rng.random((3, D), dtype=np.float32)
-    assert learner.act(obs, np.ones(3, bool), 0.0, greedy=True).tolist() == [0, 0, 0]
+    assert learner.greedy(obs, np.ones(3, bool)).tolist() == [0, 0, 0]
     with torch.no_grad():
         bias[:, 1] = 1e-7  # action 1 ahead by less than numpy and torch may disagree: torch decides
     real = learner.q_network.predict_numpy
     # A numpy that disagrees within the margin (its actions reversed: action 2 ahead): not to be trusted.
     learner.q_network.predict_numpy = lambda x, members=None: real(x, members)[..., ::-1].copy()
-    assert learner.act(obs, np.ones(3, bool), 0.0, greedy=True).tolist() == torch_argmax(obs).tolist() == [1, 1, 1]
+    assert learner.greedy(obs, np.ones(3, bool)).tolist() == torch_argmax(obs).tolist() == [1, 1, 1]

@@ -108,7 +108,7 @@ def test_sarsa_cache_is_ignored_for_another_observation_and_in_greedy_mode():
     agent = learner("sarsa", num_agents=1)
     agent.next_action[0], agent.next_action_obs[0] = 0, S1  # "play 0 in S1"
     # Greedy evaluation: argmax Q(S1) = 1, the cache is not consulted and survives.
-    assert agent.act(S1[None], np.ones(1, bool), epsilon=0.0, greedy=True)[0] == 1
+    assert agent.greedy(S1[None], np.ones(1, bool))[0] == 1
     assert agent.next_action[0] == 0
     # A different observation (e.g. after a reset) does not use the cache: greedy on S0 (0, 0) ties.
     agent.act(S0[None], np.ones(1, bool), epsilon=0.0)
@@ -217,9 +217,9 @@ def test_untrained_agents_evaluate_alike_whatever_their_observation_encodes(seed
         learner = TabularLearner(
             1, game.obs_layout(), game.num_actions, AgentConfig(algorithm=Algorithm.sarsa), seed=seed
         )
-        state = learner.rng.bit_generator.state
+        state = learner.rngs[0].bit_generator.state
         results.append(evaluate(learner, game, episodes=5, seed=seed, evaluation=0))
-        assert learner.rng.bit_generator.state == state  # evaluation draws none of the learner's numbers
+        assert learner.rngs[0].bit_generator.state == state  # evaluation draws none of the learner's numbers
     assert results[0] == results[1] == results[2]
     assert len({game.obs_dim for game in [make_game(layout=layout, mode=m) for m in Mode]}) == 2
 
@@ -230,9 +230,9 @@ def test_greedy_ties_go_to_a_drawn_best_action_and_never_to_a_worse_one():
     learner.tables[0][obs[0].tobytes()] = np.array([5.0, 1.0, 5.0, 5.0], dtype=np.float32)
     live = np.array([True])
     ties = np.random.default_rng(7)
-    drawn = {int(learner.act(obs, live, 0.0, greedy=True, ties=ties)[0]) for _ in range(60)}
+    drawn = {int(learner.greedy(obs, live, ties)[0]) for _ in range(60)}
     assert drawn == {0, 2, 3}  # each best action, in turn; never action 1
-    assert learner.act(obs, live, 0.0, greedy=True)[0] == 0  # without a generator: the first best
+    assert learner.greedy(obs, live)[0] == 0  # without a generator: the first best
 
 
 def test_exchange_best_moves_every_other_table_towards_the_best_agents_over_both_tables_states():
@@ -265,7 +265,7 @@ def test_exchange_replay_updates_each_table_on_its_team_mates_transitions(algori
         np.array([False, False]),
         np.array([True, False]),
     )
-    exchange_replay(learner, [step], step=10)
+    exchange_replay(learner, [step])
     # agent 1: Q(s1, 2) = 0 + 0.5 * (1 + 0.9 * Q(s2, a') - 0); Q-learning a' = argmax (5), SARSA a' is
     # epsilon-greedy with epsilon 0 (no act yet): a greedy one, also 5
     np.testing.assert_allclose(learner.tables[1][s1.tobytes()], [0, 0, 2.75, 0])

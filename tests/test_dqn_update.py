@@ -12,7 +12,7 @@ import pytest
 import torch
 from torch import nn
 
-from dqn_transfer.agents import DQNLearner, ReplayBatch
+from dqn_transfer.agents import DQNLearner, Experience, ReplayBatch
 from dqn_transfer.agents.dqn_update import reference_update
 from dqn_transfer.agents.numpy_dqn import NumpyDQNLearner
 from dqn_transfer.config import AgentConfig
@@ -104,7 +104,7 @@ def make(engine: str, max_grad_norm: float, **kwargs) -> Learner:
     learner.target_network.update_from(ENGINES[engine](K, LAYOUT, A, hp, seed=[7, 8]).q_network, tau=1.0)
     data = batch(1, seed=99)
     for row in range(learner.num_rows - 1):  # the last row has no data yet: its loss weight is 0
-        learner.add_experience(row, *(field[0] for field in data))
+        learner.learn_from(row, Experience(*(field[0] for field in data)))
     return learner
 
 

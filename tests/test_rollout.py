@@ -110,7 +110,7 @@ def test_the_first_five_fields_count_return_steps_chests_and_traps():
 class StubLearner:
     """Greedy actions without a network: agent 0 always RIGHT, agent 1 always DOWN (ONE_CHEST's script)."""
 
-    def act(self, obs, live, epsilon=0.0, greedy=True, ties=None):
+    def greedy(self, obs, live, ties=None):
         return np.array([RIGHT, DOWN])
 
 

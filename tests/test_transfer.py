@@ -205,12 +205,12 @@ def test_tabular_transfer_preserves_the_source_table(work, tabular_source, mode)
             _, obs = random_observations(mode, 2, 1, rng)
             obs[0, : N * N] = np.eye(N * N, dtype=np.float32)[cell]
             for agent in range(2):
-                np.testing.assert_array_equal(trainer.replicas[0].learner.agent_q_values(agent, obs[0]), values[row])
+                np.testing.assert_array_equal(trainer.learner.agent_q_values(agent, obs[0]), values[row])
     unvisited = sorted(set(range(N * N)) - set(visited.tolist()))
     if unvisited:  # a cell the source never saw is worth 0, as for a fresh table
         _, obs = random_observations(mode, 2, 1, rng)
         obs[0, : N * N] = np.eye(N * N, dtype=np.float32)[unvisited[0]]
-        assert not trainer.replicas[0].learner.agent_q_values(0, obs[0]).any()
+        assert not trainer.learner.agent_q_values(0, obs[0]).any()
 
 
 # --------------------------------------------------------------------------- CLI refusal of sources
@@ -554,10 +554,11 @@ def test_exchange_best_moves_others_towards_the_best(work, dqn_source, monkeypat
     real = trainer_module.exchange_best
     calls = []
 
-    def spy(learner, window_returns, tau):
-        before = [_flat(learner.get_member_weights(i)) for i in range(learner.num_agents)]
-        best = real(learner, window_returns, tau)
-        after = [_flat(learner.get_member_weights(i)) for i in range(learner.num_agents)]
+    def spy(team, window_returns, tau):
+        learner = trainer.learner  # the team's rows (one replica: all of them)
+        before = [_flat(learner.get_member_weights(i)) for i in range(team.num_agents)]
+        best = real(team, window_returns, tau)
+        after = [_flat(learner.get_member_weights(i)) for i in range(team.num_agents)]
         calls.append((np.array(window_returns), tau, best, before, after))
         return best
 
@@ -585,10 +586,10 @@ def test_shared_replay_gives_each_agent_its_teammates_transitions(work, dqn_sour
     real = trainer_module.exchange_replay
     calls = []
 
-    def spy(team, transitions, step):
+    def spy(team, transitions):
         replay = trainer.learner.replay  # the team's rows (one replica: all of them)
         size_before = replay.size.copy()
-        real(team, transitions, step)
+        real(team, transitions)
         calls.append(
             (
                 size_before,

@@ -1,9 +1,12 @@
 """Learners: tabular SARSA / Q-learning and batched DQN / Double DQN for a team of K agents.
 
 ``make_learner`` builds one from the ``agent`` config (:class:`~dqn_transfer.config.AgentConfig`, the
-one home of every hyperparameter's default). Every learner implements
-:class:`~dqn_transfer.agents.base.Learner`; the DQN family adds ``freeze``, ``set_member_optimizer_state``,
-``get_member_weights`` / ``set_member_weights`` and ``add_experience``, the tabular one ``add_fallback``.
+one home of every hyperparameter's default), ``make_replicas`` one batched over several seeds. What a
+learner can do is a set of capabilities (:mod:`dqn_transfer.agents.base`): every learner is a
+:class:`Learner` (acting, learning, checkpointing, batched over replicas) and implements
+:class:`KnowledgeExchange`; the DQN family also :class:`WarmStart` (freezing layers, carrying optimizer
+state over). Code outside this package calls these methods and checks a capability with :func:`require`,
+never a learner's class.
 
 The DQN family has two engines (``agent.engine``): ``torch`` (:mod:`~dqn_transfer.agents.dqn`) and
 ``numpy`` (:mod:`~dqn_transfer.agents.numpy_dqn`), which share :mod:`~dqn_transfer.agents.dqn_update`
@@ -19,11 +22,27 @@ from collections.abc import Sequence
 from importlib import import_module
 from typing import Any
 
-from dqn_transfer.agents.base import Learner, ObsLayout, Transition, UpdateStats, epsilon_greedy, joined
-from dqn_transfer.agents.dqn_base import BatchedDQN, DQNReplica
+from dqn_transfer.agents.base import (
+    Acting,
+    Checkpointing,
+    Experience,
+    KnowledgeExchange,
+    Learner,
+    Learning,
+    ObsLayout,
+    Team,
+    Transition,
+    UpdateStats,
+    WarmStart,
+    break_ties,
+    epsilon_greedy,
+    joined,
+    require,
+)
+from dqn_transfer.agents.dqn_base import BatchedDQN
 from dqn_transfer.agents.dqn_update import double_dqn_targets, dqn_targets
 from dqn_transfer.agents.replay import ReplayBatch, ReplayBuffer
-from dqn_transfer.agents.replicas import LearnerReplicas
+from dqn_transfer.agents.replicas import TeamView, team_view
 from dqn_transfer.agents.schedules import linear_schedule
 from dqn_transfer.agents.tabular import TabularLearner
 from dqn_transfer.config import AgentConfig
@@ -36,17 +55,24 @@ _TORCH_NAMES = {
 }
 
 __all__ = [
+    "Acting",
     "BatchedDQN",
     "BatchedMLP",
+    "Checkpointing",
     "DQNLearner",
-    "DQNReplica",
-    "LearnerReplicas",
+    "Experience",
+    "KnowledgeExchange",
     "Learner",
+    "Learning",
     "ReplayBatch",
     "ReplayBuffer",
     "TabularLearner",
+    "Team",
+    "TeamView",
     "Transition",
     "UpdateStats",
+    "WarmStart",
+    "break_ties",
     "double_dqn_targets",
     "dqn_targets",
     "epsilon_greedy",
@@ -54,6 +80,8 @@ __all__ = [
     "linear_schedule",
     "make_learner",
     "make_replicas",
+    "require",
+    "team_view",
 ]
 
 
@@ -72,13 +100,12 @@ def make_learner(
     device: Device | str = "cpu",
     threads: int | None = None,
 ) -> Learner:
-    """The learner ``hp.algorithm`` names, for ``num_agents`` agents.
+    """The learner ``hp.algorithm`` names, for ``num_agents`` agents (one replica: its rows are the agents).
 
     ``seed`` fixes the initial weights and every random draw the learner makes (exploration,
     replay sampling, tie-breaking). Raises ``ValueError`` for an unknown algorithm.
     """
-    learner = make_replicas(hp, num_agents, obs_layout, num_actions, [seed], device, threads)
-    return learner.replica(0) if isinstance(learner, LearnerReplicas) else learner
+    return make_replicas(hp, num_agents, obs_layout, num_actions, [seed], device, threads)
 
 
 def make_replicas(
@@ -89,18 +116,17 @@ def make_replicas(
     seeds: Sequence[int],
     device: Device | str = "cpu",
     threads: int | None = None,
-) -> BatchedDQN | LearnerReplicas:
-    """One replica of ``num_agents`` agents per seed, behind one batched interface (rows ``r * K + k``,
-    ``replica(r)``): for the DQN family one learner whose network module holds every replica, for the
-    tabular ones a :class:`LearnerReplicas` of separate learners. Replica r is exactly the learner
-    ``make_learner`` builds for ``seeds[r]``.
+) -> Learner:
+    """One replica of ``num_agents`` agents per seed, in one learner (rows ``r * K + k``, ``replica(r)``
+    its team): for the DQN family one network module holds every replica, for the tabular ones
+    ``R x K`` tables. Replica r is exactly the learner ``make_learner`` builds for ``seeds[r]``.
 
     ``device`` (cpu | cuda | auto) and ``threads`` (torch's CPU threads; None: as they are) concern the torch engine;
     the numpy engine and the tabular learners run on the CPU. Raises ``ConfigError`` for a device
     that is not there.
     """
     if Algorithm(hp.algorithm).is_tabular:
-        return LearnerReplicas([TabularLearner(num_agents, obs_layout, num_actions, hp, seed=s) for s in seeds])
+        return TabularLearner(num_agents, obs_layout, num_actions, hp, seed=list(seeds))
     if Engine(hp.engine) is Engine.numpy:
         engine = import_module("dqn_transfer.agents.numpy_dqn")
         return engine.NumpyDQNLearner(num_agents, obs_layout, num_actions, hp, seed=list(seeds))

@@ -1,16 +1,33 @@
-"""What every learner offers the trainer, and the pieces all learners share.
+"""What a learner can do, as capabilities, and the pieces all learners share.
 
 A learner drives the K agents of a team at once: observations come in as ``float32 [K, D]``,
 actions go out as ``int64 [K]``. It sees observation vectors and their segment layout, never the game.
+
+Capabilities (abstract base classes; a learner is an instance of those it has):
+
+- :class:`Acting`: exploring actions, each agent's best actions and Q-values;
+- :class:`Learning`: learn from one joint env step;
+- :class:`Checkpointing`: agent tensors and the training state a resumed run needs;
+- :class:`KnowledgeExchange`: soft-copy the team's best agent into the others, learn from a
+  team-mate's transitions (``transfer.exchange``);
+- :class:`WarmStart`: what a warm start does beyond loading agent tensors: keep layers fixed, start
+  an agent's optimizer from a source's moments (the DQN family).
+
+A :class:`Team` acts and checkpoints; a :class:`Learner` is a team that also learns, batched over R
+independent replicas (rows ``r * K + k``; R = 1 for a lone learner), and :meth:`Learner.replica`
+gives replica r's team, with the learner's capabilities (:mod:`dqn_transfer.agents.replicas`).
+:func:`require` checks a capability, with a configuration error naming what needs it.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any, NamedTuple, Protocol
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Sequence
+from typing import Any, NamedTuple, TypeVar, cast
 
 import numpy as np
 
+from dqn_transfer.config import ConfigError
 from dqn_transfer.enums import Algorithm
 
 ObsLayout = Sequence[tuple[str, int]]
@@ -28,58 +45,21 @@ class Transition(NamedTuple):
     live: np.ndarray  # bool [K]
 
 
+class Experience(NamedTuple):
+    """N transitions of one agent (e.g. a team-mate's, for ``shared_replay``), each field ``[N, ...]``."""
+
+    obs: np.ndarray  # float32 [N, D]
+    actions: np.ndarray  # int64 [N]
+    rewards: np.ndarray  # float32 [N]
+    next_obs: np.ndarray  # float32 [N, D]
+    terminated: np.ndarray  # bool [N]
+
+
 class UpdateStats(NamedTuple):
     """Per-agent statistics of one ``update``, nan for the agents it did not train."""
 
     td_loss: np.ndarray  # [K] Huber loss of the TD error
     q_mean: np.ndarray  # [K] mean Q(s, a) of the transitions trained on
-
-
-class Learner(Protocol):
-    """The interface the trainer, checkpoints and transfer rely on (see ``dqn_transfer.agents``)."""
-
-    algorithm: str
-    num_agents: int
-    obs_layout: list[tuple[str, int]]
-    num_actions: int
-
-    def act(
-        self,
-        obs: np.ndarray,
-        live: np.ndarray,
-        epsilon: float | np.ndarray,
-        greedy: bool = False,
-        ties: np.random.Generator | None = None,
-    ) -> np.ndarray:
-        """Epsilon-greedy actions ``[K]``; when ``greedy``, the best actions, consuming none of the
-        learner's random numbers: a tie between equal values (a table's unvisited states) goes to a best
-        action drawn from ``ties``, or to the first one without it. Networks take the first best action
-        (float outputs practically never tie)."""
-        ...
-
-    def update(self, transition: Transition, step: int) -> UpdateStats:
-        """Learn from one joint env step; ``step`` counts env steps including this one (1 for the first)."""
-        ...
-
-    def q_values(self, obs: np.ndarray) -> np.ndarray:
-        """Each agent's Q-values of its own observation: ``obs [K, D] -> [K, A]`` (a copy)."""
-        ...
-
-    def agent_tensors(self, i: int) -> dict[str, np.ndarray]:
-        """Agent ``i``'s values, as stored in ``agent_{i}.safetensors`` (contiguous copies)."""
-        ...
-
-    def load_agent_tensors(self, i: int, tensors: dict[str, np.ndarray]) -> None: ...
-
-    def network_meta(self) -> dict[str, Any]:
-        """JSON-able shape information written beside the tensors."""
-        ...
-
-    def training_state(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        """Everything besides ``agent_tensors`` that a resumed run needs to continue bit-identically."""
-        ...
-
-    def load_training_state(self, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None: ...
 
 
 class TeamShape:
@@ -92,6 +72,133 @@ class TeamShape:
         self.obs_layout = normalize_layout(obs_layout)
         self.obs_dim = sum(size for _, size in self.obs_layout)
         self.num_actions = num_actions
+
+
+# ---------------------------------------------------------------------------------- capabilities
+
+
+class Acting(ABC):
+    """Acting: exploring actions, and the best actions and Q-values of each agent."""
+
+    @abstractmethod
+    def act(self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray) -> np.ndarray:
+        """Epsilon-greedy actions ``[K]`` of the live agents, drawn from the learner's own random
+        numbers (``epsilon`` one value, or one per agent); the others' actions are 0."""
+
+    @abstractmethod
+    def best_actions(self, obs: np.ndarray) -> np.ndarray:
+        """``bool [K, A]``: each agent's actions of the highest value on its own observation, several
+        only where values tie exactly (a table's unvisited states); consumes no random numbers."""
+
+    @abstractmethod
+    def q_values(self, obs: np.ndarray) -> np.ndarray:
+        """Each agent's Q-values of its own observation: ``obs [K, D] -> [K, A]`` (a copy)."""
+
+    def greedy(self, obs: np.ndarray, live: np.ndarray, ties: np.random.Generator | None = None) -> np.ndarray:
+        """The live agents' best actions (the others' are 0), consuming none of the learner's random
+        numbers: a tie goes to a best action drawn from ``ties`` (an evaluation episode's own generator),
+        or to the first one without it."""
+        return break_ties(self.best_actions(obs), live, ties)
+
+
+class Learning(ABC):
+    """Learning from the joint env steps of the team."""
+
+    @abstractmethod
+    def update(self, transition: Transition, step: int) -> UpdateStats:
+        """Learn from one joint env step; ``step`` counts env steps including this one (1 for the first)."""
+
+
+class Checkpointing(ABC):
+    """What a checkpoint holds: each agent's tensors, and the rest a resumed run needs."""
+
+    @abstractmethod
+    def agent_tensors(self, i: int) -> dict[str, np.ndarray]:
+        """Agent ``i``'s values, as stored in ``agent_{i}.safetensors`` (contiguous copies)."""
+
+    @abstractmethod
+    def load_agent_tensors(self, i: int, tensors: dict[str, np.ndarray]) -> None:
+        """Replace agent ``i``'s values by ``tensors`` (a checkpoint's, or a warm start's mapped ones)."""
+
+    @abstractmethod
+    def network_meta(self) -> dict[str, Any]:
+        """JSON-able shape information written beside the tensors."""
+
+    @abstractmethod
+    def training_state(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Everything besides ``agent_tensors`` that a resumed run needs to continue bit-identically."""
+
+    @abstractmethod
+    def load_training_state(self, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
+        """Restore what :meth:`training_state` returned (after the agents' tensors)."""
+
+
+class KnowledgeExchange(ABC):
+    """Knowledge exchange inside a team during training (``transfer.exchange``)."""
+
+    @abstractmethod
+    def soft_copy_best(self, best: int, tau: float) -> None:
+        """``best``: every other agent moves its values ``tau`` of the way to agent ``best``'s."""
+
+    @abstractmethod
+    def learn_from(self, i: int, experience: Experience) -> None:
+        """``shared_replay``: agent ``i`` learns from a team-mate's transitions, by its own rule."""
+
+
+class WarmStart(ABC):
+    """A warm start's steps beyond loading each target's tensors (the DQN family's networks)."""
+
+    @abstractmethod
+    def freeze(self, layer_indices: Sequence[int]) -> None:
+        """Keep these layers fixed from now on (negative indices count from the output)."""
+
+    @abstractmethod
+    def load_optimizer_state(self, i: int, moments: dict[str, dict[str, np.ndarray]], step: int) -> None:
+        """Start agent ``i``'s optimizer from a source's moments (``moments[tensor]['exp_avg' | 'exp_avg_sq']``)."""
+
+
+class Team(TeamShape, Acting, Checkpointing):
+    """K agents that act and checkpoint: what evaluation, checkpoints and transfer use. The agent
+    indices of every method are 0..K-1."""
+
+
+class Learner(Team, Learning):
+    """A team that learns, batched over ``num_replicas`` independent replicas: every array is
+    ``[R * K, ...]``, replica-major (row ``r * K + k``), and an agent index is a row. With R = 1 it
+    is one team; :meth:`replica` is replica r's team, with the learner's capabilities."""
+
+    num_replicas: int
+    num_rows: int
+
+    @abstractmethod
+    def replica(self, r: int) -> Team:
+        """Replica r's team of K agents (reads and writes this learner's own values)."""
+
+
+Capability = TypeVar("Capability")
+
+
+def require(team: object, capability: Callable[..., Capability], needed_by: str) -> Capability:
+    """``team`` as a learner with ``capability`` (one of the classes above), or a ``ConfigError`` naming
+    what needs it (checked when a run is configured, not in the middle of its loop)."""
+    if not isinstance(team, cast(type, capability)):
+        algorithm = getattr(team, "algorithm", type(team).__name__)
+        raise ConfigError(
+            f"{needed_by} needs a learner capable of {getattr(capability, '__name__', capability)}; {algorithm} is not"
+        )
+    return cast(Capability, team)
+
+
+def break_ties(best: np.ndarray, live: np.ndarray, ties: np.random.Generator | None) -> np.ndarray:
+    """Actions ``[K]`` from best-action masks ``bool [K, A]``: the live agents' first best action, or,
+    with ``ties``, a best action drawn from it where several tie (one draw per such agent, in order);
+    0 for the others."""
+    actions = np.where(live, best.argmax(axis=1), 0).astype(np.int64)
+    if ties is not None:
+        for i in np.flatnonzero(live & (best.sum(axis=1) > 1)):
+            choices = np.flatnonzero(best[i])
+            actions[i] = choices[int(ties.integers(len(choices)))]
+    return actions
 
 
 def normalize_layout(obs_layout: ObsLayout) -> list[tuple[str, int]]:

@@ -15,7 +15,7 @@ gradients are clipped per agent. With ``share_parameters`` each replica's team s
 instead (the parameter-sharing baseline): a single member whose forward pass serves its agents, replay
 still per agent, loss the *mean* over the replica's agents. Replica r (rows ``r * K .. r * K + K - 1``)
 has its own initial weights, exploration and replay sampling streams, seeded as a lone learner of its
-seed would be; :class:`DQNReplica` is its team as a ``Learner``.
+seed would be; :meth:`BatchedDQN.replica` is its team (:mod:`dqn_transfer.agents.replicas`).
 
 Two engines do the arithmetic (``agent.engine``): ``torch`` (:mod:`dqn_transfer.agents.dqn`, the
 default; any device, bit-identical to autograd and ``torch.optim.Adam``) and ``numpy``
@@ -25,34 +25,70 @@ networks). This module is what they share, and imports neither torch nor an engi
 
 from __future__ import annotations
 
+from abc import abstractmethod
 from collections.abc import Iterable, Sequence
-from typing import Any
+from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 
 from dqn_transfer.agents.base import (
+    Experience,
+    KnowledgeExchange,
+    Learner,
     ObsLayout,
-    TeamShape,
+    Team,
     Transition,
     UpdateStats,
+    WarmStart,
     check_tensor_shape,
     epsilon_greedy,
     joined,
 )
 from dqn_transfer.agents.replay import ReplayBatch, ReplayBuffer
+from dqn_transfer.agents.replicas import team_view
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm
 
 
-class BatchedDQN(TeamShape):
-    """K DQN / Double DQN agents, in R independent replicas (see the module docstring). Implements
-    ``Learner`` for the R x K agents as rows ``r * K + k``; :meth:`replica` is one replica's team.
+class StackedNetwork(Protocol):
+    """What :class:`BatchedDQN` uses of an engine's stacked MLPs (one member per agent, or per shared team)."""
 
-    An engine subclass builds ``q_network`` and ``target_network`` (stacked MLPs with ``num_layers``,
-    ``tensor_names``, ``shapes``, ``member_state``, ``load_member_state``, ``update_from``) and
-    ``optimizer`` (``moments``, ``init_state``, ``has_state``, ``steps``), and implements
-    :meth:`q_values`, :meth:`_greedy_actions`, :meth:`train_on` and the array conversions.
+    tensor_names: list[str]
+    shapes: list[tuple[int, ...]]
+
+    @property
+    def num_layers(self) -> int: ...
+    def member_state(self, m: int) -> dict[str, np.ndarray]: ...
+    def load_member_state(self, m: int, state: dict[str, np.ndarray], name_prefix: str = "") -> None: ...
+    def update_from(self, source: Any, tau: float) -> None: ...
+
+
+class StackedOptimizer(Protocol):
+    """What :class:`BatchedDQN` uses of an engine's Adam (:class:`~dqn_transfer.agents.stacked.AdamState`)."""
+
+    steps: list[int]
+    has_state: list[bool]
+
+    def moments(self, i: int, shape: Sequence[int]) -> dict[str, Any]: ...
+    def init_state(self, i: int) -> None: ...
+
+
+NetworkT = TypeVar("NetworkT", bound=StackedNetwork)
+OptimizerT = TypeVar("OptimizerT", bound=StackedOptimizer)
+
+
+class BatchedDQN(Learner, KnowledgeExchange, WarmStart, Generic[NetworkT, OptimizerT]):
+    """K DQN / Double DQN agents, in R independent replicas (see the module docstring): a ``Learner``
+    of the R x K agents as rows ``r * K + k`` (:meth:`replica` is one replica's team), with knowledge
+    exchange and warm start.
+
+    The engine contract: a subclass builds the members below in its ``__init__`` and implements the
+    abstract methods (the engine hooks).
     """
+
+    q_network: NetworkT  # the online networks
+    target_network: NetworkT  # the target networks (``update_from`` the online ones)
+    optimizer: OptimizerT  # Adam over the online networks' flat buffer
 
     def __init__(
         self, num_agents: int, obs_layout: ObsLayout, num_actions: int, hp: AgentConfig, seed: int | Sequence[int]
@@ -101,31 +137,31 @@ class BatchedDQN(TeamShape):
         self._no_training = UpdateStats(np.full(self.num_rows, np.nan), np.full(self.num_rows, np.nan))
         self._loss_weights_cache: tuple[bytes, np.ndarray] | None = None
 
-    # ------------------------------------------------------------------------ engine hooks
+    # ======================================================================== engine hooks
+    @abstractmethod
     def q_values(self, obs: np.ndarray, replica: int | None = None) -> np.ndarray:
         """Each agent's online Q-values of its own observation: ``obs [rows, D] -> [rows, A]``."""
-        raise NotImplementedError
 
+    @abstractmethod
     def _greedy_actions(self, obs: np.ndarray, replica: int | None) -> np.ndarray:
         """``argmax_a Q(obs, a)`` per row, ``obs`` float32 ``[rows, D]`` (of ``replica``, or of all)."""
-        raise NotImplementedError
 
+    @abstractmethod
     def train_on(self, batch: ReplayBatch) -> UpdateStats:
         """One Adam step for all agents on ``batch`` (``[rows, B, ...]``)."""
-        raise NotImplementedError
 
+    @abstractmethod
     def _to_engine(self, array: np.ndarray) -> Any:
         """A numpy array as the engine's array type (on its device)."""
-        raise NotImplementedError
 
+    @abstractmethod
     def _to_numpy(self, array: Any) -> np.ndarray:
         """An engine array as a numpy array on the host."""
-        raise NotImplementedError
 
     # ---------------------------------------------------------------------------- replicas
-    def replica(self, r: int) -> DQNReplica:
-        """Replica r's team of K agents, as a ``Learner`` of its own (evaluation, transfer, checkpoints)."""
-        return DQNReplica(self, r)
+    def replica(self, r: int) -> Team:
+        """Replica r's team of K agents (evaluation, transfer, exchange, checkpoints)."""
+        return team_view(self, r)
 
     def _rows(self, replica: int) -> slice:
         k = self.num_agents
@@ -145,22 +181,12 @@ class BatchedDQN(TeamShape):
 
     # ------------------------------------------------------------------------------ acting
     def act(
-        self,
-        obs: np.ndarray,
-        live: np.ndarray,
-        epsilon: float | np.ndarray,
-        greedy: bool = False,
-        ties: np.random.Generator | None = None,
-        replica: int | None = None,
+        self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, replica: int | None = None
     ) -> np.ndarray:
-        """Per-agent epsilon-greedy; one forward pass for every agent, skipped if everyone explores.
-
-        Actions are returned for every row (of ``replica``, or of all); those of non-live agents are
-        ignored by the game. Greedy actions are the first best (``ties`` is for tables, whose values tie).
-        """
+        """Per-agent epsilon-greedy (rows of ``replica``, or all); one forward pass for every agent,
+        skipped if everyone explores. Every row draws its exploration numbers, live or not (the stream
+        does not depend on who is live); non-live agents' actions are then 0."""
         obs = np.asarray(obs, dtype=np.float32)
-        if greedy:
-            return self._greedy_actions(obs, replica)
         # The exploration draws come first, from the shared epsilon_greedy (the same draws, so the same
         # random stream): given -1 as every greedy action, it returns -1 exactly where the agent exploits.
         epsilon = np.asarray(epsilon, dtype=np.float64)
@@ -177,7 +203,15 @@ class BatchedDQN(TeamShape):
         exploit = actions < 0
         if exploit.any():
             np.copyto(actions, self._greedy_actions(obs, replica), where=exploit)
+        np.copyto(actions, 0, where=~np.asarray(live, dtype=bool))
         return actions
+
+    def best_actions(self, obs: np.ndarray, replica: int | None = None) -> np.ndarray:
+        """The first best action of each row (network outputs practically never tie), as a mask."""
+        greedy = self._greedy_actions(np.asarray(obs, dtype=np.float32), replica)
+        best = np.zeros((len(greedy), self.num_actions), dtype=bool)
+        best[np.arange(len(greedy)), greedy] = True
+        return best
 
     # ---------------------------------------------------------------------------- learning
     def update(self, transition: Transition, step: int) -> UpdateStats:
@@ -193,9 +227,10 @@ class BatchedDQN(TeamShape):
         if step > self.learning_starts and step % self.train_freq == 0:
             rounds = [self.gradient_step() for _ in range(self.gradient_steps)]
             if len(rounds) == 1:  # the mean of one round, without np.mean's cost
-                stats = UpdateStats(*(column.astype(np.float64) for column in rounds[0]))
+                columns = [column.astype(np.float64) for column in rounds[0]]
             else:
-                stats = UpdateStats(*(np.mean(column, axis=0, dtype=np.float64) for column in zip(*rounds)))
+                columns = [np.asarray(np.mean(column, axis=0, dtype=np.float64)) for column in zip(*rounds)]
+            stats = UpdateStats(*columns)
 
         if step % self.target_update == 0:
             self.target_network.update_from(self.q_network, tau=self.tau)
@@ -224,6 +259,27 @@ class BatchedDQN(TeamShape):
         return self._loss_weights_cache[1]
 
     # ------------------------------------------------------------------ transfer and exchange
+    def soft_copy_best(self, best: int, tau: float, replica: int = 0) -> None:
+        """Every other agent of ``replica``'s team moves its online weights ``tau`` of the way to agent
+        ``best``'s (frozen layers stay as they are; the targets follow at their next sync)."""
+        rows = self._rows(replica)
+        best_weights = self.get_member_weights(rows.start + best)
+        frozen = {f"layers.{l}.{kind}" for l in self.frozen_layers for kind in ("weight", "bias")}
+        for i in range(rows.start, rows.stop):
+            if i != rows.start + best:
+                own = self.get_member_weights(i)
+                self.set_member_weights(
+                    i,
+                    {
+                        name: own[name] if name in frozen else (1 - tau) * own[name] + tau * best_weights[name]
+                        for name in own
+                    },
+                )
+
+    def learn_from(self, i: int, experience: Experience) -> None:
+        """Append a team-mate's ``[N, ...]`` transitions to agent i's replay row."""
+        self.replay.extend(i, *experience)
+
     def freeze(self, layer_indices: Iterable[int]) -> None:
         """Keep these layers' weights and biases fixed (negative indices count from the output).
 
@@ -234,7 +290,7 @@ class BatchedDQN(TeamShape):
         layers = [range(self.q_network.num_layers)[index] for index in layer_indices]  # IndexError if absent
         self.frozen_layers = sorted({*self.frozen_layers, *layers})
 
-    def set_member_optimizer_state(self, i: int, moments: dict[str, dict[str, np.ndarray]], step: int) -> None:
+    def load_optimizer_state(self, i: int, moments: dict[str, dict[str, np.ndarray]], step: int) -> None:
         """Adam moments for agent i's slice of each stacked tensor, e.g. carried over by transfer.
 
         ``moments[name]`` holds ``exp_avg`` and ``exp_avg_sq`` shaped like one member's slice of
@@ -254,18 +310,6 @@ class BatchedDQN(TeamShape):
         if not 0 <= i < self.num_rows:
             raise IndexError(f"agent index {i} out of range for {self.num_rows} agents")
         return i // self.num_agents if self.share_parameters else i
-
-    def add_experience(
-        self,
-        i: int,
-        obs: np.ndarray,
-        actions: np.ndarray,
-        rewards: np.ndarray,
-        next_obs: np.ndarray,
-        terminated: np.ndarray,
-    ) -> None:
-        """Append ``[N, ...]`` transitions (e.g. a team-mate's) to agent i's replay row."""
-        self.replay.extend(i, obs, actions, rewards, next_obs, terminated)
 
     def get_member_weights(self, i: int) -> dict[str, np.ndarray]:
         """Agent i's online network, ``layers.{l}.weight`` ``[out, in]`` / ``layers.{l}.bias``."""
@@ -350,70 +394,3 @@ class BatchedDQN(TeamShape):
         self.rngs[replica].bit_generator.state = meta["explore_rng"]
         self.replay.rngs[replica].bit_generator.state = meta["replay_rng"]
         self.num_gradient_steps = int(meta["num_gradient_steps"])
-
-
-class DQNReplica:
-    """Replica r of a :class:`BatchedDQN`: its K agents as a ``Learner`` (agent i is row ``r * K + i``).
-
-    Everything reads and writes the batched learner's own arrays; nothing is copied.
-    """
-
-    def __init__(self, learner: BatchedDQN, r: int) -> None:
-        if not 0 <= r < learner.num_replicas:
-            raise IndexError(f"replica {r} out of range for {learner.num_replicas} replicas")
-        self.learner, self.index = learner, r
-        self.algorithm, self.num_agents = learner.algorithm, learner.num_agents
-        self.obs_layout, self.obs_dim, self.num_actions = learner.obs_layout, learner.obs_dim, learner.num_actions
-        self.offset = r * learner.num_agents
-
-    @property
-    def frozen_layers(self) -> list[int]:
-        return self.learner.frozen_layers
-
-    def _row(self, i: int) -> int:
-        if not 0 <= i < self.num_agents:
-            raise IndexError(f"agent index {i} out of range for {self.num_agents} agents")
-        return self.offset + i
-
-    def act(
-        self,
-        obs: np.ndarray,
-        live: np.ndarray,
-        epsilon: float | np.ndarray,
-        greedy: bool = False,
-        ties: np.random.Generator | None = None,
-    ) -> np.ndarray:
-        return self.learner.act(obs, live, epsilon, greedy, replica=self.index)
-
-    def q_values(self, obs: np.ndarray) -> np.ndarray:
-        return self.learner.q_values(obs, replica=self.index)
-
-    def freeze(self, layer_indices: Iterable[int]) -> None:
-        self.learner.freeze(layer_indices)
-
-    def network_meta(self) -> dict[str, Any]:
-        return self.learner.network_meta()
-
-    def agent_tensors(self, i: int) -> dict[str, np.ndarray]:
-        return self.learner.agent_tensors(self._row(i))
-
-    def load_agent_tensors(self, i: int, tensors: dict[str, np.ndarray]) -> None:
-        self.learner.load_agent_tensors(self._row(i), tensors)
-
-    def get_member_weights(self, i: int) -> dict[str, np.ndarray]:
-        return self.learner.get_member_weights(self._row(i))
-
-    def set_member_weights(self, i: int, tensors: dict[str, np.ndarray]) -> None:
-        self.learner.set_member_weights(self._row(i), tensors)
-
-    def set_member_optimizer_state(self, i: int, moments: dict[str, dict[str, np.ndarray]], step: int) -> None:
-        self.learner.set_member_optimizer_state(self._row(i), moments, step)
-
-    def add_experience(self, i: int, *transitions: np.ndarray) -> None:
-        self.learner.add_experience(self._row(i), *transitions)
-
-    def training_state(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        return self.learner.training_state(self.index)
-
-    def load_training_state(self, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
-        self.learner.load_training_state(arrays, meta, self.index)

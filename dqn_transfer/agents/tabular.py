@@ -19,19 +19,24 @@ action, so the update follows the policy actually played (on-policy).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
 from dqn_transfer.agents.base import (
+    Experience,
+    KnowledgeExchange,
+    Learner,
     ObsLayout,
+    Team,
     TeamShape,
     Transition,
     UpdateStats,
     check_tensor_shape,
     epsilon_greedy_action,
 )
+from dqn_transfer.agents.replicas import team_view
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm
 
@@ -84,8 +89,10 @@ def _best_actions(q: np.ndarray) -> list[int]:
     return [action for action, value in enumerate(values) if value == top]
 
 
-class TabularLearner(TeamShape):
-    """K independent Q-tables updated by SARSA or Q-learning (see the module docstring)."""
+class TabularLearner(Learner, KnowledgeExchange):
+    """K independent Q-tables updated by SARSA or Q-learning (see the module docstring), in R replicas:
+    ``R * K`` tables, row ``r * K + k``, replica r exploring and breaking ties with its own generator
+    (exactly the team a lone learner of its seed would be)."""
 
     def __init__(
         self,
@@ -94,7 +101,7 @@ class TabularLearner(TeamShape):
         num_actions: int,
         hp: AgentConfig,
         *,
-        seed: int = 0,
+        seed: int | Sequence[int] = 0,
     ) -> None:
         """
         :param num_agents: K, the agents of the team (one table each)
@@ -102,28 +109,42 @@ class TabularLearner(TeamShape):
         :param num_actions: A, the discrete actions
         :param hp: the hyperparameters, documented on :class:`~dqn_transfer.config.AgentConfig`:
             ``algorithm`` (sarsa | qlearning), ``lr`` (alpha, the step size of the table update), ``gamma``
-        :param seed: fixes exploration and tie-breaking
+        :param seed: fixes exploration and tie-breaking; a list of R seeds makes R replicas
         """
         algorithm = Algorithm(hp.algorithm)
         if not algorithm.is_tabular:
             raise ValueError(f"TabularLearner trains sarsa or qlearning, not {algorithm.value}")
-        super().__init__(algorithm, num_agents, obs_layout, num_actions)
+        TeamShape.__init__(self, algorithm, num_agents, obs_layout, num_actions)
         self.lr = hp.lr
         self.gamma = hp.gamma
-        self.rng = np.random.default_rng(seed)
-        self.tables: list[dict[bytes, np.ndarray]] = [{} for _ in range(num_agents)]
-        self.fallbacks: list[list[_Fallback]] = [[] for _ in range(num_agents)]
+        seeds = [int(seed)] if isinstance(seed, (int, np.integer)) else [int(s) for s in seed]
+        self.num_replicas = len(seeds)
+        self.num_rows = rows = self.num_replicas * num_agents
+        self.rngs = [np.random.default_rng(s) for s in seeds]
+        self.tables: list[dict[bytes, np.ndarray]] = [{} for _ in range(rows)]
+        self.fallbacks: list[list[_Fallback]] = [[] for _ in range(rows)]
         # SARSA: the action chosen for next_obs at the last update, and that observation.
-        self.epsilon = np.zeros(num_agents)  # per agent: transferred agents may explore less
-        self.next_action = np.full(num_agents, _NO_ACTION, dtype=np.int64)
-        self.next_action_obs = np.zeros((num_agents, self.obs_dim), dtype=np.float32)
+        self.epsilon = np.zeros(rows)  # per agent: transferred agents may explore less
+        self.next_action = np.full(rows, _NO_ACTION, dtype=np.int64)
+        self.next_action_obs = np.zeros((rows, self.obs_dim), dtype=np.float32)
+
+    def replica(self, r: int) -> Team:
+        return team_view(self, r)
+
+    def _rows(self, replica: int | None) -> range:
+        """The rows of ``replica`` (None: all)."""
+        k = self.num_agents
+        return range(self.num_rows) if replica is None else range(replica * k, (replica + 1) * k)
+
+    def _rng(self, i: int) -> np.random.Generator:
+        return self.rngs[i // self.num_agents]
 
     # ---------------------------------------------------------------------------------- tables
 
-    def q_values(self, obs: np.ndarray) -> np.ndarray:
-        """Each agent's Q-values of its own observation: ``obs [K, D] -> [K, A]``."""
+    def q_values(self, obs: np.ndarray, replica: int | None = None) -> np.ndarray:
+        """Each agent's Q-values of its own observation: ``obs [rows, D] -> [rows, A]``."""
         obs = np.asarray(obs, dtype=np.float32)
-        return np.stack([self.agent_q_values(i, obs[i]) for i in range(self.num_agents)])
+        return np.stack([self.agent_q_values(i, obs[n]) for n, i in enumerate(self._rows(replica))])
 
     def agent_q_values(self, i: int, obs: np.ndarray) -> np.ndarray:
         """Agent i's Q-values of one observation, without adding an entry (do not modify)."""
@@ -141,14 +162,15 @@ class TabularLearner(TeamShape):
             self.tables[i][key] = self.agent_q_values(i, obs).copy()
         return self.tables[i][key]
 
-    def _greedy(self, q: np.ndarray) -> int:
+    def _greedy(self, q: np.ndarray, rng: np.random.Generator) -> int:
         """Argmax with random tie-breaking: a fresh table is all ties, and always taking the
         first action would bias early exploration towards it."""
         best = _best_actions(q)
-        return best[0] if len(best) == 1 else int(self.rng.choice(best))
+        return best[0] if len(best) == 1 else int(rng.choice(best))
 
-    def _epsilon_greedy(self, q: np.ndarray, epsilon: float) -> int:
-        return epsilon_greedy_action(self._greedy(q), epsilon, self.num_actions, self.rng)
+    def _epsilon_greedy(self, i: int, q: np.ndarray) -> int:
+        rng = self._rng(i)
+        return epsilon_greedy_action(self._greedy(q, rng), self.epsilon[i], self.num_actions, rng)
 
     def add_fallback(
         self, keys: np.ndarray, values: np.ndarray, projection: np.ndarray, agent: int | None = None
@@ -168,43 +190,41 @@ class TabularLearner(TeamShape):
             )
         if projection.size and (projection.min() < 0 or projection.max() >= self.obs_dim):
             raise ValueError(f"fallback projection points outside the {self.obs_dim} observation columns")
-        agents = range(self.num_agents) if agent is None else [agent]
+        agents = range(self.num_rows) if agent is None else [agent]
         for i in agents:
             self.fallbacks[i].append(_Fallback(keys, values, projection))
 
     # ---------------------------------------------------------------------------------- acting
 
     def act(
-        self,
-        obs: np.ndarray,
-        live: np.ndarray,
-        epsilon: float | np.ndarray,
-        greedy: bool = False,
-        ties: np.random.Generator | None = None,
+        self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, replica: int | None = None
     ) -> np.ndarray:
         """Epsilon-greedy per live agent; SARSA replays the action its last update chose for ``obs``.
-
-        ``greedy`` (evaluation) uses no cached action and none of the learner's random numbers, so
-        evaluating does not change the training run. A tie between equal values (every unvisited state)
-        goes to a best action drawn from ``ties``, the evaluation episode's own generator: agents whose
-        values are equal then play the same moves whatever their observations encode, so an encoding
-        cannot make one condition's untrained agents walk differently from another's. Without
-        ``ties``, the first best action. Non-live agents get action 0.
-        """
+        Non-live agents get action 0 and draw no random numbers."""
         obs = np.asarray(obs, dtype=np.float32)
-        actions = np.zeros(self.num_agents, dtype=np.int64)
-        if not greedy:
-            self.epsilon = np.array(epsilon, dtype=float) if np.ndim(epsilon) else np.full(self.num_agents, epsilon)
-        for i in np.flatnonzero(live).tolist():
-            if greedy:
-                best = _best_actions(self.agent_q_values(i, obs[i]))
-                actions[i] = best[0] if len(best) == 1 or ties is None else best[int(ties.integers(len(best)))]
-            elif self._cached(i, obs[i]):
-                actions[i] = self.next_action[i]
+        rows = self._rows(replica)
+        actions = np.zeros(len(rows), dtype=np.int64)
+        self.epsilon[rows.start : rows.stop] = epsilon
+        for n in np.flatnonzero(live).tolist():
+            i = rows.start + n
+            if self._cached(i, obs[n]):
+                actions[n] = self.next_action[i]
                 self.next_action[i] = _NO_ACTION
             else:
-                actions[i] = self._epsilon_greedy(self.agent_q_values(i, obs[i]), self.epsilon[i])
+                actions[n] = self._epsilon_greedy(i, self.agent_q_values(i, obs[n]))
         return actions
+
+    def best_actions(self, obs: np.ndarray, replica: int | None = None) -> np.ndarray:
+        """Each agent's actions of the highest value: every action of a state its table and fallbacks
+        do not know (all 0). Uses no cached action and no random numbers, so evaluating does not change
+        the training run; :meth:`greedy` breaks the ties with the evaluation episode's generator, so that
+        agents whose values are equal play the same moves whatever their observations encode."""
+        obs = np.asarray(obs, dtype=np.float32)
+        rows = self._rows(replica)
+        best = np.zeros((len(rows), self.num_actions), dtype=bool)
+        for n, i in enumerate(rows):
+            best[n, _best_actions(self.agent_q_values(i, obs[n]))] = True
+        return best
 
     def _cached(self, i: int, obs: np.ndarray) -> bool:
         """Whether agent i's last update chose its next action for exactly this observation."""
@@ -219,19 +239,28 @@ class TabularLearner(TeamShape):
         next_obs = np.asarray(transition.next_obs, dtype=np.float32)
         rewards = np.asarray(transition.rewards, dtype=np.float32)
         actions, terminated, truncated = transition.actions, transition.terminated, transition.truncated
-        td_loss = np.full(self.num_agents, np.nan)
-        q_mean = np.full(self.num_agents, np.nan)
+        td_loss = np.full(self.num_rows, np.nan)
+        q_mean = np.full(self.num_rows, np.nan)
         for i in np.flatnonzero(transition.live).tolist():
-            self.next_action[i] = _NO_ACTION
-            row, a = self._entry(i, obs[i]), int(actions[i])
-            target = rewards[i]
-            if not terminated[i]:
-                bootstrap = self._bootstrap(i, next_obs[i], cache=not truncated[i])
-                target = rewards[i] + np.float32(self.gamma) * bootstrap
-            td_error = target - row[a]
-            q_mean[i], td_loss[i] = row[a], huber(float(td_error))
-            row[a] += np.float32(self.lr) * td_error
+            q_mean[i], td_loss[i] = self._update_one(
+                i, obs[i], int(actions[i]), rewards[i], next_obs[i], terminated[i], cache=not truncated[i]
+            )
         return UpdateStats(td_loss, q_mean)
+
+    def _update_one(
+        self, i: int, obs: np.ndarray, a: int, reward: np.float32, next_obs: np.ndarray, terminated: bool, cache: bool
+    ) -> tuple[np.float32, float]:
+        """Agent i's table update on one transition; returns ``Q(s, a)`` before it and the Huber loss."""
+        self.next_action[i] = _NO_ACTION
+        row = self._entry(i, obs)
+        target = reward
+        if not terminated:
+            bootstrap = self._bootstrap(i, next_obs, cache=cache)
+            target = reward + np.float32(self.gamma) * bootstrap
+        td_error = target - row[a]
+        q_mean, td_loss = row[a], huber(float(td_error))
+        row[a] += np.float32(self.lr) * td_error
+        return q_mean, td_loss
 
     def _bootstrap(self, i: int, next_obs: np.ndarray, cache: bool) -> np.float32:
         """The value of ``next_obs`` the target uses: Q(s', a') for SARSA, max Q(s', .) for Q-learning.
@@ -242,11 +271,40 @@ class TabularLearner(TeamShape):
         q_next = self.agent_q_values(i, next_obs)
         if self.algorithm == Algorithm.qlearning.value:
             return q_next.max()
-        next_action = self._epsilon_greedy(q_next, self.epsilon[i])
+        next_action = self._epsilon_greedy(i, q_next)
         if cache:
             self.next_action[i] = next_action
             self.next_action_obs[i] = next_obs
         return q_next[next_action]
+
+    # -------------------------------------------------------------------------- knowledge exchange
+
+    def soft_copy_best(self, best: int, tau: float, replica: int = 0) -> None:
+        """Q_i(s) <- (1 - tau) Q_i(s) + tau Q_best(s) for every other agent i of the replica, on every
+        state either table holds (a state one of them never saw counts at the value it would look up:
+        its fallback's, or 0)."""
+        rows = self._rows(replica)
+        best = rows.start + best
+        best_table = self.tables[best]
+        for i in rows:
+            if i == best:
+                continue
+            for key in list(dict.fromkeys([*self.tables[i], *best_table])):
+                obs = np.frombuffer(key, dtype=np.float32)
+                self.tables[i][key] = (
+                    (1 - tau) * self.agent_q_values(i, obs) + tau * self.agent_q_values(best, obs)
+                ).astype(np.float32)
+
+    def learn_from(self, i: int, experience: Experience) -> None:
+        """A table has no replay: one update of agent i per transition, as if it had been its own (SARSA
+        draws the next action from its own epsilon-greedy policy). One that does not terminate
+        bootstraps like any non-terminal step but caches no next action: the cache belongs to the
+        agent's own next step (each update clears it, as its own updates do)."""
+        obs = np.asarray(experience.obs, dtype=np.float32)
+        next_obs = np.asarray(experience.next_obs, dtype=np.float32)
+        rewards = np.asarray(experience.rewards, dtype=np.float32)
+        for o, a, r, o2, done in zip(obs, experience.actions, rewards, next_obs, experience.terminated):
+            self._update_one(i, o, int(a), r, o2, done, cache=False)
 
     # ----------------------------------------------------------------------------- checkpoints
 
@@ -280,13 +338,15 @@ class TabularLearner(TeamShape):
     def network_meta(self) -> dict[str, Any]:
         return {"obs_dim": self.obs_dim, "num_actions": self.num_actions}
 
-    def training_state(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        """The SARSA next-action cache and the RNG state (the tables are in ``agent_tensors``)."""
-        arrays = {"next_action": self.next_action.copy(), "next_action_obs": self.next_action_obs.copy()}
-        return arrays, {"rng": self.rng.bit_generator.state, "epsilon": self.epsilon.tolist()}
+    def training_state(self, replica: int = 0) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """One replica's SARSA next-action cache and RNG state (the tables are in ``agent_tensors``)."""
+        rows = slice(self._rows(replica).start, self._rows(replica).stop)
+        arrays = {"next_action": self.next_action[rows].copy(), "next_action_obs": self.next_action_obs[rows].copy()}
+        return arrays, {"rng": self.rngs[replica].bit_generator.state, "epsilon": self.epsilon[rows].tolist()}
 
-    def load_training_state(self, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
-        self.next_action = np.asarray(arrays["next_action"], dtype=np.int64).copy()
-        self.next_action_obs = np.asarray(arrays["next_action_obs"], dtype=np.float32).copy()
-        self.rng.bit_generator.state = meta["rng"]
-        self.epsilon = np.broadcast_to(np.asarray(meta["epsilon"], dtype=float), (self.num_agents,)).copy()
+    def load_training_state(self, arrays: dict[str, np.ndarray], meta: dict[str, Any], replica: int = 0) -> None:
+        rows = slice(self._rows(replica).start, self._rows(replica).stop)
+        self.next_action[rows] = np.asarray(arrays["next_action"], dtype=np.int64)
+        self.next_action_obs[rows] = np.asarray(arrays["next_action_obs"], dtype=np.float32)
+        self.rngs[replica].bit_generator.state = meta["rng"]
+        self.epsilon[rows] = np.broadcast_to(np.asarray(meta["epsilon"], dtype=float), (self.num_agents,))

@@ -12,7 +12,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from dqn_transfer.agents.base import Learner, Transition
+from dqn_transfer.agents.base import Team, Transition
 from dqn_transfer.enums import RewardMode
 from dqn_transfer.envs.game import TreasureHuntGame
 
@@ -42,13 +42,13 @@ def team_return_of(rewards: np.ndarray, reward_mode: RewardMode) -> float:
     return float(rewards.max() if reward_mode is RewardMode.team and rewards.size else rewards.sum())
 
 
-def greedy_policy(learner: Learner, episode_rng: np.random.Generator | None = None) -> Policy:
+def greedy_policy(learner: Team, episode_rng: np.random.Generator | None = None) -> Policy:
     """The learner's greedy actions; consumes none of its random numbers. Ties between equal values are
     drawn from a child of ``episode_rng`` (the generator the episode resets with, whose own stream a
     child leaves untouched): two learners with equal values evaluated on the same episode play the
     same moves. Without it, ties go to the first best action."""
     ties = episode_rng.spawn(1)[0] if episode_rng is not None else None
-    return lambda obs, live: learner.act(obs, live, epsilon=0.0, greedy=True, ties=ties)
+    return lambda obs, live: learner.greedy(obs, live, ties)
 
 
 def play_episode(
@@ -73,7 +73,7 @@ def play_episode(
         if on_step is not None:
             on_step(Transition(obs, actions, rewards, next_obs, terminated, truncated, live), info)
         obs = next_obs
-        step_return = team_return_of(rewards[live], game.reward_mode)
+        step_return = team_return_of(rewards[live], RewardMode(game.reward_mode))
         team_return += step_return
         trapped += int(np.sum(info["trap"]))
         length += 1
@@ -100,7 +100,7 @@ def evaluation_rng(seed: int, evaluation: int, episode: int) -> np.random.Genera
 
 
 def evaluate(
-    learner: Learner,
+    learner: Team,
     game: TreasureHuntGame,
     episodes: int,
     seed: int,

@@ -19,7 +19,8 @@ from typing import NamedTuple, TextIO
 import numpy as np
 from PIL import Image
 
-from dqn_transfer.agents.base import Learner
+from dqn_transfer.agents.base import Team
+from dqn_transfer.enums import RewardMode
 from dqn_transfer.envs.game import COLOURS, TreasureHuntGame, text_grid
 from dqn_transfer.envs.pictures import agent_colour, draw_state
 from dqn_transfer.evaluation.rollout import (
@@ -72,13 +73,15 @@ def record_episode(game: TreasureHuntGame, policy: Policy, rng: np.random.Genera
 
     def on_step(transition, info) -> None:
         observations.append((transition.obs, transition.live))
-        snapshot(frames[-1].team_return + team_return_of(transition.rewards[transition.live], game.reward_mode))
+        snapshot(
+            frames[-1].team_return + team_return_of(transition.rewards[transition.live], RewardMode(game.reward_mode))
+        )
 
     result = play_episode(game, policy, rng, on_step=on_step, on_reset=lambda: snapshot(0.0))
     return RecordedEpisode(game, frames, observations, result)
 
 
-def watch_team(game: TreasureHuntGame, learner: Learner, episodes: int, seed: int) -> list[RecordedEpisode]:
+def watch_team(game: TreasureHuntGame, learner: Team, episodes: int, seed: int) -> list[RecordedEpisode]:
     """``episodes`` greedy episodes; episode i draws its chest ties and its greedy ties from ``(seed, i)``."""
     rngs = [np.random.default_rng([seed, i]) for i in range(episodes)]
     return [record_episode(game, greedy_policy(learner, rng), rng) for rng in rngs]
@@ -201,7 +204,7 @@ def replay_in_terminal(episodes: Sequence[RecordedEpisode], stream: TextIO | Non
 
 
 def evaluation_views(
-    learner: Learner, game: TreasureHuntGame, seed: int, evaluation: int
+    learner: Team, game: TreasureHuntGame, seed: int, evaluation: int
 ) -> tuple[np.ndarray, list[np.ndarray], EpisodeResult]:
     """What TensorBoard shows of an evaluation: its first episode, played here from the evaluation's
     own generator, as its last frame with every trail, ``[H, W, 3]`` uint8, and per agent the Q-values

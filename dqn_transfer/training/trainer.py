@@ -39,7 +39,7 @@ from omegaconf import OmegaConf
 from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
-from dqn_transfer.agents import Learner, Transition, UpdateStats, joined, linear_schedule, make_replicas
+from dqn_transfer.agents import Team, Transition, UpdateStats, joined, linear_schedule, make_replicas
 from dqn_transfer.config import ConfigError, TrainConfig, replica_configs, to_plain, validate
 from dqn_transfer.enums import Algorithm, Exchange
 from dqn_transfer.envs import TreasureHuntGame, make_game
@@ -56,6 +56,7 @@ from dqn_transfer.storage.checkpoint import (
 from dqn_transfer.storage.run_dir import RunDir, existing_run_message
 from dqn_transfer.timing import Stopwatch
 from dqn_transfer.training.tensorboard import RunLogger
+from dqn_transfer.transfer.capabilities import check_capabilities
 from dqn_transfer.transfer.exchange import exchange_best, exchange_replay
 from dqn_transfer.transfer.warm_start import apply_transfer, lineage_table
 
@@ -201,7 +202,7 @@ class Replica:
         config: TrainConfig,
         run_dir: Path,
         game: TreasureHuntGame,
-        learner: Learner,
+        learner: Team,
         source: Path | Sequence[Path] | None,
     ) -> None:
         self.index, self.config, self.run_dir = index, config, RunDir(run_dir)
@@ -281,6 +282,7 @@ class Trainer:
             device=config.device,
             threads=config.threads,
         )
+        check_capabilities(config, self.learner, warm_start=config.transfer.enabled and not source_task)
         sources = list(sources) if sources is not None else [None] * len(configs)
         self.replicas = [
             Replica(
@@ -532,7 +534,7 @@ class Trainer:
             best = exchange_best(rep.learner, np.asarray(rep.window_returns), transfer.exchange_tau)
             rep.logger.scalar("team/exchange_best_agent", best, rep.counters.step)
         else:
-            exchange_replay(rep.learner, rep.shared_transitions, rep.counters.step)
+            exchange_replay(rep.learner, rep.shared_transitions)
             rep.shared_transitions.clear()
         rep.window_returns.clear()
 

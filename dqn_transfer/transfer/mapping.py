@@ -413,6 +413,7 @@ def _rekey_positions(
     in_position = (columns >= position.source.start) & (columns < position.source.stop)
     if not in_position.any():
         return np.arange(len(keys)), None, np.zeros(0, dtype=np.int64)
+    assert embedding is not None and position is not None  # in_position is all False without them
     if in_position.sum() != position.source.stop - position.source.start:
         raise TransferError("source table reads only part of the position segment: cannot map it onto another map")
     codes = np.ascontiguousarray(keys[:, in_position][:, np.argsort(columns[in_position])])
@@ -511,3 +512,21 @@ def transfer_tabular_tensors(
         for name, array, dtype in zip(fallback_names(level), mapped, (np.float32, np.float32, np.int64)):
             out[name] = np.ascontiguousarray(array, dtype=dtype)
     return out
+
+
+def transfer_agent_tensors(
+    source_tensors: Mapping[str, np.ndarray],
+    source_layout: Layout,
+    target_layout: Layout,
+    target_hidden: Sequence[int],
+    num_actions: int,
+    embedding: Embedding | None = None,
+) -> dict[str, np.ndarray]:
+    """A source agent's tensors mapped onto the target's observation, by the checkpoint's own format: a
+    table's (``keys`` / ``values``: :func:`transfer_tabular_tensors`) or a network's (``q.*``:
+    :func:`transfer_dqn_tensors`, into ``target_hidden`` layers)."""
+    if "keys" in source_tensors:
+        return transfer_tabular_tensors(
+            source_tensors, source_layout, target_layout, num_actions=num_actions, embedding=embedding
+        )
+    return transfer_dqn_tensors(source_tensors, source_layout, target_layout, target_hidden, num_actions, embedding)

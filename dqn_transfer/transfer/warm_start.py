@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from dqn_transfer.agents import BatchedDQN, Learner
+from dqn_transfer.agents import Team, WarmStart, require
 from dqn_transfer.config import TrainConfig, TransferConfig
 from dqn_transfer.enums import Algorithm, Fill
 from dqn_transfer.envs.game import TreasureHuntGame, make_game
@@ -37,8 +37,7 @@ from dqn_transfer.transfer.mapping import (
     TransferError,
     map_input_moments,
     plan_segment_mapping,
-    transfer_dqn_tensors,
-    transfer_tabular_tensors,
+    transfer_agent_tensors,
 )
 
 log = logging.getLogger("dqn_transfer.transfer")
@@ -120,14 +119,9 @@ def map_source(config: TrainConfig, game: TreasureHuntGame, path: Path) -> Mappe
         check_compatible(meta, {"algorithm": algorithm.value, "num_actions": game.num_actions})
         embedding = source_embedding(meta, game, config.transfer)
         plan = plan_segment_mapping(meta["obs_layout"], target_layout, embedding)
-        if algorithm.is_tabular:
-            mapped = transfer_tabular_tensors(
-                tensors, meta["obs_layout"], target_layout, num_actions=game.num_actions, embedding=embedding
-            )
-        else:
-            mapped = transfer_dqn_tensors(
-                tensors, meta["obs_layout"], target_layout, list(config.agent.hidden), game.num_actions, embedding
-            )
+        mapped = transfer_agent_tensors(
+            tensors, meta["obs_layout"], target_layout, list(config.agent.hidden), game.num_actions, embedding
+        )
     except (CheckpointError, ValueError) as err:  # TransferError is a ValueError
         raise TransferError(f"transfer source {path}: {err}") from None
     except (KeyError, IndexError, TypeError) as err:  # a meta or tensor this format never writes
@@ -136,10 +130,12 @@ def map_source(config: TrainConfig, game: TreasureHuntGame, path: Path) -> Mappe
 
 
 def apply_transfer(
-    config: TrainConfig, learner: Learner, game: TreasureHuntGame, source: Path | Sequence[Path]
+    config: TrainConfig, learner: Team, game: TreasureHuntGame, source: Path | Sequence[Path]
 ) -> dict[str, Any]:
     """Load ``source`` (one checkpoint for every target agent, or one per target) into the target
-    agents; returns what the run records about its sources."""
+    agents (``load_agent_tensors``); keeping layers fixed and carrying the optimizer state over need
+    the learner's :class:`~dqn_transfer.agents.WarmStart` capability. Returns what the run records
+    about its sources."""
     transfer = config.transfer
     targets = transfer_targets(config, game.num_agents)
     files = [source] * len(targets) if isinstance(source, Path) else list(source)
@@ -154,18 +150,15 @@ def apply_transfer(
     for i, source_i in zip(targets, per_target):
         learner.load_agent_tensors(i, source_i.tensors)
     if not transfer.reset_optimizer:
-        if Algorithm(config.agent.algorithm).is_tabular:
-            raise TransferError(
-                "transfer.reset_optimizer=false needs a DQN learner (tabular learners have no optimizer)"
-            )
+        warm_start = require(learner, WarmStart, "transfer.reset_optimizer=false")
         if len(targets) != game.num_agents:  # Adam keeps one step count per stacked parameter
             raise TransferError(
                 "transfer.reset_optimizer=false needs every agent as a target "
                 f"(transfer.targets={targets}): the agents share Adam's step count"
             )
-        carry_optimizer_state(learner, per_target, targets)
+        carry_optimizer_state(warm_start, per_target, targets)
     if transfer.freeze:  # indices were checked against agent.hidden by config.validate
-        learner.freeze(transfer.freeze)
+        require(learner, WarmStart, "transfer.freeze").freeze(list(transfer.freeze))
     first = per_target[0]
     log.info(
         "transfer: agents %s start from %s (digest %s...)",
@@ -209,7 +202,7 @@ def lineage_table(record: Mapping[str, Any]) -> str:
     return "\n".join(rows)
 
 
-def carry_optimizer_state(learner: BatchedDQN, sources: list[MappedSource], targets: list[int]) -> None:
+def carry_optimizer_state(learner: WarmStart, sources: list[MappedSource], targets: list[int]) -> None:
     """``transfer.reset_optimizer=false``: start each target's Adam moments from its source's.
 
     The moments live in the source run's resume state beside the agent file; the first layer's rows
@@ -223,7 +216,7 @@ def carry_optimizer_state(learner: BatchedDQN, sources: list[MappedSource], targ
             f"{steps}; use reset_optimizer=true"
         )
     for i, source in zip(targets, sources):
-        learner.set_member_optimizer_state(i, states[source.path][0], steps[0])
+        learner.load_optimizer_state(i, states[source.path][0], steps[0])
 
 
 def _source_moments(source: MappedSource) -> tuple[dict[str, dict[str, np.ndarray]], int]:
