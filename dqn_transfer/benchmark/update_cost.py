@@ -91,7 +91,7 @@ class UpdateRig:
         obs, live = game.reset(rng), np.ones(1, dtype=bool)
         for _ in range(replay_warmup(agent)):
             actions = rng.integers(0, game.num_actions, size=1)
-            next_obs, rewards, terminated, truncated, _ = game.step(actions)
+            next_obs, rewards, terminated, truncated, *_ = game.step(actions)
             self.learner.replay.add(Transition(obs, actions, rewards, next_obs, terminated, truncated, live))
             obs = game.reset(rng) if game.done else next_obs
         self.batch = self.learner.replay.sample(agent.batch_size)  # [1, B, ...]

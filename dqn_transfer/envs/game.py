@@ -31,7 +31,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import fields
 from enum import Enum
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -175,6 +175,23 @@ def _state_int(state: Mapping[str, Any], key: str, high: int) -> int:
     if not integer or not 0 <= value <= high:
         raise ValueError(f"game state {key!r} must be an integer in 0..{high}, got {value!r}")
     return int(value)
+
+
+class StepOutcome(NamedTuple):
+    """What one joint step did, per agent (one row each; a non-live agent's row is zero / False)."""
+
+    obs: np.ndarray  # [K, obs_dim] float32: every agent's observation after the step
+    rewards: np.ndarray  # [K] float32
+    terminated: np.ndarray  # [K] bool: ended in a chest or a trap
+    truncated: np.ndarray  # [K] bool: still live at ``max_steps``
+    trap: np.ndarray  # [K] bool: entered a trap
+    treasures_collected: int  # chests emptied by this step
+    live: np.ndarray  # [K] bool: who acts next
+
+    @property
+    def info(self) -> dict[str, Any]:
+        """The Gymnasium-style info dict of the step."""
+        return {"treasures_collected": self.treasures_collected, "trap": self.trap, "live": self.live}
 
 
 class TreasureHuntGame:
@@ -448,7 +465,7 @@ class TreasureHuntGame:
         self._write_obs(self._live_idx, self._pos, None, env_changed=True)
         return self._obs.copy()
 
-    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+    def step(self, actions: np.ndarray) -> StepOutcome:
         """Move every live agent at once; actions of non-live agents are ignored."""
         idx = self._live_idx
         if idx.size == 0:
@@ -482,8 +499,7 @@ class TreasureHuntGame:
         self._write_obs(idx, new, old, env_changed=events)
         if self.reward_mode is RewardMode.team:
             rewards[idx] = rewards[idx].sum()
-        info = {"treasures_collected": collected, "trap": trap, "live": self._live.copy()}
-        return self._obs.copy(), rewards, terminated, truncated, info
+        return StepOutcome(self._obs.copy(), rewards, terminated, truncated, trap, collected, self._live.copy())
 
     def _resolve_events(
         self,
