@@ -331,7 +331,16 @@ def _rollout(game: TreasureHuntGame, rng: np.random.Generator, actions: np.ndarr
             out.append(("reset", game.reset(rng)))
         obs, reward, terminated, truncated, *_ = outcome = game.step(joint)
         out.append(
-            (obs, reward, terminated, truncated, game.live, outcome.info["treasures_collected"], outcome.info["trap"], outcome.info["live"])
+            (
+                obs,
+                reward,
+                terminated,
+                truncated,
+                game.live,
+                outcome.info["treasures_collected"],
+                outcome.info["trap"],
+                outcome.info["live"],
+            )
         )
     return out
 

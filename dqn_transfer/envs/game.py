@@ -637,7 +637,11 @@ def make_game(**settings) -> TreasureHuntGame:
         raise TypeError(f"unknown env setting(s) {', '.join(unknown)}")
     config = EnvConfig(**settings)
     check_render_mode(config.render_mode)
-    grid_map = resolve_map(**{key: settings.get(key) for key in MAP_KEYS})
+    return game_on(resolve_map(**{key: settings.get(key) for key in MAP_KEYS}), config)
+
+
+def game_on(grid_map: GridMap, config: EnvConfig) -> TreasureHuntGame:
+    """The game of ``config``'s rules on ``grid_map`` (the map ``config``'s map keys resolve to)."""
     return TreasureHuntGame(
         grid_map,
         mode=config.mode,
@@ -649,3 +653,17 @@ def make_game(**settings) -> TreasureHuntGame:
         trap_reward=config.trap_reward,
         step_reward=config.step_reward,
     )
+
+
+def map_settings(grid_map: GridMap) -> dict[str, Any]:
+    """The map keys of :class:`~dqn_transfer.envs.settings.EnvConfig` (``MAP_KEYS``) that rebuild
+    ``grid_map`` from its layout alone: ``make_game(**settings)`` plays this very map, whatever the
+    generation settings or the layout file were (those are left unset)."""
+    played = {
+        "layout": grid_map.layout,
+        "size": grid_map.size,
+        "num_treasures": grid_map.num_treasures,
+        "num_traps": grid_map.num_traps,
+        "num_agents": grid_map.num_agents,
+    }
+    return {key: played.get(key) for key in MAP_KEYS}

@@ -72,7 +72,9 @@ def play_episode(
         outcome = game.step(actions)
         next_obs, rewards = outcome.obs, outcome.rewards
         if on_step is not None:
-            on_step(Transition(obs, actions, rewards, next_obs, outcome.terminated, outcome.truncated, live), outcome.info)
+            on_step(
+                Transition(obs, actions, rewards, next_obs, outcome.terminated, outcome.truncated, live), outcome.info
+            )
         obs = next_obs
         step_return = team_return_of(rewards[live], game.reward_mode)
         team_return += step_return
