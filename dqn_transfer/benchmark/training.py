@@ -78,14 +78,13 @@ def measure_ours_training(
         with Stopwatch() as run:
             summary = trainer.run()
     overhead = summary["overhead"]
+    learner: Any = trainer.learner  # the DQN family's batched learner
     return {
-        **_figures(
-            steps, run.wall - overhead["wall"], run.cpu - overhead["cpu"], int(trainer.learner.num_gradient_steps)
-        ),
+        **_figures(steps, run.wall - overhead["wall"], run.cpu - overhead["cpu"], int(learner.num_gradient_steps)),
         "run_seconds": run.wall,
         "excluded_seconds": overhead["wall"],
         "excluded_cpu_seconds": overhead["cpu"],
-        **greedy_check(greedy_policy(trainer.learner), env_kwargs, eval_episodes, seed + GREEDY_SEED_OFFSET),
+        **greedy_check(greedy_policy(learner), env_kwargs, eval_episodes, seed + GREEDY_SEED_OFFSET),
     }
 
 

@@ -267,7 +267,7 @@ def report_user_error(err: Exception) -> None:
     """One line on stderr and in the run's log file; no traceback for a user's mistake."""
     message = f"error: {err}"
     print(message, file=sys.stderr)
-    record = log.makeRecord(log.name, logging.ERROR, __file__, 0, message, None, None)
+    record = log.makeRecord(log.name, logging.ERROR, __file__, 0, message, (), None)
     for handler in logging.getLogger().handlers:
         if isinstance(handler, logging.FileHandler):
             handler.handle(record)
@@ -307,7 +307,7 @@ def app(cfg: DictConfig) -> float:
                 log.info("this job ran before and was stopped (requeued): resuming it from its last checkpoint")
             config = resume_config(run, cfg, hydra_config.overrides.task)
         else:
-            config = OmegaConf.to_object(cfg)
+            config = OmegaConf.to_object(cfg)  # type: ignore[assignment]
         plan = plan_run(config)
         log.info("run directory: %s", run)  # before a transfer source's pretraining, which can take minutes
         launch_dir = Path(get_original_cwd())

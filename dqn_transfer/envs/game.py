@@ -31,7 +31,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import fields
 from enum import Enum
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 
@@ -70,13 +70,16 @@ AGENT_COLOURS = np.array(
 )
 
 
+E = TypeVar("E", bound=Enum)
+
+
 def check_choice(name: str, value: object, choices: tuple[str, ...]) -> str:
     if value not in choices:
         raise ValueError(f"{name} must be one of {', '.join(choices)}; got {value!r}")
-    return value  # type: ignore[return-value]
+    return value
 
 
-def check_enum(name: str, value: object, enum: type[Enum]) -> Enum:
+def check_enum(name: str, value: object, enum: type[E]) -> E:
     """``value`` as a member of ``enum``: a member, or its spelling (the faces take strings)."""
     if isinstance(value, enum):
         return value

@@ -64,7 +64,7 @@ def curriculum_sources(plan: RunPlan, launch_dir: Path) -> list[list[Path]] | No
         "curriculum.cache_dir",
         resumable=True,
     )
-    keys: list[str | None] = [None] * len(plan.replicas)
+    keys: list[str | None] = [None] * len(plan.replicas)  # a stage's hashes, and before the first none
     previous: list[Path] | None = None
     for n, (stage, staged) in enumerate(zip(stages, plan.chain)):
         keys = [stage_hash(replica.config, replica.grid_map.layout, key) for replica, key in zip(staged.replicas, keys)]
@@ -80,12 +80,13 @@ def curriculum_sources(plan: RunPlan, launch_dir: Path) -> list[list[Path]] | No
         )
 
         label = f"stage {n + 1} of {len(stages) + 1} ({describe_stage(stage.env)})"
+        hashes = [key for key in keys if key is not None]
         trained = cache.fill(
-            keys,
+            hashes,
             functools.partial(RunCache.finished, steps=stage.steps),
             functools.partial(_train_stage, label, staged, sources),
         )
-        previous = [cache.entry(key).path for key in keys]
+        previous = [cache.entry(key).path for key in hashes]
         for i, run in enumerate(previous):
             log.info("curriculum: %s %s %s", label, "trained into" if i in trained else "reused from", run)
     assert previous is not None  # a curriculum has stages

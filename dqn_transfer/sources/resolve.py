@@ -156,7 +156,7 @@ def team_members(transfer: TransferConfig, num_agents: int, num_targets: int) ->
 def resolve_source(transfer: TransferConfig, launch_dir: Path, num_targets: int) -> list[Path]:
     """The checkpoint file of each of the ``num_targets`` target agents: ``transfer.source`` itself if it
     is a file, else agent ``transfer.source_agent`` (one index, or one per target) of a run directory."""
-    path = Path(transfer.source).expanduser()
+    path = Path(str(transfer.source)).expanduser()
     if not path.is_absolute():
         path = launch_dir / path
     files = find_checkpoints(path)

@@ -140,6 +140,13 @@ class Replica:
         self.plain_config = to_plain(config)  # as JSON data, for logs and checkpoint meta (a config never changes)
 
     @property
+    def observation(self) -> np.ndarray:
+        """The observation the loop acts on (the episode has started)."""
+        if self.obs is None:
+            raise RuntimeError("the replica's episode has not started")
+        return self.obs
+
+    @property
     def transferred(self) -> np.ndarray:
         """Which agents started from the transfer source."""
         flags = np.zeros(self.game.num_agents, dtype=bool)

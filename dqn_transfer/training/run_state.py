@@ -54,11 +54,11 @@ def agent_meta(rep: Replica, index: int, algorithm: Algorithm, source_task: bool
 
 def encode_checkpoint(rep: Replica, algorithm: Algorithm, source_task: bool) -> tuple[dict[Path, bytes], Path, bytes]:
     """The replica's agent files by path, and the path and bytes of its resume state."""
-    rep.counters.env_rng_state = rep.env_rng.bit_generator.state
+    rep.counters.env_rng_state = dict(rep.env_rng.bit_generator.state)
     files: dict[Path, bytes] = {}
     arrays: dict[str, np.ndarray] = {}
     for i in range(rep.game.num_agents):
-        tensors = rep.learner.agent_tensors(i)
+        tensors = dict(rep.learner.agent_tensors(i))
         files[rep.run_dir.agent_checkpoint(i)] = encode_agent_checkpoint(
             tensors, agent_meta(rep, i, algorithm, source_task)
         )

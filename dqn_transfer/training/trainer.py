@@ -26,14 +26,14 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from omegaconf import OmegaConf
 from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
-from dqn_transfer.agents import Transition, UpdateStats, joined, make_replicas
+from dqn_transfer.agents import Learner, Transition, UpdateStats, joined, make_replicas
 from dqn_transfer.config import ConfigError, to_plain
 from dqn_transfer.enums import Algorithm, Exchange
 from dqn_transfer.storage.checkpoint import CheckpointError, atomic_write, atomic_write_all
@@ -88,7 +88,7 @@ class Trainer:
                 replica.config,
                 self.run_dir.path if lone else self.run_dir.path / replica.name,
                 game,
-                self.learner.replica(r),
+                cast(Learner, self.learner.replica(r)),
                 source,
             )
             for r, (replica, game, source) in enumerate(zip(plan.replicas, games, per_replica))
@@ -190,7 +190,7 @@ class Trainer:
             step = self.step
             epsilon = joined([rep.epsilon(step) for rep in replicas])
             live = joined([rep.game.live for rep in replicas])
-            obs = joined([rep.obs for rep in replicas])
+            obs = joined([rep.observation for rep in replicas])
             actions = learner.act(obs, live, epsilon=epsilon)
             # 2. step the games and learn
             outcomes = [rep.game.step(actions[rep.rows]) for rep in replicas]
