@@ -172,6 +172,7 @@ def always_acting_team(run_dir: Path, action: int = RIGHT, layout: str = ALWAYS_
     from dqn_transfer.envs.settings import EnvConfig
     from dqn_transfer.storage.checkpoint import load_agent_checkpoint, save_agent_checkpoint
     from dqn_transfer.storage.run_dir import RunDir
+    from dqn_transfer.training.plan import plan_run
     from dqn_transfer.training.trainer import train
 
     env = EnvConfig(
@@ -182,7 +183,10 @@ def always_acting_team(run_dir: Path, action: int = RIGHT, layout: str = ALWAYS_
         num_agents=sum(ch.isdigit() for ch in layout),
         complexity=0.0,
     )
-    train(TrainConfig(env=env, agent=AgentConfig(algorithm="dqn", hidden=[8]), total_steps=0, progress=False), run_dir)
+    train(
+        plan_run(TrainConfig(env=env, agent=AgentConfig(algorithm="dqn", hidden=[8]), total_steps=0, progress=False)),
+        run_dir,
+    )
     for file in sorted(RunDir(run_dir).checkpoints.glob("agent_*.safetensors")):
         tensors, meta = load_agent_checkpoint(file)
         tensors = {name: np.zeros_like(t) for name, t in tensors.items()}

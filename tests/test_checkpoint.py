@@ -31,6 +31,7 @@ from dqn_transfer.storage.checkpoint import (
     verify_checkpoint,
 )
 from dqn_transfer.storage.run_dir import RunDir
+from dqn_transfer.training.plan import plan_run
 from dqn_transfer.training.trainer import Trainer
 
 REPO = Path(__file__).resolve().parents[1]
@@ -400,7 +401,7 @@ def test_a_disk_full_during_a_run_keeps_the_previous_checkpoint_whole(tmp_path: 
 
     monkeypatch.setattr(checkpoint.os, "open", filling_disk)
     with pytest.raises(CheckpointError, match="No space left on device.*previous files are kept"):
-        Trainer(config, run.path).run()
+        Trainer(plan_run(config), run.path).run()
     files = sorted(p.name for p in run.checkpoints.iterdir())
     assert files == ["agent_0.safetensors", "agent_1.safetensors", "training_state.safetensors"]  # no temp files
     steps = {load_agent_checkpoint(run.agent_checkpoint(i))[1]["steps"] for i in (0, 1)}

@@ -18,6 +18,7 @@ from dqn_transfer.enums import Algorithm, Engine, Fill, ObsEncoding
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.sources.resolve import resolve_source
 from dqn_transfer.storage.checkpoint import CheckpointError, load_agent_checkpoint
+from dqn_transfer.training.plan import plan_run
 from dqn_transfer.training.trainer import Trainer, train
 from dqn_transfer.transfer.mapping import TransferError
 
@@ -76,7 +77,7 @@ def trained_source(
     tmp_path, algorithm: Algorithm, encoding: ObsEncoding = ObsEncoding.onehot, layout: str = SOURCE_MAP
 ):
     """A team run on the source map (so it has a `treasures` input), trained a little."""
-    train(config(layout, algorithm, encoding=encoding, steps=300), tmp_path / "source")
+    train(plan_run(config(layout, algorithm, encoding=encoding, steps=300)), tmp_path / "source")
     return tmp_path / "source" / "checkpoints" / "agent_0.safetensors"
 
 
@@ -84,7 +85,9 @@ def transferred(tmp_path, source, algorithm: Algorithm, encoding: ObsEncoding = 
     """The target run's learner right after the warm start (no training)."""
     settings = TransferConfig(enabled=True, source=str(source), **{"offset": list(OFFSET), **transfer})
     trainer = Trainer(
-        config(TARGET_MAP, algorithm, encoding=encoding, transfer=settings), tmp_path / "target", sources=[source]
+        plan_run(config(TARGET_MAP, algorithm, encoding=encoding, transfer=settings)),
+        tmp_path / "target",
+        sources=[source],
     )
     trainer.prepare()
     return trainer.replicas[0].learner
@@ -193,18 +196,20 @@ def test_an_offset_that_pushes_the_source_off_the_map_is_refused(tmp_path, offse
 def test_a_source_larger_than_the_target_is_refused(tmp_path):
     source = trained_source(tmp_path, Algorithm.dqn, layout=TARGET_MAP)
     settings = TransferConfig(enabled=True, source=str(source))
-    trainer = Trainer(config(SOURCE_MAP, Algorithm.dqn, transfer=settings), tmp_path / "target", sources=[source])
+    trainer = Trainer(
+        plan_run(config(SOURCE_MAP, Algorithm.dqn, transfer=settings)), tmp_path / "target", sources=[source]
+    )
     with pytest.raises(TransferError, match="the source's 8x8 map does not fit in this run's 5x5 map"):
         trainer.prepare()
 
 
 def test_a_larger_team_takes_one_source_agent_per_target(tmp_path):
-    train(config(TARGET_MAP, Algorithm.dqn, steps=200), tmp_path / "pair")  # two agents
+    train(plan_run(config(TARGET_MAP, Algorithm.dqn, steps=200)), tmp_path / "pair")  # two agents
     three = TARGET_MAP.replace(".......T\n", "2......T\n")
     settings = TransferConfig(enabled=True, source=str(tmp_path / "pair"), source_agent=[1, 0, 1])
     sources = resolve_source(settings, tmp_path, 3)
     assert [p.name for p in sources] == ["agent_1.safetensors", "agent_0.safetensors", "agent_1.safetensors"]
-    trainer = Trainer(config(three, Algorithm.dqn, transfer=settings), tmp_path / "trio", sources=[sources])
+    trainer = Trainer(plan_run(config(three, Algorithm.dqn, transfer=settings)), tmp_path / "trio", sources=[sources])
     trainer.prepare()
     obs = np.zeros((3, 64 + 2), dtype=np.float32)
     obs[:, 8 * 3 + 3] = 1.0  # every agent at (3, 3), both chests full
@@ -232,7 +237,7 @@ def test_a_larger_team_takes_one_source_agent_per_target(tmp_path):
     ],
 )
 def test_a_wrong_source_agent_list_is_refused(tmp_path, source_agent, message):
-    train(config(TARGET_MAP, Algorithm.sarsa, steps=0), tmp_path / "pair")
+    train(plan_run(config(TARGET_MAP, Algorithm.sarsa, steps=0)), tmp_path / "pair")
     with pytest.raises((TransferError, CheckpointError), match=message):
         resolve_source(
             TransferConfig(enabled=True, source=str(tmp_path / "pair"), source_agent=source_agent), tmp_path, 3

@@ -31,6 +31,7 @@ from dqn_transfer.config import (
 from dqn_transfer.enums import Algorithm, Engine
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.sources.curriculum import curriculum_sources
+from dqn_transfer.training.plan import plan_run
 from dqn_transfer.transfer.warm_start import lineage
 
 CONF_DIR = str(CONFIG_DIR)
@@ -107,9 +108,9 @@ def counted_stages(monkeypatch):
     runs: list[int] = []
     real = dqn_transfer.sources.curriculum.train
 
-    def counted(config, *args, **kwargs):
-        runs.append(config.total_steps)
-        return real(config, *args, **kwargs)
+    def counted(plan, *args, **kwargs):
+        runs.append(plan.config.total_steps)
+        return real(plan, *args, **kwargs)
 
     monkeypatch.setattr(dqn_transfer.sources.curriculum, "train", counted)
     return runs
@@ -117,22 +118,22 @@ def counted_stages(monkeypatch):
 
 def test_stages_are_cached_and_a_changed_stage_retrains_what_follows(tmp_path, counted_stages):
     cache = tmp_path / "cache"
-    first = curriculum_sources(lone_config(cache), tmp_path)
+    first = curriculum_sources(plan_run(lone_config(cache)), tmp_path)
     assert counted_stages == [30, 40]
     assert [p.name for p in first[0]] == ["agent_0.safetensors"] * 2  # both agents from stage 2's agent 0
-    assert curriculum_sources(lone_config(cache), tmp_path) == first and counted_stages == [30, 40]  # reused
+    assert curriculum_sources(plan_run(lone_config(cache)), tmp_path) == first and counted_stages == [30, 40]  # reused
     changed = lone_config(cache)
     changed.curriculum.stages[1].steps = 50
-    curriculum_sources(changed, tmp_path)
+    curriculum_sources(plan_run(changed), tmp_path)
     assert counted_stages == [30, 40, 50]  # the first stage is reused, the changed one retrained
-    curriculum_sources(lone_config(cache, first_steps=31), tmp_path)
+    curriculum_sources(plan_run(lone_config(cache, first_steps=31)), tmp_path)
     assert counted_stages == [30, 40, 50, 31, 40]  # a changed first stage retrains the second too
     assert len([p for p in cache.iterdir() if not p.name.startswith(".")]) == 5  # 2 + the changed 1 + 2
     assert not [p for p in cache.iterdir() if ".partial" in p.name or ".tmp" in p.name]
 
 
 def test_each_stage_starts_from_the_previous_one(tmp_path):
-    sources = curriculum_sources(lone_config(tmp_path / "cache"), tmp_path)
+    sources = curriculum_sources(plan_run(lone_config(tmp_path / "cache")), tmp_path)
     second = agent_meta(sources[0][0])
     assert second["steps"] == 40 and second["env"]["size"] == 5
     assert second["transfer"]["mapping"] == {"source_size": 3, "offset": [1, 1], "fill": "zero", "dropped_chests": []}
@@ -142,10 +143,10 @@ def test_each_stage_starts_from_the_previous_one(tmp_path):
 
 
 def test_replicas_have_a_chain_of_stages_each_trained_as_one_batch(tmp_path, counted_stages):
-    sources = curriculum_sources(lone_config(tmp_path / "cache", replicas=2), tmp_path)
+    sources = curriculum_sources(plan_run(lone_config(tmp_path / "cache", replicas=2)), tmp_path)
     assert counted_stages == [30, 40]  # each stage once, for both replicas
     assert len(sources) == 2 and sources[0] != sources[1]
-    lone = curriculum_sources(dataclasses.replace(lone_config(tmp_path / "lone"), seed=1), tmp_path)
+    lone = curriculum_sources(plan_run(dataclasses.replace(lone_config(tmp_path / "lone"), seed=1)), tmp_path)
     assert agent_meta(sources[1][0])["digest"] == agent_meta(lone[0][0])["digest"]  # replica = lone run of its seed
 
 

@@ -41,11 +41,11 @@ def test_corridor_to_treasure_returns_97():
     game, obs = make(CORRIDOR)
     assert obs.shape == (1, 25 + 1) and obs[0, 0] == 1.0 and obs[0, 25] == 1.0
     steps = play(game, [RIGHT], [RIGHT], [RIGHT], [RIGHT])
-    rewards = [float(s[1][0]) for s in steps]
+    rewards = [float(s.rewards[0]) for s in steps]
     assert rewards == [-1.0, -1.0, -1.0, 100.0]  # 3 x -1 + 100 = 97
-    assert [bool(s[2][0]) for s in steps] == [False, False, False, True]
-    assert not any(bool(s[3][0]) for s in steps)
-    assert steps[-1][4]["treasures_collected"] == 1 and game.treasures_collected == 1
+    assert [bool(s.terminated[0]) for s in steps] == [False, False, False, True]
+    assert not any(bool(s.truncated[0]) for s in steps)
+    assert steps[-1].treasures_collected == 1 and game.treasures_collected == 1
     assert game.done and not game.chest_full[0]
     last_obs = steps[-1][0][0]
     assert last_obs[4] == 1.0 and last_obs[:25].sum() == 1.0  # on (0, 4): index 4
@@ -60,7 +60,7 @@ def test_obstacle_sends_home_and_off_grid_stays():
     steps = play(game, [UP], [LEFT], [DOWN], [RIGHT])
     positions = [int(np.flatnonzero(s[0][0, :25])[0]) for s in steps]
     assert positions == [0, 0, 5, 0]
-    assert [float(s[1][0]) for s in steps] == [-1.0] * 4
+    assert [float(s.rewards[0]) for s in steps] == [-1.0] * 4
     # (0,0) -right-> (0,1) -down-> (1,1) '#': home again
     steps = play(game, [RIGHT], [DOWN])
     assert [int(np.flatnonzero(s[0][0, :25])[0]) for s in steps] == [1, 0]
@@ -76,22 +76,22 @@ T..
 
 def test_trap_costs_100_and_terminates():
     game, _ = make(TRAP_MAP)
-    (o1, r1, t1, u1, i1), (o2, r2, t2, u2, i2) = play(game, [RIGHT], [RIGHT])
-    assert float(r1[0]) == -1.0 and not t1[0] and not i1["trap"][0]
-    assert float(r2[0]) == -100.0 and t2[0] and not u2[0] and i2["trap"][0]
-    assert not i2["live"][0] and game.done
-    assert o2[0, 2] == 1.0  # the final observation is the trap cell (0, 2)
+    first, second = play(game, [RIGHT], [RIGHT])
+    assert float(first.rewards[0]) == -1.0 and not first.terminated[0] and not first.trap[0]
+    assert float(second.rewards[0]) == -100.0 and second.terminated[0] and not second.truncated[0] and second.trap[0]
+    assert not second.live[0] and game.done
+    assert second.obs[0, 2] == 1.0  # the final observation is the trap cell (0, 2)
 
 
 def test_truncation_exactly_at_n_squared_moves():
     game, _ = make(TRAP_MAP)  # 3 x 3: max_steps = 9
     for move in range(1, 10):
-        _, reward, terminated, truncated, _ = game.step(np.array([UP]))  # off grid: stays
+        _, reward, terminated, truncated, *_ = game.step(np.array([UP]))  # off grid: stays
         assert float(reward[0]) == -1.0 and not terminated[0]
         assert bool(truncated[0]) == (move == 9), move
     assert game.done
     game, _ = make(TRAP_MAP, max_steps=2)
-    assert [bool(s[3][0]) for s in play(game, [UP], [UP])] == [False, True]
+    assert [bool(s.truncated[0]) for s in play(game, [UP], [UP])] == [False, True]
 
 
 def test_treasure_on_the_last_move_terminates_instead_of_truncating():
@@ -112,18 +112,18 @@ def test_empty_chest_and_what_the_other_agent_knows(mode):
     game, obs = make(TWO_AGENTS, mode=mode)
     assert game.obs_layout() == [("position", 9), ("treasures", 1)]
     # step 1: A (agent 0) takes the chest at (0, 1); B (agent 1) steps down to (1, 2)
-    obs, reward, terminated, _, info = game.step(np.array([RIGHT, DOWN]))
+    obs, reward, terminated, _, *_ = outcome = game.step(np.array([RIGHT, DOWN]))
     assert reward.tolist() == [100.0, -1.0] and terminated.tolist() == [True, False]
-    assert info["treasures_collected"] == 1 and info["live"].tolist() == [False, True]
+    assert outcome.info["treasures_collected"] == 1 and outcome.info["live"].tolist() == [False, True]
     # B's treasures segment: competitive -> still believes full; cooperative -> announced
     assert obs[1, 9] == (1.0 if mode == "competitive" else 0.0)
     assert obs[0, 9] == 0.0
     # step 2: B up to (0, 2); step 3: B left into the empty chest: -1, the game goes on
-    obs, reward, terminated, _, _ = game.step(np.array([RIGHT, UP]))
+    obs, reward, terminated, _, *_ = game.step(np.array([RIGHT, UP]))
     assert reward.tolist() == [0.0, -1.0]  # a finished agent gets 0, its action is ignored
-    obs, reward, terminated, truncated, info = game.step(np.array([RIGHT, LEFT]))
+    obs, reward, terminated, truncated, *_ = outcome = game.step(np.array([RIGHT, LEFT]))
     assert reward.tolist() == [0.0, -1.0] and not terminated[1] and not truncated[1]
-    assert info["treasures_collected"] == 0 and info["live"].tolist() == [False, True]
+    assert outcome.info["treasures_collected"] == 0 and outcome.info["live"].tolist() == [False, True]
     assert obs[1, 1] == 1.0 and obs[1, 9] == 0.0  # on the chest cell; now knows it is empty
     assert obs[0, 1] == 1.0  # A keeps its last observation
 
@@ -132,9 +132,9 @@ def test_tie_on_a_full_chest_has_one_winner_drawn_by_the_rng():
     winners = []
     for seed in range(40):
         game, _ = make(TWO_AGENTS, seed=seed)
-        obs, reward, terminated, _, info = game.step(np.array([RIGHT, LEFT]))  # both enter (0,1)
+        obs, reward, terminated, _, *_ = outcome = game.step(np.array([RIGHT, LEFT]))  # both enter (0,1)
         assert sorted(reward.tolist()) == [-1.0, 100.0]
-        assert terminated.sum() == 1 and info["treasures_collected"] == 1
+        assert terminated.sum() == 1 and outcome.info["treasures_collected"] == 1
         winner = int(np.flatnonzero(terminated)[0])
         loser = 1 - winner
         assert obs[loser, 9] == 0.0  # competitive: the loser learned the chest is empty
@@ -147,9 +147,9 @@ def test_tie_on_a_full_chest_has_one_winner_drawn_by_the_rng():
 
 def test_team_reward_is_the_sum_for_agents_live_before_the_step():
     game, _ = make(TWO_AGENTS, reward_mode="team")
-    _, reward, _, _, _ = game.step(np.array([RIGHT, DOWN]))
+    _, reward, _, _, *_ = game.step(np.array([RIGHT, DOWN]))
     assert reward.tolist() == [99.0, 99.0]  # 100 + (-1), for both
-    _, reward, _, _, _ = game.step(np.array([RIGHT, DOWN]))
+    _, reward, _, _, *_ = game.step(np.array([RIGHT, DOWN]))
     assert reward.tolist() == [0.0, -1.0]  # only B was live: the sum is its -1; A gets 0
 
 
@@ -231,7 +231,7 @@ def test_deliberative_assignment_is_optimal_not_greedy_and_reassigns():
     assert obs[:, 36:38].tolist() == [[1, 1], [1, 1]]
     assert obs[:, 38:40].tolist() == [[1, 0], [0, 1]]
     # agent 0 ignores its assignment and takes chest 1 next to it; agent 1 bumps the top edge
-    obs, reward, terminated, _, _ = game.step(np.array([RIGHT, UP]))
+    obs, reward, terminated, _, *_ = game.step(np.array([RIGHT, UP]))
     assert reward.tolist() == [100.0, -1.0] and terminated.tolist() == [True, False]
     assert obs[1, 36:38].tolist() == [1, 0]  # truth: chest 1 is empty
     assert obs[1, 38:40].tolist() == [1, 0]  # reassigned: agent 1 -> chest 0
@@ -255,8 +255,8 @@ def test_deliberative_reassigns_when_an_agent_dies_in_a_trap():
     assert obs[:, 26].tolist() == [1.0, 0.0]
     game.step(np.array([DOWN, UP]))
     game.step(np.array([DOWN, UP]))
-    obs, reward, terminated, _, info = game.step(np.array([DOWN, UP]))  # agent 0 into (3,0) trap
-    assert reward.tolist() == [-100.0, -1.0] and info["trap"].tolist() == [True, False]
+    obs, reward, terminated, _, *_ = outcome = game.step(np.array([DOWN, UP]))  # agent 0 into (3,0) trap
+    assert reward.tolist() == [-100.0, -1.0] and outcome.info["trap"].tolist() == [True, False]
     assert obs[1, 26] == 1.0  # the chest now goes to agent 1
 
 
@@ -329,9 +329,18 @@ def _rollout(game: TreasureHuntGame, rng: np.random.Generator, actions: np.ndarr
     for joint in actions:
         if game.done:
             out.append(("reset", game.reset(rng)))
-        obs, reward, terminated, truncated, info = game.step(joint)
+        obs, reward, terminated, truncated, *_ = outcome = game.step(joint)
         out.append(
-            (obs, reward, terminated, truncated, game.live, info["treasures_collected"], info["trap"], info["live"])
+            (
+                obs,
+                reward,
+                terminated,
+                truncated,
+                game.live,
+                outcome.info["treasures_collected"],
+                outcome.info["trap"],
+                outcome.info["live"],
+            )
         )
     return out
 

@@ -24,6 +24,7 @@ from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.sharing import model_card
 from dqn_transfer.sources.resolve import transfer_sources
 from dqn_transfer.storage.checkpoint import load_agent_checkpoint
+from dqn_transfer.training.plan import plan_run
 from dqn_transfer.training.trainer import train
 
 ENV = EnvConfig(size=4, num_treasures=1, num_traps=1, num_agents=2, complexity=0.0, map_seed=0)
@@ -35,7 +36,10 @@ def run(tmp_path_factory) -> Path:
     """A short DQN run that has learned something (its weights are no longer the initial ones)."""
     run_dir = tmp_path_factory.mktemp("export") / "run"
     agent = AgentConfig(algorithm="dqn", hidden=[16], learning_starts=50)
-    train(TrainConfig(env=ENV, agent=agent, total_steps=200, eval_every=100, eval_episodes=2, progress=False), run_dir)
+    train(
+        plan_run(TrainConfig(env=ENV, agent=agent, total_steps=200, eval_every=100, eval_episodes=2, progress=False)),
+        run_dir,
+    )
     return run_dir
 
 
@@ -99,7 +103,7 @@ def test_a_new_run_warm_starts_from_the_folder_with_the_same_q_values(exported, 
         progress=False,
         transfer=TransferConfig(enabled=True, source=str(exported)),
     )
-    train(config, tmp_path / "warm", sources=transfer_sources(config, tmp_path))
+    train(plan_run(config), tmp_path / "warm", sources=transfer_sources(plan_run(config), tmp_path))
     source = q_values(exported / "agent_0.safetensors")
     fresh = q_values(tmp_path / "warm" / "checkpoints" / "agent_0.safetensors")
     assert torch.equal(fresh, source)
@@ -174,7 +178,11 @@ def test_the_cards_command_names_every_rule_that_differs_from_the_default(tmp_pa
         size=4, num_treasures=1, num_traps=1, num_agents=2, complexity=0.0, view_radius=1, reward_mode="team"
     )
     train(
-        TrainConfig(env=env, agent=AgentConfig(algorithm="double_dqn", hidden=[8, 8]), total_steps=0, progress=False),
+        plan_run(
+            TrainConfig(
+                env=env, agent=AgentConfig(algorithm="double_dqn", hidden=[8, 8]), total_steps=0, progress=False
+            )
+        ),
         tmp_path / "run",
     )
     assert ckpt(["export", str(tmp_path / "run"), str(tmp_path / "team")]) == 0

@@ -21,6 +21,7 @@ from omegaconf import OmegaConf
 
 from dqn_transfer.analysis.runs import read_metrics
 from dqn_transfer.config import CONFIG_DIR, register_configs
+from dqn_transfer.training.plan import plan_run
 from dqn_transfer.training.trainer import train
 
 CONF_DIR = str(CONFIG_DIR)
@@ -38,7 +39,7 @@ def run(tmp_path: Path, *overrides: str) -> list[dict]:
             config_name="config", overrides=["progress=false", "eval_every=500", "eval_episodes=1", *overrides]
         )
     cfg.env.layout = LAYOUT
-    train(OmegaConf.to_object(cfg), tmp_path)
+    train(plan_run(OmegaConf.to_object(cfg)), tmp_path)
     return read_metrics(tmp_path)
 
 
@@ -72,7 +73,7 @@ def test_qlearning_team_collects_both_chests(tmp_path, mode):
             ],
         )
     cfg.env.layout = "0..T\n....\n....\n1..T"
-    train(OmegaConf.to_object(cfg), tmp_path)
+    train(plan_run(OmegaConf.to_object(cfg)), tmp_path)
     final = read_metrics(tmp_path)[-1]
     assert final["success_rate"] == 1.0
     assert final["team_return"] == 196.0

@@ -20,6 +20,7 @@ from dqn_transfer.enums import Algorithm, Mode
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.sources.resolve import resolve_source
 from dqn_transfer.storage.checkpoint import CheckpointError, find_checkpoints
+from dqn_transfer.training.plan import plan_run
 from dqn_transfer.training.trainer import Trainer
 
 ENV = EnvConfig(size=5, num_treasures=2, complexity=0.1, map_seed=3, mode=Mode.cooperative)
@@ -73,11 +74,11 @@ def test_each_replica_is_the_lone_run_of_its_seed_and_map(tmp_path, agent):
     """2 seeds x 2 maps: every replica's evaluations, agent files and resume state are those of the lone
     run with its seed and map seed. Bit for bit, learning included: on the CPU each member's batched
     matrix product is computed on its own, so a replica's numbers do not depend on its neighbours."""
-    Trainer(config(agent, seeds=2, maps=2), tmp_path / "batch").run()
+    Trainer(plan_run(config(agent, seeds=2, maps=2)), tmp_path / "batch").run()
     names = sorted(p.name for p in (tmp_path / "batch").iterdir() if p.is_dir() and not p.name.startswith("."))
     assert names == ["seed_4-map_3", "seed_4-map_4", "seed_5-map_3", "seed_5-map_4"]
     for seed, map_seed in ((4, 3), (5, 4)):  # the first replica and the last one
-        Trainer(config(agent, seed=seed, map_seed=map_seed), tmp_path / f"lone_{seed}_{map_seed}").run()
+        Trainer(plan_run(config(agent, seed=seed, map_seed=map_seed)), tmp_path / f"lone_{seed}_{map_seed}").run()
         assert_same_run(tmp_path / "batch" / f"seed_{seed}-map_{map_seed}", tmp_path / f"lone_{seed}_{map_seed}")
 
 
@@ -116,7 +117,7 @@ def test_changing_one_replicas_data_leaves_the_others_updates_bit_identical():
 def test_replicas_resume_exactly_from_a_mid_episode_checkpoint(tmp_path, monkeypatch):
     """Killed right after its first checkpoint (step 100, in the middle of episodes) and resumed, a
     batch of replicas ends exactly where the uninterrupted batch does."""
-    Trainer(config(seeds=2, maps=1), tmp_path / "reference").run()
+    Trainer(plan_run(config(seeds=2, maps=1)), tmp_path / "reference").run()
     original = Trainer.save_checkpoint
 
     def save_then_die(self):
@@ -126,11 +127,11 @@ def test_replicas_resume_exactly_from_a_mid_episode_checkpoint(tmp_path, monkeyp
 
     monkeypatch.setattr(Trainer, "save_checkpoint", save_then_die)
     with pytest.raises(KeyboardInterrupt):
-        Trainer(config(seeds=2), tmp_path / "killed").run()
+        Trainer(plan_run(config(seeds=2)), tmp_path / "killed").run()
     monkeypatch.setattr(Trainer, "save_checkpoint", original)
     state = agent_meta(tmp_path / "killed" / "seed_4" / "checkpoints" / "training_state.safetensors")
     assert state["counters"]["step"] == 100 and state["episode"] is not None  # mid-episode
-    Trainer(config(seeds=2, resume=True), tmp_path / "killed").run()
+    Trainer(plan_run(config(seeds=2, resume=True)), tmp_path / "killed").run()
     for name in ("seed_4", "seed_5"):
         assert_same_run(tmp_path / "killed" / name, tmp_path / "reference" / name)
 
@@ -140,7 +141,7 @@ def test_a_replica_directory_reads_like_a_lone_run(tmp_path):
     replicas, not the batch directory; a replica serves as a transfer source and warm-starts every
     replica of a new batch."""
     batch = tmp_path / "batch"
-    Trainer(config(seeds=2, maps=2), batch).run()
+    Trainer(plan_run(config(seeds=2, maps=2)), batch).run()
     replicas = find_run_dirs([batch])
     assert [p.name for p in replicas] == ["seed_4-map_3", "seed_5-map_3", "seed_4-map_4", "seed_5-map_4"]
     own = load_config(batch / "seed_5-map_4")
@@ -158,7 +159,7 @@ def test_a_replica_directory_reads_like_a_lone_run(tmp_path):
 
     source = batch / "seed_4-map_3"
     warm = config(seeds=2, total_steps=0, transfer=TransferConfig(enabled=True, source=str(source)))
-    trainer = Trainer(warm, tmp_path / "warm", sources=[source / "checkpoints" / "agent_0.safetensors"] * 2)
+    trainer = Trainer(plan_run(warm), tmp_path / "warm", sources=[source / "checkpoints" / "agent_0.safetensors"] * 2)
     trainer.run()
     for rep in trainer.replicas:
         assert rep.transfer_info["targets"] == [0, 1]

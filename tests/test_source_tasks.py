@@ -39,6 +39,7 @@ from dqn_transfer.enums import Algorithm, Engine, Mode, RewardMode, SourceTask
 from dqn_transfer.envs.maps import generate_layout
 from dqn_transfer.envs.settings import ENV_KEYS, EnvConfig
 from dqn_transfer.sources.resolve import source_hash, transfer_sources
+from dqn_transfer.training.plan import plan_run
 from dqn_transfer.training.trainer import train
 from dqn_transfer.transfer.mapping import TransferError
 
@@ -99,9 +100,9 @@ def pretrainings(monkeypatch) -> list[TrainConfig]:
     """Every pretraining run started from now on (its config), each still carried out."""
     real, runs = dqn_transfer.sources.resolve.train, []
 
-    def counted(run_config, *args, **kwargs):
-        runs.append(run_config)
-        return real(run_config, *args, **kwargs)
+    def counted(plan, *args, **kwargs):
+        runs.append(plan.config)
+        return real(plan, *args, **kwargs)
 
     monkeypatch.setattr(dqn_transfer.sources.resolve, "train", counted)
     return runs
@@ -132,7 +133,7 @@ def test_the_default_source_keeps_its_cache_key_and_its_task(tmp_path, pretraini
     cache = tmp_path / "cache"
     lone = config(cache)
     assert lone.transfer.source_task is SourceTask.single and lone.transfer.source_map_shift == 0
-    [[first, second]] = transfer_sources(lone, tmp_path)
+    [[first, second]] = transfer_sources(plan_run(lone), tmp_path)
     assert entries(cache) == [old_source_hash(lone, PLAYED)]
     assert source_hash(to_plain(lone), PLAYED) == old_source_hash(lone, PLAYED)  # called the old way
     assert first == second == cache / old_source_hash(lone, PLAYED) / "checkpoints" / "agent_0.safetensors"
@@ -142,7 +143,7 @@ def test_the_default_source_keeps_its_cache_key_and_its_task(tmp_path, pretraini
     assert len(pretrainings) == 1
     # A generated map too (its layout enters the key, as before).
     on_generated = config(cache, env=generated())
-    transfer_sources(on_generated, tmp_path)
+    transfer_sources(plan_run(on_generated), tmp_path)
     assert old_source_hash(on_generated, generated_layout(MAP_SEED)) in entries(cache)
 
 
@@ -154,17 +155,17 @@ def test_mode_and_reward_mode_enter_the_key_of_a_team_source_only(tmp_path, pret
         return dataclasses.replace(base, env=dataclasses.replace(base.env, **env))
 
     for env in ({}, {"mode": Mode.cooperative}, {"reward_mode": RewardMode.team}):
-        transfer_sources(with_env(SourceTask.single, **env), tmp_path)
+        transfer_sources(plan_run(with_env(SourceTask.single, **env)), tmp_path)
     assert len(pretrainings) == 1 and len(entries(cache)) == 1  # a lone agent's task has no mode
     for env in ({}, {"mode": Mode.cooperative}, {"reward_mode": RewardMode.team}):
-        transfer_sources(with_env(SourceTask.team, **env), tmp_path)
+        transfer_sources(plan_run(with_env(SourceTask.team, **env)), tmp_path)
     assert len(pretrainings) == 4 and len(entries(cache)) == 4
     assert [(run.env.mode, run.env.reward_mode) for run in pretrainings[1:]] == [
         (Mode.competitive, RewardMode.individual),
         (Mode.cooperative, RewardMode.individual),
         (Mode.competitive, RewardMode.team),
     ]  # each team source played its run's own game
-    transfer_sources(with_env(SourceTask.team, mode=Mode.cooperative), tmp_path)
+    transfer_sources(plan_run(with_env(SourceTask.team, mode=Mode.cooperative)), tmp_path)
     assert len(pretrainings) == 4  # reused
 
 
@@ -175,7 +176,7 @@ def test_targets_start_from_the_chosen_member_of_a_pretrained_team(tmp_path, pre
     caplog.set_level(logging.INFO, logger="dqn_transfer")
     cache = tmp_path / "cache"
     team = config(cache, agent=NUMPY_DQN, source_task=SourceTask.team, source_agent=1)
-    [[first, second]] = transfer_sources(team, tmp_path)
+    [[first, second]] = transfer_sources(plan_run(team), tmp_path)
     entry = first.parent.parent
     assert entries(cache) == [entry.name] and first == second == entry / "checkpoints" / "agent_1.safetensors"
     # The entry is a run of the team game: both members, pretrained for pretrain_steps joint steps.
@@ -195,7 +196,7 @@ def test_targets_start_from_the_chosen_member_of_a_pretrained_team(tmp_path, pre
     members = [load_file(str(entry / "checkpoints" / name)) for name in agent_files(entry)]
     assert not np.array_equal(members[0]["q.layers.0.weight"], members[1]["q.layers.0.weight"])
 
-    train(team, tmp_path / "run", sources=[[first, second]])  # total_steps=0: the agents as transferred
+    train(plan_run(team), tmp_path / "run", sources=[[first, second]])  # total_steps=0: the agents as transferred
     for i in range(2):
         target = load_file(str(tmp_path / "run" / "checkpoints" / f"agent_{i}.safetensors"))
         for name in ("q.layers.0.weight", "q.layers.0.bias", "q.layers.1.weight", "q.layers.1.bias"):
@@ -207,11 +208,11 @@ def test_targets_start_from_the_chosen_member_of_a_pretrained_team(tmp_path, pre
     # Another choice of members reuses the cached team: no pretraining again.
     caplog.clear()
     other = dataclasses.replace(team, transfer=dataclasses.replace(team.transfer, source_agent=[1, 0]))
-    assert transfer_sources(other, tmp_path) == [
+    assert transfer_sources(plan_run(other), tmp_path) == [
         [entry / "checkpoints" / "agent_1.safetensors", entry / "checkpoints" / "agent_0.safetensors"]
     ]
     assert len(pretrainings) == 1 and "reusing the pretrained source" in caplog.text
-    train(other, tmp_path / "run2", sources=transfer_sources(other, tmp_path))
+    train(plan_run(other), tmp_path / "run2", sources=transfer_sources(plan_run(other), tmp_path))
     for i, member in enumerate((1, 0)):
         target = load_file(str(tmp_path / "run2" / "checkpoints" / f"agent_{i}.safetensors"))
         assert np.array_equal(target["q.layers.0.weight"], members[member]["q.layers.0.weight"])
@@ -220,14 +221,14 @@ def test_targets_start_from_the_chosen_member_of_a_pretrained_team(tmp_path, pre
 def test_team_sources_of_replicas_are_pretrained_as_one_batch(tmp_path, pretrainings):
     cache = tmp_path / "cache"
     batch = dataclasses.replace(config(cache, source_task=SourceTask.team), replicas=ReplicasConfig(seeds=2))
-    per_replica = transfer_sources(batch, tmp_path)
+    per_replica = transfer_sources(plan_run(batch), tmp_path)
     assert [run.replicas.seeds for run in pretrainings] == [2]
     sources = [targets[0] for targets in per_replica]
     assert len(set(sources)) == 2 and sorted(entries(cache)) == sorted(p.parent.parent.name for p in sources)
     for seed, source in enumerate(sources):
         assert agent_files(source.parent.parent) == ["agent_0.safetensors", "agent_1.safetensors"]
         lone = dataclasses.replace(config(tmp_path / "lone", source_task=SourceTask.team), seed=seed)
-        [[alone, _]] = transfer_sources(lone, tmp_path)
+        [[alone, _]] = transfer_sources(plan_run(lone), tmp_path)
         assert alone.parent.parent.name == source.parent.parent.name  # the same key
         assert agent_meta(alone)["digest"] == agent_meta(source)["digest"]  # the same training
 
@@ -239,7 +240,7 @@ def test_team_sources_of_replicas_are_pretrained_as_one_batch(tmp_path, pretrain
 def test_a_shifted_source_learns_the_map_of_the_shifted_seed(tmp_path, pretrainings, task):
     cache = tmp_path / "cache"
     run = config(cache, env=generated(), source_task=task, source_map_shift=SHIFT)
-    [[first, _]] = transfer_sources(run, tmp_path)
+    [[first, _]] = transfer_sources(plan_run(run), tmp_path)
     own, shifted = generated_layout(MAP_SEED), generated_layout(MAP_SEED + SHIFT)
     assert own != shifted
     meta = agent_meta(first)
@@ -247,7 +248,7 @@ def test_a_shifted_source_learns_the_map_of_the_shifted_seed(tmp_path, pretraini
     assert [run.env.map_seed for run in pretrainings] == [MAP_SEED + SHIFT]
     # The run itself plays its own map, warm-started from the other one: source chests on cells
     # where this map has none are dropped (and recorded), matched ones kept.
-    train(dataclasses.replace(run, total_steps=10, eval_every=10), tmp_path / "run", sources=[[first, first]])
+    train(plan_run(dataclasses.replace(run, total_steps=10, eval_every=10)), tmp_path / "run", sources=[[first, first]])
     record = read_metrics(tmp_path / "run")[0]["transfer_source"]
     chests = {
         layout: {(r, c) for r, row in enumerate(layout.splitlines()) for c, ch in enumerate(row) if ch == "T"}
@@ -263,14 +264,14 @@ def test_each_replica_shifts_its_own_map_seed(tmp_path, pretrainings):
     each is the very source a run on that map (no shift) pretrains, so that run reuses it."""
     cache = tmp_path / "cache"
     batch = dataclasses.replace(config(cache, env=generated(), source_map_shift=SHIFT), replicas=ReplicasConfig(maps=2))
-    sources = [targets[0] for targets in transfer_sources(batch, tmp_path)]
+    sources = [targets[0] for targets in transfer_sources(plan_run(batch), tmp_path)]
     assert [agent_meta(source)["env"]["layout"] for source in sources] == [
         generated_layout(MAP_SEED + SHIFT),
         generated_layout(MAP_SEED + 1 + SHIFT),
     ]
     assert len(pretrainings) == 1 and len(entries(cache)) == 2
     on_that_map = config(cache, env=generated(map_seed=MAP_SEED + 1 + SHIFT))
-    assert transfer_sources(on_that_map, tmp_path)[0][0] == sources[1]
+    assert transfer_sources(plan_run(on_that_map), tmp_path)[0][0] == sources[1]
     assert len(pretrainings) == 1
 
 
@@ -297,7 +298,9 @@ def test_a_team_member_the_team_lacks_is_refused_before_pretraining(tmp_path, pr
         ([0, 1, 0], r"transfer.source_agent lists 3 source agents for 2 target agents"),
     ]:
         with pytest.raises(TransferError, match=message):
-            transfer_sources(config(tmp_path / "cache", source_task=SourceTask.team, source_agent=wanted), tmp_path)
+            transfer_sources(
+                plan_run(config(tmp_path / "cache", source_task=SourceTask.team, source_agent=wanted)), tmp_path
+            )
     assert pretrainings == [] and not (tmp_path / "cache").exists()
 
 

@@ -30,6 +30,7 @@ from dqn_transfer.config import AgentConfig, ReplicasConfig, TrainConfig, Transf
 from dqn_transfer.enums import Algorithm
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.sources.resolve import transfer_sources
+from dqn_transfer.training.plan import plan_run
 from dqn_transfer.transfer.mapping import TransferError
 
 # Two agents, two chests (row 0 col 4, row 4 col 4), one trap (row 2 col 2), no obstacles.
@@ -85,7 +86,7 @@ def cache(tmp_path: Path) -> Path:
 @pytest.fixture
 def entry(cache: Path, tmp_path: Path) -> Path:
     """A cache entry pretrained once (its name is the source config's hash)."""
-    checkpoint = transfer_sources(config(cache), tmp_path)[0][0]
+    checkpoint = transfer_sources(plan_run(config(cache)), tmp_path)[0][0]
     return checkpoint.parent.parent
 
 
@@ -94,7 +95,7 @@ def entry(cache: Path, tmp_path: Path) -> Path:
 
 def test_a_pretraining_fills_one_entry_and_nothing_else(cache, tmp_path, caplog):
     caplog.set_level(logging.INFO, logger="dqn_transfer")
-    checkpoint = transfer_sources(config(cache), tmp_path)[0][0]
+    checkpoint = transfer_sources(plan_run(config(cache)), tmp_path)[0][0]
     entries, hidden = listing(cache)
     assert len(entries) == 1 and hidden == []
     assert checkpoint == cache / entries[0] / "checkpoints" / "agent_0.safetensors"
@@ -115,7 +116,7 @@ def test_a_complete_entry_is_reused_without_pretraining(cache, entry, tmp_path, 
         raise AssertionError("pretrained again")
 
     monkeypatch.setattr(dqn_transfer.sources.resolve, "train", no_training)
-    assert transfer_sources(config(cache), tmp_path)[0][0] == checkpoint
+    assert transfer_sources(plan_run(config(cache)), tmp_path)[0][0] == checkpoint
     assert REUSING in caplog.text and PRETRAINING not in caplog.text
     assert checkpoint.stat().st_mtime_ns == stamp
 
@@ -133,11 +134,11 @@ def test_a_failed_pretraining_leaves_nothing(cache, tmp_path, monkeypatch, failu
 
     monkeypatch.setattr(dqn_transfer.sources.resolve, "train", train_then_fail)
     with pytest.raises(failure):
-        transfer_sources(config(cache), tmp_path)[0][0]
+        transfer_sources(plan_run(config(cache)), tmp_path)[0][0]
     assert used and used[0].parent == cache  # it pretrained beside the entry it would have become ...
     assert listing(cache) == ([], [])  # ... and nothing of it is left
     monkeypatch.setattr(dqn_transfer.sources.resolve, "train", real_train)
-    checkpoint = transfer_sources(config(cache), tmp_path)[0][0]  # the next run pretrains afresh
+    checkpoint = transfer_sources(plan_run(config(cache)), tmp_path)[0][0]  # the next run pretrains afresh
     assert checkpoint_steps(checkpoint) == PRETRAIN_STEPS
 
 
@@ -150,7 +151,7 @@ def test_a_killed_pretrainings_temp_dir_is_removed_by_the_next(cache, entry, tmp
     (stale / "metrics.jsonl").write_text('{"step": 0, "team_return": -1.0}\n')
     other = cache / ".0123456789abcdef.tmp-1-cafe0000"  # another source's: another job may be using it
     other.mkdir()
-    checkpoint = transfer_sources(config(cache), tmp_path)[0][0]
+    checkpoint = transfer_sources(plan_run(config(cache)), tmp_path)[0][0]
     assert PRETRAINING in caplog.text
     assert checkpoint_steps(checkpoint) == PRETRAIN_STEPS
     assert listing(cache) == ([key], [other.name])
@@ -160,7 +161,9 @@ def test_an_unfinished_entry_of_the_in_place_layout_is_replaced(cache, entry, tm
     """Earlier versions pretrained into <hash>/ itself; a killed one left a checkpoint of fewer steps
     and the evaluations it had made. The next pretraining starts that entry afresh."""
     caplog.set_level(logging.INFO, logger="dqn_transfer")
-    shorter = transfer_sources(config(tmp_path / "other_cache", pretrain_steps=PRETRAIN_STEPS // 2), tmp_path)[0][0]
+    shorter = transfer_sources(
+        plan_run(config(tmp_path / "other_cache", pretrain_steps=PRETRAIN_STEPS // 2)), tmp_path
+    )[0][0]
     fresh_steps = evaluated_steps(entry / "metrics.jsonl")
     shutil.rmtree(entry)
     (entry / "checkpoints").mkdir(parents=True)
@@ -168,7 +171,7 @@ def test_an_unfinished_entry_of_the_in_place_layout_is_replaced(cache, entry, tm
     (entry / ".lock").touch()
     (entry / "metrics.jsonl").write_text('{"step": 0, "team_return": -1.0, "aborted": true}\n' * 3)
     caplog.clear()
-    checkpoint = transfer_sources(config(cache), tmp_path)[0][0]
+    checkpoint = transfer_sources(plan_run(config(cache)), tmp_path)[0][0]
     assert PRETRAINING in caplog.text
     assert checkpoint_steps(checkpoint) == PRETRAIN_STEPS
     assert evaluated_steps(entry / "metrics.jsonl") == fresh_steps  # the aborted evaluations are gone
@@ -179,7 +182,7 @@ def test_an_unfinished_entry_of_the_in_place_layout_is_replaced(cache, entry, tm
 def test_an_unusable_cache_dir_is_one_message(tmp_path):
     (tmp_path / "a_file").write_text("")
     with pytest.raises(TransferError) as err:
-        transfer_sources(config(tmp_path / "a_file" / "cache"), tmp_path)[0][0]
+        transfer_sources(plan_run(config(tmp_path / "a_file" / "cache")), tmp_path)[0][0]
     assert str(err.value) == (
         f"cannot use the pretraining cache {tmp_path / 'a_file' / 'cache'}: Not a directory "
         "(set transfer.cache_dir to a writable directory)"
@@ -279,23 +282,25 @@ def test_replicas_pretrain_their_missing_sources_as_one_batch(cache, tmp_path, m
     caplog.set_level(logging.INFO, logger="dqn_transfer")
     real, runs = dqn_transfer.sources.resolve.train, []
 
-    def counted(run_config, *args, **kwargs):
-        runs.append(run_config.replicas.seeds)
-        return real(run_config, *args, **kwargs)
+    def counted(plan, *args, **kwargs):
+        runs.append(plan.config.replicas.seeds)
+        return real(plan, *args, **kwargs)
 
     monkeypatch.setattr(dqn_transfer.sources.resolve, "train", counted)
     batch = dataclasses.replace(config(cache), replicas=ReplicasConfig(seeds=3))
-    per_replica = transfer_sources(batch, tmp_path)
+    per_replica = transfer_sources(plan_run(batch), tmp_path)
     sources = [targets[0] for targets in per_replica]  # the default team: every agent from the one source
     assert runs == [3] and len(set(sources)) == 3 and all(targets == [targets[0]] * 2 for targets in per_replica)
     entries, hidden = listing(cache)
     assert sorted(entries) == sorted(p.parent.parent.name for p in sources) and hidden == []
     for seed, source in enumerate(sources):
-        lone = transfer_sources(dataclasses.replace(config(tmp_path / "lone_cache"), seed=seed), tmp_path)[0][0]
+        lone = transfer_sources(plan_run(dataclasses.replace(config(tmp_path / "lone_cache"), seed=seed)), tmp_path)[0][
+            0
+        ]
         assert source.parent.parent.name == lone.parent.parent.name  # the same source config hash
         assert checkpoint_steps(source) == PRETRAIN_STEPS
         assert agent_meta(source)["digest"] == agent_meta(lone)["digest"]
     runs.clear()
-    assert transfer_sources(batch, tmp_path) == per_replica and runs == []
+    assert transfer_sources(plan_run(batch), tmp_path) == per_replica and runs == []
     shutil.rmtree(sources[1].parent.parent)
-    assert transfer_sources(batch, tmp_path) == per_replica and runs == [1]
+    assert transfer_sources(plan_run(batch), tmp_path) == per_replica and runs == [1]

@@ -26,6 +26,7 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from dqn_transfer.config import AgentConfig, TrainConfig, TransferConfig
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.storage.run_dir import RunDir
+from dqn_transfer.training.plan import plan_run
 from dqn_transfer.training.trainer import train
 
 CELL = 32  # TensorBoard's cell size in pixels
@@ -47,7 +48,7 @@ def run(tmp_path_factory) -> RunDir:
         progress=False,
         transfer=TransferConfig(enabled=True, source=str(source)),
     )
-    train(config, base / "run", sources=[source])
+    train(plan_run(config), base / "run", sources=[source])
     return RunDir(base / "run")
 
 
@@ -94,7 +95,7 @@ def test_the_trap_rate_is_the_one_in_metrics_jsonl(tmp_path):
         progress=False,
         transfer=TransferConfig(enabled=True, source=str(file)),
     )
-    train(config, tmp_path / "run", sources=[file])
+    train(plan_run(config), tmp_path / "run", sources=[file])
     metrics = [json.loads(line) for line in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
     assert [m["trap_rate"] for m in metrics] == [1.0, 1.0]
     assert [s.value for s in events(RunDir(tmp_path / "run")).Scalars("eval/trap_rate")] == [1.0, 1.0]

@@ -472,9 +472,10 @@ def kill_and_resume(tmp_path: Path, monkeypatch, config, dies, before: bool = Fa
 
     Returns the (resumed, reference) evaluations without their timing field.
     """
+    from dqn_transfer.training.plan import plan_run
     from dqn_transfer.training.trainer import Trainer
 
-    Trainer(config(), tmp_path / "reference").run()
+    Trainer(plan_run(config()), tmp_path / "reference").run()
     original = Trainer.save_checkpoint
 
     def save_then_die(self):
@@ -487,9 +488,9 @@ def kill_and_resume(tmp_path: Path, monkeypatch, config, dies, before: bool = Fa
 
     monkeypatch.setattr(Trainer, "save_checkpoint", save_then_die)
     with pytest.raises(_Killed):
-        Trainer(config(), tmp_path / "killed").run()
+        Trainer(plan_run(config()), tmp_path / "killed").run()
     monkeypatch.setattr(Trainer, "save_checkpoint", original)
-    Trainer(config(resume=True), tmp_path / "killed").run()
+    Trainer(plan_run(config(resume=True)), tmp_path / "killed").run()
     return tuple(without_timing(read_metrics(tmp_path / name)) for name in ("killed", "reference"))
 
 

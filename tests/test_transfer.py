@@ -35,6 +35,7 @@ from dqn_transfer.enums import Algorithm, Exchange, Mode
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.sources.resolve import transfer_sources
 from dqn_transfer.storage.checkpoint import CheckpointError
+from dqn_transfer.training.plan import plan_run
 from dqn_transfer.training.trainer import Trainer
 from dqn_transfer.transfer.mapping import TransferError
 
@@ -105,13 +106,13 @@ def make_config(
 
 def make_trainer(config: TrainConfig, run_dir: Path, launch_dir: Path) -> Trainer:
     """What ``python train.py`` builds: the transfer source found (or pretrained) first, then the trainer."""
-    return Trainer(config, run_dir, sources=transfer_sources(config, launch_dir))
+    return Trainer(plan_run(config), run_dir, sources=transfer_sources(plan_run(config), launch_dir))
 
 
 def train_source(run_dir: Path, layout: str, agent: dict, total_steps: int, **top) -> Path:
     """Train on the source task (TreasureHunt-v0 of the map) and return agent 0's checkpoint."""
     config = make_config(layout, agent, total_steps=total_steps, **top)
-    Trainer(config, run_dir, source_task=True).run()
+    Trainer(plan_run(config, source_task=True), run_dir).run()
     return run_dir / "checkpoints" / "agent_0.safetensors"
 
 
@@ -182,7 +183,7 @@ def test_dqn_transfer_preserves_the_source_q_function(work, dqn_source, mode):
         torch.testing.assert_close(got[agent], expected, rtol=1e-5, atol=1e-5)
     # Not vacuous: the source's Q-values depend on the position, and a random net would differ.
     assert expected.std(dim=0).min() > 1e-3
-    fresh = Trainer(dataclasses.replace(config, transfer=TransferConfig()), work / f"fp_fresh_{mode.value}")
+    fresh = Trainer(plan_run(dataclasses.replace(config, transfer=TransferConfig())), work / f"fp_fresh_{mode.value}")
     with torch.no_grad():
         assert not torch.allclose(fresh.learner.q_network(batch)[0], expected, atol=1e-2)
 
@@ -549,9 +550,9 @@ def _flat(weights: dict[str, np.ndarray]) -> np.ndarray:
 
 
 def test_exchange_best_moves_others_towards_the_best(work, dqn_source, monkeypatch):
-    import dqn_transfer.training.trainer as trainer_module
+    import dqn_transfer.training.replica as replica_module
 
-    real = trainer_module.exchange_best
+    real = replica_module.exchange_best
     calls = []
 
     def spy(team, window_returns, tau):
@@ -562,7 +563,7 @@ def test_exchange_best_moves_others_towards_the_best(work, dqn_source, monkeypat
         calls.append((np.array(window_returns), tau, best, before, after))
         return best
 
-    monkeypatch.setattr(trainer_module, "exchange_best", spy)
+    monkeypatch.setattr(replica_module, "exchange_best", spy)
     # Only agent 0 is transferred, so the two networks differ from the start.
     transfer = TransferConfig(
         enabled=True, source=str(dqn_source), targets=[0], exchange=Exchange.best, exchange_every=3, exchange_tau=0.25
@@ -581,9 +582,9 @@ def test_exchange_best_moves_others_towards_the_best(work, dqn_source, monkeypat
 
 
 def test_shared_replay_gives_each_agent_its_teammates_transitions(work, dqn_source, monkeypatch):
-    import dqn_transfer.training.trainer as trainer_module
+    import dqn_transfer.training.replica as replica_module
 
-    real = trainer_module.exchange_replay
+    real = replica_module.exchange_replay
     calls = []
 
     def spy(team, transitions):
@@ -600,7 +601,7 @@ def test_shared_replay_gives_each_agent_its_teammates_transitions(work, dqn_sour
             )
         )
 
-    monkeypatch.setattr(trainer_module, "exchange_replay", spy)
+    monkeypatch.setattr(replica_module, "exchange_replay", spy)
     transfer = TransferConfig(enabled=True, source=str(dqn_source), exchange=Exchange.shared_replay, exchange_every=2)
     trainer = make_trainer(make_config(TEAM_MAP, DQN_AGENT, total_steps=300, transfer=transfer), work / "shared", work)
     trainer.run()

@@ -61,7 +61,7 @@ class TeamRig:
             )
         else:
             actions = self.learners[0].act(obs, live, epsilon)
-        next_obs, rewards, terminated, truncated, _ = game.step(actions)
+        next_obs, rewards, terminated, truncated, *_ = game.step(actions)
         self.step_count += 1
         transition = Transition(obs, actions, rewards, next_obs, terminated, truncated, live)
         if self.separate:

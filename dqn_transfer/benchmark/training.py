@@ -1,6 +1,6 @@
 """Section 2, DQN training steps/s on ``TreasureHunt-v0``: our trainer against Stable-Baselines3.
 
-Ours is ``Trainer(config, run_dir, source_task=True).run()``, what ``python train.py`` does on the
+Ours is ``Trainer(plan_run(config, source_task=True), run_dir).run()``, what ``python train.py`` does on the
 source task: the loop with its TensorBoard logging, progress bar off. Its greedy evaluations and
 checkpoint writes (``summary["overhead"]``) are subtracted, since SB3's ``learn`` does neither. SB3 is
 ``DQN("MlpPolicy", gymnasium.make("TreasureHunt-v0"), ...).learn(steps)``. Both get the hyperparameters
@@ -24,6 +24,7 @@ from dqn_transfer.config import AgentConfig, EnvConfig, TrainConfig
 from dqn_transfer.envs import make_game
 from dqn_transfer.evaluation.rollout import Policy, greedy_policy, play_episode
 from dqn_transfer.timing import Stopwatch
+from dqn_transfer.training.plan import plan_run
 from dqn_transfer.training.trainer import Trainer
 
 # The greedy episodes are seeded apart from training's (the start is fixed, so a deterministic
@@ -73,18 +74,17 @@ def measure_ours_training(
         threads=torch.get_num_threads(),  # the trainer sets torch's (global) thread count from this
     )
     with tempfile.TemporaryDirectory(prefix="dqn_transfer_bench_") as tmp:
-        trainer = Trainer(config, Path(tmp) / "run", source_task=True)
+        trainer = Trainer(plan_run(config, source_task=True), Path(tmp) / "run")
         with Stopwatch() as run:
             summary = trainer.run()
     overhead = summary["overhead"]
+    learner: Any = trainer.learner  # the DQN family's batched learner
     return {
-        **_figures(
-            steps, run.wall - overhead["wall"], run.cpu - overhead["cpu"], int(trainer.learner.num_gradient_steps)
-        ),
+        **_figures(steps, run.wall - overhead["wall"], run.cpu - overhead["cpu"], int(learner.num_gradient_steps)),
         "run_seconds": run.wall,
         "excluded_seconds": overhead["wall"],
         "excluded_cpu_seconds": overhead["cpu"],
-        **greedy_check(greedy_policy(trainer.learner), env_kwargs, eval_episodes, seed + GREEDY_SEED_OFFSET),
+        **greedy_check(greedy_policy(learner), env_kwargs, eval_episodes, seed + GREEDY_SEED_OFFSET),
     }
 
 

@@ -57,7 +57,7 @@ def td_update(
     members, as ``DQNLearner`` does (for ``[B, ...]`` that is the plain batch mean)."""
     with torch.no_grad():
         td_target = dqn_targets(batch.rewards, target(batch.next_obs), batch.terminated, gamma)
-    q_taken = online(batch.obs).gather(-1, batch.actions.unsqueeze(-1)).squeeze(-1)
+    q_taken = online(batch.obs).gather(-1, batch.actions.unsqueeze(-1)).squeeze(-1)  # type: ignore[attr-defined]  # a torch batch here
     loss = F.smooth_l1_loss(q_taken, td_target, reduction="none").mean(dim=-1).sum()
     optimizer.zero_grad()
     loss.backward()
@@ -91,11 +91,11 @@ class UpdateRig:
         obs, live = game.reset(rng), np.ones(1, dtype=bool)
         for _ in range(replay_warmup(agent)):
             actions = rng.integers(0, game.num_actions, size=1)
-            next_obs, rewards, terminated, truncated, _ = game.step(actions)
+            next_obs, rewards, terminated, truncated, *_ = game.step(actions)
             self.learner.replay.add(Transition(obs, actions, rewards, next_obs, terminated, truncated, live))
             obs = game.reset(rng) if game.done else next_obs
         self.batch = self.learner.replay.sample(agent.batch_size)  # [1, B, ...]
-        self.flat_batch = ReplayBatch(*(torch.from_numpy(field[0]) for field in self.batch))  # [B, ...], for torch
+        self.flat_batch = ReplayBatch(*(torch.from_numpy(field[0]) for field in self.batch))  # type: ignore[arg-type]  # [B, ...], for torch
 
         torch.manual_seed(seed)
         self.q = mlp([game.obs_dim, *agent.hidden, game.num_actions])

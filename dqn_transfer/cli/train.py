@@ -22,7 +22,6 @@ from pathlib import Path
 from typing import Any
 
 import hydra
-from hydra._internal.utils import get_args_parser
 from hydra.core.hydra_config import HydraConfig
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.errors import HydraException
@@ -39,7 +38,6 @@ from dqn_transfer.config import (
     StageConfig,
     TrainConfig,
     register_configs,
-    validate,
 )
 from dqn_transfer.config.help import config_groups, group_options, help_text
 from dqn_transfer.documented import describe
@@ -47,7 +45,9 @@ from dqn_transfer.sources.curriculum import curriculum_sources
 from dqn_transfer.sources.resolve import transfer_sources
 from dqn_transfer.storage.checkpoint import CheckpointError, load_training_state
 from dqn_transfer.storage.run_dir import RunClaim, RunDir, RunDirError
-from dqn_transfer.training.trainer import Interrupted, train
+from dqn_transfer.training.plan import plan_run
+from dqn_transfer.training.stop import Interrupted
+from dqn_transfer.training.trainer import train
 from dqn_transfer.transfer.mapping import TransferError
 
 log = logging.getLogger("dqn_transfer.train")
@@ -78,9 +78,8 @@ def check_overrides(argv: list[str]) -> None:
     """Refuse a key outside the schema (``+`` appends included) or an option no group has, naming the
     nearest valid one, before Hydra turns it into a multi-line error or silently stores it."""
     try:
-        args = get_args_parser().parse_args(argv)
-        overrides = OverridesParser.create().parse_overrides(args.overrides)
-    except (SystemExit, HydraException):
+        overrides = OverridesParser.create().parse_overrides(override_words(argv))
+    except HydraException:
         return  # malformed: Hydra's own parser says what is wrong
     keys = [k.key for k in describe(TrainConfig)]
     for override in overrides:
@@ -102,6 +101,37 @@ def check_overrides(argv: list[str]) -> None:
                 else f"; the keys are listed by `{Path(sys.argv[0]).name} --cfg job`"
             )
             raise ConfigError(f"unknown config key '{key}' in '{override.input_line}'{hint}")
+
+
+# Hydra's own command-line flags, and whether each takes a value (``--info`` may or may not: its value
+# is one of Hydra's info topics); every other word is an override.
+HYDRA_FLAGS = {
+    **dict.fromkeys(("-m", "--multirun", "-r", "--run", "--hydra-help", "-h", "--help", "--version"), False),
+    **dict.fromkeys(("--resolve", "-sc", "--shell-completion"), False),
+    **dict.fromkeys(("-cn", "--config-name", "-cp", "--config-path", "-cd", "--config-dir"), True),
+    **dict.fromkeys(("-c", "--cfg", "-p", "--package", "--experimental-rerun"), True),
+}
+INFO_FLAGS = ("-i", "--info")
+INFO_TOPICS = ("all", "config", "defaults", "defaults-tree", "plugins", "searchpath")
+
+
+def override_words(argv: list[str]) -> list[str]:
+    """The overrides of a command line: its words that are not Hydra's flags or their values."""
+    words, rest = [], iter(argv)
+    for word in rest:
+        flag = word.split("=", 1)[0] if word.startswith("-") else word
+        if word.startswith("-") and "=" in word and flag in {*HYDRA_FLAGS, *INFO_FLAGS}:
+            continue  # --flag=value
+        if flag in INFO_FLAGS:
+            topic = next(rest, None)
+            if topic is not None and topic not in INFO_TOPICS:
+                words.append(topic)
+        elif flag in HYDRA_FLAGS:
+            if HYDRA_FLAGS[flag]:
+                next(rest, None)
+        else:
+            words.append(word)
+    return words
 
 
 def check_group_option(group: str, override) -> None:
@@ -237,7 +267,7 @@ def report_user_error(err: Exception) -> None:
     """One line on stderr and in the run's log file; no traceback for a user's mistake."""
     message = f"error: {err}"
     print(message, file=sys.stderr)
-    record = log.makeRecord(log.name, logging.ERROR, __file__, 0, message, None, None)
+    record = log.makeRecord(log.name, logging.ERROR, __file__, 0, message, (), None)
     for handler in logging.getLogger().handlers:
         if isinstance(handler, logging.FileHandler):
             handler.handle(record)
@@ -277,14 +307,14 @@ def app(cfg: DictConfig) -> float:
                 log.info("this job ran before and was stopped (requeued): resuming it from its last checkpoint")
             config = resume_config(run, cfg, hydra_config.overrides.task)
         else:
-            config = OmegaConf.to_object(cfg)
-        validate(config)
+            config = OmegaConf.to_object(cfg)  # type: ignore[assignment]
+        plan = plan_run(config)
         log.info("run directory: %s", run)  # before a transfer source's pretraining, which can take minutes
         launch_dir = Path(get_original_cwd())
         sources = (
-            curriculum_sources(config, launch_dir) if config.curriculum.stages else transfer_sources(config, launch_dir)
+            curriculum_sources(plan, launch_dir) if config.curriculum.stages else transfer_sources(plan, launch_dir)
         )
-        summary = train(config, run.path, sources=sources)
+        summary = train(plan, run.path, sources=sources)
     except USER_ERRORS as err:
         report_user_error(err)
         leave_nothing_behind(claim)  # a refused run

@@ -31,15 +31,13 @@ import math
 from collections.abc import Mapping
 from dataclasses import fields
 from enum import Enum
-from typing import Any, TypeVar
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 
 from dqn_transfer.enums import Mode, ObsEncoding, RewardMode, values
 from dqn_transfer.envs.maps import GridMap, resolve_map
 from dqn_transfer.envs.settings import DEFAULTS, MAP_KEYS, EnvConfig
-
-E = TypeVar("E", bound=Enum)
 
 RENDER_MODES = ("ansi", "rgb_array", "human")  # human: the ansi frame printed to the terminal
 ACTION_MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))  # 0 up, 1 down, 2 left, 3 right
@@ -70,6 +68,9 @@ AGENT_COLOURS = np.array(
     ],
     dtype=np.uint8,
 )
+
+
+E = TypeVar("E", bound=Enum)
 
 
 def check_choice(name: str, value: object, choices: tuple[str, ...]) -> str:
@@ -177,6 +178,23 @@ def _state_int(state: Mapping[str, Any], key: str, high: int) -> int:
     if not integer or not 0 <= value <= high:
         raise ValueError(f"game state {key!r} must be an integer in 0..{high}, got {value!r}")
     return int(value)
+
+
+class StepOutcome(NamedTuple):
+    """What one joint step did, per agent (one row each; a non-live agent's row is zero / False)."""
+
+    obs: np.ndarray  # [K, obs_dim] float32: every agent's observation after the step
+    rewards: np.ndarray  # [K] float32
+    terminated: np.ndarray  # [K] bool: ended in a chest or a trap
+    truncated: np.ndarray  # [K] bool: still live at ``max_steps``
+    trap: np.ndarray  # [K] bool: entered a trap
+    treasures_collected: int  # chests emptied by this step
+    live: np.ndarray  # [K] bool: who acts next
+
+    @property
+    def info(self) -> dict[str, Any]:
+        """The Gymnasium-style info dict of the step."""
+        return {"treasures_collected": self.treasures_collected, "trap": self.trap, "live": self.live}
 
 
 class TreasureHuntGame:
@@ -450,7 +468,7 @@ class TreasureHuntGame:
         self._write_obs(self._live_idx, self._pos, None, env_changed=True)
         return self._obs.copy()
 
-    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+    def step(self, actions: np.ndarray) -> StepOutcome:
         """Move every live agent at once; actions of non-live agents are ignored."""
         idx = self._live_idx
         if idx.size == 0:
@@ -484,8 +502,7 @@ class TreasureHuntGame:
         self._write_obs(idx, new, old, env_changed=events)
         if self.reward_mode is RewardMode.team:
             rewards[idx] = rewards[idx].sum()
-        info = {"treasures_collected": collected, "trap": trap, "live": self._live.copy()}
-        return self._obs.copy(), rewards, terminated, truncated, info
+        return StepOutcome(self._obs.copy(), rewards, terminated, truncated, trap, collected, self._live.copy())
 
     def _resolve_events(
         self,
@@ -623,7 +640,11 @@ def make_game(**settings) -> TreasureHuntGame:
         raise TypeError(f"unknown env setting(s) {', '.join(unknown)}")
     config = EnvConfig(**settings)
     check_render_mode(config.render_mode)
-    grid_map = resolve_map(**{key: settings.get(key) for key in MAP_KEYS})
+    return game_on(resolve_map(**{key: settings.get(key) for key in MAP_KEYS}), config)
+
+
+def game_on(grid_map: GridMap, config: EnvConfig) -> TreasureHuntGame:
+    """The game of ``config``'s rules on ``grid_map`` (the map ``config``'s map keys resolve to)."""
     return TreasureHuntGame(
         grid_map,
         mode=config.mode,
@@ -635,3 +656,17 @@ def make_game(**settings) -> TreasureHuntGame:
         trap_reward=config.trap_reward,
         step_reward=config.step_reward,
     )
+
+
+def map_settings(grid_map: GridMap) -> dict[str, Any]:
+    """The map keys of :class:`~dqn_transfer.envs.settings.EnvConfig` (``MAP_KEYS``) that rebuild
+    ``grid_map`` from its layout alone: ``make_game(**settings)`` plays this very map, whatever the
+    generation settings or the layout file were (those are left unset)."""
+    played = {
+        "layout": grid_map.layout,
+        "size": grid_map.size,
+        "num_treasures": grid_map.num_treasures,
+        "num_traps": grid_map.num_traps,
+        "num_agents": grid_map.num_agents,
+    }
+    return {key: played.get(key) for key in MAP_KEYS}

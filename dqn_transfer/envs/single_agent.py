@@ -37,15 +37,15 @@ class TreasureHuntEnv(gymnasium.Env):
 
     def step(self, action: int) -> tuple[np.ndarray, float, bool, bool, dict]:
         self._action[0] = action
-        obs, reward, terminated, truncated, info = self.game.step(self._action)
+        outcome = self.game.step(self._action)
         if self.render_mode == "human":
             self.render()
         return (
-            obs[0],
-            float(reward[0]),
-            bool(terminated[0]),
-            bool(truncated[0]),
-            {"treasures_collected": info["treasures_collected"], "trap": bool(info["trap"][0])},
+            outcome.obs[0],
+            float(outcome.rewards[0]),
+            bool(outcome.terminated[0]),
+            bool(outcome.truncated[0]),
+            {"treasures_collected": outcome.treasures_collected, "trap": bool(outcome.trap[0])},
         )
 
     def render(self) -> str | np.ndarray | None:

@@ -68,7 +68,7 @@ class TreasureHuntParallelEnv(ParallelEnv):
             if name not in actions:
                 raise ValueError(f"no action for live agent {name}")
             self._actions[self._index[name]] = actions[name]
-        obs, rewards, terminated, truncated, _ = self.game.step(self._actions)
+        obs, rewards, terminated, truncated, *_ = self.game.step(self._actions)
         rows = [self._index[name] for name in acting]
         rew, term, trunc = rewards.tolist(), terminated.tolist(), truncated.tolist()
         self.agents = [name for name, i in zip(acting, rows) if not (term[i] or trunc[i])]

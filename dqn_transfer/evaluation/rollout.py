@@ -69,13 +69,16 @@ def play_episode(
     while not game.done:
         live = game.live
         actions = policy(obs, live)
-        next_obs, rewards, terminated, truncated, info = game.step(actions)
+        outcome = game.step(actions)
+        next_obs, rewards = outcome.obs, outcome.rewards
         if on_step is not None:
-            on_step(Transition(obs, actions, rewards, next_obs, terminated, truncated, live), info)
+            on_step(
+                Transition(obs, actions, rewards, next_obs, outcome.terminated, outcome.truncated, live), outcome.info
+            )
         obs = next_obs
         step_return = team_return_of(rewards[live], RewardMode(game.reward_mode))
         team_return += step_return
-        trapped += int(np.sum(info["trap"]))
+        trapped += int(np.sum(outcome.trap))
         length += 1
         if cleared_at >= 0:
             return_after_clear += step_return

@@ -23,22 +23,11 @@ import json
 import logging
 from pathlib import Path
 
-from omegaconf import OmegaConf
-from omegaconf.errors import OmegaConfBaseException
-
-from dqn_transfer.config import (
-    ConfigError,
-    CurriculumConfig,
-    TrainConfig,
-    TransferConfig,
-    replica_configs,
-    to_plain,
-    validate,
-)
+from dqn_transfer.config import TrainConfig, TransferConfig, to_plain
 from dqn_transfer.sources.resolve import resolve_source
 from dqn_transfer.sources.run_cache import RunCache
-from dqn_transfer.training.trainer import build_game, train
-from dqn_transfer.transfer.warm_start import transfer_targets
+from dqn_transfer.training.plan import RunPlan, describe_stage
+from dqn_transfer.training.trainer import train
 
 log = logging.getLogger("dqn_transfer.sources.curriculum")
 
@@ -47,37 +36,6 @@ NOT_IN_STAGE_HASH = ("progress", "resume")
 # transfer.* keys a curriculum refuses (at their defaults in every stage), left out of a stage's hash so
 # that the stages cached before they existed stay valid.
 NOT_IN_STAGE_TRANSFER_HASH = ("source_task", "source_map_shift")
-
-
-def stage_config(config: TrainConfig, n: int) -> TrainConfig:
-    """Stage ``n``'s config: ``config`` with the stage's env and steps, warm-started from stage ``n - 1``
-    (its checkpoints are passed to the trainer). Works for a lone run and for a batch of replicas."""
-    stage = config.curriculum.stages[n]
-    try:
-        env = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(config.env), dict(stage.env)))
-    except OmegaConfBaseException as err:
-        raise ConfigError(f"curriculum.stages[{n}].env: {str(err).splitlines()[0]}") from None
-    transfer = (
-        TransferConfig()
-        if n == 0
-        else dataclasses.replace(
-            config.transfer,
-            enabled=True,
-            source=None,
-            targets=None,
-            source_agent=stage.source_agent,
-            offset=list(stage.offset),
-        )
-    )
-    staged = dataclasses.replace(
-        config, env=env, total_steps=stage.steps, transfer=transfer, curriculum=CurriculumConfig(), resume=False
-    )
-    try:
-        validate(staged)
-        build_game(staged)
-    except ConfigError as err:
-        raise ConfigError(f"curriculum.stages[{n}] ({_describe(stage.env)}): {err}") from None
-    return staged
 
 
 def stage_hash(config: TrainConfig, layout: str, previous: str | None) -> str:
@@ -92,12 +50,13 @@ def stage_hash(config: TrainConfig, layout: str, previous: str | None) -> str:
     return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def curriculum_sources(config: TrainConfig, launch_dir: Path) -> list[list[Path]] | None:
-    """Train (or reuse) every stage before the run, for every replica; returns the checkpoints each
-    target agent of each replica starts from (None when resuming: the run has its agents already)."""
+def curriculum_sources(plan: RunPlan, launch_dir: Path) -> list[list[Path]] | None:
+    """Train (or reuse) every stage before the run (the plan's chain), for every replica; returns the
+    checkpoints each target agent of each replica starts from (None when resuming: the run has its
+    agents already)."""
+    config = plan.config
     if config.resume:
         return None
-    validate(config)
     stages = config.curriculum.stages
     cache = RunCache(
         launch_dir / Path(config.curriculum.cache_dir or "outputs/curriculum").expanduser(),
@@ -105,69 +64,58 @@ def curriculum_sources(config: TrainConfig, launch_dir: Path) -> list[list[Path]
         "curriculum.cache_dir",
         resumable=True,
     )
-    keys: list[str | None] = [None] * len(replica_configs(config))
+    keys: list[str | None] = [None] * len(plan.replicas)  # a stage's hashes, and before the first none
     previous: list[Path] | None = None
-    for n, stage in enumerate(stages):
-        batch = stage_config(config, n)
-        configs = replica_configs(batch)
-        games = [build_game(c) for c in configs]
-        keys = [stage_hash(c, game.map.layout, key) for c, game, key in zip(configs, games, keys)]
+    for n, (stage, staged) in enumerate(zip(stages, plan.chain)):
+        keys = [stage_hash(replica.config, replica.grid_map.layout, key) for replica, key in zip(staged.replicas, keys)]
         sources = (
             None
             if previous is None
             else [
                 resolve_source(
-                    TransferConfig(source=str(run), source_agent=stage.source_agent), launch_dir, game.num_agents
+                    TransferConfig(source=str(run), source_agent=stage.source_agent), launch_dir, staged.num_agents
                 )
-                for run, game in zip(previous, games)
+                for run in previous
             ]
         )
 
-        label = f"stage {n + 1} of {len(stages) + 1} ({_describe(stage.env)})"
+        label = f"stage {n + 1} of {len(stages) + 1} ({describe_stage(stage.env)})"
+        hashes = [key for key in keys if key is not None]
         trained = cache.fill(
-            keys,
+            hashes,
             functools.partial(RunCache.finished, steps=stage.steps),
-            functools.partial(_train_stage, label, batch, configs, sources),
+            functools.partial(_train_stage, label, staged, sources),
         )
-        previous = [cache.entry(key).path for key in keys]
+        previous = [cache.entry(key).path for key in hashes]
         for i, run in enumerate(previous):
             log.info("curriculum: %s %s %s", label, "trained into" if i in trained else "reused from", run)
-    num_targets = len(transfer_targets(config, build_game(config).num_agents))
+    assert previous is not None  # a curriculum has stages
     return [
-        resolve_source(dataclasses.replace(config.transfer, source=str(run)), launch_dir, num_targets)
+        resolve_source(dataclasses.replace(config.transfer, source=str(run)), launch_dir, len(plan.targets))
         for run in previous
     ]
 
 
 def _train_stage(
     label: str,
-    batch: TrainConfig,
-    configs: list[TrainConfig],
+    staged: RunPlan,
     sources: list[list[Path]] | None,
     indices: list[int],
     work_dir: Path,
     resume: bool,
 ) -> None:
-    """Train (or resume) a stage's replicas ``indices`` (all of ``batch``'s, or one) into ``work_dir``."""
-    run = batch if len(indices) > 1 else configs[indices[0]]
+    """Train (or resume) a stage's replicas ``indices`` (all of ``staged``'s, or one) into ``work_dir``."""
+    run = staged if len(indices) > 1 else staged.lone(indices[0])
     log.info(
         "curriculum: %s %s, %d steps%s, in %s",
         "resuming" if resume else "training",
         label,
-        run.total_steps,
+        run.config.total_steps,
         f" for {len(indices)} replicas" if len(indices) > 1 else "",
         work_dir,
     )
     train(
-        dataclasses.replace(run, resume=resume),
+        run.resuming(resume),
         work_dir,
         sources=None if resume or sources is None else [sources[i] for i in indices],
     )
-
-
-def _describe(env: dict) -> str:
-    """A stage's env changes in one short phrase (a layout by its side alone: it fixes the map's counts)."""
-    if env.get("layout"):
-        side = len(str(env["layout"]).splitlines())
-        return f"{side}x{side} layout"
-    return ", ".join(f"{key}={value}" for key, value in env.items()) or "the run's env"

@@ -14,22 +14,21 @@ Either way the result is a path, which the trainer's warm start (:mod:`dqn_trans
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import logging
 from pathlib import Path
 from typing import Any
 
-from dqn_transfer.config import TrainConfig, TransferConfig, replica_configs, to_plain, validate
+from dqn_transfer.config import TransferConfig, to_plain
 from dqn_transfer.enums import Mode, SourceTask
 from dqn_transfer.envs.settings import ENV_KEYS
 from dqn_transfer.sources.run_cache import RunCache
 from dqn_transfer.storage.checkpoint import CheckpointError, find_checkpoints
 from dqn_transfer.storage.run_dir import RunDir, agent_file_name
-from dqn_transfer.training.trainer import build_game, train
+from dqn_transfer.training.plan import RunPlan, source_map
+from dqn_transfer.training.trainer import train
 from dqn_transfer.transfer.mapping import TransferError
-from dqn_transfer.transfer.warm_start import transfer_targets
 
 log = logging.getLogger("dqn_transfer.transfer")
 
@@ -38,31 +37,6 @@ log = logging.getLogger("dqn_transfer.transfer")
 NOT_IN_SOURCE_TASK = ("mode", "reward_mode", "render_mode")
 # A team source plays the run's own game (``transfer.source_task=team``): only rendering is left out.
 NOT_IN_TEAM_TASK = ("render_mode",)
-
-
-def source_map(config: TrainConfig) -> TrainConfig:
-    """``config`` on the map its source is pretrained on: ``env.map_seed`` moved by
-    ``transfer.source_map_shift`` (``config`` itself for no shift). For a batch of replicas, each
-    replica's map seed moves by the shift."""
-    shift = config.transfer.source_map_shift
-    if shift == 0:
-        return config
-    return dataclasses.replace(config, env=dataclasses.replace(config.env, map_seed=config.env.map_seed + shift))
-
-
-def source_config(config: TrainConfig) -> TrainConfig:
-    """The config of the source pretraining run: the same learner and seed, on the source's map
-    (:func:`source_map`), with no transfer. ``transfer.source_task`` says which game of it is played
-    (the trainer's ``source_task`` flag): TreasureHunt-v0, or the run's own team game."""
-    pretrain_steps = config.transfer.pretrain_steps
-    return dataclasses.replace(
-        source_map(config),
-        transfer=TransferConfig(),
-        total_steps=pretrain_steps,
-        eval_every=max(1, pretrain_steps // 10),
-        checkpoint_every=max(1, pretrain_steps // 4),
-        resume=False,
-    )
 
 
 def source_hash(plain: dict[str, Any], layout: str, task: SourceTask | str = SourceTask.single) -> str:
@@ -87,10 +61,10 @@ def source_hash(plain: dict[str, Any], layout: str, task: SourceTask | str = Sou
     return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def pretrained_sources(config: TrainConfig, layouts: list[str], launch_dir: Path) -> list[RunDir]:
-    """Pretrain on ``transfer.source_task`` of each replica's source map (``layouts``: the maps of
-    :func:`source_map`) once per source config; later runs reuse the cached runs. One source per
-    replica of ``config`` (one for a lone run): the run directory of its cache entry, whose
+def pretrained_sources(plan: RunPlan, launch_dir: Path) -> list[RunDir]:
+    """Pretrain the plan's source (its chain: one pretraining run, on ``transfer.source_task`` of each
+    replica's source map) once per source config; later runs reuse the cached runs. One source per
+    replica of ``plan`` (one for a lone run): the run directory of its cache entry, whose
     ``agent_0.safetensors`` is the single-agent source and whose agent files are the team source.
 
     The cache (:class:`~dqn_transfer.sources.run_cache.RunCache`) holds one entry ``<cache_root>/<hash>/`` per
@@ -98,23 +72,26 @@ def pretrained_sources(config: TrainConfig, layouts: list[str], launch_dir: Path
     replica's source is missing, they are pretrained together, as one run of replicas (each exactly
     the lone pretraining of its seed and map), and each replica's directory becomes its entry.
     """
+    config, [pretraining] = plan.config, plan.chain
     # Relative to the launch dir, like transfer.source: the process cwd may be a run dir (chdir, SLURM).
     cache = RunCache(
         launch_dir / Path(config.transfer.cache_dir or "outputs/pretrained").expanduser(),
         "the pretraining cache",
         "transfer.cache_dir",
     )
-    replicas = replica_configs(config)
     task = SourceTask(config.transfer.source_task)
-    keys = [source_hash(to_plain(source_map(c)), layout, task) for c, layout in zip(replicas, layouts)]
+    keys = [
+        source_hash(to_plain(source_map(replica.config)), source.grid_map.layout, task)
+        for replica, source in zip(plan.replicas, pretraining.replicas)
+    ]
     steps = config.transfer.pretrain_steps
     shift = config.transfer.source_map_shift
 
     def pretrain(indices: list[int], work_dir: Path, resume: bool) -> None:
-        pretraining = source_config(config if len(indices) > 1 else replicas[indices[0]])
+        run = pretraining if len(indices) > 1 else pretraining.lone(indices[0])
         where = cache.entry(keys[indices[0]]) if len(indices) == 1 else cache.root
         on_map = (
-            f" on map seed {pretraining.env.map_seed} (env.map_seed {'+' if shift > 0 else '-'} {abs(shift)})"
+            f" on map seed {run.config.env.map_seed} (env.map_seed {'+' if shift > 0 else '-'} {abs(shift)})"
             if shift
             else ""
         )
@@ -124,14 +101,14 @@ def pretrained_sources(config: TrainConfig, layouts: list[str], launch_dir: Path
                 "transfer: pretraining %s on this run's game%s (mode %s) for %d steps into %s",
                 what,
                 on_map,
-                Mode(pretraining.env.mode).value,
+                Mode(run.config.env.mode).value,
                 steps,
                 where,
             )
         else:
             what = "a source agent" if len(indices) == 1 else f"{len(indices)} source agents, one per replica,"
             log.info("transfer: pretraining %s on TreasureHunt-v0%s for %d steps into %s", what, on_map, steps, where)
-        train(pretraining, work_dir, source_task=task is SourceTask.single)
+        train(run, work_dir)
 
     for i in cache.fill(keys, lambda entry: _reuse(entry, steps), pretrain):
         log.info(
@@ -179,7 +156,7 @@ def team_members(transfer: TransferConfig, num_agents: int, num_targets: int) ->
 def resolve_source(transfer: TransferConfig, launch_dir: Path, num_targets: int) -> list[Path]:
     """The checkpoint file of each of the ``num_targets`` target agents: ``transfer.source`` itself if it
     is a file, else agent ``transfer.source_agent`` (one index, or one per target) of a run directory."""
-    path = Path(transfer.source).expanduser()
+    path = Path(str(transfer.source)).expanduser()
     if not path.is_absolute():
         path = launch_dir / path
     files = find_checkpoints(path)
@@ -208,23 +185,20 @@ def resolve_source(transfer: TransferConfig, launch_dir: Path, num_targets: int)
     return [by_name[agent_file_name(index)] for index in per_target]
 
 
-def transfer_sources(config: TrainConfig, launch_dir: Path) -> list[list[Path]] | None:
+def transfer_sources(plan: RunPlan, launch_dir: Path) -> list[list[Path]] | None:
     """The checkpoint of each target agent of each replica (one list for a lone run): None without
     transfer (or when resuming, which has its agents already), ``transfer.source`` resolved against
     ``launch_dir`` for every replica, else a source pretrained with each replica's own seed on its own
     map (or on the map ``transfer.source_map_shift`` map seeds further): the one single-agent source
     for every target, or the team source's member ``transfer.source_agent`` (one per target)."""
+    config = plan.config
     if not config.transfer.enabled or config.resume:
         return None
-    validate(config)
-    replicas = replica_configs(config)
-    games = [build_game(c) for c in replicas]
-    # Refuse bad targets before minutes of pretraining.
-    num_targets = len(transfer_targets(config, games[0].num_agents))
+    num_targets = len(plan.targets)
     if config.transfer.source is not None:
-        return [resolve_source(config.transfer, launch_dir, num_targets)] * len(replicas)
+        return [resolve_source(config.transfer, launch_dir, num_targets)] * len(plan.replicas)
     if SourceTask(config.transfer.source_task) is SourceTask.team:
-        members = team_members(config.transfer, games[0].num_agents, num_targets)
+        members = team_members(config.transfer, plan.num_agents, num_targets)
     elif not isinstance(config.transfer.source_agent, int):
         raise TransferError(
             f"transfer.source_agent={list(config.transfer.source_agent)} picks agents of "
@@ -233,6 +207,5 @@ def transfer_sources(config: TrainConfig, launch_dir: Path) -> list[list[Path]] 
         )
     else:
         members = [0] * num_targets
-    source_games = games if config.transfer.source_map_shift == 0 else [build_game(source_map(c)) for c in replicas]
-    entries = pretrained_sources(config, [game.map.layout for game in source_games], launch_dir)
+    entries = pretrained_sources(plan, launch_dir)
     return [[entry.agent_checkpoint(i) for i in members] for entry in entries]

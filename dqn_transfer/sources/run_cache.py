@@ -29,7 +29,7 @@ from typing import Any, TypeVar
 
 from dqn_transfer.storage.checkpoint import load_agent_checkpoint
 from dqn_transfer.storage.run_dir import RunDir
-from dqn_transfer.training.trainer import Interrupted
+from dqn_transfer.training.stop import Interrupted
 from dqn_transfer.transfer.mapping import TransferError
 
 log = logging.getLogger("dqn_transfer.transfer")

@@ -1,0 +1,188 @@
+"""The run plan: a composed config checked once and turned into everything a run is made of.
+
+:func:`plan_run` is the one place a config is validated, its replicas derived, their maps resolved and
+the transfer targets checked; the command line calls it once, and the sources
+(:mod:`dqn_transfer.sources`) and the trainer receive the :class:`RunPlan` and never do so again. A plan
+also holds the runs its transfer source comes from (its *chain*): the pretraining of the source
+(``transfer.source`` unset), or the curriculum's stages, easiest first, each a plan of its own.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from dqn_transfer.config import (
+    ConfigError,
+    CurriculumConfig,
+    TrainConfig,
+    TransferConfig,
+    replica_configs,
+    validate,
+)
+from dqn_transfer.enums import SourceTask
+from dqn_transfer.envs import GridMap, TreasureHuntGame, make_game
+from dqn_transfer.envs.game import game_on
+from dqn_transfer.transfer.warm_start import transfer_targets
+
+
+@dataclass(frozen=True)
+class ReplicaPlan:
+    """One replica of a run: its lone-run config (own seed and map seed), its resolved map, and the name
+    of its directory inside a batch's run directory."""
+
+    config: TrainConfig
+    grid_map: GridMap
+    name: str
+    source_task: bool = False  # plays the single-agent source task of its map
+
+    def new_game(self) -> TreasureHuntGame:
+        """A fresh game on the replica's map (the map is never resolved again)."""
+        game = game_on(self.grid_map, self.config.env)
+        return game.single_agent_game() if self.source_task else game
+
+
+@dataclass(frozen=True)
+class RunPlan:
+    """A validated run: its config, its replicas (one for a lone run), its team size, the agents a
+    transfer warm-starts (none without transfer), whether it trains the single-agent source task, and
+    the runs before it whose agents it starts from (:func:`plan_run`)."""
+
+    config: TrainConfig
+    replicas: tuple[ReplicaPlan, ...]
+    num_agents: int
+    targets: tuple[int, ...]
+    source_task: bool = False
+    chain: tuple[RunPlan, ...] = ()
+
+    def lone(self, index: int) -> RunPlan:
+        """Replica ``index`` as a run of its own (its config is a lone run's)."""
+        replica = dataclasses.replace(self.replicas[index], name="")
+        return dataclasses.replace(self, config=replica.config, replicas=(replica,), chain=())
+
+    def resuming(self, resume: bool) -> RunPlan:
+        """The same run, continued from its checkpoint (``resume``) or started afresh."""
+        return dataclasses.replace(
+            self,
+            config=dataclasses.replace(self.config, resume=resume),
+            replicas=tuple(
+                dataclasses.replace(r, config=dataclasses.replace(r.config, resume=resume)) for r in self.replicas
+            ),
+        )
+
+
+def plan_run(config: TrainConfig, *, source_task: bool = False) -> RunPlan:
+    """Validate ``config`` and plan it, with the runs its transfer source comes from: none when
+    resuming (the run has its agents already), without transfer or with ``transfer.source`` given; the
+    curriculum's stages; else the source's pretraining. ``source_task``: the run trains the
+    single-agent source task of its map."""
+    plan = _plan(config, source_task)
+    if source_task or config.resume or not config.transfer.enabled:
+        return plan
+    if config.curriculum.stages:
+        chain = tuple(_stage_plan(config, n) for n in range(len(config.curriculum.stages)))
+    elif config.transfer.source is None:
+        task = SourceTask(config.transfer.source_task)
+        chain = (_plan(source_config(config), source_task=task is SourceTask.single),)
+    else:
+        chain = ()
+    return dataclasses.replace(plan, chain=chain)
+
+
+def _plan(config: TrainConfig, source_task: bool) -> RunPlan:
+    validate(config)
+    replicas = []
+    for replica in replica_configs(config):
+        try:
+            grid_map = make_game(**dataclasses.asdict(replica.env)).map
+        except (ValueError, OSError) as err:
+            raise ConfigError(f"env: {err}") from err
+        replicas.append(ReplicaPlan(replica, grid_map, replica_name(replica, config), source_task))
+    num_agents = replicas[0].new_game().num_agents
+    transferred = config.transfer.enabled and not source_task
+    targets = tuple(transfer_targets(config, num_agents)) if transferred else ()
+    return RunPlan(config, tuple(replicas), num_agents, targets, source_task)
+
+
+def replica_name(replica: TrainConfig, config: TrainConfig) -> str:
+    """``seed_<s>``, and ``-map_<m>`` when the batch varies the map too."""
+    return f"seed_{replica.seed}" + (f"-map_{replica.env.map_seed}" if config.replicas.maps > 1 else "")
+
+
+# ------------------------------------------------------------------------------ the runs before a run
+
+
+def source_map(config: TrainConfig) -> TrainConfig:
+    """``config`` on the map its source is pretrained on: ``env.map_seed`` moved by
+    ``transfer.source_map_shift`` (``config`` itself for no shift). For a batch of replicas, each
+    replica's map seed moves by the shift."""
+    shift = config.transfer.source_map_shift
+    if shift == 0:
+        return config
+    return dataclasses.replace(config, env=dataclasses.replace(config.env, map_seed=config.env.map_seed + shift))
+
+
+def source_config(config: TrainConfig) -> TrainConfig:
+    """The config of the source pretraining run: the same learner and seed, on the source's map
+    (:func:`source_map`), with no transfer. ``transfer.source_task`` says which game of it is played
+    (the plan's ``source_task``): TreasureHunt-v0, or the run's own team game."""
+    pretrain_steps = config.transfer.pretrain_steps
+    return dataclasses.replace(
+        source_map(config),
+        transfer=TransferConfig(),
+        total_steps=pretrain_steps,
+        eval_every=max(1, pretrain_steps // 10),
+        checkpoint_every=max(1, pretrain_steps // 4),
+        resume=False,
+    )
+
+
+def stage_config(config: TrainConfig, n: int) -> TrainConfig:
+    """Curriculum stage ``n``'s config: ``config`` with the stage's env and steps, warm-started from stage
+    ``n - 1``. Works for a lone run and for a batch of replicas."""
+    stage = config.curriculum.stages[n]
+    try:
+        env = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(config.env), dict(stage.env)))
+    except OmegaConfBaseException as err:
+        raise ConfigError(f"curriculum.stages[{n}].env: {str(err).splitlines()[0]}") from None
+    transfer = (
+        TransferConfig()
+        if n == 0
+        else dataclasses.replace(
+            config.transfer,
+            enabled=True,
+            source=None,
+            targets=None,
+            source_agent=stage.source_agent,
+            offset=list(stage.offset),
+        )
+    )
+    return dataclasses.replace(
+        config,
+        env=env,  # type: ignore[arg-type]
+        total_steps=stage.steps,
+        transfer=transfer,
+        curriculum=CurriculumConfig(),
+        resume=False,
+    )
+
+
+def _stage_plan(config: TrainConfig, n: int) -> RunPlan:
+    staged = stage_config(config, n)
+    try:
+        return _plan(staged, source_task=False)
+    except ConfigError as err:
+        raise ConfigError(
+            f"curriculum.stages[{n}] ({describe_stage(config.curriculum.stages[n].env)}): {err}"
+        ) from None
+
+
+def describe_stage(env: dict) -> str:
+    """A stage's env changes in one short phrase (a layout by its side alone: it fixes the map's counts)."""
+    if env.get("layout"):
+        side = len(str(env["layout"]).splitlines())
+        return f"{side}x{side} layout"
+    return ", ".join(f"{key}={value}" for key, value in env.items()) or "the run's env"

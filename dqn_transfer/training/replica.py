@@ -1,0 +1,293 @@
+"""One replica of a run: its games, counters, episode in progress, exchange window and logs.
+
+A run batches R independent replicas (``replicas.seeds`` x ``replicas.maps``; one for a lone run), each
+a complete run of its own in its own run directory, stepped in lockstep by the loop
+(:mod:`dqn_transfer.training.trainer`) with one batched learner, of which ``Replica.learner`` is the
+team's view. Here is everything a replica keeps between two steps and what it writes: the episode's
+running sums and their TensorBoard points, knowledge exchange inside the team, and its evaluations
+(``metrics.jsonl``).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+import warnings
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dqn_transfer.agents import Learner, Transition, UpdateStats, linear_schedule
+from dqn_transfer.config import TrainConfig, to_plain
+from dqn_transfer.enums import Exchange
+from dqn_transfer.envs import TreasureHuntGame
+from dqn_transfer.evaluation.rollout import evaluate, team_return_of
+from dqn_transfer.evaluation.watch import evaluation_views
+from dqn_transfer.storage.run_dir import RunDir
+from dqn_transfer.training.tensorboard import RunLogger
+from dqn_transfer.transfer.exchange import exchange_best, exchange_replay
+
+log = logging.getLogger("dqn_transfer.train")
+
+
+def exploration_steps(config: TrainConfig) -> int:
+    return max(1, int(config.agent.exploration_fraction * config.total_steps))
+
+
+def epsilons_at(config: TrainConfig, step: int, transferred: np.ndarray, duration: int) -> np.ndarray:
+    """Per-agent exploration rate: linear decay over ``duration`` steps, from ``transfer.epsilon_start``
+    for transferred agents."""
+    return np.array(
+        [
+            linear_schedule(
+                config.transfer.epsilon_start if is_transferred else config.agent.eps_start,
+                config.agent.eps_end,
+                duration,
+                step,
+            )
+            for is_transferred in transferred
+        ]
+    )
+
+
+@dataclass
+class Counters:
+    """What the loop needs, beyond the learner, to continue exactly where it stopped."""
+
+    step: int = 0
+    episodes: int = 0
+    evaluations: int = 0
+    next_checkpoint: int = 0
+    exploration_steps: int = 1  # epsilon's decay horizon, fixed when the run starts (resume may extend total_steps)
+    env_rng_state: dict = field(default_factory=dict)
+
+
+class EpisodeStats:
+    """Running sums of the episode in progress, and the recent team returns the progress bar shows."""
+
+    def __init__(self, num_agents: int):
+        self.returns = np.zeros(num_agents)
+        self.lengths = np.zeros(num_agents, dtype=np.int64)
+        self.traps = 0
+        self.team_return = 0.0
+        self.recent_team_returns: deque[float] = deque(maxlen=20)
+
+    def add(self, transition: Transition, traps: np.ndarray, reward_mode) -> None:
+        self.returns += transition.rewards
+        self.lengths += transition.live
+        self.traps += int(traps.sum())
+        self.team_return += team_return_of(transition.rewards[transition.live], reward_mode)
+
+    def reset(self) -> None:
+        self.recent_team_returns.append(self.team_return)
+        self.returns[:] = 0.0
+        self.lengths[:] = 0
+        self.traps = 0
+        self.team_return = 0.0
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "returns": self.returns.tolist(),
+            "lengths": self.lengths.tolist(),
+            "traps": self.traps,
+            "team_return": self.team_return,
+            "recent_team_returns": list(self.recent_team_returns),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.returns[:] = state["returns"]
+        self.lengths[:] = state["lengths"]
+        self.traps, self.team_return = int(state["traps"]), float(state["team_return"])
+        self.recent_team_returns.extend(state["recent_team_returns"])
+
+
+class Replica:
+    """One independent run of the batch: its config (own seed and map), run directory, games,
+    counters, episode in progress, exchange window and logs. ``learner`` is its team's view of the
+    batched learner; ``source`` the checkpoint(s) its transfer targets start from."""
+
+    def __init__(
+        self,
+        index: int,
+        config: TrainConfig,
+        run_dir: Path,
+        game: TreasureHuntGame,
+        learner: Learner,
+        source: Path | Sequence[Path] | None,
+    ) -> None:
+        self.index, self.config, self.run_dir = index, config, RunDir(run_dir)
+        self.game, self.eval_game, self.learner, self.source = game, game.replica(), learner, source
+        k = game.num_agents
+        self.rows = slice(index * k, (index + 1) * k)
+        self.counters = Counters(next_checkpoint=config.checkpoint_every, exploration_steps=exploration_steps(config))
+        self.transfer_info: dict[str, Any] | None = None
+        self.last_eval: dict[str, float] = {}
+        self.last_eval_step: int | None = None  # step of the last line in metrics.jsonl
+        # Team knowledge exchange window (saved with checkpoints, so a resumed run exchanges the same):
+        self.window_returns: list[np.ndarray] = []  # per-agent episodic returns since the last exchange
+        self.shared_transitions: list[Transition] = []  # shared_replay: the window's transitions
+        self.episode = EpisodeStats(k)
+        self.window: list[UpdateStats] = []  # update statistics since the last training-curve point
+        self.env_rng = np.random.default_rng([config.seed, 17])
+        self.obs: np.ndarray | None = None
+        self.episode_state: dict[str, Any] | None = None  # a mid-episode checkpoint's game, until the loop starts
+        self._logger: RunLogger | None = None
+        self.plain_config = to_plain(config)  # as JSON data, for logs and checkpoint meta (a config never changes)
+
+    @property
+    def observation(self) -> np.ndarray:
+        """The observation the loop acts on (the episode has started)."""
+        if self.obs is None:
+            raise RuntimeError("the replica's episode has not started")
+        return self.obs
+
+    @property
+    def transferred(self) -> np.ndarray:
+        """Which agents started from the transfer source."""
+        flags = np.zeros(self.game.num_agents, dtype=bool)
+        if self.transfer_info is not None:
+            flags[self.transfer_info["targets"]] = True
+        return flags
+
+    def epsilon(self, step: int) -> np.ndarray:
+        return epsilons_at(self.config, step, self.transferred, self.counters.exploration_steps)
+
+    # ------------------------------------------------------------------ logs
+    def open_logs(self, resume: bool) -> None:
+        """Start the TensorBoard writer; everything logged at a resumed checkpoint's step came before
+        it, so only what came after is purged."""
+        self._logger = RunLogger(
+            self.run_dir.tensorboard,
+            self.game.num_agents,
+            self.plain_config,
+            purge_step=self.counters.step + 1 if resume else None,
+        )
+
+    def close_logs(self) -> None:
+        if self._logger is not None:
+            self._logger.close()
+
+    @property
+    def logger(self) -> RunLogger:
+        if self._logger is None:
+            raise RuntimeError("the replica's logs are not open")
+        return self._logger
+
+    # ------------------------------------------------------------------ episodes
+    def start_episodes(self) -> None:
+        """The episode the loop continues: a checkpoint's, or a fresh one."""
+        if self.counters.env_rng_state:  # resumed: continue the episode-reset stream where it stopped
+            self.env_rng.bit_generator.state = self.counters.env_rng_state
+        if self.episode_state is not None:
+            self.obs = self.game.load_state_dict(self.episode_state["game"], self.env_rng)
+            self.episode.load_state_dict(self.episode_state["stats"])
+        else:
+            self.obs = self.game.reset(self.env_rng)
+
+    def record_step(
+        self, step: int, transition: Transition, stats: UpdateStats, trap: np.ndarray, shared_replay: bool
+    ) -> None:
+        """Count the replica's part of a joint step; at its episode's end, log it, exchange knowledge
+        when due and start the next episode."""
+        self.counters.step = step
+        self.window.append(stats)
+        if shared_replay:
+            self.shared_transitions.append(transition)
+        self.episode.add(transition, trap, self.game.reward_mode)
+        self.obs = transition.next_obs
+        if self.game.done:
+            self._end_episode()
+            self.obs = self.game.reset(self.env_rng)
+
+    def _end_episode(self) -> None:
+        """Log the finished episode and exchange knowledge when due (before the reset)."""
+        counters, transfer = self.counters, self.config.transfer
+        counters.episodes += 1
+        self._log_episode()
+        self.window_returns.append(self.episode.returns.copy())
+        self.episode.reset()
+        if transfer.exchange is not Exchange.none and counters.episodes % transfer.exchange_every == 0:
+            self._exchange()
+
+    def _log_episode(self) -> None:
+        logger, episode, step, game = self.logger, self.episode, self.counters.step, self.game
+        logger.agent_scalars("episodic_return", episode.returns, step)
+        logger.agent_scalars("episodic_length", episode.lengths, step)
+        logger.scalar("team/return", episode.team_return, step)
+        logger.scalar("team/treasures_collected", game.treasures_collected, step)
+        logger.scalar("team/trap_rate", episode.traps / game.num_agents, step)
+
+    def _exchange(self) -> None:
+        transfer = self.config.transfer
+        if transfer.exchange is Exchange.best:
+            best = exchange_best(self.learner, np.asarray(self.window_returns), transfer.exchange_tau)
+            self.logger.scalar("team/exchange_best_agent", best, self.counters.step)
+        else:
+            exchange_replay(self.learner, self.shared_transitions)
+            self.shared_transitions.clear()
+        self.window_returns.clear()
+
+    def log_training(self, sps: float) -> None:
+        """A training-curve point: the window's mean losses and Q-values, epsilon and speed."""
+        logger, window, step = self.logger, self.window, self.counters.step
+        with warnings.catch_warnings():  # all-NaN columns (no update yet) are expected and skipped
+            warnings.simplefilter("ignore", RuntimeWarning)
+            if window:
+                logger.agent_scalars(
+                    "td_loss", np.nanmean(np.asarray([s.td_loss for s in window], dtype=float), axis=0), step
+                )
+                logger.agent_scalars(
+                    "q_mean", np.nanmean(np.asarray([s.q_mean for s in window], dtype=float), axis=0), step
+                )
+        logger.scalar("train/epsilon", float(self.epsilon(step).mean()), step)
+        logger.scalar("train/sps", sps, step)
+        self.window = []
+
+    # ------------------------------------------------------------------ evaluation
+    def evaluate(self, named: bool) -> None:
+        """Greedy evaluation on separately seeded episodes -> ``metrics.jsonl`` and TensorBoard, with a
+        picture of its first episode and the agents' Q-values there (``named``: the log line names the
+        replica)."""
+        step = self.counters.step
+        picture, q_values, first = evaluation_views(
+            self.learner, self.eval_game, self.config.seed, self.counters.evaluations
+        )
+        result = evaluate(
+            self.learner,
+            self.eval_game,
+            self.config.eval_episodes,
+            self.config.seed,
+            self.counters.evaluations,
+            first=first,
+        )
+        self.counters.evaluations += 1
+        self.last_eval = result
+        self.last_eval_step = step
+        record: dict[str, Any] = {
+            "step": step,
+            **result,
+            "episodes": self.counters.episodes,
+            "epsilon": float(self.epsilon(step).mean()),
+            "wall_time": time.time(),
+        }
+        if step == 0 and self.transfer_info is not None:
+            record["transfer_source"] = self.transfer_info
+        with self.run_dir.metrics.open("a") as stream:
+            stream.write(json.dumps(record) + "\n")
+        self.logger.scalar("eval/team_return", result["team_return"], step)
+        self.logger.scalar("eval/success_rate", result["success_rate"], step)
+        self.logger.scalar("eval/trap_rate", result["trap_rate"], step)
+        self.logger.evaluation_views(picture, q_values, step)
+        log.info(
+            "eval step %d%s: team_return %.1f success_rate %.2f trap_rate %.2f",
+            step,
+            f" {self.run_dir.path.name}" if named else "",
+            result["team_return"],
+            result["success_rate"],
+            result["trap_rate"],
+        )
