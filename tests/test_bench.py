@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import statistics
 import sys
 
 import gymnasium
@@ -129,12 +130,10 @@ def test_bench_learner_differs_from_the_cli_learner_only_in_the_overridden_keys(
 
 
 # ----------------------------------------------------------------------------- summarising repeats
-def test_median_and_paired_ratio():
-    assert suite.median([3.0, 1.0, 2.0]) == 2.0
-    assert suite.median([4.0, 1.0]) == 2.5
+def test_a_ratio_is_the_median_of_the_per_repeat_ratios():
     ours, reference = [2.0, 9.0, 4.0], [1.0, 3.0, 1.0]  # per-repeat ratios 2, 3, 4
     assert suite.paired_ratio(ours, reference) == 3.0
-    assert suite.median(ours) / suite.median(reference) == 4.0  # what a ratio of medians would say
+    assert statistics.median(ours) / statistics.median(reference) == 4.0  # what a ratio of medians would say
     assert suite.alternate(("ours", "sb3"), 0) == ("ours", "sb3")
     assert suite.alternate(("ours", "sb3"), 1) == ("sb3", "ours")
 

@@ -570,8 +570,9 @@ def test_a_launcher_not_installed_is_one_error_before_anything_runs(
     assert captured.out == "" and no_sweeps == [] and not (tmp_path / "out").exists()
 
 
-def test_hydras_basic_launcher_is_always_installed():
-    assert "basic" in installed_launchers()
+def test_the_launchers_of_installed_plugins_are_found():
+    # The dev extra installs Hydra's submitit plugin: its launchers must be offered beside the basic one.
+    assert {"basic", "submitit_local", "submitit_slurm"} <= set(installed_launchers())
 
 
 def _compose(*overrides: str, hydra: bool = False):

@@ -48,7 +48,7 @@ class FlatAdam(AdamState):
         self.lr, (self.beta1, self.beta2), self.eps = lr, betas, eps
         # Views of the stretches of the last step, reused while the same tensors step together at the
         # same step counts relative to each other (what decides how they merge).
-        self._stretches: list[tuple[int, tuple[torch.Tensor, ...]]] = []
+        self._stretches: list[tuple[int, tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]]] = []
         self._stretches_key: tuple[tuple[int, int], ...] | None = None
 
     @torch.no_grad()

@@ -13,11 +13,8 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")  # files only: works on clusters and in CI without a display
-import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.figure import Figure  # no pyplot: no display needed, no global backend set on import
 
 from dqn_transfer.analysis.runs import learning_curve, load_config, steps_before
 from dqn_transfer.analysis.stats import Estimate, curve_band, performance_profile
@@ -153,7 +150,6 @@ def _save(fig, path: Path, dpi: int, watermark: str | None = None) -> Path:
         )
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=dpi, metadata={"Software": None})  # no version stamp: regenerated files stay identical
-    plt.close(fig)
     return path
 
 
@@ -170,7 +166,8 @@ def plot_groups(
     source's pretraining, a curriculum's stages), marked by a dotted line, so conditions compare at
     equal total budgets."""
     rng = np.random.default_rng(seed)
-    fig, ax = plt.subplots(figsize=(7.5, 4.5), constrained_layout=True)
+    fig = Figure(figsize=(7.5, 4.5), constrained_layout=True)
+    ax = fig.subplots()
     offsets = {d: steps_before(d) if total_steps else 0 for dirs in groups.values() for d in dirs}
     curves = {label: [_shifted(learning_curve(d, metric), offsets[d]) for d in dirs] for label, dirs in groups.items()}
     xlabel = "environment steps, counting those spent before each run" if total_steps else "environment steps"
@@ -205,7 +202,8 @@ def _grid(panels: int, width: float, height: float):
     """Figure and axes for ``panels`` panels, at most 3 a row (4 as 2 x 2)."""
     cols = 2 if panels == 4 else min(panels, 3)
     rows = -(-panels // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(width * cols, height * rows), constrained_layout=True, squeeze=False)
+    fig = Figure(figsize=(width * cols, height * rows), constrained_layout=True)
+    axes = fig.subplots(rows, cols, squeeze=False)
     for ax in axes.flat[panels:]:
         ax.set_visible(False)
     return fig, axes.flat

@@ -32,6 +32,7 @@ import gymnasium
 import numpy as np
 import torch
 import torch.nn.functional as F
+from gymnasium.spaces import flatdim
 from torch import nn
 
 from dqn_transfer.benchmark.config import BENCH_MAP, LONE_AGENT, LONE_MAP, sb3_dqn
@@ -78,7 +79,7 @@ def bare(steps: int, seed: int, agent: AgentConfig, env_kwargs: dict[str, Any]) 
     rng = np.random.default_rng(seed)
 
     env = gymnasium.make("TreasureHunt-v0", **env_kwargs)
-    obs_dim, num_actions = env.observation_space.shape[0], int(env.action_space.n)
+    obs_dim, num_actions = flatdim(env.observation_space), flatdim(env.action_space)  # a Box [D], Discrete(4)
 
     # Q-network: Linear/ReLU MLP; the target network starts as a copy.
     sizes = [obs_dim, *agent.hidden, num_actions]

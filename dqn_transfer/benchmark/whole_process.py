@@ -174,9 +174,10 @@ def run_together(commands: Sequence[Sequence[str]]) -> dict[str, Any]:
                     if reaped[i] is None and not waiters:
                         os.wait4(child.pid, 0)
                     child.returncode = -9
+        finished = [r for r in reaped if r is not None]  # all of them: the finally above raised otherwise
         processes = []
         for i, (command, child, start) in enumerate(zip(commands, children, starts)):
-            end, status, usage = reaped[i]
+            end, status, usage = finished[i]
             child.returncode = os.waitstatus_to_exitcode(status)  # reaped here, not by Popen
             if child.returncode != 0:
                 tail = "\n".join(logs[i][1].read_text(errors="replace").strip().splitlines()[-15:])
@@ -190,7 +191,7 @@ def run_together(commands: Sequence[Sequence[str]]) -> dict[str, Any]:
                 }
             )
     return {
-        "seconds": max(r[0] for r in reaped) - min(starts),
+        "seconds": max(r[0] for r in finished) - min(starts),
         "cpu_seconds": sum(p["cpu_seconds"] for p in processes),
         "processes": processes,
     }

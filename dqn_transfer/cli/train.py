@@ -287,8 +287,6 @@ def leave_nothing_behind(claim: RunClaim | None) -> None:
 
 # ------------------------------------------------------------------------------------ the app
 
-register_configs()
-
 
 @hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="config")
 def app(cfg: DictConfig) -> float:
@@ -359,6 +357,7 @@ def main() -> None:
         check_overrides(sys.argv[1:])
     except ConfigError as err:
         _exit_with(err)
+    register_configs()  # the schemas conf/config.yaml's defaults list names
     app()
 
 
