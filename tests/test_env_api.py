@@ -212,3 +212,26 @@ def test_human_mode_prints_the_text_frame_at_reset_and_every_step(capsys):
     single.step(3)
     single.step(3)  # into the chest: the agent is done, the chest emptied
     assert capsys.readouterr().out.split("\n\n")[2] == "..t\n...\nX..\nstep 2/9  live agents: []  full chests: 0/1"
+
+
+def test_plain_id_is_not_a_one_step_task():
+    """``gymnasium.make("TreasureHunt-v0")`` with no arguments: no single action from the start reaches
+    a chest (map seed 0 started the agent beside one, so every library "solved" it at step 0), and the
+    optimal return takes several moves."""
+    env = gymnasium.make("TreasureHunt-v0")
+    grid = env.unwrapped.game.map
+    start = grid.starts[0]
+    distances = grid.distances_from(start)
+    nearest = min(int(distances[chest]) for chest in grid.chests if distances[chest] >= 0)
+    assert nearest >= 3, f"the nearest chest is {nearest} move(s) from the start"
+    for action in range(env.action_space.n):
+        env.reset(seed=0)
+        _, reward, terminated, _, _ = env.step(action)
+        assert not (terminated and reward > 0), f"action {action} reaches a chest in one step"
+    # A layout or a map seed given by the caller is played as given, with no warning.
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert gymnasium.make("TreasureHunt-v0", map_seed=0).unwrapped.game.map.starts[0] == (
+            make_game(map_seed=0).map.starts[0]
+        )
+        gymnasium.make("TreasureHunt-v0", layout="0.T\n...\n..X")

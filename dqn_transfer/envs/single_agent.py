@@ -4,6 +4,11 @@ The source task of transfer: agent 0 alone on the same map (its start, every che
 observing ``position`` [+ ``view``]; terminated on a chest or a trap, truncated at ``max_steps``.
 It accepts the same keyword arguments as the multi-agent faces so one env config serves both;
 ``mode`` and ``reward_mode`` are validated but make no difference to a lone agent.
+
+With no map given (no ``map_seed``, ``layout`` or ``layout_file``) the map is the generated one of
+map seed :data:`DEFAULT_MAP_SEED`, the trainer's ``env=simple`` map: map seed 0 starts the agent
+beside its chest, a one-step task on which any library "solves" ``gymnasium.make("TreasureHunt-v0")``
+at step 0.
 """
 
 from __future__ import annotations
@@ -15,10 +20,17 @@ from gymnasium import spaces
 from dqn_transfer.envs.game import make_game
 
 
+# The map seed of TreasureHunt-v0 when no map is given (conf/env/simple.yaml's): the nearest chest is
+# several moves from the start, so a one-step policy cannot reach it.
+DEFAULT_MAP_SEED = 6
+
+
 class TreasureHuntEnv(gymnasium.Env):
     metadata = {"render_modes": ["ansi", "rgb_array", "human"], "render_fps": 4}
 
     def __init__(self, render_mode: str | None = None, **env_kwargs) -> None:
+        if all(env_kwargs.get(key) is None for key in ("map_seed", "layout", "layout_file")):
+            env_kwargs["map_seed"] = DEFAULT_MAP_SEED
         self.game = make_game(render_mode=render_mode, **env_kwargs).single_agent_game()
         self.render_mode = render_mode
         self.observation_space = spaces.Box(0.0, 1.0, shape=(self.game.obs_dim,), dtype=np.float32)
