@@ -231,7 +231,8 @@ def test_plain_id_is_not_a_one_step_task():
     # A layout or a map seed given by the caller is played as given, with no warning.
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        assert gymnasium.make("TreasureHunt-v0", map_seed=0).unwrapped.game.map.starts[0] == (
-            make_game(map_seed=0).map.starts[0]
+        assert (
+            gymnasium.make("TreasureHunt-v0", map_seed=0).unwrapped.game.map.starts[0]
+            == (make_game(map_seed=0).map.starts[0])
         )
         gymnasium.make("TreasureHunt-v0", layout="0.T\n...\n..X")

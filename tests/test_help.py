@@ -13,7 +13,7 @@ import pytest
 from conftest import TRAIN_PY, train_env
 
 from dqn_transfer.config import TrainConfig
-from dqn_transfer.config.help import help_text
+from dqn_transfer.config.help import first_sentence, help_text
 from dqn_transfer.documented import describe, documented
 
 
@@ -115,3 +115,19 @@ def test_train_py_and_the_console_script_print_it_without_running(tmp_path):
         )
         assert "== Config ==" not in proc.stdout  # not Hydra's generic page
     assert list(tmp_path.iterdir()) == []  # no run started, no outputs/
+
+
+def test_an_option_summary_is_its_whole_first_sentence():
+    """An abbreviation's period ("et al.") does not end the sentence (the menu once read ``double_dqn
+    Double DQN (van Hasselt et al``); a sentence running onto the next comment line is shown whole."""
+    menu = help_text("python train.py")
+    assert re.search(
+        r"^   \*double_dqn\s+Double DQN \(van Hasselt et al\. 2016\): the online net picks argmax a', "
+        r"the target net values it$",
+        menu,
+        re.M,
+    )
+    assert re.search(r"^    dqn\s+DQN \(Mnih et al\. 2015\): MLP Q-network, .*, Adam$", menu, re.M)
+    assert re.search(r"^    curriculum\s+Claim 3's curriculum question .* env steps\?$", menu, re.M)
+    assert first_sentence("Warm start (e.g. Optuna). Then more.") == "Warm start (e.g. Optuna)"
+    assert first_sentence("One sentence\nover two lines.") == "One sentence\nover two lines"

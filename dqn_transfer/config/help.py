@@ -8,6 +8,7 @@ the one ``dqn_transfer/conf/config.yaml`` picks), the keys from the schema datac
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import yaml
@@ -35,17 +36,41 @@ def default_options(config_dir: Path = CONFIG_DIR) -> dict[str, str | None]:
     return {group: option for entry in defaults if isinstance(entry, dict) for group, option in entry.items()}
 
 
+# Words whose period does not end a sentence ("van Hasselt et al. 2016", "e.g. Optuna").
+ABBREVIATIONS = ("al", "e.g", "i.e", "etc", "cf", "vs", "approx", "Fig", "Eq")
+# A period, question or exclamation mark that may end a sentence: followed by a space and what may start one.
+SENTENCE_END = re.compile(r"[.?!](?=\s+[A-Z`\"'(\[])")
+
+
+def first_sentence(text: str) -> str:
+    """``text``'s first sentence, without its final period: it ends at a period (or ``?``, ``!``) followed
+    by a space and a capital (or a quote, a bracket), except after an abbreviation such as "et al."."""
+    for match in SENTENCE_END.finditer(text):
+        if match.group() != ".":
+            return text[: match.end()]
+        word = text[: match.start()].rsplit(None, 1)[-1].lstrip("(")
+        if word not in ABBREVIATIONS:
+            return text[: match.start()]
+    return text.rstrip().removesuffix(".")
+
+
 def option_summary(path: Path) -> str:
-    """The first sentence of an option file's first comment line (what it is), without Hydra's
-    ``@package`` header."""
+    """The first sentence of an option file's leading comment (what it is, possibly over several
+    lines), without Hydra's ``@package`` header."""
+    comment: list[str] = []
     for line in path.read_text().splitlines():
         text = line.strip()
         if not text.startswith("#"):
             break
         text = text.lstrip("#").strip()
-        if text and not text.startswith("@package"):
-            return text.split(". ")[0]  # its first sentence
-    return ""
+        if text.startswith("@package"):
+            continue
+        if not text:
+            if comment:
+                break
+            continue
+        comment.append(text)
+    return first_sentence(" ".join(comment))
 
 
 def help_text(program: str, config_dir: Path = CONFIG_DIR) -> str:

@@ -19,7 +19,6 @@ from gymnasium import spaces
 
 from dqn_transfer.envs.game import make_game
 
-
 # The map seed of TreasureHunt-v0 when no map is given (conf/env/simple.yaml's): the nearest chest is
 # several moves from the start, so a one-step policy cannot reach it.
 DEFAULT_MAP_SEED = 6
