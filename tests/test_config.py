@@ -155,3 +155,27 @@ def test_the_command_line_and_the_python_api_build_the_same_learner(option, algo
     for i in range(2):  # and the same seed gives the same starting weights or tables
         ta, tb = a.agent_tensors(i), b.agent_tensors(i)
         assert ta.keys() == tb.keys() and all(np.array_equal(ta[k], tb[k]) for k in ta), i
+
+
+LAYOUT_5X5 = "0...T\n.....\n..X..\n.....\n1...T"
+
+
+@pytest.mark.parametrize("group", ["env=simple", "env=complex", "env=study/m4"])
+def test_a_layout_warns_only_about_generation_keys_the_user_set(tmp_path, group):
+    """The documented warm start (``env.layout_file=shared/team/map.txt``) once warned ``ignoring
+    generation parameters: map_seed=6``: env=simple's own map seed, which nobody set. Only a key the
+    user set (one that differs from the env option's) is named."""
+    import warnings
+
+    from dqn_transfer.training.plan import plan_run
+
+    (tmp_path / "map.txt").write_text(LAYOUT_5X5)
+    layout = f"env.layout_file={tmp_path / 'map.txt'}"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        plan = plan_run(compose_config(group, layout))
+    assert plan.replicas[0].grid_map.size == 5
+    with pytest.warns(UserWarning, match="a layout fixes the map") as caught:
+        plan_run(compose_config(group, layout, "env.size=9", "env.map_seed=3"))
+    [message] = [str(w.message) for w in caught]
+    assert message.endswith("size=9 (layout: 5), map_seed=3 (a layout is not generated)"), message

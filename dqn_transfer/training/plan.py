@@ -10,12 +10,16 @@ also holds the runs its transfer source comes from (its *chain*): the pretrainin
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass
+from typing import Any
 
+import yaml
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from dqn_transfer.config import (
+    CONFIG_DIR,
     ConfigError,
     CurriculumConfig,
     TrainConfig,
@@ -26,6 +30,7 @@ from dqn_transfer.config import (
 from dqn_transfer.enums import SourceTask
 from dqn_transfer.envs import GridMap, TreasureHuntGame, make_game
 from dqn_transfer.envs.game import game_on
+from dqn_transfer.envs.settings import DEFAULTS, MAP_KEYS, EnvConfig
 from dqn_transfer.transfer.warm_start import transfer_targets
 
 
@@ -97,7 +102,7 @@ def _plan(config: TrainConfig, source_task: bool) -> RunPlan:
     replicas = []
     for replica in replica_configs(config):
         try:
-            grid_map = make_game(**dataclasses.asdict(replica.env)).map
+            grid_map = make_game(**given_env(replica.env)).map
         except (ValueError, OSError) as err:
             raise ConfigError(f"env: {err}") from err
         replicas.append(ReplicaPlan(replica, grid_map, replica_name(replica, config), source_task))
@@ -105,6 +110,35 @@ def _plan(config: TrainConfig, source_task: bool) -> RunPlan:
     transferred = config.transfer.enabled and not source_task
     targets = tuple(transfer_targets(config, num_agents)) if transferred else ()
     return RunPlan(config, tuple(replicas), num_agents, targets, source_task)
+
+
+# The keys that generate a map, which a layout makes pointless.
+GENERATION_KEYS = tuple(key for key in MAP_KEYS if key not in ("layout", "layout_file"))
+
+
+@functools.cache
+def env_option_values() -> tuple[dict[str, Any], ...]:
+    """The generation keys each ``env`` option (``dqn_transfer/conf/env/**.yaml``) gives a run, and the
+    schema's defaults: the values a run has when its user set none of these keys."""
+    options = [{key: getattr(DEFAULTS, key) for key in GENERATION_KEYS}]
+    for path in sorted((CONFIG_DIR / "env").rglob("*.yaml")):
+        values = yaml.safe_load(path.read_text()) or {}
+        options.append({**options[0], **{key: values[key] for key in GENERATION_KEYS if key in values}})
+    return tuple(options)
+
+
+def given_env(env: EnvConfig) -> dict[str, Any]:
+    """``env`` as ``make_game`` keys, with a layout's generation keys that the user did not set left out
+    (None: not given), so that the "a layout fixes the map" warning names only the user's own. "Not set"
+    is "as the env option nearest to ``env`` (or the schema default) has it": ``env=simple
+    env.layout_file=map.txt`` warns about nothing, although env=simple's ``map_seed`` is 6. Without a
+    layout, every key."""
+    settings = dataclasses.asdict(env)
+    if env.layout is None and env.layout_file is None:
+        return settings
+    differing = lambda option: sum(settings[key] != option[key] for key in GENERATION_KEYS)  # noqa: E731
+    nearest = min(env_option_values(), key=differing)
+    return {**settings, **{key: None for key in GENERATION_KEYS if settings[key] == nearest[key]}}
 
 
 def replica_name(replica: TrainConfig, config: TrainConfig) -> str:
