@@ -196,3 +196,15 @@ def always_acting_team(run_dir: Path, action: int = RIGHT, layout: str = ALWAYS_
             file, tensors, {k: v for k, v in meta.items() if k not in ("format_version", "kind", "digest")}
         )
     return run_dir
+
+
+def assert_named_paths_exist(output: str, root: Path) -> list[Path]:
+    """Every path under ``root`` a run's output names exists after the run (no temp or ``.partial``
+    directory renamed away meanwhile); returns them."""
+    import re
+
+    named = sorted({Path(p) for p in re.findall(rf"{re.escape(str(root))}[^\s;,`'\"]*", output)})
+    assert named, output
+    gone = [str(p) for p in named if not p.exists()]
+    assert not gone, f"the output names paths that do not exist: {gone}"
+    return named

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import agent_meta, read_metrics, run_train, start_train, without_timing
+from conftest import agent_meta, assert_named_paths_exist, read_metrics, run_train, start_train, without_timing
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 from safetensors.numpy import load_file
@@ -243,3 +243,18 @@ def test_a_curriculum_killed_between_stages_or_stopped_in_one_resumes_to_the_sam
         p.name for p in (reference_work / "outputs" / "curriculum").iterdir() if not p.name.startswith(".")
     )
     assert not [p for p in cache.iterdir() if ".partial" in p.name or ".tmp" in p.name]
+
+
+@pytest.mark.slow
+def test_a_curriculums_lines_name_existing_paths_and_tag_its_stages(straight_through):
+    """Stages were logged in their ``.partial`` work directories, renamed away after; and a stage's
+    evaluations looked like the run's own."""
+    result, work = straight_through
+    named = assert_named_paths_exist(result.output, work)
+    assert not [p for p in named if ".partial" in str(p) or ".tmp" in str(p)]
+    lines = result.output.splitlines()
+    for n in (1, 2):
+        tagged = [line for line in lines if f"[curriculum stage {n}/3]" in line]
+        assert any("eval step 0:" in line for line in tagged) and any("done:" in line for line in tagged)
+    own = [line for line in lines if "eval step" in line and "[curriculum stage" not in line]
+    assert len(own) == 4  # the run's own: steps 0, 500, 1000, 1500

@@ -201,3 +201,28 @@ def test_the_cards_command_names_every_rule_that_differs_from_the_default(tmp_pa
         "env.view_radius=1",
         "agent.hidden=[8,8]",
     ]
+
+
+def test_the_card_says_where_a_warm_started_teams_agents_started(run, exported, tmp_path):
+    """A team that was itself warm-started (here from ``run``) says so, with its source and steps; a
+    team trained from scratch says that."""
+    scratch = (exported / "README.md").read_text()
+    assert front_matter(scratch)["warm_started_from"] is None and "From scratch" in scratch
+    agent = AgentConfig(algorithm="dqn", hidden=[16], learning_starts=50)
+    config = TrainConfig(
+        env=ENV,
+        agent=agent,
+        total_steps=0,
+        progress=False,
+        transfer=TransferConfig(enabled=True, source=str(run)),
+    )
+    plan = plan_run(config)
+    train(plan, tmp_path / "warm", sources=transfer_sources(plan, tmp_path))
+    out = tmp_path / "team"
+    assert ckpt(["export", str(tmp_path / "warm"), str(out)]) == 0
+    card = (out / "README.md").read_text()
+    [start] = front_matter(card)["warm_started_from"]
+    assert start["source"] == str((run / "checkpoints" / "agent_0.safetensors").resolve())
+    assert start["source_steps"] == 200 and start["pretrained_source"] is False
+    section = card[card.index("## Where its agents started") :]
+    assert f"1. `{start['source']}` (200 steps" in section and "From scratch" not in card

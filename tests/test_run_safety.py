@@ -4,6 +4,7 @@ unknown keys are refused with the nearest valid one, log lines never glue onto t
 
 from __future__ import annotations
 
+import re
 import signal
 import subprocess
 import sys
@@ -298,3 +299,52 @@ def test_parallel_jobs_tag_their_lines(tmp_path):
     assert again.returncode == 1 and "Traceback" not in again.stderr + again.stdout
     assert f"error: {tmp_path / 'sweep'} already holds the runs of a sweep (0, 1)" in again.stderr
     assert (tmp_path / "sweep" / "0" / ".hydra" / "config.yaml").read_bytes() == record
+
+
+LOG_STAMP = re.compile(r"\[\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}\]")
+
+
+def assert_log_lines_start_lines(output: str) -> None:
+    """Every log line starts a line of its own in ``output`` (a captured stdout + stderr): no carriage
+    return before it (a bar redrawn and overwritten), nothing glued before its time stamp."""
+    for line in output.split("\n"):
+        stamps = [match.start() for match in LOG_STAMP.finditer(line)]
+        assert stamps in ([], [0]) and (not stamps or "\r" not in line), repr(line)
+
+
+@pytest.mark.parametrize("launcher", ["basic", "joblib"])
+def test_a_sweeps_captured_output_glues_no_line_onto_a_progress_bar(tmp_path, launcher):
+    """Two jobs of a multirun, progress on (the default), stdout and stderr captured in one stream: a
+    joblib sweep once printed ``93%|█████████▎| 2800/3000 [...][2026-12-02 10:52:30,783]...[job 0] done:``.
+    The basic launcher's is checked too: CI does not install the joblib plugin."""
+    if launcher == "joblib":
+        pytest.importorskip("hydra_plugins.hydra_joblib_launcher", reason="the sweep extra is not installed")
+    (tmp_path / "map.txt").write_text(MAP)
+    command = [
+        sys.executable,
+        str(TRAIN_PY),
+        "-m",
+        *BASE,
+        "agent=sarsa",
+        "total_steps=3000",
+        "eval_every=500",
+        "progress=true",
+        "seed=0,1",
+        f"hydra/launcher={launcher}",
+        f"hydra.sweep.dir={tmp_path / 'sweep'}",
+    ]
+    if launcher == "joblib":
+        command.append("hydra.launcher.n_jobs=2")
+    result = subprocess.run(
+        command,
+        cwd=tmp_path,
+        env=train_env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        timeout=TRAIN_TIMEOUT,
+    )
+    assert result.returncode == 0, result.stdout
+    assert_log_lines_start_lines(result.stdout)
+    for job in (0, 1):
+        assert sum(f"[job {job}] eval step" in line for line in result.stdout.splitlines()) == 7, result.stdout

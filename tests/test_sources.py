@@ -23,7 +23,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from conftest import TRAIN_TIMEOUT, agent_meta, start_train
+from conftest import TRAIN_TIMEOUT, agent_meta, assert_named_paths_exist, run_train, start_train
 
 import dqn_transfer.sources.resolve
 from dqn_transfer.config import AgentConfig, ReplicasConfig, TrainConfig, TransferConfig
@@ -304,3 +304,28 @@ def test_replicas_pretrain_their_missing_sources_as_one_batch(cache, tmp_path, m
     assert transfer_sources(plan_run(batch), tmp_path) == per_replica and runs == []
     shutil.rmtree(sources[1].parent.parent)
     assert transfer_sources(plan_run(batch), tmp_path) == per_replica and runs == [1]
+
+
+@pytest.mark.slow
+def test_a_transfer_runs_lines_name_existing_paths_and_tag_the_pretraining(tmp_path):
+    """The pretraining's ``done:`` line named its ``.tmp-<pid>-<random>`` work directory (checkpoints,
+    tensorboard --logdir), renamed to the cache entry after; and its evaluations looked like the run's."""
+    result = run_train(
+        tmp_path,
+        "agent=sarsa",
+        "transfer=on",
+        "transfer.pretrain_steps=200",
+        "total_steps=200",
+        "eval_every=100",
+        "eval_episodes=2",
+    )
+    named = assert_named_paths_exist(result.output, tmp_path)
+    assert not [p for p in named if ".tmp" in str(p)]
+    lines = result.output.splitlines()
+    pretraining = [line for line in lines if "[pretraining source]" in line]
+    evals = [line for line in pretraining if "eval step" in line]
+    assert len(evals) == 11 and all("- [pretraining source] eval step" in line for line in evals)  # every 20 steps
+    done = [line for line in pretraining if "done:" in line]
+    assert len(done) == 1 and str(tmp_path / "outputs" / "pretrained") in done[0]
+    own = [line for line in lines if "eval step" in line and "[pretraining" not in line]
+    assert len(own) == 3  # the run's own: steps 0, 100, 200

@@ -163,7 +163,7 @@ class TrainConfig:
     eval_every: int = documented(1_000, "env steps between greedy evaluations")
     eval_episodes: int = documented(10, "greedy episodes per evaluation")
     checkpoint_every: int = documented(5_000, "env steps between checkpoints")
-    progress: bool = documented(True, "tqdm progress bar")
+    progress: bool = documented(True, "tqdm progress bar, on a terminal only (never in a captured stream)")
     resume: bool = documented(False, "continue the run in hydra.run.dir from its last checkpoint")
     device: Device = documented(Device.cpu, "cpu | cuda | auto")
     threads: int = documented(

@@ -146,6 +146,45 @@ def format_plain(value: Any) -> Any:
     return getattr(value, "value", value)
 
 
+def warm_starts(meta: dict[str, Any]) -> list[dict[str, Any]]:
+    """Where the team's agents started from, oldest first: each warm start of the chain behind agent 0's
+    checkpoint (a curriculum's stages, a pretrained source), or none for a team trained from scratch."""
+    chain, record = [], meta.get("transfer")
+    while record:
+        mapping = record.get("mapping") or {}
+        size = mapping.get("source_size")
+        chain.append(
+            {
+                "source": record.get("source"),
+                "source_steps": record.get("source_steps"),
+                "pretrained_source": bool(record.get("pretrained")),
+                "source_map": f"{size}x{size}" if size else None,
+                "offset": mapping.get("offset"),
+                "digest": record.get("digest"),
+            }
+        )
+        record = record.get("source_transfer")
+    return chain[::-1]
+
+
+def started_from(chain: list[dict[str, Any]]) -> str:
+    """The card's paragraph on where the agents started."""
+    if not chain:
+        return "From scratch: random weights (or an all-zero Q-table); no warm start."
+    rows = [
+        f"{n}. `{step['source']}` ({step['source_steps']} steps"
+        + (", pretrained on TreasureHunt-v0" if step["pretrained_source"] else "")
+        + (f", a {step['source_map']} map placed at {step['offset']}" if step["source_map"] else "")
+        + ")"
+        for n, step in enumerate(chain, start=1)
+    ]
+    what = "a curriculum of warm starts" if len(chain) > 1 else "a warm start"
+    return (
+        f"Warm-started, through {what} (oldest first; agent 0's checkpoint records the chain, "
+        "`warm_started_from` above):\n\n" + "\n".join(rows)
+    )
+
+
 def model_card(team: TrainedTeam, episodes: list[RecordedEpisode]) -> str:
     meta, game = team.meta, team.game
     algorithm = Algorithm(meta["algorithm"])
@@ -189,6 +228,7 @@ def model_card(team: TrainedTeam, episodes: list[RecordedEpisode]) -> str:
             "episodes": meta["episodes"],
             "last_evaluation": meta.get("last_eval") or None,
         },
+        "warm_started_from": warm_starts(meta) or None,
         "evaluation": metrics,
     }
     agent_files = ", ".join(f"`agent_{i}.safetensors`" for i in range(len(unique(team.files))))
@@ -204,6 +244,10 @@ A team of {game.num_agents} {algorithm.value} agents trained with dqn_transfer o
 {", ".join(f"`{name}` ({size_})" for name, size_ in meta["obs_layout"])} and acts greedily on its Q-values.
 
 ![the team's first evaluation episode]({GIF_FILE})
+
+## Where its agents started
+
+{started_from(warm_starts(meta))}
 
 ## The map
 

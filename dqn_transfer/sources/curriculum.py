@@ -81,10 +81,13 @@ def curriculum_sources(plan: RunPlan, launch_dir: Path) -> list[list[Path]] | No
 
         label = f"stage {n + 1} of {len(stages) + 1} ({describe_stage(stage.env)})"
         hashes = [key for key in keys if key is not None]
+        entries = [cache.entry(key).path for key in hashes]
         trained = cache.fill(
             hashes,
             functools.partial(RunCache.finished, steps=stage.steps),
-            functools.partial(_train_stage, label, staged, sources),
+            functools.partial(
+                _train_stage, label, f"[curriculum stage {n + 1}/{len(stages) + 1}]", staged, sources, entries
+            ),
         )
         previous = [cache.entry(key).path for key in hashes]
         for i, run in enumerate(previous):
@@ -98,24 +101,31 @@ def curriculum_sources(plan: RunPlan, launch_dir: Path) -> list[list[Path]] | No
 
 def _train_stage(
     label: str,
+    tag: str,
     staged: RunPlan,
     sources: list[list[Path]] | None,
+    entries: list[Path],
     indices: list[int],
     work_dir: Path,
     resume: bool,
 ) -> None:
-    """Train (or resume) a stage's replicas ``indices`` (all of ``staged``'s, or one) into ``work_dir``."""
+    """Train (or resume) a stage's replicas ``indices`` (all of ``staged``'s, or one) into ``work_dir``,
+    which the cache then renames to their ``entries``: the paths the lines name, ``tag`` before those of
+    the stage's run."""
     run = staged if len(indices) > 1 else staged.lone(indices[0])
+    final_dirs = [entries[i] for i in indices]
     log.info(
-        "curriculum: %s %s, %d steps%s, in %s",
+        "curriculum: %s %s, %d steps%s, into %s",
         "resuming" if resume else "training",
         label,
         run.config.total_steps,
         f" for {len(indices)} replicas" if len(indices) > 1 else "",
-        work_dir,
+        ", ".join(map(str, final_dirs)),
     )
     train(
         run.resuming(resume),
         work_dir,
         sources=None if resume or sources is None else [sources[i] for i in indices],
+        tag=tag,
+        final_dirs=final_dirs,
     )

@@ -37,6 +37,8 @@ log = logging.getLogger("dqn_transfer.transfer")
 NOT_IN_SOURCE_TASK = ("mode", "reward_mode", "render_mode")
 # A team source plays the run's own game (``transfer.source_task=team``): only rendering is left out.
 NOT_IN_TEAM_TASK = ("render_mode",)
+# Before every line the source's pretraining logs (its evaluations look like the run's own otherwise).
+PRETRAINING_TAG = "[pretraining source]"
 
 
 def source_hash(plain: dict[str, Any], layout: str, task: SourceTask | str = SourceTask.single) -> str:
@@ -108,12 +110,11 @@ def pretrained_sources(plan: RunPlan, launch_dir: Path) -> list[RunDir]:
         else:
             what = "a source agent" if len(indices) == 1 else f"{len(indices)} source agents, one per replica,"
             log.info("transfer: pretraining %s on TreasureHunt-v0%s for %d steps into %s", what, on_map, steps, where)
-        train(run, work_dir)
+        # The run is trained in a work directory the cache renames to the entry: its lines name the entry.
+        train(run, work_dir, tag=PRETRAINING_TAG, final_dirs=[cache.entry(keys[i]).path for i in indices])
 
     for i in cache.fill(keys, lambda entry: _reuse(entry, steps), pretrain):
-        log.info(
-            "transfer: the pretrained source is cached in %s", cache.entry(keys[i])
-        )  # the trainer named the temp dir
+        log.info("transfer: the pretrained source is cached in %s", cache.entry(keys[i]))
     return [cache.entry(key) for key in keys]
 
 

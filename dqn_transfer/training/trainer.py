@@ -20,11 +20,12 @@ The run is planned (validated, its replicas' maps resolved) beforehand, by
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, cast
 
@@ -64,10 +65,22 @@ class Trainer:
     :mod:`dqn_transfer.sources`).
     """
 
-    def __init__(self, plan: RunPlan, run_dir: Path, *, sources: Sources | None = None):
+    def __init__(
+        self,
+        plan: RunPlan,
+        run_dir: Path,
+        *,
+        sources: Sources | None = None,
+        tag: str = "",
+        final_dirs: Sequence[Path] | None = None,
+    ):
         config = plan.config
         self.plan, self.config = plan, config
         self.run_dir = RunDir(run_dir)
+        self.tag = tag
+        # Where each replica's run directory ends up once the caller moves it (a cache entry): the paths
+        # the log names, which must exist after the run. None: where it is trained.
+        self.final_dirs = [RunDir(path) for path in final_dirs] if final_dirs is not None else None
         self.source_task = plan.source_task
         self.algorithm = Algorithm(config.agent.algorithm)
         games = [replica.new_game() for replica in plan.replicas]
@@ -151,7 +164,8 @@ class Trainer:
         Raises :class:`~dqn_transfer.training.stop.Interrupted` when SIGINT or SIGTERM stopped it (at
         the end of the step in progress, after a checkpoint there).
         """
-        with StopRequest() as stop, logging_redirect_tqdm():  # log lines print above the bar, never glued to it
+        with StopRequest() as stop, logging_redirect_tqdm(), tagged(log, self.tag):
+            # logging_redirect_tqdm: log lines print above the bar, never glued to it
             self.prepare()
             self.run_dir.path.mkdir(parents=True, exist_ok=True)
             self._write_replica_configs()
@@ -171,7 +185,7 @@ class Trainer:
                 rep.logger.text("transfer/lineage", lineage_table(rep.transfer_info))
         if config.total_steps == 0:
             self.save_checkpoint()
-            log.info("total_steps=0: wrote the initial checkpoints to %s", self.run_dir)
+            log.info("total_steps=0: wrote the initial checkpoints to %s", self._where()[0])
             return self._summary()
         for rep in replicas:
             if rep.counters.step % config.eval_every == 0 and rep.last_eval_step != rep.counters.step:
@@ -181,7 +195,9 @@ class Trainer:
         bar = tqdm(
             total=config.total_steps,
             initial=self.step,
-            disable=not config.progress,
+            # Only on a terminal: in a captured stream (a file, a pipe, a sweep's parallel jobs sharing
+            # one) a bar's carriage returns glue other lines onto it, and nobody watches it there.
+            disable=not config.progress or not sys.stderr.isatty(),
             unit="step",
             dynamic_ncols=True,
             file=sys.stderr,
@@ -247,15 +263,28 @@ class Trainer:
                 self.run_evaluation(rep)
         self.save_checkpoint()
         rep = replicas[0]
+        checkpoints, logdir = self._where()
         log.info(
             "done: %d steps, %s episodes; last eval %s; checkpoints in %s; watch with `tensorboard --logdir %s`",
             self.step,
             "/".join(str(r.counters.episodes) for r in replicas),
             rep.last_eval if len(replicas) == 1 else f"(mean of {len(replicas)} replicas) {self._mean_last_eval()}",
-            rep.run_dir.checkpoints if len(replicas) == 1 else f"{self.run_dir}/*/checkpoints",
-            rep.run_dir.tensorboard if len(replicas) == 1 else self.run_dir,
+            checkpoints,
+            logdir,
         )
         return self._summary()
+
+    def _where(self) -> tuple[str, str]:
+        """The run's checkpoints and its TensorBoard logdir as the log names them: where the run ends
+        up (``final_dirs``), never a work directory the caller renames away."""
+        if self.final_dirs is None:
+            if len(self.replicas) == 1:
+                return str(self.replicas[0].run_dir.checkpoints), str(self.replicas[0].run_dir.tensorboard)
+            return f"{self.run_dir}/*/checkpoints", str(self.run_dir)
+        if len(self.final_dirs) == 1:
+            return str(self.final_dirs[0].checkpoints), str(self.final_dirs[0].tensorboard)
+        parent = self.final_dirs[0].path.parent
+        return ", ".join(str(run.checkpoints) for run in self.final_dirs), str(parent)
 
     def run_evaluation(self, rep: Replica) -> None:
         with self.evaluation_time:
@@ -307,6 +336,42 @@ class Trainer:
         }
 
 
-def train(plan: RunPlan, run_dir: Path, *, sources: Sources | None = None) -> dict[str, Any]:
-    """Run (or resume) the planned run (or batch of replicas) into ``run_dir``; returns a short summary."""
-    return Trainer(plan, run_dir, sources=sources).run()
+def train(
+    plan: RunPlan,
+    run_dir: Path,
+    *,
+    sources: Sources | None = None,
+    tag: str = "",
+    final_dirs: Sequence[Path] | None = None,
+) -> dict[str, Any]:
+    """Run (or resume) the planned run (or batch of replicas) into ``run_dir``; returns a short summary.
+
+    ``tag`` (e.g. ``[pretraining source]``) starts every line the run logs, so that the runs before a
+    run (its source's pretraining, its curriculum's stages) are told apart from it. ``final_dirs``: where
+    the caller moves each replica's directory afterwards (a cache entry), the paths the log then names.
+    """
+    return Trainer(plan, run_dir, sources=sources, tag=tag, final_dirs=final_dirs).run()
+
+
+class _Tag(logging.Filter):
+    def __init__(self, tag: str) -> None:
+        super().__init__()
+        self.tag = tag + " "
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        record.msg = self.tag + str(record.msg)
+        return True
+
+
+@contextlib.contextmanager
+def tagged(logger: logging.Logger, tag: str) -> Iterator[None]:
+    """``tag`` before every line ``logger`` logs meanwhile (nothing for an empty tag)."""
+    if not tag:
+        yield
+        return
+    tag_filter = _Tag(tag)
+    logger.addFilter(tag_filter)
+    try:
+        yield
+    finally:
+        logger.removeFilter(tag_filter)
