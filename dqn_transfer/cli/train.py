@@ -79,10 +79,16 @@ AGENT_ALIASES = {
 def check_overrides(argv: list[str]) -> None:
     """Refuse a key outside the schema (``+`` appends included) or an option no group has, naming the
     nearest valid one, before Hydra turns it into a multi-line error or silently stores it."""
-    try:
-        overrides = OverridesParser.create().parse_overrides(override_words(argv))
-    except HydraException:
-        return  # malformed: Hydra's own parser says what is wrong
+    parser = OverridesParser.create()
+    for word in override_words(argv):  # malformed (agent.lr, =5, unicode junk): one line, not Hydra's four
+        try:
+            parser.parse_overrides([word])
+        except HydraException:
+            raise ConfigError(
+                f"cannot read '{word}': an override is key=value (value: a number, true/false, null, a word "
+                "or 'quoted text', a [list] or {mapping}; see --help)"
+            ) from None
+    overrides = parser.parse_overrides(override_words(argv))
     keys = [k.key for k in describe(TrainConfig)]
     types = schema_types(TrainConfig)
     for override in overrides:
@@ -343,6 +349,13 @@ def leave_nothing_behind(claim: RunClaim | None) -> None:
     claim.undo()
 
 
+def announce(run: RunDir, caught: list[warnings.WarningMessage]) -> None:
+    """The run has started: name its directory, then the warnings its planning gave."""
+    log.info("run directory: %s", run)
+    for warning in caught:
+        log_warning(warning.message, warning.category, warning.filename, warning.lineno)
+
+
 # ------------------------------------------------------------------------------------ the app
 
 
@@ -364,11 +377,12 @@ def app(cfg: DictConfig) -> float:
             config = resume_config(run, cfg, hydra_config.overrides.task)
         else:
             config = OmegaConf.to_object(cfg)  # type: ignore[assignment]
-        plan = plan_run(config)
+        with warnings.catch_warnings(record=True) as caught:  # said once the plan holds, never before a refusal
+            plan = plan_run(config)
         # Announced once the run really starts: before a transfer source's pretraining or a curriculum's
         # stages (which can take minutes), else once the trainer has checked the run's start.
         if plan.chain:
-            log.info("run directory: %s", run)
+            announce(run, caught)
         launch_dir = Path(get_original_cwd())
         sources = (
             curriculum_sources(plan, launch_dir) if config.curriculum.stages else transfer_sources(plan, launch_dir)
@@ -376,7 +390,7 @@ def app(cfg: DictConfig) -> float:
         trainer = Trainer(plan, run.path, sources=sources)
         trainer.prepare()
         if not plan.chain:
-            log.info("run directory: %s", run)
+            announce(run, caught)
         summary = trainer.run()
     except USER_ERRORS as err:
         report_user_error(err)
