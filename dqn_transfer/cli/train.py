@@ -11,12 +11,14 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import enum
 import json
 import logging
 import math
 import re
 import shutil
 import sys
+import typing
 import warnings
 from pathlib import Path
 from typing import Any
@@ -47,7 +49,7 @@ from dqn_transfer.storage.checkpoint import CheckpointError, load_training_state
 from dqn_transfer.storage.run_dir import RunClaim, RunDir, RunDirError
 from dqn_transfer.training.plan import plan_run
 from dqn_transfer.training.stop import Interrupted
-from dqn_transfer.training.trainer import train
+from dqn_transfer.training.trainer import Trainer
 from dqn_transfer.transfer.mapping import TransferError
 
 log = logging.getLogger("dqn_transfer.train")
@@ -77,11 +79,18 @@ AGENT_ALIASES = {
 def check_overrides(argv: list[str]) -> None:
     """Refuse a key outside the schema (``+`` appends included) or an option no group has, naming the
     nearest valid one, before Hydra turns it into a multi-line error or silently stores it."""
-    try:
-        overrides = OverridesParser.create().parse_overrides(override_words(argv))
-    except HydraException:
-        return  # malformed: Hydra's own parser says what is wrong
+    parser = OverridesParser.create()
+    for word in override_words(argv):  # malformed (agent.lr, =5, unicode junk): one line, not Hydra's four
+        try:
+            parser.parse_overrides([word])
+        except HydraException:
+            raise ConfigError(
+                f"cannot read '{word}': an override is key=value (value: a number, true/false, null, a word "
+                "or 'quoted text', a [list] or {mapping}; see --help)"
+            ) from None
+    overrides = parser.parse_overrides(override_words(argv))
     keys = [k.key for k in describe(TrainConfig)]
+    types = schema_types(TrainConfig)
     for override in overrides:
         key = override.key_or_group
         if key in CONFIG_GROUPS:
@@ -91,6 +100,8 @@ def check_overrides(argv: list[str]) -> None:
                 f"unknown curriculum stage key '{stage.group(1)}' in '{override.input_line}' "
                 f"(a stage has {', '.join(STAGE_KEYS)})"
             )
+        elif key in types:
+            check_value_type(override, types[key])
         elif not key.startswith("hydra") and key not in keys and not any(key.startswith(f"{k}.") for k in keys):
             # (an element of a list key, like agent.hidden.0, is Hydra's to check)
             alias = AGENT_ALIASES.get(key.rsplit(".", 1)[-1])
@@ -101,6 +112,54 @@ def check_overrides(argv: list[str]) -> None:
                 else f"; the keys are listed by `{Path(sys.argv[0]).name} --cfg job`"
             )
             raise ConfigError(f"unknown config key '{key}' in '{override.input_line}'{hint}")
+
+
+def schema_types(schema: type, prefix: str = "") -> dict[str, Any]:
+    """Every dotted leaf key of ``schema`` -> its declared type (``typing`` form)."""
+    hints = typing.get_type_hints(schema)
+    types: dict[str, Any] = {}
+    for f in dataclasses.fields(schema):
+        kind = hints[f.name]
+        if dataclasses.is_dataclass(kind):
+            types.update(schema_types(kind, f"{prefix}{f.name}."))  # type: ignore[arg-type]
+        else:
+            types[prefix + f.name] = kind
+    return types
+
+
+def expected(kind: Any) -> str:
+    """A declared type as the user reads it: ``a float``, ``one of cpu|cuda|auto``, ``a list of integers``."""
+    args = typing.get_args(kind)
+    if typing.get_origin(kind) is typing.Union:
+        return " or ".join(expected(a) for a in args if a is not type(None)) + " (or null)"
+    if typing.get_origin(kind) in (list, typing.List):  # noqa: UP006
+        return f"a list of {expected(args[0]).split(' ', 1)[-1]}s" if args else "a list"
+    if typing.get_origin(kind) in (dict, typing.Dict):  # noqa: UP006
+        return "a mapping {key: value}"
+    if isinstance(kind, type) and issubclass(kind, enum.Enum):
+        return "one of " + "|".join(str(m.value) for m in kind)
+    return {bool: "true or false", int: "an integer", float: "a float", str: "a string"}.get(kind, "another value")
+
+
+def check_value_type(override, kind: Any) -> None:
+    """Refuse a value the schema's type cannot hold (``agent.lr=fast``) in one line, before Hydra does
+    so in six. Each value of a sweep is tried; interpolations are left to Hydra."""
+    if kind is Any or override.is_delete():
+        return
+    try:
+        values = list(override.sweep_iterator()) if override.is_sweep_override() else [override.value()]
+    except HydraException:
+        return  # a sweep Hydra expands itself (range, glob): its own errors
+    schema = OmegaConf.structured(TrainConfig)
+    for value in values:
+        if isinstance(value, str) and "${" in value:
+            continue
+        try:
+            OmegaConf.update(schema, override.key_or_group, value, merge=True)
+        except (OmegaConfBaseException, ValueError, TypeError):
+            raw = override.input_line.split("=", 1)[-1]
+            shown = str(value) if override.is_sweep_override() else raw
+            raise ConfigError(f"{override.key_or_group}={shown}: expected {expected(kind)}") from None
 
 
 # Hydra's own command-line flags, and whether each takes a value (``--info`` may or may not: its value
@@ -227,6 +286,11 @@ def resume_config(run: RunDir, cfg: DictConfig, overrides: list[str]) -> TrainCo
         if key == "resume" or key.startswith("hydra"):
             continue
         wanted = OmegaConf.select(cfg, key)
+        if key == "total_steps" and wanted < saved.total_steps:
+            raise ConfigError(
+                f"resume=true: total_steps={wanted} is below the run's own total_steps={saved.total_steps}; "
+                "a resume may keep or extend it (a shorter run is a new run, or the run's checkpoint at that step)"
+            )
         if key in RESUMABLE_KEYS:
             OmegaConf.update(saved, key, wanted)
         elif wanted != (have := OmegaConf.select(saved, key)):
@@ -285,6 +349,13 @@ def leave_nothing_behind(claim: RunClaim | None) -> None:
     claim.undo()
 
 
+def announce(run: RunDir, caught: list[warnings.WarningMessage]) -> None:
+    """The run has started: name its directory, then the warnings its planning gave."""
+    log.info("run directory: %s", run)
+    for warning in caught:
+        log_warning(warning.message, warning.category, warning.filename, warning.lineno)
+
+
 # ------------------------------------------------------------------------------------ the app
 
 
@@ -306,13 +377,21 @@ def app(cfg: DictConfig) -> float:
             config = resume_config(run, cfg, hydra_config.overrides.task)
         else:
             config = OmegaConf.to_object(cfg)  # type: ignore[assignment]
-        plan = plan_run(config)
-        log.info("run directory: %s", run)  # before a transfer source's pretraining, which can take minutes
+        with warnings.catch_warnings(record=True) as caught:  # said once the plan holds, never before a refusal
+            plan = plan_run(config)
+        # Announced once the run really starts: before a transfer source's pretraining or a curriculum's
+        # stages (which can take minutes), else once the trainer has checked the run's start.
+        if plan.chain:
+            announce(run, caught)
         launch_dir = Path(get_original_cwd())
         sources = (
             curriculum_sources(plan, launch_dir) if config.curriculum.stages else transfer_sources(plan, launch_dir)
         )
-        summary = train(plan, run.path, sources=sources)
+        trainer = Trainer(plan, run.path, sources=sources)
+        trainer.prepare()
+        if not plan.chain:
+            announce(run, caught)
+        summary = trainer.run()
     except USER_ERRORS as err:
         report_user_error(err)
         leave_nothing_behind(claim)  # a refused run

@@ -12,6 +12,7 @@ each default is written once, here or there, with the one-line description ``--h
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, List, Optional
@@ -210,6 +211,8 @@ _AT_LEAST = {
     "replicas.maps": 1,
 }
 _POSITIVE = ("agent.lr", "agent.max_grad_norm")
+_REWARDS = ("env.treasure_reward", "env.trap_reward", "env.step_reward")
+MAX_SEED = 2**63 - 1  # torch's generators take a signed 64-bit seed
 _IN_UNIT_INTERVAL = (
     "agent.gamma",
     "agent.eps_start",
@@ -234,7 +237,15 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
         value = _value(cfg, key)
         _check(value is None or value >= low, f"{key} must be >= {low}, got {value}")  # None: not set (max_steps)
     for key in _POSITIVE:
-        _check(_value(cfg, key) > 0, f"{key} must be > 0, got {_value(cfg, key)}")
+        _check(0 < _value(cfg, key) < math.inf, f"{key} must be > 0 and finite, got {_value(cfg, key)}")
+    for key in _REWARDS:
+        _check(math.isfinite(_value(cfg, key)), f"{key} must be a finite number, got {_value(cfg, key)}")
+    for key, count in (("seed", cfg.replicas.seeds), ("env.map_seed", cfg.replicas.maps)):
+        value = _value(cfg, key)
+        _check(
+            value >= 0 and value + count <= MAX_SEED,
+            f"{key} must be in [0, 2^63 - 1] (with its replicas), got {value}",
+        )
     for key in _IN_UNIT_INTERVAL:
         _check(0.0 <= _value(cfg, key) <= 1.0, f"{key} must be in [0, 1], got {_value(cfg, key)}")
     for key in _IN_HALF_OPEN_UNIT:

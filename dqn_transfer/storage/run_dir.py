@@ -148,6 +148,7 @@ class RunClaim:
         self._fd: int | None = None
         self._created: Path | None = None  # the first directory of the path this process created
         self._entries_before: set[str] = set()
+        self._records_before: dict[Path, bytes] = {}  # a resumed run's config record and log, as they were
 
     def acquire(self, *, resume: bool, fresh: bool = False) -> None:
         """Lock the directory, creating it if needed; ``fresh``: it was just created for this run
@@ -176,6 +177,9 @@ class RunClaim:
         if not fresh and not resume and self.run.holds_run():
             self.release()
             raise RunDirError(existing_run_message(self.run))
+        if resume:  # Hydra is about to rewrite .hydra/ and append to the log: undo puts them back
+            records = [*self.run.hydra_dir.glob("*"), self.run.log] if self.run.hydra_dir.is_dir() else [self.run.log]
+            self._records_before = {p: p.read_bytes() for p in records if p.is_file()}
 
     def release(self) -> None:
         if self._fd is not None:
@@ -193,6 +197,12 @@ class RunClaim:
         for name in set(os.listdir(path)) - self._entries_before if path.is_dir() else ():
             entry = path / name
             shutil.rmtree(entry, ignore_errors=True) if entry.is_dir() else entry.unlink(missing_ok=True)
+        for record, content in self._records_before.items():
+            record.parent.mkdir(parents=True, exist_ok=True)
+            record.write_bytes(content)
+        hydra_files = self.run.hydra_dir.glob("*") if self.run.hydra_dir.is_dir() else ()
+        for added in [p for p in hydra_files if self._records_before and p not in self._records_before]:
+            added.unlink(missing_ok=True)
 
 
 def existing_run_message(run: RunDir) -> str:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import yaml
@@ -31,6 +32,7 @@ from dqn_transfer.enums import SourceTask
 from dqn_transfer.envs import GridMap, TreasureHuntGame, make_game
 from dqn_transfer.envs.game import game_on
 from dqn_transfer.envs.settings import DEFAULTS, MAP_KEYS, EnvConfig
+from dqn_transfer.training.resources import MAX_SIZE, check_memory, check_size
 from dqn_transfer.transfer.warm_start import transfer_targets
 
 
@@ -99,12 +101,19 @@ def plan_run(config: TrainConfig, *, source_task: bool = False) -> RunPlan:
 
 def _plan(config: TrainConfig, source_task: bool) -> RunPlan:
     validate(config)
+    check_map_size(config.env)
+    # The first replica's map (cheap, once its side is bounded) tells the run's size; the memory it
+    # will need is checked before any other map, learner or buffer is made.
+    first = _resolve_map(config.env)
+    check_size(first.size, "env.layout_file's side" if config.env.layout_file is not None else "env.size")
+    first_game = game_on(first, config.env)
+    if source_task:
+        first_game = first_game.single_agent_game()
+    check_memory(config, first.size, first_game.num_agents, first.num_treasures)
     replicas = []
     for replica in replica_configs(config):
-        try:
-            grid_map = make_game(**given_env(replica.env)).map
-        except (ValueError, OSError) as err:
-            raise ConfigError(f"env: {err}") from err
+        same_map = replica.env == config.env
+        grid_map = first if same_map else _resolve_map(replica.env)
         replicas.append(ReplicaPlan(replica, grid_map, replica_name(replica, config), source_task))
     num_agents = replicas[0].new_game().num_agents
     transferred = config.transfer.enabled and not source_task
@@ -139,6 +148,31 @@ def given_env(env: EnvConfig) -> dict[str, Any]:
     differing = lambda option: sum(settings[key] != option[key] for key in GENERATION_KEYS)  # noqa: E731
     nearest = min(env_option_values(), key=differing)
     return {**settings, **{key: None for key in GENERATION_KEYS if settings[key] == nearest[key]}}
+
+
+def _resolve_map(env: EnvConfig) -> GridMap:
+    try:
+        return make_game(**given_env(env)).map
+    except (ValueError, OSError) as err:
+        raise ConfigError(f"env: {err}") from err
+
+
+def check_map_size(env: EnvConfig) -> None:
+    """Bound the map's side before the map is generated or read (:func:`~.resources.check_size`)."""
+    if env.layout is not None:
+        check_size(len(str(env.layout).strip().splitlines()), "env.layout's side")
+    elif env.layout_file is not None:
+        path = Path(env.layout_file).expanduser()
+        if path.exists() and not path.is_file():
+            raise ConfigError(f"env.layout_file={env.layout_file} is not a regular file")
+        limit = (MAX_SIZE + 1) * (MAX_SIZE + 2) * 4  # MAX_SIZE rows of MAX_SIZE cells, generous line ends
+        if path.is_file() and path.stat().st_size > limit:
+            raise ConfigError(
+                f"env.layout_file={env.layout_file} holds {path.stat().st_size} bytes: too large for a map "
+                f"of at most {MAX_SIZE}x{MAX_SIZE} cells"
+            )
+    else:
+        check_size(env.size)
 
 
 def replica_name(replica: TrainConfig, config: TrainConfig) -> str:

@@ -108,6 +108,7 @@ class Trainer:
             )
             for r, (replica, game, source) in enumerate(zip(plan.replicas, games, per_replica))
         ]
+        self.prepared = False  # prepare() ran: the run's start is checked (run() then skips it)
         # Time spent outside the loop proper (what a benchmark subtracts to compare with bare loops).
         self.evaluation_time, self.checkpoint_time = Stopwatch(), Stopwatch()
 
@@ -117,7 +118,9 @@ class Trainer:
 
     # ------------------------------------------------------------------ setup
     def prepare(self) -> None:
-        """Resume, or start fresh (with transfer if asked); refuses to overwrite another run."""
+        """Resume, or start fresh (with transfer if asked); refuses to overwrite another run. Raises a
+        user error for a run that cannot start; ``run`` calls it unless the caller did already."""
+        self.prepared = True
         held = [rep.run_dir for rep in self.replicas if rep.run_dir.has_run()]
         if self.config.resume:
             missing = [str(rep.run_dir) for rep in self.replicas if not rep.run_dir.has_run()]
@@ -166,7 +169,8 @@ class Trainer:
         """
         with StopRequest() as stop, logging_redirect_tqdm(), tagged(log, self.tag):
             # logging_redirect_tqdm: log lines print above the bar, never glued to it
-            self.prepare()
+            if not self.prepared:
+                self.prepare()
             self.run_dir.path.mkdir(parents=True, exist_ok=True)
             self._write_replica_configs()
             try:
