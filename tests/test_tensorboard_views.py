@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import re
 import subprocess
 import sys
@@ -22,11 +23,13 @@ import pytest
 from conftest import DOWN, always_acting_team
 from PIL import Image
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+from tensorboard.compat.proto.summary_pb2 import Summary
 
 from dqn_transfer.config import AgentConfig, TrainConfig, TransferConfig
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.storage.run_dir import RunDir
 from dqn_transfer.training.plan import plan_run
+from dqn_transfer.training.tensorboard import RunLogger
 from dqn_transfer.training.trainer import train
 
 CELL = 32  # TensorBoard's cell size in pixels
@@ -158,3 +161,44 @@ def test_a_tensorboard_server_on_loopback_serves_the_picture(run):
         except subprocess.TimeoutExpired:
             server.kill()
             server.wait()
+
+
+def scalar_points(run_dir) -> dict[str, list[tuple[int, float]]]:
+    accumulator = events(RunDir(run_dir))
+    return {tag: [(s.step, s.value) for s in accumulator.Scalars(tag)] for tag in accumulator.Tags()["scalars"]}
+
+
+def test_scalars_written_together_read_back_as_one_event_each(tmp_path, monkeypatch):
+    """A step's scalars go out as one event (a summary with a value per tag): TensorBoard reads the same
+    tags, steps and values as when each was an event of its own, as they used to be."""
+    env = EnvConfig(size=4, num_treasures=1, num_traps=1, num_agents=2, max_steps=15)
+    agent = AgentConfig(algorithm="dqn", hidden=[8], learning_starts=50, batch_size=8)
+    config = TrainConfig(
+        env=env, agent=agent, total_steps=400, eval_every=200, eval_episodes=2, progress=False, eval_pictures=False
+    )
+    train(plan_run(config), tmp_path / "together")
+
+    def one_event_each(self, values, step):
+        for tag, value in values:
+            if value is not None and not math.isnan(float(value)):
+                self._add(Summary(value=[Summary.Value(tag=tag, simple_value=float(value))]), step)
+
+    monkeypatch.setattr(RunLogger, "scalars", one_event_each)
+    train(plan_run(config), tmp_path / "apart")
+    together, apart = scalar_points(tmp_path / "together"), scalar_points(tmp_path / "apart")
+    for tag in (
+        "agent_1/episodic_return",
+        "agent_0/episodic_length",
+        "team/return",
+        "team/treasures_collected",
+        "team/trap_rate",
+        "agent_0/td_loss",
+        "agent_1/q_mean",
+        "train/epsilon",
+        "eval/team_return",
+        "eval/success_rate",
+        "eval/trap_rate",
+    ):
+        assert together[tag], tag
+    assert [step for step, _ in together.pop("train/sps")] == [step for step, _ in apart.pop("train/sps")]
+    assert together == apart  # train/sps aside, which measures the clock

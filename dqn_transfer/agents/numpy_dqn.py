@@ -54,6 +54,7 @@ class NumpyMLP(StackedLayout):
         self.grads = self.views(self.flat_grad)
         # Per layer: the weight and the bias as a [M, 1, out] row to broadcast over the batch.
         self._affine = [(self.tensors[2 * l], self.tensors[2 * l + 1][:, None, :]) for l in range(self.num_layers)]
+        self._step: np.ndarray | None = None  # update_from's buffer (a target network's), made at its first use
         if rngs is not None:
             self._initialise(rngs)
 
@@ -141,8 +142,14 @@ class NumpyMLP(StackedLayout):
         ``p <- p + tau * (p_source - p)``."""
         if tau == 1.0:
             np.copyto(self.flat, source.flat)
-        else:
-            self.flat += np.float32(tau) * (source.flat - self.flat)
+            return
+        # In place, through one buffer kept between calls: no temporaries of the parameters' size to
+        # allocate, and the same operations in the same order as ``flat += tau * (source - flat)``.
+        if self._step is None:
+            self._step = np.empty_like(self.flat)
+        step = np.subtract(source.flat, self.flat, out=self._step)
+        step *= np.float32(tau)
+        self.flat += step
 
 
 class NumpyAdam(AdamState):

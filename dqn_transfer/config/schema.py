@@ -171,6 +171,11 @@ class TrainConfig:
         1,
         "torch CPU threads (agent.engine=torch): tiny networks run fastest on one, and sweep jobs don't oversubscribe",
     )
+    eval_pictures: Optional[bool] = documented(
+        None,
+        "TensorBoard's picture of each evaluation's first episode and the agents' Q-value histograms there "
+        "(the metrics are the same without); null: in a lone run, not in a multirun sweep (-m)",
+    )
 
 
 def register_configs() -> None:

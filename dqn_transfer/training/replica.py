@@ -119,8 +119,10 @@ class Replica:
         game: TreasureHuntGame,
         learner: Learner,
         source: Path | Sequence[Path] | None,
+        pictures: bool = True,
     ) -> None:
         self.index, self.config, self.run_dir = index, config, RunDir(run_dir)
+        self.pictures = pictures  # evaluations draw their first episode and its Q-values for TensorBoard
         self.game, self.eval_game, self.learner, self.source = game, game.replica(), learner, source
         k = game.num_agents
         self.rows = slice(index * k, (index + 1) * k)
@@ -216,11 +218,16 @@ class Replica:
 
     def _log_episode(self) -> None:
         logger, episode, step, game = self.logger, self.episode, self.counters.step, self.game
-        logger.agent_scalars("episodic_return", episode.returns, step)
-        logger.agent_scalars("episodic_length", episode.lengths, step)
-        logger.scalar("team/return", episode.team_return, step)
-        logger.scalar("team/treasures_collected", game.treasures_collected, step)
-        logger.scalar("team/trap_rate", episode.traps / game.num_agents, step)
+        logger.scalars(  # one event for the episode's points
+            [
+                *logger.agent_values("episodic_return", episode.returns),
+                *logger.agent_values("episodic_length", episode.lengths),
+                ("team/return", episode.team_return),
+                ("team/treasures_collected", game.treasures_collected),
+                ("team/trap_rate", episode.traps / game.num_agents),
+            ],
+            step,
+        )
 
     def _exchange(self) -> None:
         transfer = self.config.transfer
@@ -235,28 +242,31 @@ class Replica:
     def log_training(self, sps: float) -> None:
         """A training-curve point: the window's mean losses and Q-values, epsilon and speed."""
         logger, window, step = self.logger, self.window, self.counters.step
+        points: list[tuple[str, float]] = []
         with warnings.catch_warnings():  # all-NaN columns (no update yet) are expected and skipped
             warnings.simplefilter("ignore", RuntimeWarning)
             if window:
-                logger.agent_scalars(
-                    "td_loss", np.nanmean(np.asarray([s.td_loss for s in window], dtype=float), axis=0), step
+                points += logger.agent_values(
+                    "td_loss", np.nanmean(np.asarray([s.td_loss for s in window], dtype=float), axis=0)
                 )
-                logger.agent_scalars(
-                    "q_mean", np.nanmean(np.asarray([s.q_mean for s in window], dtype=float), axis=0), step
+                points += logger.agent_values(
+                    "q_mean", np.nanmean(np.asarray([s.q_mean for s in window], dtype=float), axis=0)
                 )
-        logger.scalar("train/epsilon", float(self.epsilon(step).mean()), step)
-        logger.scalar("train/sps", sps, step)
+        points += [("train/epsilon", float(self.epsilon(step).mean())), ("train/sps", sps)]
+        logger.scalars(points, step)  # one event
         self.window = []
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, named: bool) -> None:
         """Greedy evaluation on separately seeded episodes -> ``metrics.jsonl`` and TensorBoard, with a
-        picture of its first episode and the agents' Q-values there (``named``: the log line names the
-        replica)."""
+        picture of its first episode and the agents' Q-values there if :attr:`pictures` (the same
+        metrics either way; ``named``: the log line names the replica)."""
         step = self.counters.step
-        picture, q_values, first = evaluation_views(
-            self.learner, self.eval_game, self.config.seed, self.counters.evaluations
-        )
+        first = None
+        if self.pictures:
+            picture, q_values, first = evaluation_views(
+                self.learner, self.eval_game, self.config.seed, self.counters.evaluations
+            )
         result = evaluate(
             self.learner,
             self.eval_game,
@@ -279,10 +289,10 @@ class Replica:
             record["transfer_source"] = self.transfer_info
         with self.run_dir.metrics.open("a") as stream:
             stream.write(json.dumps(record) + "\n")
-        self.logger.scalar("eval/team_return", result["team_return"], step)
-        self.logger.scalar("eval/success_rate", result["success_rate"], step)
-        self.logger.scalar("eval/trap_rate", result["trap_rate"], step)
-        self.logger.evaluation_views(picture, q_values, step)
+        scalars = ("team_return", "success_rate", "trap_rate")
+        self.logger.scalars([(f"eval/{key}", result[key]) for key in scalars], step)  # one event
+        if self.pictures:
+            self.logger.evaluation_views(picture, q_values, step)
         log.info(
             "eval step %d%s: team_return %.1f success_rate %.2f trap_rate %.2f",
             step,

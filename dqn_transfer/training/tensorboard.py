@@ -16,7 +16,7 @@ import io
 import json
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -125,14 +125,30 @@ class RunLogger:
         text = "\n".join(f"    {key}: {value}" for key, value in sorted(flat.items()))
         self.text("config", text)
 
-    def scalar(self, tag: str, value: float, step: int) -> None:
-        if value is not None and not math.isnan(float(value)):
-            self._add(Summary(value=[Summary.Value(tag=tag, simple_value=float(value))]), step)
+    def scalars(self, values: Iterable[tuple[str, float | None]], step: int) -> None:
+        """Several ``(tag, value)`` points of one step as one event: a summary with a value per tag,
+        which TensorBoard reads as the same points one event each would give, at a fraction of the
+        cost (an event is built, queued, framed and checksummed once). NaNs and Nones (no update
+        yet) are skipped; nothing is written if none is left."""
+        points = [
+            Summary.Value(tag=tag, simple_value=float(value))
+            for tag, value in values
+            if value is not None and not math.isnan(float(value))
+        ]
+        if points:
+            self._add(Summary(value=points), step)
 
-    def agent_scalars(self, name: str, values, step: int) -> None:
-        """``agent_{i}/{name}`` for each agent; NaNs (no update yet) are skipped."""
-        for i, value in enumerate(values):
-            self.scalar(f"agent_{i}/{name}", value, step)
+    def scalar(self, tag: str, value: float | None, step: int) -> None:
+        self.scalars([(tag, value)], step)
+
+    @staticmethod
+    def agent_values(name: str, values: Iterable[float]) -> list[tuple[str, float]]:
+        """``(agent_{i}/{name}, value)`` for each agent, for :meth:`scalars`."""
+        return [(f"agent_{i}/{name}", value) for i, value in enumerate(values)]
+
+    def agent_scalars(self, name: str, values: Iterable[float], step: int) -> None:
+        """``agent_{i}/{name}`` for each agent (one event); NaNs (no update yet) are skipped."""
+        self.scalars(self.agent_values(name, values), step)
 
     def evaluation_views(self, picture: np.ndarray, q_values: Sequence[np.ndarray], step: int) -> None:
         """An evaluation's picture (``[H, W, 3]`` uint8) and each agent's Q-values (agents with none skipped)."""
