@@ -56,7 +56,7 @@ log = logging.getLogger("dqn_transfer.train")
 
 USER_ERRORS = (ConfigError, CheckpointError, TransferError, RunDirError)
 # What a resumed run may change; everything else is the run's own saved config.
-RESUMABLE_KEYS = ("total_steps", "progress", "checkpoint_every", "device", "threads")
+RESUMABLE_KEYS = ("total_steps", "progress", "checkpoint_every", "device", "threads", "eval_pictures")
 CONFIG_GROUPS = config_groups()
 # An override of one curriculum stage's key, e.g. curriculum.stages.0.steps (group 1: the stage's key).
 STAGE_ELEMENT = re.compile(r"curriculum\.stages\.\d+\.([^.]+)(\..*)?")
