@@ -21,7 +21,7 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from dqn_transfer.documented import documented
-from dqn_transfer.enums import Algorithm, Device, Engine, Exchange, Fill, SourceTask
+from dqn_transfer.enums import Algorithm, Device, Engine, Exchange, Fill, Objective, SourceTask
 from dqn_transfer.envs.settings import ENV_KEYS, EnvConfig
 
 # The config groups: dqn_transfer/conf/, inside the package (found from any directory, installed or not).
@@ -170,6 +170,11 @@ class TrainConfig:
     threads: int = documented(
         1,
         "torch CPU threads (agent.engine=torch): tiny networks run fastest on one, and sweep jobs don't oversubscribe",
+    )
+    objective: Objective = documented(
+        Objective.final,
+        "final | mean: the team return a sweeper (Optuna) optimises, the last evaluation's or the mean of all "
+        "evaluations; over a run's replicas, their mean",
     )
 
 
