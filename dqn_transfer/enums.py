@@ -63,6 +63,14 @@ class Device(Enum):
     auto = "auto"
 
 
+class Objective(Enum):
+    """What ``python train.py`` returns to a Hydra sweeper (Optuna): the evaluated team return's ``final``
+    value (the last evaluation) or its ``mean`` over all evaluations; a run of replicas, their mean."""
+
+    final = "final"
+    mean = "mean"
+
+
 class Engine(Enum):
     """What computes the DQN learners: ``torch`` (any device) or ``numpy`` (CPU, no torch in the process)."""
 

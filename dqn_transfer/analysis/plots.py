@@ -21,7 +21,16 @@ from dqn_transfer.analysis.stats import Estimate, curve_band, performance_profil
 from dqn_transfer.analysis.transfer_metrics import Curve
 
 # Keys that differ between runs of one condition without making it another condition.
-IGNORED_KEYS = ("seed", "progress", "resume", "device", "checkpoint_every", "eval_pictures", "transfer.cache_dir")
+IGNORED_KEYS = (
+    "seed",
+    "progress",
+    "resume",
+    "device",
+    "checkpoint_every",
+    "eval_pictures",
+    "objective",
+    "transfer.cache_dir",
+)
 # Keys that name a condition, preferred as labels over what they imply (agent=sarsa implies agent.lr).
 PRIMARY_KEYS = ("agent.algorithm", "env.mode", "transfer.enabled", "env.num_agents", "env.layout_file", "env.layout")
 LINESTYLES = ("-", "--", ":", "-.")  # besides colours: identical curves stay visible

@@ -262,3 +262,16 @@ def load_runs(directory: Path) -> list[Run]:
     run_dirs, skipped = scan_run_dirs([directory], need_config=True)
     _warn_skipped(skipped)
     return [Run(run_dir, load_config(run_dir)) for run_dir in run_dirs]  # type: ignore[arg-type]
+
+
+def run_objective(run_dir: str | os.PathLike, objective: str, metric: str = "team_return") -> float:
+    """What a run returns to a Hydra sweeper (``objective`` in the config): ``metric``'s last evaluation
+    (``final``) or its mean over all evaluations (``mean``), read from ``metrics.jsonl``; for a run of
+    replicas, the mean of its replicas' values."""
+    if objective not in ("final", "mean"):
+        raise ValueError(f"objective is final or mean, got {objective!r}")
+    dirs = RunDir(run_dir).replica_dirs() or [Path(run_dir)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", IncompleteLastLine)
+        values = [learning_curve(d, metric)[1] for d in dirs]
+    return float(np.mean([v[-1] if objective == "final" else v.mean() for v in values]))

@@ -33,6 +33,7 @@ from hydra.utils import get_original_cwd
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
+from dqn_transfer.analysis.runs import EvaluationError, run_objective
 from dqn_transfer.config import (
     CONFIG_DIR,
     SB3_NAMES,
@@ -56,7 +57,7 @@ log = logging.getLogger("dqn_transfer.train")
 
 USER_ERRORS = (ConfigError, CheckpointError, TransferError, RunDirError)
 # What a resumed run may change; everything else is the run's own saved config.
-RESUMABLE_KEYS = ("total_steps", "progress", "checkpoint_every", "device", "threads", "eval_pictures")
+RESUMABLE_KEYS = ("total_steps", "progress", "checkpoint_every", "device", "threads", "eval_pictures", "objective")
 CONFIG_GROUPS = config_groups()
 # An override of one curriculum stage's key, e.g. curriculum.stages.0.steps (group 1: the stage's key).
 STAGE_ELEMENT = re.compile(r"curriculum\.stages\.\d+\.([^.]+)(\..*)?")
@@ -361,8 +362,9 @@ def announce(run: RunDir, caught: list[warnings.WarningMessage]) -> None:
 
 @hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="config")
 def app(cfg: DictConfig) -> float:
-    """Train one run (or one job of a ``-m`` sweep); returns the last evaluation's team return, the
-    objective a Hydra sweeper (e.g. Optuna) would optimise."""
+    """Train one run (or one job of a ``-m`` sweep); returns its ``objective`` (the last evaluation's team
+    return, or the mean of all its evaluations'; over a run's replicas, their mean), what a Hydra
+    sweeper (Optuna: docs/integrations.md) optimises."""
     warnings.showwarning = log_warning
     hydra_config = HydraConfig.get()
     if hydra_config.mode == RunMode.MULTIRUN:
@@ -391,7 +393,7 @@ def app(cfg: DictConfig) -> float:
         trainer.prepare()
         if not plan.chain:
             announce(run, caught)
-        summary = trainer.run()
+        trainer.run()
     except USER_ERRORS as err:
         report_user_error(err)
         leave_nothing_behind(claim)  # a refused run
@@ -423,7 +425,11 @@ def app(cfg: DictConfig) -> float:
         if not resumable and not run.has_metrics():
             leave_nothing_behind(claim)  # nothing worth keeping: no stub
         sys.exit(130)
-    return float(summary["last_eval"].get("team_return", math.nan))
+    # the objective is read from the run's evaluations, as anyone analysing it would
+    try:
+        return run_objective(run.path, config.objective.value)
+    except EvaluationError:
+        return math.nan  # a run stopped before its first evaluation
 
 
 def main() -> None:

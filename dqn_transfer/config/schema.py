@@ -21,7 +21,7 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from dqn_transfer.documented import documented
-from dqn_transfer.enums import Algorithm, Device, Engine, Exchange, Fill, SourceTask
+from dqn_transfer.enums import Algorithm, Device, Engine, Exchange, Fill, Objective, SourceTask
 from dqn_transfer.envs.settings import ENV_KEYS, EnvConfig
 
 # The config groups: dqn_transfer/conf/, inside the package (found from any directory, installed or not).
@@ -175,6 +175,11 @@ class TrainConfig:
         None,
         "TensorBoard's picture of each evaluation's first episode and the agents' Q-value histograms there "
         "(the metrics are the same without); null: in a lone run, not in a multirun sweep (-m)",
+    )
+    objective: Objective = documented(
+        Objective.final,
+        "final | mean: the team return a sweeper (Optuna) optimises, the last evaluation's or the mean of all "
+        "evaluations; over a run's replicas, their mean",
     )
 
 

@@ -108,30 +108,25 @@ def map_optimum(config: dict[str, Any]) -> float | None:
 def export_sweep(sweep_dir: Path, experiment: str) -> list[RunData]:
     """Every usable run below ``sweep_dir`` as :class:`RunData` (unusable ones are skipped with a
     warning); a step evaluated twice (a resumed run) keeps its later record."""
-    runs = []
-    for run in load_runs(sweep_dir):
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", IncompleteLastLine)
-            records = read_metrics(run.dir)
-        by_step = {int(r["step"]): r for r in records if "step" in r}
-        steps = tuple(sorted(by_step))
-        metrics = {
-            m: tuple(_rounded(float(by_step[s][m])) for s in steps)
-            for m in METRICS
-            if all(m in by_step[s] for s in steps)
-        }
-        runs.append(
-            RunData(
-                experiment,
-                run.dir.relative_to(sweep_dir).as_posix(),
-                run.config,
-                steps,
-                metrics,
-                source_steps(records),
-                map_optimum(run.config),
-            )
-        )
+    runs = [
+        run_data(run.dir, run.config, experiment, run.dir.relative_to(sweep_dir).as_posix())
+        for run in load_runs(sweep_dir)
+    ]
     return sorted(runs, key=lambda r: natural_key(Path(r.name)))
+
+
+def run_data(run_dir: Path, config: dict[str, Any], experiment: str, name: str) -> RunData:
+    """One run directory's evaluations as :class:`RunData`; a step evaluated twice (a resumed run) keeps
+    its later record."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", IncompleteLastLine)
+        records = read_metrics(run_dir)
+    by_step = {int(r["step"]): r for r in records if "step" in r}
+    steps = tuple(sorted(by_step))
+    metrics = {
+        m: tuple(_rounded(float(by_step[s][m])) for s in steps) for m in METRICS if all(m in by_step[s] for s in steps)
+    }
+    return RunData(experiment, name, config, steps, metrics, source_steps(records), map_optimum(config))
 
 
 def write_data(path: Path, runs: list[RunData]) -> None:

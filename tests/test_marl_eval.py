@@ -1,0 +1,128 @@
+"""`dqn-transfer-export marl-eval`: runs and the study's raw data in marl-eval's JSON, read back by
+id-marl-eval's own processing, which gives the same IQM as this project's statistics."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from rliable import metrics as rliable_metrics
+
+from dqn_transfer.analysis.marl_eval import ABSOLUTE, EvaluatedRun, layout_problems, marl_eval_tree
+from dqn_transfer.analysis.stats import iqm
+from dqn_transfer.analysis.transfer_metrics import asymptotic_performance
+from dqn_transfer.cli.export import main
+from dqn_transfer.experiments.claims import exchange_condition
+from dqn_transfer.experiments.raw_data import RunData, read_data
+from dqn_transfer.experiments.scoring import FINAL_TAIL, by_map, final_score, learner, mode
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT / "results" / "data"
+
+
+def marl_eval_matrices(path: Path, environment: str) -> tuple[dict, list[str]]:
+    """marl-eval's own reading of an export: ``({metric: {algorithm: [runs, tasks]}}, tasks)``."""
+    processing = pytest.importorskip("marl_eval.utils.data_processing_utils")
+    raw = json.loads(path.read_text())
+    processed = processing.data_process_pipeline(raw_data=raw, metrics_to_normalize=[])
+    assert "extra" in processed, "marl-eval's pipeline refused the export"
+    matrices, curves = processing.create_matrices_for_rliable(processed, environment, [])
+    return matrices, list(processed[environment])
+
+
+def test_the_study_data_give_marl_eval_the_study_s_iqm(tmp_path, capsys):
+    out = tmp_path / "hypothesis.json"
+    assert main(["marl-eval", "--data", str(DATA / "hypothesis.jsonl"), "--out", str(out)]) == 0
+    assert "wrote" in capsys.readouterr().out
+    matrices, tasks = marl_eval_matrices(out, "treasurehunt_hypothesis")
+    runs = read_data(DATA / "hypothesis.jsonl")
+    compared = 0
+    for algorithm in ("double_dqn", "sarsa"):
+        for exchange in ("none", "best", "shared_replay"):
+            name = algorithm + ("" if exchange == "none" else f"+exchange_{exchange}")
+            for team_mode in ("cooperative", "deliberative"):
+                members = [
+                    r for r in runs if (learner(r), mode(r), exchange_condition(r)) == (algorithm, team_mode, exchange)
+                ]
+                ours = iqm(by_map(members, final_score), np.random.default_rng(0)).mean  # as claims.hypothesis
+                columns = [i for i, task in enumerate(tasks) if task.startswith(team_mode)]
+                matrix = matrices["mean_score"][name][:, columns]  # [seeds, maps of this mode]
+                assert matrix.shape == (2, 5)
+                theirs = float(rliable_metrics.aggregate_iqm(matrix))  # marl-eval's aggregate_scores' IQM
+                assert theirs == pytest.approx(ours, rel=1e-12, abs=1e-12), (name, team_mode)
+                compared += 1
+    assert compared == 12
+
+
+def write_run_dir(run: RunData, directory: Path) -> None:
+    """A run directory as the trainer leaves it, as far as the readers go: its config and evaluations."""
+    (directory / ".hydra").mkdir(parents=True)
+    (directory / ".hydra" / "config.yaml").write_text(yaml.safe_dump(run.config))
+    lines = [{"step": s, **{m: v[i] for m, v in run.metrics.items()}} for i, s in enumerate(run.steps)]
+    (directory / "metrics.jsonl").write_text("".join(json.dumps(line) + "\n" for line in lines))
+
+
+def test_run_directories_give_marl_eval_the_same_iqm_as_ours(tmp_path):
+    runs = read_data(DATA / "hypothesis_shared.jsonl")
+    for run in runs:
+        write_run_dir(run, tmp_path / "sweep" / run.name)
+    out = tmp_path / "runs.json"
+    assert main(["marl-eval", str(tmp_path / "sweep"), "--out", str(out)]) == 0
+    tree = json.loads(out.read_text())
+    entry = tree["treasurehunt"]["cooperative-4agents-8x8-map0"]["double_dqn+shared"]["seed_0"]
+    assert entry["step_0"]["step_count"] == 0 and set(entry) == {f"step_{i}" for i in range(17)} | {ABSOLUTE}
+    assert {"team_return", "success_rate", "trap_rate", "score"} <= set(entry[ABSOLUTE])
+    matrices, tasks = marl_eval_matrices(out, "treasurehunt")
+    for metric in ("score", "team_return", "success_rate"):
+        theirs = float(rliable_metrics.aggregate_iqm(matrices[f"mean_{metric}"]["double_dqn+shared"]))
+        finals = [final_score(r) if metric == "score" else _final(r, metric) for r in runs]
+        assert theirs == pytest.approx(iqm(np.asarray(finals), np.random.default_rng(0)).mean, rel=1e-12), metric
+
+
+def _final(run: RunData, metric: str) -> float:
+    return asymptotic_performance(run.curve(metric), FINAL_TAIL)
+
+
+def _run(name: str, seed: int, steps=(0, 100), **config) -> EvaluatedRun:
+    base = {
+        "seed": seed,
+        "env": {"mode": "competitive", "num_agents": 2, "size": 6, "map_seed": 0},
+        "agent": {"algorithm": "sarsa", "lr": 0.1},
+        "transfer": {"enabled": False, "exchange": "none"},
+    }
+    for key, value in config.items():
+        base[key] = {**base[key], **value}
+    return EvaluatedRun(name, base, steps, {"team_return": [float(s) for s in steps]})
+
+
+def test_runs_that_would_share_a_name_are_told_apart_by_their_config():
+    tree = marl_eval_tree([_run("a", 0), _run("b", 0, agent={"lr": 0.5}), _run("c", 1)], 0.5)
+    algorithms = sorted(tree["treasurehunt"]["competitive-2agents-6x6-map0"])
+    assert algorithms == ["sarsa;agent.lr=0.1", "sarsa;agent.lr=0.5"]
+    assert not any("," in a for a in algorithms)
+    assert layout_problems(tree) == ["treasurehunt: the tasks' algorithms do not all have the same seeds"]
+
+
+def test_the_same_run_twice_is_an_error():
+    with pytest.raises(ValueError, match="same task, algorithm and seed"):
+        marl_eval_tree([_run("a", 0), _run("b", 0)], 0.5)
+
+
+@pytest.mark.parametrize("case", ["no runs", "not a run dir", "existing out", "bad data"])
+def test_bad_input_is_one_error_line_and_nothing_written(tmp_path, capsys, case):
+    out = tmp_path / "out.json"
+    args = {
+        "no runs": ["marl-eval", "--out", str(out)],
+        "not a run dir": ["marl-eval", str(tmp_path), "--out", str(out)],
+        "existing out": ["marl-eval", "--data", str(DATA / "claim1.jsonl"), "--out", str(out)],
+        "bad data": ["marl-eval", "--data", str(tmp_path / "missing.jsonl"), "--out", str(out)],
+    }[case]
+    if case == "existing out":
+        out.write_text("keep")
+    assert main(args) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: "), err
+    assert (out.read_text() == "keep") if case == "existing out" else not out.exists()
