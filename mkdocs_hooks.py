@@ -2,9 +2,10 @@
 
 Nothing here is a second copy of a page: every page is made at build time from its one source.
 
-- Home: the repository's ``README.md``; the changelog: ``CHANGELOG.md``; the guide's overview page
-  (``guide.md``): ``docs/README.md`` (a ``README.md`` would otherwise be the site's home); the study:
-  ``results/REPORT.md``, ``results/VERDICT_RULES.md`` and their figures.
+- Home: the repository's ``README.md``; the guide's overview page (``guide.md``): ``docs/README.md``
+  (a ``README.md`` would otherwise be the site's home); the study: ``results/REPORT.md``,
+  ``results/VERDICT_RULES.md`` and their figures; ``CHANGELOG.md``. Files outside ``docs/`` keep their
+  repository path on the site, so the links to them hold.
 - Relative links are written for the repository (``docs/game.md`` from the README,
   ``../results/REPORT.md`` from a guide page) and mapped onto the site's layout.
 - API reference: one page per subpackage of ``dqn_transfer`` (and one for its top-level modules),
@@ -185,7 +186,7 @@ def on_files(files: Files, config: MkDocsConfig) -> Files:
         files.remove(overview)
         files.append(File.generated(config, "guide.md", abs_src_path=overview.abs_src_path))
     files.append(File.generated(config, "index.md", abs_src_path=str(ROOT / "README.md")))
-    files.append(File.generated(config, "changelog.md", abs_src_path=str(ROOT / "CHANGELOG.md")))
+    files.append(File.generated(config, "CHANGELOG.md", abs_src_path=str(ROOT / "CHANGELOG.md")))
     for path in sorted([*RESULTS.glob("*.md"), *RESULTS.glob("*.png")]):
         files.append(File.generated(config, f"results/{path.name}", abs_src_path=str(path)))
     for name in [PACKAGE, *subpackages()]:
