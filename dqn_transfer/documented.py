@@ -55,6 +55,8 @@ def format_default(value: Any) -> str:
     """A default as it is typed on the command line: ``null``, ``true``, ``0.001``, ``[64,64]``, ``competitive``."""
     if isinstance(value, Enum):
         return str(value.value)
+    if isinstance(value, list) and value and all(isinstance(item, Enum) for item in value):
+        return "[" + ",".join(str(item.value) for item in value) + "]"
     if value is None or isinstance(value, (bool, list)):
         return json.dumps(value, separators=(",", ":"))
     return str(value)

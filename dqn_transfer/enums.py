@@ -78,6 +78,14 @@ class Engine(Enum):
     numpy = "numpy"
 
 
+class Logger(Enum):
+    """Where a run's scalars, evaluation pictures and config go (``logger``; several at once)."""
+
+    tensorboard = "tensorboard"  # tb/ event files
+    csv = "csv"  # scalars.csv: step, tag, value
+    wandb = "wandb"  # Weights & Biases (the optional ``wandb`` extra); WANDB_MODE=offline works without an account
+
+
 class Fill(Enum):
     """What a transferred network reads at target cells outside the embedded source map (``transfer.fill``)."""
 

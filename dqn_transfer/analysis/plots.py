@@ -29,6 +29,7 @@ IGNORED_KEYS = (
     "checkpoint_every",
     "eval_pictures",
     "objective",
+    "logger",
     "transfer.cache_dir",
 )
 # Keys that name a condition, preferred as labels over what they imply (agent=sarsa implies agent.lr).

@@ -57,7 +57,16 @@ log = logging.getLogger("dqn_transfer.train")
 
 USER_ERRORS = (ConfigError, CheckpointError, TransferError, RunDirError)
 # What a resumed run may change; everything else is the run's own saved config.
-RESUMABLE_KEYS = ("total_steps", "progress", "checkpoint_every", "device", "threads", "eval_pictures", "objective")
+RESUMABLE_KEYS = (
+    "total_steps",
+    "progress",
+    "checkpoint_every",
+    "device",
+    "threads",
+    "eval_pictures",
+    "objective",
+    "logger",
+)
 CONFIG_GROUPS = config_groups()
 # An override of one curriculum stage's key, e.g. curriculum.stages.0.steps (group 1: the stage's key).
 STAGE_ELEMENT = re.compile(r"curriculum\.stages\.\d+\.([^.]+)(\..*)?")
@@ -134,6 +143,8 @@ def expected(kind: Any) -> str:
     if typing.get_origin(kind) is typing.Union:
         return " or ".join(expected(a) for a in args if a is not type(None)) + " (or null)"
     if typing.get_origin(kind) in (list, typing.List):  # noqa: UP006
+        if args and isinstance(args[0], type) and issubclass(args[0], enum.Enum):
+            return "a list of " + "|".join(str(m.value) for m in args[0])
         return f"a list of {expected(args[0]).split(' ', 1)[-1]}s" if args else "a list"
     if typing.get_origin(kind) in (dict, typing.Dict):  # noqa: UP006
         return "a mapping {key: value}"
@@ -246,7 +257,8 @@ class ClaimRunDir(Callback):
         run = RunDir(config.hydra.runtime.output_dir)
         requeued = run.has_run()
         if not requeued:
-            for leftover in (run.tensorboard, run.checkpoints, run.replicas_index, run.metrics, *run.replica_dirs()):
+            leftovers = (run.tensorboard, run.scalars_csv, run.wandb, run.checkpoints, run.replicas_index, run.metrics)
+            for leftover in (*leftovers, *run.replica_dirs()):
                 shutil.rmtree(leftover) if leftover.is_dir() else leftover.unlink(missing_ok=True)
         ClaimRunDir.requeued = requeued
         self._take(run, resume=config.resume or requeued, fresh=not requeued)

@@ -21,7 +21,7 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from dqn_transfer.documented import documented
-from dqn_transfer.enums import Algorithm, Device, Engine, Exchange, Fill, Objective, SourceTask
+from dqn_transfer.enums import Algorithm, Device, Engine, Exchange, Fill, Logger, Objective, SourceTask, values
 from dqn_transfer.envs.settings import ENV_KEYS, EnvConfig
 
 # The config groups: dqn_transfer/conf/, inside the package (found from any directory, installed or not).
@@ -181,6 +181,11 @@ class TrainConfig:
         "final | mean: the team return a sweeper (Optuna) optimises, the last evaluation's or the mean of all "
         "evaluations; over a run's replicas, their mean",
     )
+    logger: List[Logger] = documented(
+        factory=lambda: [Logger.tensorboard],
+        doc="where the scalars, evaluation pictures and config go, one or more of tensorboard | csv "
+        "(scalars.csv) | wandb (Weights & Biases, the wandb extra; replicas as runs of one group)",
+    )
 
 
 def register_configs() -> None:
@@ -287,6 +292,7 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
         cfg.replicas.maps == 1 or (env.layout is None and env.layout_file is None),
         f"replicas.maps={cfg.replicas.maps} needs a generated map; a layout fixes the map (use replicas.seeds)",
     )
+    _check_logger(cfg.logger)
     _check_offset("transfer.offset", transfer.offset)
     _check(
         transfer.enabled or (list(transfer.offset) == [0, 0] and Fill(transfer.fill) is Fill.zero),
@@ -338,6 +344,20 @@ def _check_pretraining(cfg: DictConfig | TrainConfig) -> None:
             f"transfer.source_map_shift={shift}: the source's map seed "
             f"env.map_seed + shift = {env.map_seed + shift} must be >= 0",
         )
+
+
+def _check_logger(names: Any) -> None:
+    """At least one logger; W&B's package installed if named (before the run writes anything)."""
+    _check(
+        len(names) >= 1, f"logger must name at least one of {', '.join(values(Logger))}, e.g. logger=[tensorboard,csv]"
+    )
+    if Logger.wandb in [Logger(name) for name in names]:
+        try:
+            import wandb  # noqa: F401
+        except ImportError:
+            raise ConfigError(
+                "logger=[...,wandb] needs the wandb package: pip install 'dqn-transfer[wandb]' (or pip install wandb)"
+            ) from None
 
 
 def _check_curriculum(cfg: DictConfig | TrainConfig) -> None:

@@ -32,7 +32,7 @@ from dqn_transfer.training.trainer import train
 log = logging.getLogger("dqn_transfer.sources.curriculum")
 
 # Keys that change how a run is watched, not what it learns: left out of a stage's hash.
-NOT_IN_STAGE_HASH = ("progress", "resume", "eval_pictures", "objective")
+NOT_IN_STAGE_HASH = ("progress", "resume", "eval_pictures", "objective", "logger")
 # transfer.* keys a curriculum refuses (at their defaults in every stage), left out of a stage's hash so
 # that the stages cached before they existed stay valid.
 NOT_IN_STAGE_TRANSFER_HASH = ("source_task", "source_map_shift")

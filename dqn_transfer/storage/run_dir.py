@@ -8,6 +8,8 @@
       metrics.jsonl           one greedy evaluation per line
       train.log               the run's log
       tb/                     TensorBoard event files
+      scalars.csv             the same scalars as rows step,tag,value (logger=[...,csv])
+      wandb/                  Weights & Biases' local run directory (logger=[...,wandb])
       checkpoints/agent_{i}.safetensors     one file per agent, shareable on its own
       checkpoints/training_state.safetensors  what resume needs besides the agents
 
@@ -35,6 +37,9 @@ OVERRIDES_FILE = "overrides.yaml"
 METRICS_FILE = "metrics.jsonl"
 LOG_FILE = "train.log"
 TENSORBOARD_DIR = "tb"
+SCALARS_CSV_FILE = "scalars.csv"
+WANDB_DIR = "wandb"
+WANDB_ID_FILE = "wandb_id"  # inside WANDB_DIR: the run's W&B id, which a resumed run continues
 CHECKPOINTS_DIR = "checkpoints"
 TRAINING_STATE_FILE = "training_state.safetensors"
 AGENT_FILE_GLOB = "agent_*.safetensors"
@@ -87,6 +92,18 @@ class RunDir:
         return self.path / TENSORBOARD_DIR
 
     @property
+    def scalars_csv(self) -> Path:
+        return self.path / SCALARS_CSV_FILE
+
+    @property
+    def wandb(self) -> Path:
+        return self.path / WANDB_DIR
+
+    @property
+    def wandb_id(self) -> Path:
+        return self.wandb / WANDB_ID_FILE
+
+    @property
     def checkpoints(self) -> Path:
         return self.path / CHECKPOINTS_DIR
 
@@ -121,7 +138,16 @@ class RunDir:
         """The names of the run's own files and folders that exist (its log and config included)."""
         return [
             p.name
-            for p in (self.hydra_dir, self.metrics, self.tensorboard, self.checkpoints, self.log, self.replicas_index)
+            for p in (
+                self.hydra_dir,
+                self.metrics,
+                self.tensorboard,
+                self.scalars_csv,
+                self.wandb,
+                self.checkpoints,
+                self.log,
+                self.replicas_index,
+            )
             if p.exists()
         ]
 

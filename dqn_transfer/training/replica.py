@@ -29,7 +29,7 @@ from dqn_transfer.envs import TreasureHuntGame
 from dqn_transfer.evaluation.rollout import evaluate, team_return_of
 from dqn_transfer.evaluation.watch import evaluation_views
 from dqn_transfer.storage.run_dir import RunDir
-from dqn_transfer.training.tensorboard import RunLogger
+from dqn_transfer.training.loggers import RunLoggers
 from dqn_transfer.transfer.exchange import exchange_best, exchange_replay
 
 log = logging.getLogger("dqn_transfer.train")
@@ -138,7 +138,7 @@ class Replica:
         self.env_rng = np.random.default_rng([config.seed, 17])
         self.obs: np.ndarray | None = None
         self.episode_state: dict[str, Any] | None = None  # a mid-episode checkpoint's game, until the loop starts
-        self._logger: RunLogger | None = None
+        self._logger: RunLoggers | None = None
         self.plain_config = to_plain(config)  # as JSON data, for logs and checkpoint meta (a config never changes)
 
     @property
@@ -160,13 +160,16 @@ class Replica:
         return epsilons_at(self.config, step, self.transferred, self.counters.exploration_steps)
 
     # ------------------------------------------------------------------ logs
-    def open_logs(self, resume: bool) -> None:
-        """Start the TensorBoard writer; everything logged at a resumed checkpoint's step came before
-        it, so only what came after is purged."""
-        self._logger = RunLogger(
-            self.run_dir.tensorboard,
+    def open_logs(self, resume: bool, group: str) -> None:
+        """Start the loggers ``logger`` names (W&B's runs of a batch in ``group``); everything logged
+        at a resumed checkpoint's step came before it, so only what came after is purged."""
+        self._logger = RunLoggers(
+            self.config.logger,
+            self.run_dir,
+            group,
             self.game.num_agents,
             self.plain_config,
+            resume=resume,
             purge_step=self.counters.step + 1 if resume else None,
         )
 
@@ -175,7 +178,7 @@ class Replica:
             self._logger.close()
 
     @property
-    def logger(self) -> RunLogger:
+    def logger(self) -> RunLoggers:
         if self._logger is None:
             raise RuntimeError("the replica's logs are not open")
         return self._logger

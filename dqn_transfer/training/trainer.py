@@ -39,7 +39,7 @@ from tqdm.contrib.logging import logging_redirect_tqdm
 
 from dqn_transfer.agents import Learner, Transition, UpdateStats, joined, make_replicas
 from dqn_transfer.config import ConfigError, to_plain
-from dqn_transfer.enums import Algorithm, Exchange
+from dqn_transfer.enums import Algorithm, Exchange, Logger
 from dqn_transfer.storage.checkpoint import CheckpointError, atomic_write, atomic_write_all
 from dqn_transfer.storage.run_dir import RunDir, existing_run_message
 from dqn_transfer.timing import Stopwatch
@@ -187,7 +187,7 @@ class Trainer:
             self._write_replica_configs()
             try:
                 for rep in self.replicas:
-                    rep.open_logs(resume=self.config.resume)
+                    rep.open_logs(resume=self.config.resume, group=self._group())
                 return self._train(stop)
             finally:
                 for rep in self.replicas:
@@ -281,15 +281,23 @@ class Trainer:
         self.save_checkpoint()
         rep = replicas[0]
         checkpoints, logdir = self._where()
+        watched = Logger.tensorboard in [Logger(name) for name in self.config.logger]
         log.info(
-            "done: %d steps, %s episodes; last eval %s; checkpoints in %s; watch with `tensorboard --logdir %s`",
+            "done: %d steps, %s episodes; last eval %s; checkpoints in %s; "
+            + ("watch with `tensorboard --logdir %s`" if watched else "logs beside them: %s"),
             self.step,
             "/".join(str(r.counters.episodes) for r in replicas),
             rep.last_eval if len(replicas) == 1 else f"(mean of {len(replicas)} replicas) {self._mean_last_eval()}",
             checkpoints,
-            logdir,
+            logdir if watched else ", ".join(Logger(name).value for name in self.config.logger),
         )
         return self._summary()
+
+    def _group(self) -> str:
+        """The name the run's replicas share in W&B: its run directory's, where the run ends up."""
+        if self.final_dirs is None:
+            return self.run_dir.path.name
+        return (self.final_dirs[0].path if len(self.final_dirs) == 1 else self.final_dirs[0].path.parent).name
 
     def _where(self) -> tuple[str, str]:
         """The run's checkpoints and its TensorBoard logdir as the log names them: where the run ends

@@ -1,0 +1,207 @@
+"""Where a run's scalars, evaluation pictures and config go: the backends ``logger`` names.
+
+:class:`RunLoggers` is what a replica logs to: it drops the points without a value (NaN, None: no
+update yet) once and hands the rest to each backend of the run's ``logger`` list:
+
+* ``tensorboard`` (the default): :class:`~dqn_transfer.training.tensorboard.RunLogger`, ``tb/``;
+* ``csv``: :class:`CsvLogger`, ``scalars.csv`` with one row ``step,tag,value`` per scalar point;
+* ``wandb``: :class:`WandbLogger`, a Weights & Biases run (the optional ``wandb`` extra, imported only
+  when named): the config, the scalars, the evaluation pictures and Q-value histograms; the replicas of
+  a run are runs of one group (the run directory's name). ``WANDB_MODE=offline`` writes only the local
+  run directory (``wandb/`` in the run directory; ``wandb sync`` uploads it later).
+
+A backend's interface (:class:`Backend`) is four calls: several scalars of one step, an evaluation's
+views, a text, and close; the config is given when it is made.
+"""
+
+from __future__ import annotations
+
+import csv
+import html
+import io
+import math
+import os
+import secrets
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from dqn_transfer.enums import Logger
+from dqn_transfer.storage.run_dir import RunDir
+from dqn_transfer.training.tensorboard import RunLogger
+
+CSV_HEADER = ("step", "tag", "value")
+WANDB_PROJECT = "dqn_transfer"  # unless WANDB_PROJECT says otherwise
+
+
+class Backend(Protocol):
+    def scalars(self, points: Sequence[tuple[str, float]], step: int) -> None: ...
+
+    def evaluation_views(self, picture: np.ndarray, q_values: Sequence[np.ndarray], step: int) -> None: ...
+
+    def text(self, tag: str, text: str, step: int = 0) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class CsvLogger:
+    """``scalars.csv``: the scalars TensorBoard gets, one row ``step,tag,value`` each.
+
+    Long rather than wide: which tags a step has varies (evaluations, episode ends, training points),
+    so a row per point needs no header that grows with new tags, appends as the run goes, and reads
+    as TensorBoard's own (tag, step, value) points. Each call's rows are flushed at once, so a killed
+    run keeps what it logged; a resumed run (``purge_step``) first drops the rows from that step on,
+    which it logs again, as TensorBoard hides the same events.
+    """
+
+    def __init__(self, path: Path, purge_step: int | None = None):
+        if purge_step and path.exists():
+            self._keep_before(path, purge_step)
+        fresh = not path.exists() or path.stat().st_size == 0
+        self.file = path.open("a", newline="", encoding="utf-8")
+        self.writer = csv.writer(self.file)
+        if fresh:
+            self.writer.writerow(CSV_HEADER)
+            self.file.flush()
+
+    @staticmethod
+    def _keep_before(path: Path, purge_step: int) -> None:
+        """Rewrite ``path`` (atomically) with its complete rows before ``purge_step``; a last row a
+        kill cut short is dropped too."""
+        from dqn_transfer.storage.checkpoint import atomic_write
+
+        with path.open(newline="", encoding="utf-8") as f:
+            rows = list(csv.reader(f))
+        out = io.StringIO()
+        writer = csv.writer(out)
+        writer.writerow(CSV_HEADER)
+        for row in rows[1:]:
+            try:
+                step, tag, value = int(row[0]), row[1], float(row[2])
+            except (IndexError, ValueError):
+                continue
+            if step < purge_step and len(row) == 3:
+                writer.writerow((step, tag, repr(value)))
+        atomic_write(path, out.getvalue().encode())
+
+    def scalars(self, points: Sequence[tuple[str, float]], step: int) -> None:
+        self.writer.writerows((step, tag, repr(float(value))) for tag, value in points)
+        self.file.flush()
+
+    def evaluation_views(self, picture: np.ndarray, q_values: Sequence[np.ndarray], step: int) -> None:
+        pass  # scalars only
+
+    def text(self, tag: str, text: str, step: int = 0) -> None:
+        pass
+
+    def close(self) -> None:
+        self.file.close()
+
+
+def import_wandb() -> Any:
+    try:
+        import wandb
+    except ImportError:
+        raise ImportError(
+            "logger=[...,wandb] needs the wandb package: pip install 'dqn-transfer[wandb]' (or pip install wandb)"
+        ) from None
+    return wandb
+
+
+class WandbLogger:
+    """A Weights & Biases run of one replica: ``group`` the batch's run directory's name, ``name`` the
+    replica's; its files in ``RUN/wandb/``. The mode (online, offline, disabled) is W&B's own setting
+    (``WANDB_MODE``). A resumed run continues the same W&B run (its id is kept in ``RUN/wandb/``); W&B
+    keeps steps increasing, so the points a killed run logged after its checkpoint stay as they were."""
+
+    def __init__(self, run_dir: RunDir, group: str, config: Mapping[str, Any], resume: bool):
+        wandb = import_wandb()
+        self.wandb = wandb
+        run_dir.wandb.mkdir(parents=True, exist_ok=True)
+        run_id = run_dir.wandb_id.read_text().strip() if resume and run_dir.wandb_id.exists() else None
+        if run_id is None:
+            run_id = secrets.token_hex(4)  # W&B's ids: lower-case letters and digits
+            run_dir.wandb_id.write_text(run_id + "\n")
+        self.run = wandb.init(
+            project=os.environ.get("WANDB_PROJECT") or WANDB_PROJECT,
+            group=group,
+            name=run_dir.path.name,
+            config=dict(config),
+            dir=str(run_dir.path),
+            id=run_id,
+            resume="allow",
+            reinit="create_new",  # the replicas of a batch are runs of one process
+        )
+
+    def scalars(self, points: Sequence[tuple[str, float]], step: int) -> None:
+        self.run.log(dict(points), step=step)
+
+    def evaluation_views(self, picture: np.ndarray, q_values: Sequence[np.ndarray], step: int) -> None:
+        views: dict[str, Any] = {"eval/episode": self.wandb.Image(picture)}
+        views.update(
+            {f"agent_{i}/q_values": self.wandb.Histogram(values) for i, values in enumerate(q_values) if values.size}
+        )
+        self.run.log(views, step=step)
+
+    def text(self, tag: str, text: str, step: int = 0) -> None:
+        self.run.log({tag: self.wandb.Html(f"<pre>{html.escape(text)}</pre>")}, step=step)
+
+    def close(self) -> None:
+        self.run.finish()
+
+
+class RunLoggers:
+    """A replica's logs: the tag vocabulary's helpers, and every backend its ``logger`` list names."""
+
+    def __init__(
+        self,
+        names: Iterable[Logger | str],
+        run_dir: RunDir,
+        group: str,
+        num_agents: int,
+        config: Mapping[str, Any],
+        resume: bool,
+        purge_step: int | None = None,
+    ):
+        self.backends: list[Backend] = []
+        try:
+            for name in dict.fromkeys(Logger(n) for n in names):  # each once, in the given order
+                if name is Logger.tensorboard:
+                    self.backends.append(RunLogger(run_dir.tensorboard, num_agents, config, purge_step=purge_step))
+                elif name is Logger.csv:
+                    self.backends.append(CsvLogger(run_dir.scalars_csv, purge_step=purge_step))
+                else:
+                    self.backends.append(WandbLogger(run_dir, group, config, resume))
+        except BaseException:
+            self.close()
+            raise
+
+    def scalars(self, values: Iterable[tuple[str, float | None]], step: int) -> None:
+        """Several ``(tag, value)`` points of one step; NaNs and Nones (no update yet) are skipped,
+        and nothing is logged if none is left."""
+        points = [(tag, float(value)) for tag, value in values if value is not None and not math.isnan(float(value))]
+        if points:
+            for backend in self.backends:
+                backend.scalars(points, step)
+
+    def scalar(self, tag: str, value: float | None, step: int) -> None:
+        self.scalars([(tag, value)], step)
+
+    agent_values = staticmethod(RunLogger.agent_values)
+
+    def agent_scalars(self, name: str, values: Iterable[float], step: int) -> None:
+        self.scalars(self.agent_values(name, values), step)
+
+    def evaluation_views(self, picture: np.ndarray, q_values: Sequence[np.ndarray], step: int) -> None:
+        for backend in self.backends:
+            backend.evaluation_views(picture, q_values, step)
+
+    def text(self, tag: str, text: str, step: int = 0) -> None:
+        for backend in self.backends:
+            backend.text(tag, text, step)
+
+    def close(self) -> None:
+        for backend in self.backends:
+            backend.close()

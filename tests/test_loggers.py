@@ -1,0 +1,198 @@
+"""``logger=[tensorboard,csv,wandb]``: the CSV backend holds exactly TensorBoard's scalars (and a
+resumed run continues it without duplicates); Weights & Biases, offline, writes the local run of each
+replica (one group) with the config, the scalars and the evaluation pictures. No server is contacted.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+from omegaconf import OmegaConf
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from dqn_transfer.config import AgentConfig, TrainConfig
+from dqn_transfer.config.schema import ConfigError, validate
+from dqn_transfer.enums import Algorithm, Logger
+from dqn_transfer.envs.settings import EnvConfig
+from dqn_transfer.storage.run_dir import RunDir
+from dqn_transfer.training.loggers import import_wandb
+from dqn_transfer.training.plan import plan_run
+from dqn_transfer.training.trainer import Trainer, train
+
+MAP = "0...T\n.#...\n...#.\nX....\n1..T.\n"
+
+
+def config(logger: list[str], resume: bool = False, **overrides) -> TrainConfig:
+    settings = dict(
+        env=EnvConfig(layout=MAP),
+        agent=AgentConfig(algorithm=Algorithm.qlearning, lr=0.1),
+        seed=2,
+        total_steps=600,
+        eval_every=100,
+        eval_episodes=1,
+        checkpoint_every=200,  # with the training points' window (LOG_EVERY)
+        progress=False,
+        resume=resume,
+        logger=[Logger(name) for name in logger],
+    )
+    return TrainConfig(**{**settings, **overrides})
+
+
+def csv_points(run: RunDir) -> list[tuple[int, str, float]]:
+    with run.scalars_csv.open(newline="") as f:
+        rows = list(csv.reader(f))
+    assert rows[0] == ["step", "tag", "value"]
+    return [(int(step), tag, float(value)) for step, tag, value in rows[1:]]
+
+
+def tensorboard_points(run: RunDir) -> list[tuple[int, str, float]]:
+    accumulator = EventAccumulator(str(run.tensorboard), size_guidance={"scalars": 0})
+    accumulator.Reload()
+    return [(e.step, tag, e.value) for tag in accumulator.Tags()["scalars"] for e in accumulator.Scalars(tag)]
+
+
+def as_float32(points: list[tuple[int, str, float]]) -> list[tuple[int, str, float]]:
+    """TensorBoard keeps float32 values; the CSV the full float."""
+    return sorted((step, tag, float(np.float32(value))) for step, tag, value in points)
+
+
+@pytest.mark.filterwarnings("ignore:a layout fixes the map")
+def test_csv_rows_are_the_tensorboard_scalars(tmp_path):
+    train(plan_run(config(["tensorboard", "csv"])), tmp_path / "run")
+    run = RunDir(tmp_path / "run")
+    rows = csv_points(run)
+    assert {tag for _, tag, _ in rows} >= {"eval/team_return", "team/return", "agent_1/episodic_return", "train/sps"}
+    assert as_float32(rows) == as_float32(tensorboard_points(run))
+    assert len({(step, tag) for step, tag, _ in rows}) == len(rows)
+
+
+@pytest.mark.filterwarnings("ignore:a layout fixes the map")
+def test_default_run_writes_tensorboard_only(tmp_path):
+    train(plan_run(config(["tensorboard"], total_steps=50)), tmp_path / "run")
+    run = RunDir(tmp_path / "run")
+    assert run.tensorboard.is_dir() and not run.scalars_csv.exists() and not run.wandb.exists()
+    assert TrainConfig().logger == [Logger.tensorboard]
+
+
+def test_csv_only_run_and_an_empty_list(tmp_path):
+    with pytest.raises(ConfigError, match="logger must name at least one of tensorboard, csv, wandb"):
+        validate(config([]))
+    train(plan_run(config(["csv"], total_steps=50, env=EnvConfig())), tmp_path / "run")
+    run = RunDir(tmp_path / "run")
+    assert run.scalars_csv.exists() and not run.tensorboard.exists()
+
+
+def test_wandb_missing_is_one_clear_message(monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "wandb", None)  # import wandb fails, as without the package
+    with pytest.raises(ConfigError, match=r"^logger=\[...,wandb\] needs the wandb package: pip install"):
+        validate(config(["tensorboard", "wandb"]))
+    with pytest.raises(ImportError, match="needs the wandb package"):
+        import_wandb()
+
+
+class _Killed(Exception):
+    """Stands in for SIGKILL."""
+
+
+@pytest.mark.filterwarnings("ignore:a layout fixes the map")
+def test_resumed_run_continues_the_csv_without_duplicates(tmp_path, monkeypatch):
+    """Die right before the checkpoint at step 400: the rows of steps 201..400 are in the CSV, the
+    checkpoint at 200 does not know them; the resumed run logs them again, once."""
+    loggers = ["tensorboard", "csv"]
+    train(plan_run(config(loggers)), tmp_path / "reference")
+    original = Trainer.save_checkpoint
+
+    def die_at_400(self):
+        if self.step == 400:
+            raise _Killed
+        original(self)
+
+    monkeypatch.setattr(Trainer, "save_checkpoint", die_at_400)
+    with pytest.raises(_Killed):
+        train(plan_run(config(loggers)), tmp_path / "killed")
+    killed = RunDir(tmp_path / "killed")
+    assert max(step for step, _, _ in csv_points(killed)) > 200  # logged after the last checkpoint
+    monkeypatch.setattr(Trainer, "save_checkpoint", original)
+    train(plan_run(config(loggers, resume=True)), tmp_path / "killed")
+
+    rows = csv_points(killed)
+    assert len({(step, tag) for step, tag, _ in rows}) == len(rows)  # no duplicates
+    assert as_float32(rows) == as_float32(tensorboard_points(killed))
+    # the same points as the uninterrupted run (but for the speed)
+    not_speed = lambda points: [p for p in points if p[1] != "train/sps"]  # noqa: E731
+    assert sorted(not_speed(rows)) == sorted(not_speed(csv_points(RunDir(tmp_path / "reference"))))
+
+
+# ------------------------------------------------------------------------ Weights & Biases, offline
+
+
+def wandb_records(path: Path):
+    """The records of a ``run-*.wandb`` file: after a 7-byte header, LevelDB-log blocks of 32 KiB whose
+    chunks (7-byte header: CRC, length, type full/first/middle/last) make up the protobuf records."""
+    from wandb.proto import wandb_internal_pb2
+
+    data, block = path.read_bytes(), 32768
+    assert data[:4] == b":W&B"
+    pos, record = 7, b""
+    while pos + 7 <= len(data):
+        left = block - pos % block
+        _crc, length, kind = struct.unpack("<IHB", data[pos : pos + 7])
+        if left < 7 or (length == 0 and kind == 0):
+            pos += left
+            continue
+        chunk = data[pos + 7 : pos + 7 + length]
+        pos += 7 + length
+        record = chunk if kind in (1, 2) else record + chunk
+        if kind in (1, 4):
+            parsed = wandb_internal_pb2.Record()
+            parsed.ParseFromString(record)
+            yield parsed
+
+
+@pytest.fixture
+def wandb_offline(tmp_path, monkeypatch):
+    wandb = pytest.importorskip("wandb")
+    monkeypatch.setenv("WANDB_MODE", "offline")
+    monkeypatch.setenv("WANDB_DIR", str(tmp_path / "wandb_dir"))
+    monkeypatch.setenv("WANDB_SILENT", "true")
+    monkeypatch.delenv("WANDB_PROJECT", raising=False)
+    yield
+    wandb.teardown()  # the W&B service process this test started
+
+
+@pytest.mark.slow
+@pytest.mark.filterwarnings("ignore")
+def test_wandb_offline_writes_each_replica_as_a_run_of_one_group(tmp_path, wandb_offline):
+    from dqn_transfer.config import ReplicasConfig
+
+    batch = tmp_path / "batch"
+    train(plan_run(config(["csv", "wandb"], env=EnvConfig(), replicas=ReplicasConfig(seeds=2))), batch)
+    names = json.loads((batch / "replicas.json").read_text())["replicas"]
+    assert len(names) == 2
+    for name in names:
+        run = RunDir(batch / name)
+        (offline,) = run.wandb.glob("offline-run-*")
+        records = list(wandb_records(next(offline.glob("run-*.wandb"))))
+        (header,) = [r.run for r in records if r.WhichOneof("record_type") == "run"][:1]
+        assert (header.run_group, header.display_name, header.project) == ("batch", name, "dqn_transfer")
+        logged = {item.key: json.loads(item.value_json) for item in header.config.update}
+        assert logged["agent"]["algorithm"] == "qlearning" and logged["logger"] == ["csv", "wandb"]
+        assert logged["seed"] == OmegaConf.load(run.config).seed  # the replica's own config
+        points, pictures = [], []
+        for history in (r.history for r in records if r.WhichOneof("record_type") == "history"):
+            items = {"/".join(item.nested_key) or item.key: json.loads(item.value_json) for item in history.item}
+            step = items["_step"]
+            scalars = {"/".join(item.nested_key) or item.key for item in history.item if len(item.nested_key) <= 1}
+            points += [(step, k, float(items[k])) for k in scalars if not k.startswith("_")]
+            if "eval/episode/path" in items:
+                pictures.append(step)
+                assert (offline / "files" / items["eval/episode/path"]).is_file()
+        assert sorted(points) == sorted(csv_points(run))  # the scalars' history, value for value
+        assert pictures == list(range(0, 601, 100))  # an evaluation picture at every evaluation
