@@ -29,6 +29,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from dqn_transfer.enums import Logger
+from dqn_transfer.storage.checkpoint import atomic_write
 from dqn_transfer.storage.run_dir import RunDir
 from dqn_transfer.training.tensorboard import RunLogger
 
@@ -70,8 +71,6 @@ class CsvLogger:
     def _keep_before(path: Path, purge_step: int) -> None:
         """Rewrite ``path`` (atomically) with its complete rows before ``purge_step``; a last row a
         kill cut short is dropped too."""
-        from dqn_transfer.storage.checkpoint import atomic_write
-
         with path.open(newline="", encoding="utf-8") as f:
             rows = list(csv.reader(f))
         out = io.StringIO()
