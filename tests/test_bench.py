@@ -42,8 +42,8 @@ from dqn_transfer.benchmark.team_scaling import TeamRig
 from dqn_transfer.benchmark.training import greedy_check, measure_ours_training, measure_sb3_training
 from dqn_transfer.benchmark.update_cost import SB3UpdateRig, UpdateRig
 from dqn_transfer.cli import bench as cli
-from dqn_transfer.cli.train import check_overrides
 from dqn_transfer.config import CONFIG_DIR, AgentConfig, TrainConfig, register_configs
+from dqn_transfer.config.overrides import check_overrides
 from dqn_transfer.enums import Algorithm
 from dqn_transfer.envs import make_game
 

@@ -9,24 +9,17 @@ before. SIGINT / SIGTERM stop the run after the step in progress, with a checkpo
 
 from __future__ import annotations
 
-import dataclasses
-import difflib
-import enum
 import json
 import logging
 import math
-import re
 import shutil
 import sys
-import typing
 import warnings
 from pathlib import Path
 from typing import Any
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
-from hydra.core.override_parser.overrides_parser import OverridesParser
-from hydra.errors import HydraException
 from hydra.experimental.callback import Callback
 from hydra.types import RunMode
 from hydra.utils import get_original_cwd
@@ -36,14 +29,12 @@ from omegaconf.errors import OmegaConfBaseException
 from dqn_transfer.analysis.runs import EvaluationError, run_objective
 from dqn_transfer.config import (
     CONFIG_DIR,
-    SB3_NAMES,
     ConfigError,
-    StageConfig,
     TrainConfig,
     register_configs,
 )
-from dqn_transfer.config.help import config_groups, group_options, help_text
-from dqn_transfer.documented import describe
+from dqn_transfer.config.help import help_text
+from dqn_transfer.config.overrides import check_overrides
 from dqn_transfer.sources.curriculum import curriculum_sources
 from dqn_transfer.sources.resolve import transfer_sources
 from dqn_transfer.storage.checkpoint import CheckpointError, load_training_state
@@ -67,156 +58,6 @@ RESUMABLE_KEYS = (
     "objective",
     "logger",
 )
-CONFIG_GROUPS = config_groups()
-# An override of one curriculum stage's key, e.g. curriculum.stages.0.steps (group 1: the stage's key).
-STAGE_ELEMENT = re.compile(r"curriculum\.stages\.\d+\.([^.]+)(\..*)?")
-STAGE_KEYS = [f.name for f in dataclasses.fields(StageConfig)]
-# Other libraries' names for our agent keys (SB3's, and CleanRL's dqn.py where they differ), so a user
-# who types the name they know is pointed at ours.
-AGENT_ALIASES = {
-    **{sb3: ours for ours, sb3 in SB3_NAMES.items()},
-    "net_arch": "hidden",
-    "target_network_frequency": "target_update",
-    "train_frequency": "train_freq",
-    "start_e": "eps_start",
-    "end_e": "eps_end",
-}
-
-
-# ------------------------------------------------------------------------------------ the command line
-
-
-def check_overrides(argv: list[str]) -> None:
-    """Refuse a key outside the schema (``+`` appends included) or an option no group has, naming the
-    nearest valid one, before Hydra turns it into a multi-line error or silently stores it."""
-    parser = OverridesParser.create()
-    for word in override_words(argv):  # malformed (agent.lr, =5, unicode junk): one line, not Hydra's four
-        try:
-            parser.parse_overrides([word])
-        except HydraException:
-            raise ConfigError(
-                f"cannot read '{word}': an override is key=value (value: a number, true/false, null, a word "
-                "or 'quoted text', a [list] or {mapping}; see --help)"
-            ) from None
-    overrides = parser.parse_overrides(override_words(argv))
-    keys = [k.key for k in describe(TrainConfig)]
-    types = schema_types(TrainConfig)
-    for override in overrides:
-        key = override.key_or_group
-        if key in CONFIG_GROUPS:
-            check_group_option(key, override)
-        elif (stage := STAGE_ELEMENT.fullmatch(key)) and stage.group(1) not in STAGE_KEYS:
-            raise ConfigError(
-                f"unknown curriculum stage key '{stage.group(1)}' in '{override.input_line}' "
-                f"(a stage has {', '.join(STAGE_KEYS)})"
-            )
-        elif key in types:
-            check_value_type(override, types[key])
-        elif not key.startswith("hydra") and key not in keys and not any(key.startswith(f"{k}.") for k in keys):
-            # (an element of a list key, like agent.hidden.0, is Hydra's to check)
-            alias = AGENT_ALIASES.get(key.rsplit(".", 1)[-1])
-            nearest = [f"agent.{alias}"] if alias else difflib.get_close_matches(key, keys, n=1)
-            hint = (
-                f" (did you mean {nearest[0]}?)"
-                if nearest
-                else f"; the keys are listed by `{Path(sys.argv[0]).name} --cfg job`"
-            )
-            raise ConfigError(f"unknown config key '{key}' in '{override.input_line}'{hint}")
-
-
-def schema_types(schema: type, prefix: str = "") -> dict[str, Any]:
-    """Every dotted leaf key of ``schema`` -> its declared type (``typing`` form)."""
-    hints = typing.get_type_hints(schema)
-    types: dict[str, Any] = {}
-    for f in dataclasses.fields(schema):
-        kind = hints[f.name]
-        if dataclasses.is_dataclass(kind):
-            types.update(schema_types(kind, f"{prefix}{f.name}."))  # type: ignore[arg-type]
-        else:
-            types[prefix + f.name] = kind
-    return types
-
-
-def expected(kind: Any) -> str:
-    """A declared type as the user reads it: ``a float``, ``one of cpu|cuda|auto``, ``a list of integers``."""
-    args = typing.get_args(kind)
-    if typing.get_origin(kind) is typing.Union:
-        return " or ".join(expected(a) for a in args if a is not type(None)) + " (or null)"
-    if typing.get_origin(kind) in (list, typing.List):  # noqa: UP006
-        if args and isinstance(args[0], type) and issubclass(args[0], enum.Enum):
-            return "a list of " + "|".join(str(m.value) for m in args[0])
-        return f"a list of {expected(args[0]).split(' ', 1)[-1]}s" if args else "a list"
-    if typing.get_origin(kind) in (dict, typing.Dict):  # noqa: UP006
-        return "a mapping {key: value}"
-    if isinstance(kind, type) and issubclass(kind, enum.Enum):
-        return "one of " + "|".join(str(m.value) for m in kind)
-    return {bool: "true or false", int: "an integer", float: "a float", str: "a string"}.get(kind, "another value")
-
-
-def check_value_type(override, kind: Any) -> None:
-    """Refuse a value the schema's type cannot hold (``agent.lr=fast``) in one line, before Hydra does
-    so in six. Each value of a sweep is tried; interpolations are left to Hydra."""
-    if kind is Any or override.is_delete():
-        return
-    try:
-        values = list(override.sweep_iterator()) if override.is_sweep_override() else [override.value()]
-    except HydraException:
-        return  # a sweep Hydra expands itself (range, glob): its own errors
-    schema = OmegaConf.structured(TrainConfig)
-    for value in values:
-        if isinstance(value, str) and "${" in value:
-            continue
-        try:
-            OmegaConf.update(schema, override.key_or_group, value, merge=True)
-        except (OmegaConfBaseException, ValueError, TypeError):
-            raw = override.input_line.split("=", 1)[-1]
-            shown = str(value) if override.is_sweep_override() else raw
-            raise ConfigError(f"{override.key_or_group}={shown}: expected {expected(kind)}") from None
-
-
-# Hydra's own command-line flags, and whether each takes a value (``--info`` may or may not: its value
-# is one of Hydra's info topics); every other word is an override.
-HYDRA_FLAGS = {
-    **dict.fromkeys(("-m", "--multirun", "-r", "--run", "--hydra-help", "-h", "--help", "--version"), False),
-    **dict.fromkeys(("--resolve", "-sc", "--shell-completion"), False),
-    **dict.fromkeys(("-cn", "--config-name", "-cp", "--config-path", "-cd", "--config-dir"), True),
-    **dict.fromkeys(("-c", "--cfg", "-p", "--package", "--experimental-rerun"), True),
-}
-INFO_FLAGS = ("-i", "--info")
-INFO_TOPICS = ("all", "config", "defaults", "defaults-tree", "plugins", "searchpath")
-
-
-def override_words(argv: list[str]) -> list[str]:
-    """The overrides of a command line: its words that are not Hydra's flags or their values."""
-    words, rest = [], iter(argv)
-    for word in rest:
-        flag = word.split("=", 1)[0] if word.startswith("-") else word
-        if word.startswith("-") and "=" in word and flag in {*HYDRA_FLAGS, *INFO_FLAGS}:
-            continue  # --flag=value
-        if flag in INFO_FLAGS:
-            topic = next(rest, None)
-            if topic is not None and topic not in INFO_TOPICS:
-                words.append(topic)
-        elif flag in HYDRA_FLAGS:
-            if HYDRA_FLAGS[flag]:
-                next(rest, None)
-        else:
-            words.append(word)
-    return words
-
-
-def check_group_option(group: str, override) -> None:
-    options = group_options(group)
-    chosen = (
-        list(override.sweep_string_iterator())
-        if override.is_sweep_override()
-        else [override.get_value_element_as_str()]
-    )
-    for option in chosen:
-        if option not in options and option != "null":
-            nearest = difflib.get_close_matches(option, options, n=1)
-            hint = f"did you mean {group}={nearest[0]}? " if nearest else ""
-            raise ConfigError(f"{group}={option}: no such option ({hint}choose from {', '.join(options)})")
 
 
 # ------------------------------------------------------------------------------------ the run directory
