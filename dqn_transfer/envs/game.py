@@ -37,7 +37,7 @@ import numpy as np
 
 from dqn_transfer.enums import Mode, ObsEncoding, RewardMode, values
 from dqn_transfer.envs.maps import GridMap, resolve_map
-from dqn_transfer.envs.settings import DEFAULTS, MAP_KEYS, EnvConfig
+from dqn_transfer.envs.settings import DEFAULTS, MAP_KEYS, RULE_KEYS, EnvConfig
 
 RENDER_MODES = ("ansi", "rgb_array", "human")  # human: the ansi frame printed to the terminal
 ACTION_MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))  # 0 up, 1 down, 2 left, 3 right
@@ -324,18 +324,8 @@ class TreasureHuntGame:
 
     def _settings(self) -> dict:
         """The constructor arguments of this game, besides its map."""
-        return dict(
-            mode=self.mode,
-            reward_mode=self.reward_mode,
-            obs_encoding=self.obs_encoding,
-            view_radius=self.view_radius,
-            max_steps=self.max_steps,
-            treasure_reward=self.treasure_reward,
-            trap_reward=self.trap_reward,
-            step_reward=self.step_reward,
-            num_agents=self.num_agents,
-            include_treasures=self.include_treasures,
-        )
+        rules = {key: getattr(self, key) for key in RULE_KEYS}
+        return dict(rules, num_agents=self.num_agents, include_treasures=self.include_treasures)
 
     def replica(self) -> TreasureHuntGame:
         """An independent game with the same map and rules (e.g. for evaluation), built without
@@ -645,17 +635,7 @@ def make_game(**settings) -> TreasureHuntGame:
 
 def game_on(grid_map: GridMap, config: EnvConfig) -> TreasureHuntGame:
     """The game of ``config``'s rules on ``grid_map`` (the map ``config``'s map keys resolve to)."""
-    return TreasureHuntGame(
-        grid_map,
-        mode=config.mode,
-        reward_mode=config.reward_mode,
-        obs_encoding=config.obs_encoding,
-        view_radius=config.view_radius,
-        max_steps=config.max_steps,
-        treasure_reward=config.treasure_reward,
-        trap_reward=config.trap_reward,
-        step_reward=config.step_reward,
-    )
+    return TreasureHuntGame(grid_map, **{key: getattr(config, key) for key in RULE_KEYS})
 
 
 def map_settings(grid_map: GridMap) -> dict[str, Any]:

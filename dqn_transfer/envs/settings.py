@@ -48,4 +48,6 @@ class EnvConfig:
 ENV_KEYS = tuple(f.name for f in fields(EnvConfig))
 # The keys that shape the map itself; the rest are rules, observations and rewards.
 MAP_KEYS = ("size", "num_treasures", "num_traps", "num_agents", "complexity", "map_seed", "layout", "layout_file")
+# The game's rules: the keys a game is built with besides its map (render_mode belongs to the faces).
+RULE_KEYS = tuple(key for key in ENV_KEYS if key not in MAP_KEYS and key != "render_mode")
 DEFAULTS = EnvConfig()
