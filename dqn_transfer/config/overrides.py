@@ -45,15 +45,15 @@ def check_overrides(argv: list[str]) -> None:
     """Refuse a key outside the schema (``+`` appends included) or an option no group has, naming the
     nearest valid one, before Hydra turns it into a multi-line error or silently stores it."""
     parser = OverridesParser.create()
+    overrides = []
     for word in override_words(argv):  # malformed (agent.lr, =5, unicode junk): one line, not Hydra's four
         try:
-            parser.parse_overrides([word])
+            overrides += parser.parse_overrides([word])
         except HydraException:
             raise ConfigError(
                 f"cannot read '{word}': an override is key=value (value: a number, true/false, null, a word "
                 "or 'quoted text', a [list] or {mapping}; see --help)"
             ) from None
-    overrides = parser.parse_overrides(override_words(argv))
     groups = config_groups()
     keys = [k.key for k in describe(TrainConfig)]
     types = schema_types(TrainConfig)
