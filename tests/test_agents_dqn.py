@@ -9,8 +9,9 @@ from safetensors.numpy import load as load_numpy
 from safetensors.numpy import save as save_numpy
 
 from dqn_transfer.agents import DQNLearner, TabularLearner, Transition, linear_schedule, make_learner
+from dqn_transfer.agents.numpy_dqn import NumpyDQNLearner
 from dqn_transfer.config import AgentConfig
-from dqn_transfer.enums import Algorithm
+from dqn_transfer.enums import Algorithm, Engine, resolve_engine
 
 LAYOUT = [("position", 3), ("treasures", 1)]
 D, A = 4, 2
@@ -231,8 +232,16 @@ def test_training_state_round_trip_continues_bit_identically(share_parameters):
     assert b.frozen_layers == [0] and a.num_gradient_steps == b.num_gradient_steps
 
 
+def test_engine_auto_is_numpy_on_the_cpu_and_torch_elsewhere():
+    assert resolve_engine("auto", "cpu") is Engine.numpy
+    assert resolve_engine("auto", "cuda") is Engine.torch and resolve_engine("auto", "auto") is Engine.torch
+    assert resolve_engine("torch", "cpu") is Engine.torch and resolve_engine("numpy", "cpu") is Engine.numpy
+    assert AgentConfig().engine is Engine.auto
+    assert isinstance(make_learner(AgentConfig(), 2, LAYOUT, A, seed=0), NumpyDQNLearner)
+
+
 def test_make_learner_builds_each_algorithm_from_its_config():
-    cfg = dict(lr=0.1, gamma=0.9, hidden=[16], batch_size=8, buffer_size=100)
+    cfg = dict(lr=0.1, gamma=0.9, hidden=[16], batch_size=8, buffer_size=100, engine=Engine.torch)
     for algorithm, cls in [
         ("sarsa", TabularLearner),
         ("qlearning", TabularLearner),

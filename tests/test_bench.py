@@ -367,7 +367,7 @@ def test_lone_section_runs_four_whole_processes_that_train(process_document):
         assert runs[0]["cpu_seconds"] > 0 and runs[0]["max_rss_mb"] > 0
     assert contenders["ours"]["ours_over_this"] == 1.0
     assert contenders["sb3"]["figures"]["gradient_steps"] == expected
-    assert lone["hyperparameters"] == {**dataclasses.asdict(LONE_AGENT), "algorithm": "dqn", "engine": "torch"}
+    assert lone["hyperparameters"] == {**dataclasses.asdict(LONE_AGENT), "algorithm": "dqn", "engine": "auto"}
     assert len(lone["load"]["start"]) == len(lone["load"]["end"]) == 3
 
 
@@ -450,7 +450,7 @@ def test_document_holds_every_section_and_is_json(document):
     assert document["settings"]["hyperparameters"] == {
         **dataclasses.asdict(TINY),
         "algorithm": "dqn",
-        "engine": "torch",
+        "engine": "auto",
     }
     assert document["machine"]["torch_threads_used"] == [1]
     assert json.loads(json.dumps(document)) == document  # plain JSON types throughout

@@ -31,7 +31,7 @@ from dqn_transfer.analysis.compare import compare_runs
 from dqn_transfer.analysis.runs import learning_curve
 from dqn_transfer.analysis.transfer_metrics import jumpstart
 from dqn_transfer.config import AgentConfig, ConfigError, TrainConfig, TransferConfig
-from dqn_transfer.enums import Algorithm, Exchange, Mode
+from dqn_transfer.enums import Algorithm, Engine, Exchange, Mode
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.sources.resolve import transfer_sources
 from dqn_transfer.storage.checkpoint import CheckpointError
@@ -49,6 +49,7 @@ SOLO_MAP = "0....\n.....\n..T..\n.....\n....X\n"
 
 DQN_AGENT = dict(
     algorithm=Algorithm.dqn,
+    engine=Engine.torch,  # the checks below run the target's torch network
     hidden=[32, 32],
     batch_size=32,
     buffer_size=5_000,

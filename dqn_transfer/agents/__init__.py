@@ -8,8 +8,9 @@ learner can do is a set of capabilities (:mod:`dqn_transfer.agents.base`): every
 state over). Code outside this package calls these methods and checks a capability with :func:`require`,
 never a learner's class.
 
-The DQN family has two engines (``agent.engine``): ``torch`` (:mod:`~dqn_transfer.agents.dqn`) and
-``numpy`` (:mod:`~dqn_transfer.agents.numpy_dqn`), which share :mod:`~dqn_transfer.agents.dqn_update`
+The DQN family has two engines (``agent.engine``, whose default ``auto`` means numpy on the CPU and
+torch on a GPU): ``torch`` (:mod:`~dqn_transfer.agents.dqn`) and ``numpy``
+(:mod:`~dqn_transfer.agents.numpy_dqn`), which share :mod:`~dqn_transfer.agents.dqn_update`
 (the gradient step, stated once; it imports torch only when its reference update is called). An
 engine's module is imported when a learner of it is built, so that a process that trains a tabular or
 numpy learner never imports torch (3-4 s of start-up); the torch engine's names below
@@ -46,7 +47,7 @@ from dqn_transfer.agents.replicas import TeamView, team_view
 from dqn_transfer.agents.schedules import linear_schedule
 from dqn_transfer.agents.tabular import TabularLearner
 from dqn_transfer.config import AgentConfig
-from dqn_transfer.enums import Algorithm, Device, Engine
+from dqn_transfer.enums import Algorithm, Device, Engine, resolve_engine
 
 # The torch engine's public names, by module (imported on first access: see __getattr__).
 _TORCH_NAMES = {
@@ -127,7 +128,7 @@ def make_replicas(
     """
     if Algorithm(hp.algorithm).is_tabular:
         return TabularLearner(num_agents, obs_layout, num_actions, hp, seed=list(seeds))
-    if Engine(hp.engine) is Engine.numpy:
+    if resolve_engine(hp.engine, device) is Engine.numpy:
         engine = import_module("dqn_transfer.agents.numpy_dqn")
         return engine.NumpyDQNLearner(num_agents, obs_layout, num_actions, hp, seed=list(seeds))
     engine = import_module("dqn_transfer.agents.dqn")

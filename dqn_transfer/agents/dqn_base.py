@@ -17,10 +17,10 @@ still per agent, loss the *mean* over the replica's agents. Replica r (rows ``r 
 has its own initial weights, exploration and replay sampling streams, seeded as a lone learner of its
 seed would be; :meth:`BatchedDQN.replica` is its team (:mod:`dqn_transfer.agents.replicas`).
 
-Two engines do the arithmetic (``agent.engine``): ``torch`` (:mod:`dqn_transfer.agents.dqn`, the
-default; any device, bit-identical to autograd and ``torch.optim.Adam``) and ``numpy``
+Two engines do the arithmetic (``agent.engine``): ``torch`` (:mod:`dqn_transfer.agents.dqn`, any
+device, bit-identical to autograd and ``torch.optim.Adam``) and ``numpy``
 (:mod:`dqn_transfer.agents.numpy_dqn`, CPU only, no torch in the process: the fastest for a few small
-networks). This module is what they share, and imports neither torch nor an engine.
+networks, and what the default ``auto`` picks on the CPU). This module is what they share, and imports neither torch nor an engine.
 """
 
 from __future__ import annotations

@@ -55,7 +55,9 @@ class AgentConfig:
     max_grad_norm: float = documented(10.0, "gradient-norm clip, per agent")
     share_parameters: bool = documented(False, "one network for all agents (parameter-sharing baseline)")
     engine: Engine = documented(
-        Engine.torch, "DQN arithmetic: torch (any device) | numpy (CPU, no torch import: fastest for small networks)"
+        Engine.auto,
+        "DQN arithmetic: auto (numpy on device=cpu, else torch) | torch (any device) | numpy (CPU, no torch "
+        "import: ~3x torch on these small networks)",
     )
 
 
@@ -285,7 +287,7 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
             f"transfer.freeze={list(transfer.freeze)}: the network has {layers} layers (0..{layers - 1})",
         )
     _check(
-        Engine(agent.engine) is Engine.torch or Device(cfg.device) is not Device.cuda,
+        Engine(agent.engine) is not Engine.numpy or Device(cfg.device) is not Device.cuda,
         "agent.engine=numpy runs on the CPU: use device=cpu (or agent.engine=torch for device=cuda)",
     )
     _check(
