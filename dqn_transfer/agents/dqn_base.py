@@ -20,7 +20,8 @@ seed would be; :meth:`BatchedDQN.replica` is its team (:mod:`dqn_transfer.agents
 Two engines do the arithmetic (``agent.engine``): ``torch`` (:mod:`dqn_transfer.agents.dqn`, any
 device, bit-identical to autograd and ``torch.optim.Adam``) and ``numpy``
 (:mod:`dqn_transfer.agents.numpy_dqn`, CPU only, no torch in the process: the fastest for a few small
-networks, and what the default ``auto`` picks on the CPU). This module is what they share, and imports neither torch nor an engine.
+networks, and what the default ``auto`` picks on the CPU). This module is what they share, and imports
+neither torch nor an engine.
 """
 
 from __future__ import annotations

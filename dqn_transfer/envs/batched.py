@@ -24,7 +24,7 @@ live agents' rewards one after another in agent order in float32; the one-game c
 same for fewer than 8 live agents, and numpy's pairwise grouping beyond that (so the last bit can
 differ for 8+ live agents with fractional rewards; the default rewards are integers and exact).
 
-The trainer does not use this module yet.
+The training loop steps its replicas' games through this core (:mod:`dqn_transfer.envs.game_batch`).
 """
 
 from __future__ import annotations

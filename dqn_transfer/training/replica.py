@@ -135,18 +135,10 @@ class Replica:
         self.shared_transitions: list[Transition] = []  # shared_replay: the window's transitions
         self.episode = EpisodeStats(k)
         self.window: list[UpdateStats] = []  # update statistics since the last training-curve point
-        self.env_rng = np.random.default_rng([config.seed, 17])
-        self.obs: np.ndarray | None = None
+        self.env_rng = np.random.default_rng([config.seed, 17])  # the chest ties of its training games
         self.episode_state: dict[str, Any] | None = None  # a mid-episode checkpoint's game, until the loop starts
         self._logger: RunLoggers | None = None
         self.plain_config = to_plain(config)  # as JSON data, for logs and checkpoint meta (a config never changes)
-
-    @property
-    def observation(self) -> np.ndarray:
-        """The observation the loop acts on (the episode has started)."""
-        if self.obs is None:
-            raise RuntimeError("the replica's episode has not started")
-        return self.obs
 
     @property
     def transferred(self) -> np.ndarray:
@@ -185,48 +177,54 @@ class Replica:
 
     # ------------------------------------------------------------------ episodes
     def start_episodes(self) -> None:
-        """The episode the loop continues: a checkpoint's, or a fresh one."""
+        """Put :attr:`game` in the episode the loop continues (a checkpoint's, or a fresh one), from
+        which the loop's game batch starts."""
         if self.counters.env_rng_state:  # resumed: continue the episode-reset stream where it stopped
             self.env_rng.bit_generator.state = self.counters.env_rng_state
         if self.episode_state is not None:
-            self.obs = self.game.load_state_dict(self.episode_state["game"], self.env_rng)
+            self.game.load_state_dict(self.episode_state["game"], self.env_rng)
             self.episode.load_state_dict(self.episode_state["stats"])
         else:
-            self.obs = self.game.reset(self.env_rng)
+            self.game.reset(self.env_rng)
 
     def record_step(
-        self, step: int, transition: Transition, stats: UpdateStats, trap: np.ndarray, shared_replay: bool
+        self,
+        step: int,
+        transition: Transition,
+        stats: UpdateStats,
+        trap: np.ndarray,
+        shared_replay: bool,
+        episode_treasures: int | None,
     ) -> None:
-        """Count the replica's part of a joint step; at its episode's end, log it, exchange knowledge
-        when due and start the next episode."""
+        """Count the replica's part of a joint step; at its episode's end (``episode_treasures``: the
+        chests its team emptied in it, else None), log it and exchange knowledge when due. The loop
+        then starts the next episode."""
         self.counters.step = step
         self.window.append(stats)
         if shared_replay:
             self.shared_transitions.append(transition)
         self.episode.add(transition, trap, self.game.reward_mode)
-        self.obs = transition.next_obs
-        if self.game.done:
-            self._end_episode()
-            self.obs = self.game.reset(self.env_rng)
+        if episode_treasures is not None:
+            self._end_episode(episode_treasures)
 
-    def _end_episode(self) -> None:
+    def _end_episode(self, treasures: int) -> None:
         """Log the finished episode and exchange knowledge when due (before the reset)."""
         counters, transfer = self.counters, self.config.transfer
         counters.episodes += 1
-        self._log_episode()
+        self._log_episode(treasures)
         self.window_returns.append(self.episode.returns.copy())
         self.episode.reset()
         if transfer.exchange is not Exchange.none and counters.episodes % transfer.exchange_every == 0:
             self._exchange()
 
-    def _log_episode(self) -> None:
+    def _log_episode(self, treasures: int) -> None:
         logger, episode, step, game = self.logger, self.episode, self.counters.step, self.game
         logger.scalars(  # one event for the episode's points
             [
                 *logger.agent_values("episodic_return", episode.returns),
                 *logger.agent_values("episodic_length", episode.lengths),
                 ("team/return", episode.team_return),
-                ("team/treasures_collected", game.treasures_collected),
+                ("team/treasures_collected", treasures),
                 ("team/trap_rate", episode.traps / game.num_agents),
             ],
             step,

@@ -52,8 +52,11 @@ def agent_meta(rep: Replica, index: int, algorithm: Algorithm, source_task: bool
     }
 
 
-def encode_checkpoint(rep: Replica, algorithm: Algorithm, source_task: bool) -> tuple[dict[Path, bytes], Path, bytes]:
-    """The replica's agent files by path, and the path and bytes of its resume state."""
+def encode_checkpoint(
+    rep: Replica, algorithm: Algorithm, source_task: bool, game_state: dict[str, Any] | None
+) -> tuple[dict[Path, bytes], Path, bytes]:
+    """The replica's agent files by path, and the path and bytes of its resume state; ``game_state``:
+    its episode in progress (None before the loop starts)."""
     rep.counters.env_rng_state = dict(rep.env_rng.bit_generator.state)
     files: dict[Path, bytes] = {}
     arrays: dict[str, np.ndarray] = {}
@@ -77,10 +80,8 @@ def encode_checkpoint(rep: Replica, algorithm: Algorithm, source_task: bool) -> 
         "algorithm": algorithm.value,
         "config": rep.plain_config,  # what resume=true continues with
         "layout": rep.game.map.layout,  # the map itself: a layout file may have changed since
-        # The episode in progress (None before the loop starts or after it ends).
-        "episode": None
-        if rep.obs is None or rep.game.done
-        else {"game": rep.game.state_dict(), "stats": rep.episode.state_dict()},
+        # The episode in progress (None before the loop starts).
+        "episode": None if game_state is None else {"game": game_state, "stats": rep.episode.state_dict()},
     }
     return files, rep.run_dir.training_state, encode_training_state(arrays, meta)
 

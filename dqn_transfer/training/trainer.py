@@ -40,6 +40,7 @@ from tqdm.contrib.logging import logging_redirect_tqdm
 from dqn_transfer.agents import Learner, Transition, UpdateStats, joined, make_replicas
 from dqn_transfer.config import ConfigError, to_plain
 from dqn_transfer.enums import Algorithm, Exchange, Logger
+from dqn_transfer.envs.game_batch import GameBatch, game_batch
 from dqn_transfer.storage.checkpoint import CheckpointError, atomic_write, atomic_write_all
 from dqn_transfer.storage.run_dir import RunDir, existing_run_message
 from dqn_transfer.timing import Stopwatch
@@ -120,6 +121,7 @@ class Trainer:
             for r, (replica, game, source) in enumerate(zip(plan.replicas, games, per_replica))
         ]
         self.prepared = False  # prepare() ran: the run's start is checked (run() then skips it)
+        self.games: GameBatch | None = None  # the replicas' games while the loop runs (built when it starts)
         # Time spent outside the loop proper (what a benchmark subtracts to compare with bare loops).
         self.evaluation_time, self.checkpoint_time = Stopwatch(), Stopwatch()
 
@@ -207,6 +209,8 @@ class Trainer:
             if rep.counters.step % config.eval_every == 0 and rep.last_eval_step != rep.counters.step:
                 self.run_evaluation(rep)  # step 0, or a resumed checkpoint's step whose eval was lost
             rep.start_episodes()
+        self.games = games = game_batch([rep.game for rep in replicas], [rep.env_rng for rep in replicas])
+        num_rows = games.num_replicas * games.num_agents
         shared_replay = config.transfer.exchange is Exchange.shared_replay
         bar = tqdm(
             total=config.total_steps,
@@ -223,28 +227,29 @@ class Trainer:
             # 1. act: one batched forward for every agent of every replica
             step = self.step
             epsilon = joined([rep.epsilon(step) for rep in replicas])
-            live = joined([rep.game.live for rep in replicas])
-            obs = joined([rep.observation for rep in replicas])
+            live = games.live.reshape(num_rows)
+            obs = games.obs.reshape(num_rows, -1)
             actions = learner.act(obs, live, epsilon=epsilon)
             # 2. step the games and learn
-            outcomes = [rep.game.step(actions[rep.rows]) for rep in replicas]
+            outcome = games.step(actions.reshape(games.num_replicas, games.num_agents))
             step += 1
             transition = Transition(
                 obs,
                 actions,
-                joined([o.rewards for o in outcomes]),
-                joined([o.obs for o in outcomes]),
-                joined([o.terminated for o in outcomes]),
-                joined([o.truncated for o in outcomes]),
+                outcome.rewards.reshape(num_rows),
+                outcome.next_obs.reshape(num_rows, -1),
+                outcome.terminated.reshape(num_rows),
+                outcome.truncated.reshape(num_rows),
                 live,
             )
             stats = learner.update(transition, step)
-            # 3. each replica's part; at its episode's end: log, exchange knowledge, start the next
-            for rep, outcome in zip(replicas, outcomes):
+            # 3. each replica's part; at its episode's end: log, exchange knowledge; then the next episodes
+            for r, rep in enumerate(replicas):
                 own = Transition(*(column[rep.rows] for column in transition))
-                rep.record_step(
-                    step, own, UpdateStats(*(column[rep.rows] for column in stats)), outcome.trap, shared_replay
-                )
+                own_stats = UpdateStats(*(column[rep.rows] for column in stats))
+                ended = int(outcome.episode_treasures[r]) if outcome.episode_end[r] else None
+                rep.record_step(step, own, own_stats, outcome.trap[r], shared_replay, ended)
+            games.reset(outcome.episode_end)
             # 4. evaluation
             if step % config.eval_every == 0:
                 for rep in replicas:
@@ -324,8 +329,9 @@ class Trainer:
         with self.checkpoint_time:
             agent_files: dict[Path, bytes] = {}
             state_files: dict[Path, bytes] = {}
-            for rep in self.replicas:
-                files, state_path, state = encode_checkpoint(rep, self.algorithm, self.source_task)
+            for r, rep in enumerate(self.replicas):
+                game_state = self.games.state_dict(r) if self.games is not None else None
+                files, state_path, state = encode_checkpoint(rep, self.algorithm, self.source_task, game_state)
                 agent_files.update(files)
                 state_files[state_path] = state
             atomic_write_all({**agent_files, **state_files})
