@@ -351,25 +351,27 @@ def step(
     state: BatchedState,
     actions: np.ndarray,
     rngs: Sequence[np.random.Generator],
+    finished_stay: bool = False,
 ) -> tuple[BatchedState, BatchedOutcome]:
     """One joint step of every replica: ``actions [R, K]`` integers in ``0..3`` (those of non-live
     agents are ignored); ``rngs[r]`` draws replica ``r``'s chest ties. Returns the new state and the
     :class:`BatchedOutcome`; the inputs are not changed.
 
     Without ``maps.auto_reset``, stepping a replica with no live agent is a ``RuntimeError`` (reset
-    it first); with it, such replicas never exist between steps."""
+    it first), unless ``finished_stay``: then such a replica stays as it is (a batch of episodes played
+    to their ends, e.g. an evaluation's); with ``auto_reset``, such replicas never exist between steps."""
     replicas, agents, k = maps.num_replicas, maps.num_agents, maps.num_treasures
     live = state.live
     acts = np.asarray(actions)
     if acts.shape != (replicas, agents):
         raise ValueError(f"actions must have shape {(replicas, agents)}, got {acts.shape}")
     over = np.flatnonzero(~live.any(axis=1))
-    if over.size:
+    if over.size and not finished_stay:
         raise RuntimeError(f"the episode is over in replicas {over.tolist()}: reset before stepping them")
     if acts.dtype.kind not in "iu":
         raise ValueError(f"actions must be integers, got dtype {acts.dtype}")
     played = acts[live]
-    if played.min() < 0 or played.max() >= maps.num_actions:
+    if played.size and (played.min() < 0 or played.max() >= maps.num_actions):
         raise ValueError(f"actions must be in 0..{maps.num_actions - 1}, got {np.unique(played).tolist()}")
 
     r_idx = np.arange(replicas)[:, None]
@@ -411,7 +413,7 @@ def step(
     terminated = trap | won
     collected = won.sum(axis=1)
 
-    t = state.t + 1
+    t = state.t + live.any(axis=1)  # a finished replica's clock stays
     truncated = live & ~terminated & (t >= maps.max_steps)[:, None]
     now_live = live & ~(terminated | truncated)
     assigned = state.assigned

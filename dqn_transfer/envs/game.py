@@ -322,7 +322,7 @@ class TreasureHuntGame:
             return np.eye(self.size**2, dtype=np.float32)
         return self._coords.copy()
 
-    def _settings(self) -> dict:
+    def settings(self) -> dict:
         """The constructor arguments of this game, besides its map."""
         rules = {key: getattr(self, key) for key in RULE_KEYS}
         return dict(rules, num_agents=self.num_agents, include_treasures=self.include_treasures)
@@ -330,14 +330,14 @@ class TreasureHuntGame:
     def replica(self) -> TreasureHuntGame:
         """An independent game with the same map and rules (e.g. for evaluation), built without
         resolving the map again."""
-        return TreasureHuntGame(self.map, **self._settings())
+        return TreasureHuntGame(self.map, **self.settings())
 
     def single_agent_game(self) -> TreasureHuntGame:
         """The source task of transfer: agent 0 alone on this map, observing position [+ view]."""
         return TreasureHuntGame(
             self.map,
             **{
-                **self._settings(),
+                **self.settings(),
                 "mode": Mode.competitive,
                 "reward_mode": RewardMode.individual,
                 "num_agents": 1,

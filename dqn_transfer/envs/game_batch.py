@@ -147,7 +147,7 @@ class BatchedTreasureHunts(GameBatch):
         :param rngs: each replica's generator of chest ties
         """
         first = games[0]
-        self.maps = batched.batch_maps([game.map for game in games], **first._settings())
+        self.maps = batched.batch_maps([game.map for game in games], **first.settings())
         self.games, self.rngs = list(games), list(rngs)
         self.num_replicas, self.num_agents = len(self.games), first.num_agents
         self.state, _ = batched.reset(self.maps)
@@ -205,14 +205,20 @@ class BatchedTreasureHunts(GameBatch):
         self.state = batched.BatchedState(*arrays)
 
 
-def game_batch(games: Sequence[TreasureHuntGame], rngs: Sequence[np.random.Generator]) -> GameBatch:
-    """The replicas' games as one batch: the batched core for treasure hunts that fit one batch (same
-    size, counts and rules), else a loop over the games."""
+def fits_one_batch(games: Sequence[object]) -> bool:
+    """Whether ``games`` are treasure hunts the batched core can step together (same size, counts and
+    rules; their maps may differ)."""
     first = games[0]
-    fits = all(
+    return all(
         type(game) is TreasureHuntGame
-        and game._settings() == first._settings()
+        and type(first) is TreasureHuntGame
+        and game.settings() == first.settings()
         and (game.size, game.num_treasures) == (first.size, first.num_treasures)
         for game in games
     )
-    return BatchedTreasureHunts(games, rngs) if fits else LoopedGames(games, rngs)
+
+
+def game_batch(games: Sequence[TreasureHuntGame], rngs: Sequence[np.random.Generator]) -> GameBatch:
+    """The replicas' games as one batch: the batched core for treasure hunts that fit one batch, else
+    a loop over the games."""
+    return BatchedTreasureHunts(games, rngs) if fits_one_batch(games) else LoopedGames(games, rngs)

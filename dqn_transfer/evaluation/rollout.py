@@ -7,7 +7,7 @@ since it runs across episode boundaries on a step budget.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -116,6 +116,11 @@ def evaluate(
     for episode in range(len(results), episodes):
         rng = evaluation_rng(seed, evaluation, episode)
         results.append(play_episode(game, greedy_policy(learner, rng), rng))
+    return summarize(results)
+
+
+def summarize(results: Sequence[EpisodeResult]) -> dict[str, float]:
+    """An evaluation's record: the means over its episodes (in episode order)."""
     return {
         "team_return": float(np.mean([r.team_return for r in results])),
         "success_rate": float(np.mean([r.success_rate for r in results])),

@@ -203,9 +203,11 @@ def replay_in_terminal(episodes: Sequence[RecordedEpisode], stream: TextIO | Non
 # ------------------------------------------------------------------------------------ TensorBoard
 
 
-def evaluation_views(
-    learner: Team, game: TreasureHuntGame, seed: int, evaluation: int
-) -> tuple[np.ndarray, list[np.ndarray], EpisodeResult]:
+# An evaluation's first episode as TensorBoard shows it: its picture, each agent's Q-values there, its result.
+EvaluationViews = tuple[np.ndarray, list[np.ndarray], EpisodeResult]
+
+
+def evaluation_views(learner: Team, game: TreasureHuntGame, seed: int, evaluation: int) -> EvaluationViews:
     """What TensorBoard shows of an evaluation: its first episode, played here from the evaluation's
     own generator, as its last frame with every trail, ``[H, W, 3]`` uint8, and per agent the Q-values
     of every observation it acted on in that episode; and the episode's result, for

@@ -26,8 +26,8 @@ from dqn_transfer.agents import Learner, Transition, UpdateStats, linear_schedul
 from dqn_transfer.config import TrainConfig, to_plain
 from dqn_transfer.enums import Exchange
 from dqn_transfer.envs import TreasureHuntGame
-from dqn_transfer.evaluation.rollout import evaluate, team_return_of
-from dqn_transfer.evaluation.watch import evaluation_views
+from dqn_transfer.evaluation.rollout import team_return_of
+from dqn_transfer.evaluation.watch import EvaluationViews, evaluation_views
 from dqn_transfer.storage.run_dir import RunDir
 from dqn_transfer.training.loggers import RunLoggers
 from dqn_transfer.transfer.exchange import exchange_best, exchange_replay
@@ -258,24 +258,18 @@ class Replica:
         self.window = []
 
     # ------------------------------------------------------------------ evaluation
-    def evaluate(self, named: bool) -> None:
-        """Greedy evaluation on separately seeded episodes -> ``metrics.jsonl`` and TensorBoard, with a
-        picture of its first episode and the agents' Q-values there if :attr:`pictures` (the same
-        metrics either way; ``named``: the log line names the replica)."""
+    def evaluation_views(self) -> EvaluationViews | None:
+        """If :attr:`pictures`: the coming evaluation's first episode, played here, as TensorBoard shows
+        it (a picture and the agents' Q-values there) and its result (the evaluation's episode 0)."""
+        if not self.pictures:
+            return None
+        return evaluation_views(self.learner, self.eval_game, self.config.seed, self.counters.evaluations)
+
+    def record_evaluation(self, result: dict[str, float], views: EvaluationViews | None, named: bool) -> None:
+        """Write a greedy evaluation's record (:func:`~dqn_transfer.evaluation.rollout.summarize` of its
+        episodes) to ``metrics.jsonl`` and the logs, with :meth:`evaluation_views`' picture and Q-values
+        if any (``named``: the log line names the replica)."""
         step = self.counters.step
-        first = None
-        if self.pictures:
-            picture, q_values, first = evaluation_views(
-                self.learner, self.eval_game, self.config.seed, self.counters.evaluations
-            )
-        result = evaluate(
-            self.learner,
-            self.eval_game,
-            self.config.eval_episodes,
-            self.config.seed,
-            self.counters.evaluations,
-            first=first,
-        )
         self.counters.evaluations += 1
         self.last_eval = result
         self.last_eval_step = step
@@ -292,7 +286,8 @@ class Replica:
             stream.write(json.dumps(record) + "\n")
         scalars = ("team_return", "success_rate", "trap_rate")
         self.logger.scalars([(f"eval/{key}", result[key]) for key in scalars], step)  # one event
-        if self.pictures:
+        if views is not None:
+            picture, q_values, _ = views
             self.logger.evaluation_views(picture, q_values, step)
         log.info(
             "eval step %d%s: team_return %.1f success_rate %.2f trap_rate %.2f",

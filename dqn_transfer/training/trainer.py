@@ -41,6 +41,7 @@ from dqn_transfer.agents import Learner, Transition, UpdateStats, joined, make_r
 from dqn_transfer.config import ConfigError, to_plain
 from dqn_transfer.enums import Algorithm, Exchange, Logger
 from dqn_transfer.envs.game_batch import GameBatch, game_batch
+from dqn_transfer.evaluation.batched_rollout import evaluate_replicas
 from dqn_transfer.storage.checkpoint import CheckpointError, atomic_write, atomic_write_all
 from dqn_transfer.storage.run_dir import RunDir, existing_run_message
 from dqn_transfer.timing import Stopwatch
@@ -205,9 +206,15 @@ class Trainer:
             self.save_checkpoint()
             log.info("total_steps=0: wrote the initial checkpoints to %s", self._where()[0])
             return self._summary()
+        # Step 0, or a resumed checkpoint's step whose evaluation was lost:
+        due = [
+            rep
+            for rep in replicas
+            if rep.counters.step % config.eval_every == 0 and rep.last_eval_step != rep.counters.step
+        ]
+        if due:
+            self.run_evaluation(due)
         for rep in replicas:
-            if rep.counters.step % config.eval_every == 0 and rep.last_eval_step != rep.counters.step:
-                self.run_evaluation(rep)  # step 0, or a resumed checkpoint's step whose eval was lost
             rep.start_episodes()
         self.games = games = game_batch([rep.game for rep in replicas], [rep.env_rng for rep in replicas])
         num_rows = games.num_replicas * games.num_agents
@@ -252,8 +259,7 @@ class Trainer:
             games.reset(outcome.episode_end)
             # 4. evaluation
             if step % config.eval_every == 0:
-                for rep in replicas:
-                    self.run_evaluation(rep)
+                self.run_evaluation(replicas)
             # 5. training curves and the progress bar
             if step % LOG_EVERY == 0 or step == config.total_steps:
                 now = time.perf_counter()
@@ -280,9 +286,9 @@ class Trainer:
                     bar.close()
                     raise Interrupted(stop.signum, step, self.run_dir.path)
         bar.close()
-        for rep in replicas:
-            if rep.last_eval_step != self.step:  # not twice when resuming a finished run
-                self.run_evaluation(rep)
+        due = [rep for rep in replicas if rep.last_eval_step != self.step]  # not twice when resuming a finished run
+        if due:
+            self.run_evaluation(due)
         self.save_checkpoint()
         rep = replicas[0]
         checkpoints, logdir = self._where()
@@ -316,9 +322,21 @@ class Trainer:
         parent = self.final_dirs[0].path.parent
         return ", ".join(str(run.checkpoints) for run in self.final_dirs), str(parent)
 
-    def run_evaluation(self, rep: Replica) -> None:
+    def run_evaluation(self, replicas: Sequence[Replica]) -> None:
+        """Greedy evaluation of ``replicas`` at their current step, all played as one batch."""
         with self.evaluation_time:
-            rep.evaluate(named=len(self.replicas) > 1)
+            views = [rep.evaluation_views() for rep in replicas]
+            results = evaluate_replicas(
+                self.learner if len(replicas) == len(self.replicas) else None,  # its rows are all replicas'
+                [rep.learner for rep in replicas],
+                [rep.eval_game for rep in replicas],
+                self.config.eval_episodes,
+                [rep.config.seed for rep in replicas],
+                [rep.counters.evaluations for rep in replicas],
+                [None if view is None else view[2] for view in views],
+            )
+            for rep, result, view in zip(replicas, results, views):
+                rep.record_evaluation(result, view, named=len(self.replicas) > 1)
 
     def save_checkpoint(self) -> None:
         """Every replica's agent files (for sharing) and resume state, which alone is read on resume.

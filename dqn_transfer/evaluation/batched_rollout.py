@@ -1,0 +1,115 @@
+"""Greedy evaluation of every replica of a batched learner at once: all their episodes played side by
+side through the batched core, with the numbers of :func:`~dqn_transfer.evaluation.rollout.evaluate`.
+
+An evaluation of replica r plays ``episodes`` greedy episodes, episode e reset with
+:func:`~dqn_transfer.evaluation.rollout.evaluation_rng` ``(seed_r, evaluation_r, e)`` (which draws the
+chest ties) and breaking the ties between equal values with a child of it. Here the ``R x E`` games
+are one batch (game ``e * R + r``, so that one episode slot of all replicas is one forward of the
+learner's ``R * K`` rows), stepped until every episode has ended; each game draws from its own
+generators in the same order as when played alone, so every record is the one
+:func:`~dqn_transfer.evaluation.rollout.evaluate` gives (``tests/test_batched_rollout.py``). Games
+the batched core cannot step together (another game) are evaluated replica by replica.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from dqn_transfer.agents.base import Learner, Team
+from dqn_transfer.enums import RewardMode
+from dqn_transfer.envs import batched
+from dqn_transfer.envs.game import TreasureHuntGame
+from dqn_transfer.envs.game_batch import fits_one_batch
+from dqn_transfer.evaluation.rollout import EpisodeResult, evaluate, evaluation_rng, summarize
+
+
+def evaluate_replicas(
+    learner: Learner | None,
+    teams: Sequence[Team],
+    games: Sequence[TreasureHuntGame],
+    episodes: int,
+    seeds: Sequence[int],
+    evaluations: Sequence[int],
+    firsts: Sequence[EpisodeResult | None],
+) -> list[dict[str, float]]:
+    """Each replica's evaluation record, as :func:`~dqn_transfer.evaluation.rollout.evaluate` gives it.
+
+    :param learner: the batched learner whose replicas these are, all of them (rows ``r * K + k``); None:
+        play replica by replica through ``teams``
+    :param teams: replica r's team (``learner.replica(r)``), for games played one by one
+    :param games: replica r's evaluation game (its map and rules; reset here)
+    :param episodes: E, the greedy episodes of an evaluation
+    :param seeds: replica r's seed, and ``evaluations``: its evaluation's index (together they seed the
+        episodes)
+    :param firsts: replica r's episode 0 as the caller already played it (for a picture), or None
+    """
+    if learner is None or not fits_one_batch(games):
+        return [
+            evaluate(team, game, episodes, seed, evaluation, first)
+            for team, game, seed, evaluation, first in zip(teams, games, seeds, evaluations, firsts)
+        ]
+    played = play_greedy_batch(learner, games, episodes, seeds, evaluations, skip_first=[f is not None for f in firsts])
+    return [summarize(own if first is None else [first, *own[1:]]) for own, first in zip(played, firsts)]
+
+
+def play_greedy_batch(
+    learner: Learner,
+    games: Sequence[TreasureHuntGame],
+    episodes: int,
+    seeds: Sequence[int],
+    evaluations: Sequence[int],
+    skip_first: Sequence[bool],
+) -> list[list[EpisodeResult]]:
+    """Replica r's greedy episodes ``0..episodes-1`` (episode 0 a placeholder where ``skip_first[r]``),
+    all played in one batch of the batched core."""
+    replicas, agents = len(games), games[0].num_agents
+    chests, team_mode = games[0].num_treasures, RewardMode(games[0].reward_mode) is RewardMode.team
+    slots = [(e, r) for e in range(episodes) for r in range(replicas)]  # game g = e * R + r
+    maps = batched.batch_maps([games[r].map for _, r in slots], **games[0].settings())
+    rngs = [evaluation_rng(seeds[r], evaluations[r], e) for e, r in slots]
+    ties = [rng.spawn(1)[0] for rng in rngs]  # a child: the parent's stream stays the chest ties'
+    state, _ = batched.reset(maps)
+    skipped = np.array([e == 0 and skip_first[r] for e, r in slots])
+    state = state._replace(live=state.live & ~skipped[:, None])
+    count = len(slots)
+    team_return, return_after_clear = np.zeros(count), np.zeros(count)
+    length, trapped = np.zeros(count, dtype=np.int64), np.zeros(count, dtype=np.int64)
+    cleared_at = np.full(count, -1, dtype=np.int64)  # the joint step that emptied the last full chest
+    while state.live.any():
+        live = state.live
+        obs = state.obs.reshape(episodes, replicas * agents, -1)
+        best = np.concatenate([learner.best_actions(obs[e]) for e in range(episodes)])  # [G * K, A]
+        actions = np.where(live.reshape(-1), best.argmax(axis=1), 0).astype(np.int64)
+        for row in np.flatnonzero(live.reshape(-1) & (best.sum(axis=1) > 1)).tolist():
+            choices = np.flatnonzero(best[row])  # a tie, drawn as break_ties draws it
+            actions[row] = choices[int(ties[row // agents].integers(len(choices)))]
+        state, outcome = batched.step(maps, state, actions.reshape(count, agents), rngs, finished_stay=True)
+        active = live.any(axis=1)
+        if team_mode:  # every live agent received the sum: count it once
+            step_return = np.where(live, outcome.rewards, -np.inf).max(axis=1).astype(np.float64)
+        else:
+            step_return = np.where(live, outcome.rewards, np.float32(0.0)).sum(axis=1).astype(np.float64)
+        team_return[active] += step_return[active]
+        trapped += outcome.trap.sum(axis=1)
+        length += active
+        after = active & (cleared_at >= 0)
+        return_after_clear[after] += step_return[after]
+        newly = active & (cleared_at < 0) & (state.treasures_collected == chests)
+        cleared_at[newly] = length[newly]
+    results: list[list[EpisodeResult]] = [[] for _ in range(replicas)]
+    for g, (_, r) in enumerate(slots):
+        collected = int(state.treasures_collected[g])
+        results[r].append(
+            EpisodeResult(
+                float(team_return[g]),
+                int(length[g]),
+                collected,
+                collected / chests,
+                int(trapped[g]) / agents,
+                int(length[g] - cleared_at[g]) if cleared_at[g] >= 0 else 0,
+                float(return_after_clear[g]),
+            )
+        )
+    return results
