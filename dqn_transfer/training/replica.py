@@ -279,7 +279,7 @@ class Replica:
             first=first,
         )
         self.counters.evaluations += 1
-        self.last_eval = result
+        self.last_eval = {k: v for k, v in result.items() if k != "agent_returns"}  # team means (checkpoint meta)
         self.last_eval_step = step
         record: dict[str, Any] = {
             "step": step,
