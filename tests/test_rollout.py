@@ -11,10 +11,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import agent_meta, read_metrics
 
+from dqn_transfer.config import AgentConfig, TrainConfig
+from dqn_transfer.enums import Algorithm, Logger
 from dqn_transfer.envs.game import TreasureHuntGame
 from dqn_transfer.envs.maps import parse_layout
+from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.evaluation.rollout import EpisodeResult, evaluate, play_episode
+from dqn_transfer.training.plan import plan_run
+from dqn_transfer.training.trainer import train
 
 UP, DOWN, LEFT, RIGHT = 0, 1, 2, 3
 
@@ -148,3 +154,31 @@ def test_evaluate_appends_the_after_clear_keys():
     assert result["return_after_clear"] == -7.0 * 3 / 4
     assert result["team_return"] == (99.0 + 3 * 90.0) / 4
     assert result["agent_returns"] == [(100.0 + 3 * 99.0) / 4, (-1.0 + 3 * -9.0) / 4]
+
+
+@pytest.mark.filterwarnings("ignore:a layout fixes the map")
+def test_every_evaluation_record_has_each_agent_s_return(tmp_path):
+    """A run's ``metrics.jsonl``: each line one return per agent, which with individual rewards sum to the
+    team return (it adds the live agents' rewards; a done agent receives 0); the checkpoints' ``last_eval``
+    keeps the team's means only, as before."""
+    config = TrainConfig(
+        env=EnvConfig(layout="0...T\n.#...\n...#.\nX....\n1..T.\n"),
+        agent=AgentConfig(algorithm=Algorithm.qlearning, lr=0.1),
+        seed=3,
+        total_steps=400,
+        eval_every=100,
+        eval_episodes=3,
+        checkpoint_every=400,
+        progress=False,
+        logger=[Logger.csv],
+    )
+    train(plan_run(config), tmp_path / "run")
+    records = read_metrics(tmp_path / "run")
+    assert [r["step"] for r in records] == [0, 100, 200, 300, 400]
+    for record in records:
+        assert len(record["agent_returns"]) == 2
+        assert sum(record["agent_returns"]) == pytest.approx(record["team_return"], abs=1e-9)
+    assert len({tuple(r["agent_returns"]) for r in records}) > 1  # not one value throughout
+    meta = agent_meta(tmp_path / "run" / "checkpoints" / "agent_0.safetensors")
+    assert meta["last_eval"] == {k: v for k, v in records[-1].items() if k in meta["last_eval"]}
+    assert "agent_returns" not in meta["last_eval"] and "team_return" in meta["last_eval"]
