@@ -1,17 +1,21 @@
 """``logger=[tensorboard,csv,wandb]``: the CSV backend holds exactly TensorBoard's scalars (and a
 resumed run continues it without duplicates); Weights & Biases, offline, writes the local run of each
-replica (one group) with the config, the scalars and the evaluation pictures. No server is contacted.
+replica (one group) with the config, the scalars and the evaluation pictures, and a resumed replica as
+a new run of the group whose history is the CSV's after the checkpoint. No server is contacted.
 """
 
 from __future__ import annotations
 
 import csv
 import json
+import signal
 import struct
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import read_metrics, run_train, start_train
 from omegaconf import OmegaConf
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -19,6 +23,7 @@ from dqn_transfer.config import AgentConfig, TrainConfig
 from dqn_transfer.config.schema import ConfigError, validate
 from dqn_transfer.enums import Algorithm, Logger
 from dqn_transfer.envs.settings import EnvConfig
+from dqn_transfer.storage.checkpoint import load_training_state
 from dqn_transfer.storage.run_dir import RunDir
 from dqn_transfer.training.loggers import import_wandb
 from dqn_transfer.training.plan import plan_run
@@ -167,6 +172,31 @@ def wandb_offline(tmp_path, monkeypatch):
     wandb.teardown()  # the W&B service process this test started
 
 
+def wandb_run(offline: Path):
+    """An offline W&B run directory's header (the ``run`` record), its scalar points ``(step, tag,
+    value)`` and the steps of its evaluation pictures."""
+    records = list(wandb_records(next(offline.glob("run-*.wandb"))))
+    header = next(r.run for r in records if r.WhichOneof("record_type") == "run")
+    points, pictures = [], []
+    for history in (r.history for r in records if r.WhichOneof("record_type") == "history"):
+        items = {"/".join(item.nested_key) or item.key: json.loads(item.value_json) for item in history.item}
+        step = items["_step"]
+        scalars = {"/".join(item.nested_key) or item.key for item in history.item if len(item.nested_key) <= 1}
+        points += [(step, k, float(items[k])) for k in scalars if not k.startswith("_")]
+        if "eval/episode/path" in items:
+            pictures.append(step)
+            assert (offline / "files" / items["eval/episode/path"]).is_file()
+    return header, sorted(points), pictures
+
+
+def wandb_runs(run: RunDir) -> list:
+    """:func:`wandb_run` of each W&B run of a replica, in the order of ``wandb/wandb_id`` (oldest first)."""
+    ids = run.wandb_id.read_text().split()
+    by_id = {offline.name.rsplit("-", 1)[1]: offline for offline in run.wandb.glob("offline-run-*")}
+    assert sorted(by_id) == sorted(ids)  # one offline run directory per W&B run
+    return [wandb_run(by_id[run_id]) for run_id in ids]
+
+
 @pytest.mark.slow
 @pytest.mark.filterwarnings("ignore")
 def test_wandb_offline_writes_each_replica_as_a_run_of_one_group(tmp_path, wandb_offline):
@@ -178,21 +208,95 @@ def test_wandb_offline_writes_each_replica_as_a_run_of_one_group(tmp_path, wandb
     assert len(names) == 2
     for name in names:
         run = RunDir(batch / name)
-        (offline,) = run.wandb.glob("offline-run-*")
-        records = list(wandb_records(next(offline.glob("run-*.wandb"))))
-        (header,) = [r.run for r in records if r.WhichOneof("record_type") == "run"][:1]
+        ((header, points, pictures),) = wandb_runs(run)
         assert (header.run_group, header.display_name, header.project) == ("batch", name, "dqn_transfer")
         logged = {item.key: json.loads(item.value_json) for item in header.config.update}
         assert logged["agent"]["algorithm"] == "qlearning" and logged["logger"] == ["csv", "wandb"]
         assert logged["seed"] == OmegaConf.load(run.config).seed  # the replica's own config
-        points, pictures = [], []
-        for history in (r.history for r in records if r.WhichOneof("record_type") == "history"):
-            items = {"/".join(item.nested_key) or item.key: json.loads(item.value_json) for item in history.item}
-            step = items["_step"]
-            scalars = {"/".join(item.nested_key) or item.key for item in history.item if len(item.nested_key) <= 1}
-            points += [(step, k, float(items[k])) for k in scalars if not k.startswith("_")]
-            if "eval/episode/path" in items:
-                pictures.append(step)
-                assert (offline / "files" / items["eval/episode/path"]).is_file()
-        assert sorted(points) == sorted(csv_points(run))  # the scalars' history, value for value
+        assert points == sorted(csv_points(run))  # the scalars' history, value for value
         assert pictures == list(range(0, 601, 100))  # an evaluation picture at every evaluation
+
+
+@pytest.mark.slow
+@pytest.mark.filterwarnings("ignore")
+def test_a_resumed_run_is_a_new_wandb_run_whose_history_is_the_csv_after_the_checkpoint(
+    tmp_path, monkeypatch, wandb_offline
+):
+    """Killed right before the checkpoint at step 400 (the last one at 200): the killed W&B run keeps
+    all it logged, up to step 400; the resumed replica is a new W&B run of the group, ``run-resumed-1``,
+    whose history is the CSV's rows after step 200 (which the resumed run logged again), value for
+    value; together up to 200 and after it they are the run's scalars."""
+    loggers = ["csv", "wandb"]
+    original = Trainer.save_checkpoint
+
+    def die_at_400(self):
+        if self.step == 400:
+            raise _Killed
+        original(self)
+
+    monkeypatch.setattr(Trainer, "save_checkpoint", die_at_400)
+    with pytest.raises(_Killed):
+        train(plan_run(config(loggers)), tmp_path / "run")
+    run = RunDir(tmp_path / "run")
+    killed_rows = sorted(csv_points(run))
+    assert max(step for step, _, _ in killed_rows) == 400
+    monkeypatch.setattr(Trainer, "save_checkpoint", original)
+    train(plan_run(config(loggers, resume=True)), tmp_path / "run")
+
+    rows = sorted(csv_points(run))
+    (killed, killed_points, _), (resumed, resumed_points, resumed_pictures) = wandb_runs(run)
+    assert (killed.display_name, resumed.display_name) == ("run", "run-resumed-1")
+    assert killed.run_group == resumed.run_group == "run" and killed.run_id != resumed.run_id
+    assert resumed.notes == f"resumed from a checkpoint: logs from step 201 on, after W&B run {killed.run_id}"
+    assert killed_points == killed_rows  # everything the killed run logged, after its checkpoint too
+    assert resumed_points == [p for p in rows if p[0] > 200]
+    assert [p for p in killed_points if p[0] <= 200] + resumed_points == rows
+    assert resumed_pictures == [300, 400, 500, 600]
+
+
+LONG_RUN = (  # tests/test_run_safety.py's run: long enough to be signalled while it learns
+    "env.layout_file=map.txt",
+    "env.num_agents=2",
+    "agent=dqn",
+    "mode=cooperative",
+    "agent.learning_starts=100",
+    "agent.hidden=[32]",
+    "agent.batch_size=32",
+    "total_steps=1500",
+    "checkpoint_every=100000",
+    "eval_every=100",
+    "eval_episodes=2",
+    "seed=5",
+    "logger=[csv,wandb]",
+)
+
+
+@pytest.mark.slow
+@pytest.mark.filterwarnings("ignore")
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_run_stopped_by_a_signal_and_resumed_splits_its_wandb_history_at_the_checkpoint(
+    tmp_path, wandb_offline, signum
+):
+    """``python train.py`` stopped by a signal checkpoints at the step it reached, S: its W&B run holds
+    the CSV's rows up to S, and the resumed run's new W&B run the rows after S, nothing twice."""
+    (tmp_path / "map.txt").write_text(MAP)
+    run_dir = tmp_path / "run"
+    proc = start_train(tmp_path, *LONG_RUN, run_dir=run_dir)
+    deadline = time.monotonic() + 120
+    while len(read_metrics(run_dir)) < 3:
+        assert proc.poll() is None, "the run ended before it was signalled"
+        assert time.monotonic() < deadline, "the run is too slow to reach its evaluations"
+        time.sleep(0.05)
+    proc.send_signal(signum)
+    assert proc.wait(timeout=60) == 128 + signum
+    run = RunDir(run_dir)
+    stopped = load_training_state(run.checkpoints / "training_state.safetensors")[1]["counters"]["step"]
+    assert 200 <= max(step for step, _, _ in csv_points(run)) <= stopped < 1500
+    run_train(tmp_path, "resume=true", run_dir=run_dir)
+
+    rows = sorted(csv_points(run))
+    (first, first_points, _), (resumed, resumed_points, _) = wandb_runs(run)
+    assert (first.display_name, resumed.display_name) == ("run", "run-resumed-1")
+    assert first_points == [p for p in rows if p[0] <= stopped]
+    assert resumed_points == [p for p in rows if p[0] > stopped]
+    assert resumed.notes == f"resumed from a checkpoint: logs from step {stopped + 1} on, after W&B run {first.run_id}"

@@ -4,6 +4,7 @@ id-marl-eval's own processing, which gives the same IQM as this project's statis
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -15,9 +16,15 @@ from dqn_transfer.analysis.marl_eval import ABSOLUTE, EvaluatedRun, layout_probl
 from dqn_transfer.analysis.stats import iqm
 from dqn_transfer.analysis.transfer_metrics import asymptotic_performance
 from dqn_transfer.cli.export import main
+from dqn_transfer.config import AgentConfig, ReplicasConfig, TrainConfig
+from dqn_transfer.enums import Algorithm, Logger
+from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.experiments.claims import exchange_condition
+from dqn_transfer.experiments.export import agent_returns
 from dqn_transfer.experiments.raw_data import RunData, read_data
 from dqn_transfer.experiments.scoring import FINAL_TAIL, by_map, final_score, learner, mode
+from dqn_transfer.training.plan import plan_run
+from dqn_transfer.training.trainer import train
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "results" / "data"
@@ -75,11 +82,85 @@ def test_run_directories_give_marl_eval_the_same_iqm_as_ours(tmp_path):
     entry = tree["treasurehunt"]["cooperative-4agents-8x8-map0"]["double_dqn+shared"]["seed_0"]
     assert entry["step_0"]["step_count"] == 0 and set(entry) == {f"step_{i}" for i in range(17)} | {ABSOLUTE}
     assert {"team_return", "success_rate", "trap_rate", "score"} <= set(entry[ABSOLUTE])
+    assert not any(key.startswith("agent_") for key in entry[ABSOLUTE])  # records without agent_returns
     matrices, tasks = marl_eval_matrices(out, "treasurehunt")
     for metric in ("score", "team_return", "success_rate"):
         theirs = float(rliable_metrics.aggregate_iqm(matrices[f"mean_{metric}"]["double_dqn+shared"]))
         finals = [final_score(r) if metric == "score" else _final(r, metric) for r in runs]
         assert theirs == pytest.approx(iqm(np.asarray(finals), np.random.default_rng(0)).mean, rel=1e-12), metric
+
+
+@pytest.mark.filterwarnings("ignore:a layout fixes the map")
+def test_each_agent_s_return_reaches_marl_eval_as_metrics_jsonl_has_it(tmp_path):
+    """Two replicas trained for real: each agent's return at each evaluation is the later record's of
+    its step in ``metrics.jsonl`` (read here with json alone), as ``agent_<i>_return`` beside the team's
+    metrics; marl-eval's own processing reads them, and its rliable matrices hold the final means."""
+    config = TrainConfig(
+        env=EnvConfig(layout="0...T\n.#...\n...#.\nX....\n1..T.\n"),
+        agent=AgentConfig(algorithm=Algorithm.qlearning, lr=0.1),
+        seed=4,
+        total_steps=500,
+        eval_every=100,
+        eval_episodes=2,
+        checkpoint_every=500,
+        progress=False,
+        logger=[Logger.csv],
+        replicas=ReplicasConfig(seeds=2),
+    )
+    batch = tmp_path / "batch"
+    train(plan_run(config), batch)
+    names = json.loads((batch / "replicas.json").read_text())["replicas"]
+    # a resumed run evaluates a step again: the later line counts (here the last step's, other returns)
+    with (batch / names[0] / "metrics.jsonl").open("r+") as stream:
+        last = json.loads(stream.read().splitlines()[-1])
+        stream.write(json.dumps({**last, "agent_returns": [-1000.0, 1000.0]}) + "\n")
+    out = tmp_path / "runs.json"
+    assert main(["marl-eval", str(batch), "--out", str(out)]) == 0
+    raw = json.loads(out.read_text())
+    (task,) = raw["treasurehunt"]
+    processing = pytest.importorskip("marl_eval.utils.data_processing_utils")
+    processed = processing.data_process_pipeline(raw_data=json.loads(out.read_text()), metrics_to_normalize=[])
+    assert "extra" in processed, "marl-eval's pipeline refused the export"
+    finals = {0: [], 1: []}
+    for name in names:
+        lines = [json.loads(line) for line in (batch / name / "metrics.jsonl").read_text().splitlines()]
+        later = {line["step"]: line["agent_returns"] for line in lines}  # the later line of a step wins
+        seed = yaml.safe_load((batch / name / ".hydra" / "config.yaml").read_text())["seed"]
+        entry = raw["treasurehunt"][task]["qlearning"][f"seed_{seed}"]
+        read = processed["treasurehunt"][task]["qlearning"][f"seed_{seed}"]
+        assert (
+            [entry[f"step_{i}"]["step_count"] for i in range(len(later))]
+            == sorted(later)
+            == [0, 100, 200, 300, 400, 500]
+        )
+        for agent in (0, 1):
+            values = [later[step][agent] for step in sorted(later)]
+            for i, value in enumerate(values):
+                assert entry[f"step_{i}"][f"agent_{agent}_return"] == [value]
+                assert read[f"step_{i}"][f"mean_agent_{agent}_return"] == value
+            tail = values[-math.ceil(FINAL_TAIL * len(values)) :]  # the last 20% of the evaluations
+            assert entry[ABSOLUTE][f"agent_{agent}_return"] == [pytest.approx(sum(tail) / len(tail), rel=1e-12)]
+            finals[agent].append(sum(tail) / len(tail))
+        if name == names[0]:
+            assert entry[f"step_{len(later) - 1}"]["agent_0_return"] == [-1000.0]
+    matrices, _ = processing.create_matrices_for_rliable(processed, "treasurehunt", [])
+    for agent in (0, 1):
+        matrix = matrices[f"mean_agent_{agent}_return"]["qlearning"]  # [seeds, tasks]
+        assert sorted(matrix[:, 0]) == pytest.approx(sorted(finals[agent]), rel=1e-12)
+
+
+def test_agent_returns_are_left_out_unless_every_record_has_them(tmp_path):
+    """Records written before ``agent_returns`` was kept (the study's runs), or a run resumed across that
+    change: no per-agent metric rather than a partial one."""
+    lines = [
+        {"step": 0, "team_return": 1.0},
+        {"step": 100, "team_return": 2.0, "agent_returns": [1.5, 0.5]},
+        {"step": 200, "team_return": 3.0, "agent_returns": [2.0, 1.0]},
+    ]
+    (tmp_path / "metrics.jsonl").write_text("".join(json.dumps(line) + "\n" for line in lines))
+    assert agent_returns(tmp_path, [0, 100, 200]) == {}
+    assert agent_returns(tmp_path, [100, 200]) == {"agent_0_return": (1.5, 2.0), "agent_1_return": (0.5, 1.0)}
+    assert agent_returns(tmp_path, []) == {}
 
 
 def _final(run: RunData, metric: str) -> float:

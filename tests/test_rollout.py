@@ -1,7 +1,8 @@
 """What happens after the last full chest is taken: ``EpisodeResult.steps_after_clear`` and
 ``return_after_clear`` of :func:`dqn_transfer.evaluation.rollout.play_episode`, and the ``after_clear_rate`` and
-``return_after_clear`` keys of :func:`~dqn_transfer.evaluation.rollout.evaluate` (values worked out by hand from
-the rules of docs/game.md).
+``return_after_clear`` keys of :func:`~dqn_transfer.evaluation.rollout.evaluate`, and each agent's return
+(``EpisodeResult.agent_returns``, ``evaluate``'s ``agent_returns``); values worked out by hand from the rules
+of docs/game.md.
 
 Actions: 0 up, 1 down, 2 left, 3 right.
 """
@@ -10,10 +11,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import agent_meta, read_metrics
 
+from dqn_transfer.config import AgentConfig, TrainConfig
+from dqn_transfer.enums import Algorithm, Logger
 from dqn_transfer.envs.game import TreasureHuntGame
 from dqn_transfer.envs.maps import parse_layout
+from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.evaluation.rollout import EpisodeResult, evaluate, play_episode
+from dqn_transfer.training.plan import plan_run
+from dqn_transfer.training.trainer import train
 
 UP, DOWN, LEFT, RIGHT = 0, 1, 2, 3
 
@@ -54,6 +61,10 @@ def test_an_agent_playing_on_after_the_last_chest(reward_mode, max_steps, horizo
     assert result.team_return == 99.0 - horizon
     assert result.steps_after_clear == horizon - k
     assert result.return_after_clear == -(horizon - k)
+    if reward_mode == "individual":
+        assert result.agent_returns == (99.0, -horizon)
+    else:  # each live agent receives the step's sum: -2, then 99 (100 - 1); agent 1 alone then, -1 a step
+        assert result.agent_returns == (-2.0 + 99.0, -2.0 + 99.0 - (horizon - k))
 
 
 def test_the_last_of_several_chests_counts():
@@ -78,7 +89,7 @@ def test_an_episode_that_ends_with_the_last_chest():
     # a lone agent: the last chest always ends the episode
     lone = game_of("0.T\n...\n...")
     result = play_episode(lone, scripted([RIGHT]), np.random.default_rng(0))
-    assert result == EpisodeResult(99.0, 2, 1, 1.0, 0.0, 0, 0.0)
+    assert result == EpisodeResult(99.0, 2, 1, 1.0, 0.0, 0, 0.0, (99.0,))
 
 
 def test_a_chest_left_full_is_never_cleared():
@@ -104,6 +115,7 @@ def test_the_first_five_fields_count_return_steps_chests_and_traps():
         trap_rate=0.5,
         steps_after_clear=0,  # the map was never cleared
         return_after_clear=0.0,
+        agent_returns=(98.0, -100.0),  # the trap's reward replaces the step's
     )
 
 
@@ -124,6 +136,7 @@ def test_evaluate_appends_the_after_clear_keys():
         "episode_length",
         "after_clear_rate",
         "return_after_clear",
+        "agent_returns",
     ]
     assert result == {
         "team_return": 90.0,
@@ -132,10 +145,40 @@ def test_evaluate_appends_the_after_clear_keys():
         "episode_length": 9.0,
         "after_clear_rate": 1.0,
         "return_after_clear": -7.0,
+        "agent_returns": [99.0, -9.0],  # agent 0: -1 + 100; agent 1: -1 on each of the 9 steps
     }
     # with a first episode that ended with the chest: means over 1 + 3 = 4 episodes, 0 for it
-    first = EpisodeResult(99.0, 2, 1, 1.0, 0.0, 0, 0.0)
+    first = EpisodeResult(99.0, 2, 1, 1.0, 0.0, 0, 0.0, (100.0, -1.0))
     result = evaluate(StubLearner(), game, episodes=4, seed=0, evaluation=0, first=first)
     assert result["after_clear_rate"] == 0.75
     assert result["return_after_clear"] == -7.0 * 3 / 4
     assert result["team_return"] == (99.0 + 3 * 90.0) / 4
+    assert result["agent_returns"] == [(100.0 + 3 * 99.0) / 4, (-1.0 + 3 * -9.0) / 4]
+
+
+@pytest.mark.filterwarnings("ignore:a layout fixes the map")
+def test_every_evaluation_record_has_each_agent_s_return(tmp_path):
+    """A run's ``metrics.jsonl``: each line one return per agent, which with individual rewards sum to the
+    team return (it adds the live agents' rewards; a done agent receives 0); the checkpoints' ``last_eval``
+    keeps the team's means only, as before."""
+    config = TrainConfig(
+        env=EnvConfig(layout="0...T\n.#...\n...#.\nX....\n1..T.\n"),
+        agent=AgentConfig(algorithm=Algorithm.qlearning, lr=0.1),
+        seed=3,
+        total_steps=400,
+        eval_every=100,
+        eval_episodes=3,
+        checkpoint_every=400,
+        progress=False,
+        logger=[Logger.csv],
+    )
+    train(plan_run(config), tmp_path / "run")
+    records = read_metrics(tmp_path / "run")
+    assert [r["step"] for r in records] == [0, 100, 200, 300, 400]
+    for record in records:
+        assert len(record["agent_returns"]) == 2
+        assert sum(record["agent_returns"]) == pytest.approx(record["team_return"], abs=1e-9)
+    assert len({tuple(r["agent_returns"]) for r in records}) > 1  # not one value throughout
+    meta = agent_meta(tmp_path / "run" / "checkpoints" / "agent_0.safetensors")
+    assert meta["last_eval"] == {k: v for k, v in records[-1].items() if k in meta["last_eval"]}
+    assert "agent_returns" not in meta["last_eval"] and "team_return" in meta["last_eval"]

@@ -21,6 +21,10 @@ What each level is for our runs (docs/integrations.md):
   keeps the means, not the episodes), and **absolute_metrics**: each metric's mean over the last
   ``final_tail`` of the run's evaluations (this project's final performance, not marl-eval's
   10x-episodes re-evaluation of the best policy).
+- per-agent metrics: each agent's mean return as a metric of its own beside the team's,
+  ``agent_<i>_return`` (:func:`agent_return_metric`), as BenchMARL's marl-eval files name a group's
+  return ``<group>_return``: marl-eval's layout has no per-agent level, and its processing takes the
+  mean of every entry of a step, so each entry is a list of numbers.
 
 marl-eval lower-cases every key; the keys written here are lower case already. Its processing needs the
 same tasks, algorithms, seeds and number of evaluations throughout an environment:
@@ -54,6 +58,14 @@ class EvaluatedRun:
     config: Mapping[str, Any]  # the composed Hydra config
     steps: Sequence[int]
     metrics: Mapping[str, Sequence[float]]  # one value per step
+
+
+def agent_return_metric(agent: int) -> str:
+    """The metric name of one agent's return, ``agent_<i>_return``.
+
+    :param agent: the agent's index in its team.
+    """
+    return f"agent_{agent}_return"
 
 
 def _flat(config: Mapping[str, Any], prefix: str = "") -> dict[str, str]:

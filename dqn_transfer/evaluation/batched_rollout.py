@@ -14,6 +14,7 @@ the batched core cannot step together (another game) are evaluated replica by re
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -33,7 +34,7 @@ def evaluate_replicas(
     seeds: Sequence[int],
     evaluations: Sequence[int],
     firsts: Sequence[EpisodeResult | None],
-) -> list[dict[str, float]]:
+) -> list[dict[str, Any]]:
     """Each replica's evaluation record, as :func:`~dqn_transfer.evaluation.rollout.evaluate` gives it.
 
     :param learner: the batched learner whose replicas these are, all of them (rows ``r * K + k``); None:
@@ -76,6 +77,7 @@ def play_greedy_batch(
     count = len(slots)
     team_return, return_after_clear = np.zeros(count), np.zeros(count)
     length, trapped = np.zeros(count, dtype=np.int64), np.zeros(count, dtype=np.int64)
+    agent_returns = np.zeros((count, agents))
     cleared_at = np.full(count, -1, dtype=np.int64)  # the joint step that emptied the last full chest
     while state.live.any():
         live = state.live
@@ -92,6 +94,7 @@ def play_greedy_batch(
         else:
             step_return = np.where(live, outcome.rewards, np.float32(0.0)).sum(axis=1).astype(np.float64)
         team_return[active] += step_return[active]
+        agent_returns += outcome.rewards  # 0 for agents that are done
         trapped += outcome.trap.sum(axis=1)
         length += active
         after = active & (cleared_at >= 0)
@@ -110,6 +113,7 @@ def play_greedy_batch(
                 int(trapped[g]) / agents,
                 int(length[g] - cleared_at[g]) if cleared_at[g] >= 0 else 0,
                 float(return_after_clear[g]),
+                tuple(float(value) for value in agent_returns[g]),
             )
         )
     return results

@@ -8,7 +8,7 @@ since it runs across episode boundaries on a step budget.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -34,6 +34,9 @@ class EpisodeResult(NamedTuple):
     # the episode ended with that step or never emptied every chest.
     steps_after_clear: int = 0
     return_after_clear: float = 0.0
+    # Each agent's return: the sum of the rewards it received (0 once it is done). In team mode every
+    # live agent receives the team's reward, so each equals the team return of its live steps.
+    agent_returns: tuple[float, ...] = ()
 
 
 def team_return_of(rewards: np.ndarray, reward_mode: RewardMode) -> float:
@@ -64,6 +67,7 @@ def play_episode(
     if on_reset is not None:
         on_reset()
     team_return, length, trapped = 0.0, 0, 0
+    agent_returns = np.zeros(game.num_agents)
     chests = game.num_treasures
     cleared_at, return_after_clear = -1, 0.0  # the joint step that emptied the last full chest
     while not game.done:
@@ -78,6 +82,7 @@ def play_episode(
         obs = next_obs
         step_return = team_return_of(rewards[live], RewardMode(game.reward_mode))
         team_return += step_return
+        agent_returns += rewards
         trapped += int(np.sum(outcome.trap))
         length += 1
         if cleared_at >= 0:
@@ -93,6 +98,7 @@ def play_episode(
         trapped / game.num_agents,
         steps_after_clear,
         return_after_clear,
+        tuple(float(r) for r in agent_returns),
     )
 
 
@@ -109,9 +115,17 @@ def evaluate(
     seed: int,
     evaluation: int,
     first: EpisodeResult | None = None,
-) -> dict[str, float]:
-    """Greedy episodes, each seeded by :func:`evaluation_rng`; ``first``: episode 0 as the caller already
-    played it (e.g. recorded for a picture), not played again."""
+) -> dict[str, Any]:
+    """Greedy episodes, each seeded by :func:`evaluation_rng`, as :func:`summarize` records them.
+
+    :param learner: the team, played greedily.
+    :param game: the game the episodes are played in (reset by each).
+    :param episodes: how many episodes.
+    :param seed: the run's seed; with ``evaluation`` and the episode's number it seeds each episode.
+    :param evaluation: the evaluation's number (0 for the run's first).
+    :param first: episode 0 as the caller already played it (e.g. recorded for a picture), not played
+        again.
+    """
     results = [] if first is None else [first]
     for episode in range(len(results), episodes):
         rng = evaluation_rng(seed, evaluation, episode)
@@ -119,8 +133,9 @@ def evaluate(
     return summarize(results)
 
 
-def summarize(results: Sequence[EpisodeResult]) -> dict[str, float]:
-    """An evaluation's record: the means over its episodes (in episode order)."""
+def summarize(results: Sequence[EpisodeResult]) -> dict[str, Any]:
+    """An evaluation's record: the team's means over its episodes (floats, in episode order) and
+    ``agent_returns``, each agent's mean return (a list of K floats, agent order)."""
     return {
         "team_return": float(np.mean([r.team_return for r in results])),
         "success_rate": float(np.mean([r.success_rate for r in results])),
@@ -130,4 +145,5 @@ def summarize(results: Sequence[EpisodeResult]) -> dict[str, float]:
         # team return of those steps per episode (0 for the others).
         "after_clear_rate": float(np.mean([r.steps_after_clear > 0 for r in results])),
         "return_after_clear": float(np.mean([r.return_after_clear for r in results])),
+        "agent_returns": [float(r) for r in np.mean([r.agent_returns for r in results], axis=0)],
     }

@@ -3,20 +3,23 @@
 
 Each run's metrics are the evaluation means the study keeps (:data:`~dqn_transfer.experiments.raw_data.METRICS`:
 team return, success rate, trap rate, ...) and ``score``, the team return as a fraction of its map's
-optimal team return (the study's score; absent where the map has no clean optimum). ``metrics.jsonl``
-records no per-agent returns, so none are exported.
+optimal team return (the study's score; absent where the map has no clean optimum). A run directory's
+runs also give each agent's mean greedy return, ``agent_<i>_return``, where every evaluation record has
+them (``metrics.jsonl``'s ``agent_returns``; records written before they were kept have none, and the
+study's raw data keep none).
 """
 
 from __future__ import annotations
 
 import os
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from dqn_transfer.analysis.marl_eval import ENVIRONMENT, EvaluatedRun, marl_eval_tree
+from dqn_transfer.analysis.marl_eval import ENVIRONMENT, EvaluatedRun, agent_return_metric, marl_eval_tree
 from dqn_transfer.analysis.runs import EvaluationError, find_run_dirs, load_config
-from dqn_transfer.experiments.raw_data import RunData, read_data, run_data
+from dqn_transfer.experiments.raw_data import RunData, latest_by_step, read_data, read_evaluations, run_data
 from dqn_transfer.experiments.scoring import FINAL_TAIL
 
 SCORE = "score"
@@ -30,6 +33,21 @@ def evaluated(run: RunData) -> EvaluatedRun:
     return EvaluatedRun(f"{run.experiment}/{run.name}" if run.experiment else run.name, run.config, run.steps, metrics)
 
 
+def agent_returns(run_dir: Path, steps: Sequence[int]) -> dict[str, tuple[float, ...]]:
+    """``{agent_<i>_return: (its mean greedy return at each of steps)}`` for each agent of a run
+    directory, from ``metrics.jsonl``'s ``agent_returns`` (a step evaluated twice keeps its later record);
+    ``{}`` unless every one of those records has them, for the same number of agents.
+
+    :param run_dir: the run directory.
+    :param steps: the evaluation steps the run is exported with.
+    """
+    latest = latest_by_step(read_evaluations(run_dir))
+    per_step: list[list[Any]] = [latest[step].get("agent_returns") or [] for step in steps]
+    if not per_step or not all(per_step) or len({len(values) for values in per_step}) > 1:
+        return {}
+    return {agent_return_metric(i): tuple(float(values[i]) for values in per_step) for i in range(len(per_step[0]))}
+
+
 def run_dirs_tree(
     paths: Sequence[str | os.PathLike], environment: str = ENVIRONMENT, final_tail: float = FINAL_TAIL
 ) -> dict[str, Any]:
@@ -40,7 +58,9 @@ def run_dirs_tree(
         config = load_config(run_dir)
         if config is None or not isinstance(config.get("env"), dict):
             raise EvaluationError(f"{run_dir}: no readable .hydra/config.yaml (cannot tell its task and algorithm)")
-        runs.append(evaluated(run_data(run_dir, config, "", str(run_dir))))
+        data = run_data(run_dir, config, "", str(run_dir))
+        run = evaluated(data)
+        runs.append(replace(run, metrics={**run.metrics, **agent_returns(run_dir, data.steps)}))
     return marl_eval_tree(runs, final_tail, environment)
 
 

@@ -17,6 +17,7 @@ import json
 import math
 import platform
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -115,13 +116,30 @@ def export_sweep(sweep_dir: Path, experiment: str) -> list[RunData]:
     return sorted(runs, key=lambda r: natural_key(Path(r.name)))
 
 
+def read_evaluations(run_dir: Path) -> list[dict[str, Any]]:
+    """A run directory's evaluation records (``metrics.jsonl``), in file order; a last line a kill cut
+    short is skipped without a warning.
+
+    :param run_dir: the run directory.
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", IncompleteLastLine)
+        return read_metrics(run_dir)
+
+
+def latest_by_step(records: Sequence[dict[str, Any]]) -> dict[int, dict[str, Any]]:
+    """Evaluation records by their step; a step evaluated twice (a resumed run) keeps its later record.
+
+    :param records: a run's evaluation records, in file order.
+    """
+    return {int(r["step"]): r for r in records if "step" in r}
+
+
 def run_data(run_dir: Path, config: dict[str, Any], experiment: str, name: str) -> RunData:
     """One run directory's evaluations as :class:`RunData`; a step evaluated twice (a resumed run) keeps
     its later record."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", IncompleteLastLine)
-        records = read_metrics(run_dir)
-    by_step = {int(r["step"]): r for r in records if "step" in r}
+    records = read_evaluations(run_dir)
+    by_step = latest_by_step(records)
     steps = tuple(sorted(by_step))
     metrics = {
         m: tuple(_rounded(float(by_step[s][m])) for s in steps) for m in METRICS if all(m in by_step[s] for s in steps)

@@ -7,8 +7,9 @@ update yet) once and hands the rest to each backend of the run's ``logger`` list
 * ``csv``: :class:`CsvLogger`, ``scalars.csv`` with one row ``step,tag,value`` per scalar point;
 * ``wandb``: :class:`WandbLogger`, a Weights & Biases run (the optional ``wandb`` extra, imported only
   when named): the config, the scalars, the evaluation pictures and Q-value histograms; the replicas of
-  a run are runs of one group (the run directory's name). ``WANDB_MODE=offline`` writes only the local
-  run directory (``wandb/`` in the run directory; ``wandb sync`` uploads it later).
+  a run are runs of one group (the run directory's name), and each resume of a replica is a new run of
+  that group. ``WANDB_MODE=offline`` writes only the local run directory (``wandb/`` in the run
+  directory; ``wandb sync`` uploads it later).
 
 A backend's interface (:class:`Backend`) is four calls: several scalars of one step, an evaluation's
 views, a text, and close; the config is given when it is made.
@@ -112,25 +113,46 @@ def import_wandb() -> Any:
 class WandbLogger:
     """A Weights & Biases run of one replica: ``group`` the batch's run directory's name, ``name`` the
     replica's; its files in ``RUN/wandb/``. The mode (online, offline, disabled) is W&B's own setting
-    (``WANDB_MODE``). A resumed run continues the same W&B run (its id is kept in ``RUN/wandb/``); W&B
-    keeps steps increasing, so the points a killed run logged after its checkpoint stay as they were."""
+    (``WANDB_MODE``).
 
-    def __init__(self, run_dir: RunDir, group: str, config: Mapping[str, Any], resume: bool):
+    A resumed replica logs to a new W&B run of the same group, ``<replica>-resumed-<n>`` (the n-th
+    resume), whose history starts right after the checkpoint, as the CSV's and TensorBoard's do: W&B
+    keeps a run's steps increasing (it drops a point at a step the run has passed, so the resumed run's
+    points at the steps the killed run logged after its checkpoint would be lost online), and it does not
+    resume offline runs at all (a second offline run of the same id replaces the first one's history when
+    synced). The killed run keeps what it logged, including any points after its checkpoint; from the
+    resume's first step on, the ``-resumed-<n>`` run's points are the run's. ``RUN/wandb/wandb_id`` lists
+    the ids of the replica's W&B runs, one a line, oldest first.
+
+    :param run_dir: the replica's run directory.
+    :param group: the W&B group, the batch's run directory's name.
+    :param config: the replica's config, as plain data.
+    :param resume: whether the replica resumes from a checkpoint.
+    :param first_step: a resumed run's first step (its checkpoint's step + 1), for the W&B run's notes.
+    """
+
+    def __init__(self, run_dir: RunDir, group: str, config: Mapping[str, Any], resume: bool, first_step: int | None):
         wandb = import_wandb()
         self.wandb = wandb
         run_dir.wandb.mkdir(parents=True, exist_ok=True)
-        run_id = run_dir.wandb_id.read_text().strip() if resume and run_dir.wandb_id.exists() else None
-        if run_id is None:
-            run_id = secrets.token_hex(4)  # W&B's ids: lower-case letters and digits
-            run_dir.wandb_id.write_text(run_id + "\n")
+        earlier = run_dir.wandb_id.read_text().split() if resume and run_dir.wandb_id.exists() else []
+        run_id = secrets.token_hex(4)  # W&B's ids: lower-case letters and digits
+        with run_dir.wandb_id.open("a") as ids:
+            ids.write(run_id + "\n")
+        name, notes = run_dir.path.name, None
+        if resume:
+            notes = f"resumed from a checkpoint: logs from step {first_step} on"
+            if earlier:
+                name = f"{name}-resumed-{len(earlier)}"
+                notes += f", after W&B run {earlier[-1]}"
         self.run = wandb.init(
             project=os.environ.get("WANDB_PROJECT") or WANDB_PROJECT,
             group=group,
-            name=run_dir.path.name,
+            name=name,
+            notes=notes,
             config=dict(config),
             dir=str(run_dir.path),
             id=run_id,
-            resume="allow",
             reinit="create_new",  # the replicas of a batch are runs of one process
         )
 
@@ -172,7 +194,7 @@ class RunLoggers:
                 elif name is Logger.csv:
                     self.backends.append(CsvLogger(run_dir.scalars_csv, purge_step=purge_step))
                 else:
-                    self.backends.append(WandbLogger(run_dir, group, config, resume))
+                    self.backends.append(WandbLogger(run_dir, group, config, resume, purge_step))
         except BaseException:
             self.close()
             raise

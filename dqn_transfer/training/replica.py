@@ -265,13 +265,13 @@ class Replica:
             return None
         return evaluation_views(self.learner, self.eval_game, self.config.seed, self.counters.evaluations)
 
-    def record_evaluation(self, result: dict[str, float], views: EvaluationViews | None, named: bool) -> None:
+    def record_evaluation(self, result: dict[str, Any], views: EvaluationViews | None, named: bool) -> None:
         """Write a greedy evaluation's record (:func:`~dqn_transfer.evaluation.rollout.summarize` of its
         episodes) to ``metrics.jsonl`` and the logs, with :meth:`evaluation_views`' picture and Q-values
         if any (``named``: the log line names the replica)."""
         step = self.counters.step
         self.counters.evaluations += 1
-        self.last_eval = result
+        self.last_eval = {k: v for k, v in result.items() if k != "agent_returns"}  # team means (checkpoint meta)
         self.last_eval_step = step
         record: dict[str, Any] = {
             "step": step,
