@@ -25,7 +25,7 @@ import numpy as np
 from dqn_transfer.agents import Learner, Transition, UpdateStats, linear_schedule
 from dqn_transfer.config import TrainConfig, to_plain
 from dqn_transfer.enums import Exchange
-from dqn_transfer.envs import TreasureHuntGame
+from dqn_transfer.envs import Game, TreasureHuntGame
 from dqn_transfer.evaluation.rollout import evaluate, team_return_of
 from dqn_transfer.evaluation.watch import evaluation_views
 from dqn_transfer.storage.run_dir import RunDir
@@ -116,13 +116,14 @@ class Replica:
         index: int,
         config: TrainConfig,
         run_dir: Path,
-        game: TreasureHuntGame,
+        game: Game,
         learner: Learner,
         source: Path | Sequence[Path] | None,
         pictures: bool = True,
     ) -> None:
         self.index, self.config, self.run_dir = index, config, RunDir(run_dir)
-        self.pictures = pictures  # evaluations draw their first episode and its Q-values for TensorBoard
+        # Evaluations draw their first episode and its Q-values for TensorBoard (the treasure hunt's map only).
+        self.pictures = pictures and isinstance(game, TreasureHuntGame)
         self.game, self.eval_game, self.learner, self.source = game, game.replica(), learner, source
         k = game.num_agents
         self.rows = slice(index * k, (index + 1) * k)
@@ -266,7 +267,7 @@ class Replica:
         metrics either way; ``named``: the log line names the replica)."""
         step = self.counters.step
         first = None
-        if self.pictures:
+        if self.pictures and isinstance(self.eval_game, TreasureHuntGame):
             picture, q_values, first = evaluation_views(
                 self.learner, self.eval_game, self.config.seed, self.counters.evaluations
             )
