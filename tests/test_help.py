@@ -37,10 +37,12 @@ def key_line(page: str, key: str) -> str:
 def test_help_names_every_schema_key_with_its_own_description():
     page = help_text("python train.py")
     keys = schema_fields(TrainConfig)
-    assert len(keys) == 66 and {
+    assert len(keys) == 68 and {
         "agent.lr",
         "agent.engine",
         "env.size",
+        "env.factory",
+        "env.kwargs",
         "transfer.source",
         "transfer.source_task",
         "transfer.source_map_shift",

@@ -34,7 +34,7 @@ from dqn_transfer.config import (
     register_configs,
 )
 from dqn_transfer.config.help import help_text
-from dqn_transfer.config.overrides import check_overrides
+from dqn_transfer.config.overrides import check_overrides, open_mapping_overrides
 from dqn_transfer.sources.curriculum import curriculum_sources
 from dqn_transfer.sources.resolve import transfer_sources
 from dqn_transfer.storage.checkpoint import CheckpointError, load_training_state
@@ -296,6 +296,7 @@ def main() -> None:
     except ConfigError as err:
         _exit_with(err)
     register_configs()  # the schemas conf/config.yaml's defaults list names
+    sys.argv[1:] = open_mapping_overrides(sys.argv[1:])
     app()
 
 

@@ -80,6 +80,19 @@ def check_overrides(argv: list[str]) -> None:
             raise ConfigError(f"unknown config key '{key}' in '{override.input_line}'{hint}")
 
 
+# Keys of a mapping whose entries the user names freely (``env.kwargs.NAME=VALUE``): Hydra adds or
+# replaces them (``++``) where it would refuse a key its option does not already have.
+OPEN_MAPPINGS = ("env.kwargs.",)
+
+
+def open_mapping_overrides(argv: list[str]) -> list[str]:
+    """``argv`` with every plain ``env.kwargs.NAME=VALUE`` as ``++env.kwargs.NAME=VALUE``.
+
+    :param argv: the command line's words after the program.
+    """
+    return ["++" + word if word.startswith(OPEN_MAPPINGS) and "=" in word else word for word in argv]
+
+
 def schema_types(schema: type, prefix: str = "") -> dict[str, Any]:
     """Every dotted leaf key of ``schema`` -> its declared type (``typing`` form)."""
     hints = typing.get_type_hints(schema)

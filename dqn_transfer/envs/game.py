@@ -327,6 +327,14 @@ class TreasureHuntGame:
         rules = {key: getattr(self, key) for key in RULE_KEYS}
         return dict(rules, num_agents=self.num_agents, include_treasures=self.include_treasures)
 
+    def recorded_env(self) -> dict[str, Any]:
+        """What a checkpoint records of the game besides its config: the map as played (:func:`map_settings`)."""
+        return map_settings(self.map)
+
+    def identity(self) -> str:
+        """The text a resumed run's game must match: the map's layout (a layout file may have changed since)."""
+        return self.map.layout
+
     def replica(self) -> TreasureHuntGame:
         """An independent game with the same map and rules (e.g. for evaluation), built without
         resolving the map again."""

@@ -16,11 +16,11 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, TypeGuard
 
 import numpy as np
 
-from dqn_transfer.envs import batched
+from dqn_transfer.envs import Game, batched
 from dqn_transfer.envs.game import TreasureHuntGame
 
 
@@ -85,7 +85,7 @@ class GameBatch(ABC):
 class LoopedGames(GameBatch):
     """Any games with the one-game core's interface, stepped one after another."""
 
-    def __init__(self, games: Sequence[TreasureHuntGame], rngs: Sequence[np.random.Generator]) -> None:
+    def __init__(self, games: Sequence[Game], rngs: Sequence[np.random.Generator]) -> None:
         """
         :param games: one game per replica, each at the start of (or inside) the episode to continue
         :param rngs: each replica's generator, given to the game at every reset
@@ -205,7 +205,7 @@ class BatchedTreasureHunts(GameBatch):
         self.state = batched.BatchedState(*arrays)
 
 
-def fits_one_batch(games: Sequence[object]) -> bool:
+def fits_one_batch(games: Sequence[Game]) -> TypeGuard[Sequence[TreasureHuntGame]]:
     """Whether ``games`` are treasure hunts the batched core can step together (same size, counts and
     rules; their maps may differ)."""
     first = games[0]
@@ -218,7 +218,7 @@ def fits_one_batch(games: Sequence[object]) -> bool:
     )
 
 
-def game_batch(games: Sequence[TreasureHuntGame], rngs: Sequence[np.random.Generator]) -> GameBatch:
+def game_batch(games: Sequence[Game], rngs: Sequence[np.random.Generator]) -> GameBatch:
     """The replicas' games as one batch: the batched core for treasure hunts that fit one batch, else
     a loop over the games."""
     return BatchedTreasureHunts(games, rngs) if fits_one_batch(games) else LoopedGames(games, rngs)

@@ -8,7 +8,7 @@ beside the one-line description that ``--help`` shows.
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
-from typing import Optional
+from typing import Any, Dict, Optional
 
 from dqn_transfer.documented import documented
 from dqn_transfer.enums import Mode, ObsEncoding, RewardMode
@@ -43,9 +43,18 @@ class EnvConfig:
     render_mode: Optional[str] = documented(
         None, "ansi | rgb_array | human for the faces' render(); training does not render"
     )
+    factory: Optional[str] = documented(
+        None,
+        "another game instead of the treasure hunt: PACKAGE.MODULE:CALLABLE returning a PettingZoo ParallelEnv "
+        "(docs/your_own_environment.md); the keys above then do not apply",
+    )
+    kwargs: Dict[str, Any] = documented(factory=dict, doc="keyword arguments of env.factory")
 
 
-ENV_KEYS = tuple(f.name for f in fields(EnvConfig))
+# The keys that name another game (a PettingZoo env) instead of the treasure hunt.
+FACTORY_KEYS = ("factory", "kwargs")
+# The treasure hunt's own keys.
+ENV_KEYS = tuple(f.name for f in fields(EnvConfig) if f.name not in FACTORY_KEYS)
 # The keys that shape the map itself; the rest are rules, observations and rewards.
 MAP_KEYS = ("size", "num_treasures", "num_traps", "num_agents", "complexity", "map_seed", "layout", "layout_file")
 # The game's rules: the keys a game is built with besides its map (render_mode belongs to the faces).

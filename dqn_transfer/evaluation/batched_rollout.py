@@ -20,7 +20,7 @@ import numpy as np
 
 from dqn_transfer.agents.base import Learner, Team
 from dqn_transfer.enums import RewardMode
-from dqn_transfer.envs import batched
+from dqn_transfer.envs import Game, batched
 from dqn_transfer.envs.game import TreasureHuntGame
 from dqn_transfer.envs.game_batch import fits_one_batch
 from dqn_transfer.evaluation.rollout import EpisodeResult, evaluate, evaluation_rng, summarize
@@ -29,7 +29,7 @@ from dqn_transfer.evaluation.rollout import EpisodeResult, evaluate, evaluation_
 def evaluate_replicas(
     learner: Learner | None,
     teams: Sequence[Team],
-    games: Sequence[TreasureHuntGame],
+    games: Sequence[Game],
     episodes: int,
     seeds: Sequence[int],
     evaluations: Sequence[int],

@@ -14,7 +14,7 @@ import numpy as np
 
 from dqn_transfer.agents.base import Team, Transition
 from dqn_transfer.enums import RewardMode
-from dqn_transfer.envs.game import TreasureHuntGame
+from dqn_transfer.envs import Game
 
 # (obs [K, D], live [K]) -> actions [K]; actions of agents that are not live are ignored.
 Policy = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -55,7 +55,7 @@ def greedy_policy(learner: Team, episode_rng: np.random.Generator | None = None)
 
 
 def play_episode(
-    game: TreasureHuntGame,
+    game: Game,
     policy: Policy,
     rng: np.random.Generator,
     on_step: StepCallback | None = None,
@@ -87,14 +87,14 @@ def play_episode(
         length += 1
         if cleared_at >= 0:
             return_after_clear += step_return
-        elif game.treasures_collected == chests:
+        elif chests and game.treasures_collected == chests:  # a game without chests never clears
             cleared_at = length
     steps_after_clear = length - cleared_at if cleared_at >= 0 else 0
     return EpisodeResult(
         team_return,
         length,
         game.treasures_collected,
-        game.treasures_collected / game.num_treasures,
+        game.treasures_collected / chests if chests else 0.0,
         trapped / game.num_agents,
         steps_after_clear,
         return_after_clear,
@@ -110,7 +110,7 @@ def evaluation_rng(seed: int, evaluation: int, episode: int) -> np.random.Genera
 
 def evaluate(
     learner: Team,
-    game: TreasureHuntGame,
+    game: Game,
     episodes: int,
     seed: int,
     evaluation: int,

@@ -67,7 +67,7 @@ def curriculum_sources(plan: RunPlan, launch_dir: Path) -> list[list[Path]] | No
     keys: list[str | None] = [None] * len(plan.replicas)  # a stage's hashes, and before the first none
     previous: list[Path] | None = None
     for n, (stage, staged) in enumerate(zip(stages, plan.chain)):
-        keys = [stage_hash(replica.config, replica.grid_map.layout, key) for replica, key in zip(staged.replicas, keys)]
+        keys = [stage_hash(replica.config, replica.identity, key) for replica, key in zip(staged.replicas, keys)]
         sources = (
             None
             if previous is None

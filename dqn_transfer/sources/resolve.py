@@ -83,7 +83,7 @@ def pretrained_sources(plan: RunPlan, launch_dir: Path) -> list[RunDir]:
     )
     task = SourceTask(config.transfer.source_task)
     keys = [
-        source_hash(to_plain(source_map(replica.config)), source.grid_map.layout, task)
+        source_hash(to_plain(source_map(replica.config)), source.identity, task)
         for replica, source in zip(plan.replicas, pretraining.replicas)
     ]
     steps = config.transfer.pretrain_steps

@@ -29,7 +29,7 @@ from dqn_transfer.config import (
     validate,
 )
 from dqn_transfer.enums import SourceTask
-from dqn_transfer.envs import GridMap, TreasureHuntGame, make_game
+from dqn_transfer.envs import Game, GridMap, PettingZooGame, UnsupportedEnv, make_game
 from dqn_transfer.envs.game import game_on
 from dqn_transfer.envs.settings import DEFAULTS, MAP_KEYS, EnvConfig
 from dqn_transfer.training.resources import MAX_SIZE, check_memory, check_size
@@ -38,18 +38,26 @@ from dqn_transfer.transfer.warm_start import transfer_targets
 
 @dataclass(frozen=True)
 class ReplicaPlan:
-    """One replica of a run: its lone-run config (own seed and map seed), its resolved map, and the name
-    of its directory inside a batch's run directory."""
+    """One replica of a run: its lone-run config (own seed and map seed), its resolved map (None for a game
+    named by ``env.factory``), and the name of its directory inside a batch's run directory."""
 
     config: TrainConfig
-    grid_map: GridMap
+    grid_map: GridMap | None
     name: str
     source_task: bool = False  # plays the single-agent source task of its map
 
-    def new_game(self) -> TreasureHuntGame:
-        """A fresh game on the replica's map (the map is never resolved again)."""
+    def new_game(self) -> Game:
+        """A fresh game on the replica's map (the map is never resolved again), or from ``env.factory``."""
+        if self.grid_map is None:
+            return PettingZooGame(str(self.config.env.factory), self.config.env.kwargs)
         game = game_on(self.grid_map, self.config.env)
         return game.single_agent_game() if self.source_task else game
+
+    @property
+    def identity(self) -> str:
+        """What names the replica's game in cache keys: its map's layout, or the other game's factory,
+        kwargs and spaces."""
+        return self.new_game().identity() if self.grid_map is None else self.grid_map.layout
 
 
 @dataclass(frozen=True)
@@ -101,6 +109,8 @@ def plan_run(config: TrainConfig, *, source_task: bool = False) -> RunPlan:
 
 def _plan(config: TrainConfig, source_task: bool) -> RunPlan:
     validate(config)
+    if config.env.factory is not None:
+        return _plan_other_game(config, source_task)
     check_map_size(config.env)
     # The first replica's map (cheap, once its side is bounded) tells the run's size; the memory it
     # will need is checked before any other map, learner or buffer is made.
@@ -119,6 +129,33 @@ def _plan(config: TrainConfig, source_task: bool) -> RunPlan:
     transferred = config.transfer.enabled and not source_task
     targets = tuple(transfer_targets(config, num_agents)) if transferred else ()
     return RunPlan(config, tuple(replicas), num_agents, targets, source_task)
+
+
+def _plan_other_game(config: TrainConfig, source_task: bool) -> RunPlan:
+    """The plan of a run on the PettingZoo env ``env.factory`` names, built once here to refuse an env the
+    adapter cannot play (:class:`~dqn_transfer.envs.UnsupportedEnv`) in one line."""
+    factory = config.env.factory
+    if source_task:
+        raise ConfigError(
+            f"env.factory={factory}: transfer.source_task=single pretrains on the treasure hunt's single-agent "
+            "task; give transfer.source=PATH or pretrain on this game with transfer.source_task=team"
+        )
+    if config.curriculum.stages:
+        raise ConfigError(
+            f"curriculum: its stages change the treasure hunt's env; env.factory={factory} is another game"
+        )
+    if config.replicas.maps > 1:
+        raise ConfigError(
+            f"replicas.maps={config.replicas.maps} varies the treasure hunt's map; env.factory={factory} has "
+            "none (use replicas.seeds)"
+        )
+    try:
+        num_agents = PettingZooGame(str(factory), config.env.kwargs).num_agents
+    except UnsupportedEnv as err:
+        raise ConfigError(str(err)) from None
+    replicas = tuple(ReplicaPlan(replica, None, replica_name(replica, config)) for replica in replica_configs(config))
+    targets = tuple(transfer_targets(config, num_agents)) if config.transfer.enabled else ()
+    return RunPlan(config, replicas, num_agents, targets)
 
 
 # The keys that generate a map, which a layout makes pointless.

@@ -25,7 +25,7 @@ import numpy as np
 from dqn_transfer.agents import Learner, Transition, UpdateStats, linear_schedule
 from dqn_transfer.config import TrainConfig, to_plain
 from dqn_transfer.enums import Exchange
-from dqn_transfer.envs import TreasureHuntGame
+from dqn_transfer.envs import Game, TreasureHuntGame
 from dqn_transfer.evaluation.rollout import team_return_of
 from dqn_transfer.evaluation.watch import EvaluationViews, evaluation_views
 from dqn_transfer.storage.run_dir import RunDir
@@ -116,13 +116,14 @@ class Replica:
         index: int,
         config: TrainConfig,
         run_dir: Path,
-        game: TreasureHuntGame,
+        game: Game,
         learner: Learner,
         source: Path | Sequence[Path] | None,
         pictures: bool = True,
     ) -> None:
         self.index, self.config, self.run_dir = index, config, RunDir(run_dir)
-        self.pictures = pictures  # evaluations draw their first episode and its Q-values for TensorBoard
+        # Evaluations draw their first episode and its Q-values for TensorBoard (the treasure hunt's map only).
+        self.pictures = pictures and isinstance(game, TreasureHuntGame)
         self.game, self.eval_game, self.learner, self.source = game, game.replica(), learner, source
         k = game.num_agents
         self.rows = slice(index * k, (index + 1) * k)
@@ -261,7 +262,7 @@ class Replica:
     def evaluation_views(self) -> EvaluationViews | None:
         """If :attr:`pictures`: the coming evaluation's first episode, played here, as TensorBoard shows
         it (a picture and the agents' Q-values there) and its result (the evaluation's episode 0)."""
-        if not self.pictures:
+        if not self.pictures or not isinstance(self.eval_game, TreasureHuntGame):  # other games draw none
             return None
         return evaluation_views(self.learner, self.eval_game, self.config.seed, self.counters.evaluations)
 

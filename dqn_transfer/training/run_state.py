@@ -17,7 +17,6 @@ import numpy as np
 
 from dqn_transfer.agents import Transition
 from dqn_transfer.enums import Algorithm
-from dqn_transfer.envs.game import map_settings
 from dqn_transfer.storage.checkpoint import (
     CheckpointError,
     atomic_write,
@@ -39,8 +38,9 @@ def agent_meta(rep: Replica, index: int, algorithm: Algorithm, source_task: bool
         "obs_layout": [[name, size] for name, size in game.obs_layout()],
         "num_actions": game.num_actions,
         "network": rep.learner.network_meta(),
-        # The map as played: ``make_game(**meta["env"])`` rebuilds it from the layout alone.
-        "env": {**plain["env"], **map_settings(game.map)},
+        # The game as played: for the treasure hunt its map (``make_game(**meta["env"])`` rebuilds it from
+        # the layout alone), for another game its factory, kwargs and spaces.
+        "env": {**plain["env"], **game.recorded_env()},
         "mode": plain["env"]["mode"],
         "source_task": source_task,
         "agent": plain["agent"],
@@ -79,7 +79,7 @@ def encode_checkpoint(
         "obs_layout": [[name, size] for name, size in rep.game.obs_layout()],
         "algorithm": algorithm.value,
         "config": rep.plain_config,  # what resume=true continues with
-        "layout": rep.game.map.layout,  # the map itself: a layout file may have changed since
+        "layout": rep.game.identity(),  # the map itself (a layout file may have changed since), or the game's spaces
         # The episode in progress (None before the loop starts).
         "episode": None if game_state is None else {"game": game_state, "stats": rep.episode.state_dict()},
     }
@@ -95,10 +95,10 @@ def load_checkpoint(rep: Replica, algorithm: Algorithm) -> None:
             f"{rep.run_dir.checkpoints}: the run was made with algorithm {meta.get('algorithm')} and obs layout "
             f"{meta.get('obs_layout')}; this config gives {algorithm.value} and {expected_layout}"
         )
-    if meta.get("layout") != rep.game.map.layout:
+    if meta.get("layout") != rep.game.identity():
         raise CheckpointError(
             f"{rep.run_dir.checkpoints}: the run was trained on another map:\n"
-            f"{meta.get('layout')}\nthis config gives\n{rep.game.map.layout}"
+            f"{meta.get('layout')}\nthis config gives\n{rep.game.identity()}"
         )
     for i in range(rep.game.num_agents):
         prefix = f"agent_{i}/"

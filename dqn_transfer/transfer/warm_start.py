@@ -21,7 +21,8 @@ import numpy as np
 from dqn_transfer.agents import Team, WarmStart, require
 from dqn_transfer.config import TrainConfig, TransferConfig
 from dqn_transfer.enums import Algorithm, Fill
-from dqn_transfer.envs.game import TreasureHuntGame, make_game
+from dqn_transfer.envs import Game, PettingZooGame, TreasureHuntGame
+from dqn_transfer.envs.game import make_game
 from dqn_transfer.envs.settings import ENV_KEYS
 from dqn_transfer.storage.checkpoint import (
     CheckpointError,
@@ -57,9 +58,30 @@ def map_geometry(game: TreasureHuntGame) -> MapGeometry:
     return MapGeometry(game.size, game.map.chests, game.obs_encoding.value, game.position_codes())
 
 
-def source_embedding(meta: Mapping[str, Any], game: TreasureHuntGame, transfer: TransferConfig) -> Embedding | None:
+def check_same_game(meta: Mapping[str, Any], game: Game) -> None:
+    """Refuse a source trained on another game: the treasure hunt and a PettingZoo env, or two factories.
+
+    :param meta: the source checkpoint's meta (its ``env`` records ``factory``; older ones none).
+    :param game: this run's game.
+    """
+    env = meta.get("env")
+    source = env.get("factory") if isinstance(env, Mapping) else None
+    target = game.factory if isinstance(game, PettingZooGame) else None
+    if source != target:
+        raise TransferError(
+            f"the source was trained on {source or 'the treasure hunt'} and this run plays "
+            f"{target or 'the treasure hunt'}: a warm start needs the same game"
+        )
+
+
+def source_embedding(meta: Mapping[str, Any], game: Game, transfer: TransferConfig) -> Embedding | None:
     """Where the source's map sits in ``game``'s (``transfer.offset``, ``transfer.fill``), from the map the
-    source recorded in its meta; None for a source that recorded none (then its map must be this one)."""
+    source recorded in its meta; None for a source that recorded none (then its map must be this one) and
+    for a game without a map (a PettingZoo env: its segments are mapped by name alone)."""
+    if isinstance(game, PettingZooGame):
+        if list(transfer.offset) != [0, 0] or Fill(transfer.fill) is not Fill.zero:
+            raise TransferError(f"transfer.offset and transfer.fill place a treasure-hunt map; {game.factory} has none")
+        return None
     env = meta.get("env")
     if not isinstance(env, Mapping) or env.get("layout") is None:
         if list(transfer.offset) != [0, 0] or Fill(transfer.fill) is not Fill.zero:
@@ -110,13 +132,14 @@ class MappedSource:
         return record
 
 
-def map_source(config: TrainConfig, game: TreasureHuntGame, path: Path) -> MappedSource:
+def map_source(config: TrainConfig, game: Game, path: Path) -> MappedSource:
     """Load ``path`` and map its tensors onto ``game``'s agents; every refusal is one TransferError line."""
     tensors, meta = load_agent_checkpoint(path)
     algorithm = Algorithm(config.agent.algorithm)
     target_layout = game.obs_layout()
     try:
         check_compatible(meta, {"algorithm": algorithm.value, "num_actions": game.num_actions})
+        check_same_game(meta, game)
         embedding = source_embedding(meta, game, config.transfer)
         plan = plan_segment_mapping(meta["obs_layout"], target_layout, embedding)
         mapped = transfer_agent_tensors(
@@ -129,9 +152,7 @@ def map_source(config: TrainConfig, game: TreasureHuntGame, path: Path) -> Mappe
     return MappedSource(path, mapped, meta, plan, embedding)
 
 
-def apply_transfer(
-    config: TrainConfig, learner: Team, game: TreasureHuntGame, source: Path | Sequence[Path]
-) -> dict[str, Any]:
+def apply_transfer(config: TrainConfig, learner: Team, game: Game, source: Path | Sequence[Path]) -> dict[str, Any]:
     """Load ``source`` (one checkpoint for every target agent, or one per target) into the target
     agents (``load_agent_tensors``); keeping layers fixed and carrying the optimizer state over need
     the learner's :class:`~dqn_transfer.agents.WarmStart` capability. Returns what the run records

@@ -1,0 +1,281 @@
+"""Games other than the treasure hunt (docs/your_own_environment.md): any PettingZoo ParallelEnv through
+:class:`~dqn_transfer.envs.PettingZooGame`, Level-Based Foraging's adapter and its size-to-size transfer.
+
+The env the project does not ship is ``tests/corridor_env.py``: two agents with different spaces, slips
+drawn from the env's seeded generator, agents leaving early, truncation.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import agent_meta, read_metrics, run_train, without_timing
+
+from dqn_transfer.envs import PettingZooGame, UnsupportedEnv
+from dqn_transfer.envs.lbf import lbf_segments
+from dqn_transfer.storage.checkpoint import load_agent_checkpoint, load_training_state
+from dqn_transfer.transfer.mapping import TransferError, segment_slices
+from dqn_transfer.transfer.warm_start import check_same_game
+
+CORRIDOR = "corridor_env:parallel_env"
+TESTS = Path(__file__).resolve().parent
+
+
+def with_corridor(monkeypatch) -> None:
+    """``corridor_env`` importable by the ``train.py`` processes a test starts."""
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(TESTS), os.environ.get("PYTHONPATH")])))
+
+
+def corridor(**kwargs) -> PettingZooGame:
+    return PettingZooGame(CORRIDOR, kwargs)
+
+
+# ------------------------------------------------------------------------------------ the adapter
+
+
+def test_spaces_are_flattened_padded_and_actions_aliased():
+    game = corridor(length=5)
+    assert (game.num_agents, game.obs_dim, game.num_actions) == (2, 5, 3)
+    assert game.obs_layout() == [("obs", 5)]
+    obs = game.reset(np.random.default_rng(0))
+    assert obs[0].tolist() == [1, 0, 0, 0, 0]  # walker: Discrete(5) one-hot of cell 0
+    assert obs[1, 0] == 0.0 and 0.0 <= obs[1, 1] < 1.0 and obs[1, 2:].tolist() == [0, 0, 0]  # runner: Box(2), padded
+    game.step(np.array([1, 2]))  # the runner has 2 actions: its action 2 is its action 0 (left)
+    assert game.state_dict()["actions"] == [[1, 0]]
+
+
+def test_agents_leave_early_and_the_episode_truncates():
+    game = corridor(length=3, max_steps=4, slip=0.0)
+    game.reset(np.random.default_rng(0))
+    first = game.step(np.array([2, 0]))  # walker right (cell 1), runner left (stays at 0)
+    assert first.live.tolist() == [True, True] and first.rewards.tolist() == pytest.approx([-0.1, -0.1])
+    second = game.step(np.array([2, 0]))  # walker reaches the end: +1, terminated, gone
+    assert second.terminated.tolist() == [True, False] and second.live.tolist() == [False, True]
+    assert second.rewards.tolist() == pytest.approx([1.0, -0.1])
+    game.step(np.array([0, 0]))
+    last = game.step(np.array([0, 0]))  # step 4: the runner is truncated
+    assert last.truncated.tolist() == [False, True] and last.rewards[0] == 0.0 and game.done
+
+
+def test_a_mid_episode_state_replays_to_the_same_episode():
+    game, rng = corridor(), np.random.default_rng(3)
+    game.reset(rng)
+    for action in ([2, 1], [2, 1], [0, 1]):
+        game.step(np.array(action))
+    state, copy = game.state_dict(), corridor()
+    assert np.array_equal(copy.load_state_dict(state, rng), game.state_dict()["obs"])
+    for action in ([2, 1], [1, 0], [2, 1]):
+        a, b = game.step(np.array(action)), copy.step(np.array(action))
+        assert all(np.array_equal(x, y) for x, y in zip(a, b))
+
+
+def test_an_env_that_ignores_its_seed_is_refused_on_resume():
+    game = PettingZooGame("corridor_env:unseeded", {})
+    game.reset(np.random.default_rng(0))
+    game.step(np.array([1, 1]))
+    state = game.state_dict()
+    with pytest.raises(ValueError, match="not deterministic given its reset seed"):
+        for _ in range(20):  # one of twenty replays differs (the noise draw alone is a float)
+            PettingZooGame("corridor_env:unseeded", {}).load_state_dict(state, np.random.default_rng(0))
+
+
+@pytest.mark.parametrize(
+    ("factory", "words"),
+    [
+        ("corridor_env:dict_observations", ("agent runner", "Dict(", "Box, Discrete or MultiDiscrete")),
+        ("corridor_env:image_observations", ("agent runner", "(84, 84, 3)", "21168 floats")),
+        ("corridor_env:continuous_actions", ("agent runner", "Box(-1.0, 1.0", "Discrete actions")),
+        ("corridor_env:not_an_env", ("returned a str", "not a PettingZoo ParallelEnv")),
+        ("corridor_env:nothing", ("corridor_env has no callable nothing",)),
+        ("no_such_package.envs:make", ("cannot import no_such_package.envs",)),
+        ("corridor_env", ("expected PACKAGE.MODULE:CALLABLE",)),
+    ],
+)
+def test_unsupported_envs_are_refused_in_one_line(factory, words):
+    with pytest.raises(UnsupportedEnv) as refusal:
+        PettingZooGame(factory, {})
+    message = str(refusal.value)
+    assert "\n" not in message and message.startswith(f"env.factory={factory}")
+    for word in words:
+        assert word in message
+
+
+def test_a_factory_refusing_its_kwargs_is_one_line():
+    with pytest.raises(UnsupportedEnv, match=r"refused env.kwargs=\{'lenght': 4\}: TypeError"):
+        PettingZooGame(CORRIDOR, {"lenght": 4})
+
+
+def test_warm_starts_across_games_are_refused():
+    lbf, spread = (
+        PettingZooGame("dqn_transfer.envs.lbf:parallel_env", {}),
+        PettingZooGame("mpe2.simple_spread_v3:parallel_env", {}),
+    )
+    check_same_game({"env": {"factory": "dqn_transfer.envs.lbf:parallel_env", "kwargs": {"food": 1}}}, lbf)
+    with pytest.raises(TransferError, match="trained on the treasure hunt and this run plays mpe2"):
+        check_same_game({"env": {"size": 6, "layout": "0.T\n...\n1.T"}}, spread)
+    with pytest.raises(TransferError, match="trained on dqn_transfer.envs.lbf:parallel_env and this run plays mpe2"):
+        check_same_game({"env": {"factory": "dqn_transfer.envs.lbf:parallel_env"}}, spread)
+
+
+def test_lbf_declares_its_segments_in_its_observation_order():
+    game = PettingZooGame("dqn_transfer.envs.lbf:parallel_env", {"size": 6, "players": 3, "food": 2})
+    assert game.obs_layout() == lbf_segments(2, 3)
+    assert [name for name, _ in game.obs_layout()] == ["food_0", "food_1", "self", "player_1", "player_2"]
+    obs = game.reset(np.random.default_rng(0))
+    env = game.env.game  # lbforaging's own ForagingEnv
+    for agent, player in enumerate(env.players):
+        self_entry = obs[agent, segment_slices(game.obs_layout())["self"]]
+        assert self_entry.tolist() == [*player.position, player.level]
+
+
+def test_lbf_time_limit_is_a_truncation():
+    game = PettingZooGame("dqn_transfer.envs.lbf:parallel_env", {"size": 8, "food": 1, "max_steps": 3})
+    game.reset(np.random.default_rng(0))
+    outcomes = [game.step(np.zeros(2, dtype=np.int64)) for _ in range(3)]  # NONE: nobody loads
+    assert outcomes[-1].truncated.all() and not outcomes[-1].terminated.any() and game.done
+
+
+# ------------------------------------------------------------------------------------ from the command line
+
+
+def q_values(tensors: dict[str, np.ndarray], obs: np.ndarray) -> np.ndarray:
+    """The Q-values of a DQN agent file's online network (ReLU MLP) on ``obs`` [N, D]."""
+    layers = sorted(int(name.split(".")[2]) for name in tensors if name.startswith("q.layers.") and "weight" in name)
+    x = obs.astype(np.float64)
+    for n, layer in enumerate(layers):
+        x = x @ tensors[f"q.layers.{layer}.weight"].T.astype(np.float64) + tensors[f"q.layers.{layer}.bias"]
+        if n < len(layers) - 1:
+            x = np.maximum(x, 0.0)
+    return x
+
+
+@pytest.mark.slow
+def test_lbf_size_to_size_transfer_computes_the_sources_q_values(tmp_path):
+    """A source trained with 1 food and 2 players warm-starts 3 food and 3 players: on every state the
+    source could see (its entries as the source saw them, whatever the new entries hold) the target's
+    Q-values are the source's."""
+    small = ("env.kwargs.size=5", "env.kwargs.food=1", "env.kwargs.players=2")
+    large = ("env.kwargs.size=7", "env.kwargs.food=3", "env.kwargs.players=3")
+    common = ("env=lbf", "agent=double_dqn", "eval_every=100", "eval_episodes=1", "agent.learning_starts=50")
+    source = run_train(tmp_path, *common, *small, "total_steps=300", run_dir=tmp_path / "source")
+    source_file = source.run_dir / "checkpoints" / "agent_0.safetensors"
+    target = run_train(
+        tmp_path, *common, *large, "total_steps=0", "transfer=on", f"transfer.source={source_file}",
+        run_dir=tmp_path / "target",
+    )  # fmt: skip
+    source_tensors, source_meta = load_agent_checkpoint(source_file)
+    assert source_meta["env"]["factory"] == "dqn_transfer.envs.lbf:parallel_env"
+    assert source_meta["env"]["kwargs"]["food"] == 1 and len(source_meta["env"]["observation_spaces"]) == 2
+    # States the source saw: observations of its own task; the target's new entries drawn at random.
+    game = PettingZooGame("dqn_transfer.envs.lbf:parallel_env", {"size": 5, "food": 1, "players": 2})
+    rng = np.random.default_rng(0)
+    seen = [game.reset(rng)]
+    while len(seen) < 60:
+        outcome = game.step(rng.integers(6, size=2))
+        seen.append(outcome.obs)
+        if game.done:
+            seen.append(game.reset(rng))
+    source_obs = np.concatenate(seen)
+    source_slices, target_layout = segment_slices(lbf_segments(1, 2)), lbf_segments(3, 3)
+    target_obs = rng.integers(-1, 7, size=(len(source_obs), sum(w for _, w in target_layout))).astype(np.float32)
+    for name, columns in segment_slices(target_layout).items():
+        if name in source_slices:
+            target_obs[:, columns] = source_obs[:, source_slices[name]]
+    expected = q_values(source_tensors, source_obs)
+    for i in range(3):
+        tensors, meta = load_agent_checkpoint(target.run_dir / "checkpoints" / f"agent_{i}.safetensors")
+        assert meta["obs_layout"] == [list(pair) for pair in target_layout]
+        np.testing.assert_allclose(q_values(tensors, target_obs), expected, atol=1e-5)
+    assert not np.allclose(expected, expected[0])  # the states differ in value: the check has teeth
+
+
+@pytest.mark.slow
+def test_an_env_named_only_on_the_command_line_trains_checkpoints_and_resumes_bit_identically(tmp_path, monkeypatch):
+    """``env=pettingzoo env.factory=corridor_env:parallel_env``: a run stopped mid-episode and resumed
+    equals the uninterrupted run, evaluation for evaluation and weight for weight."""
+    with_corridor(monkeypatch)
+    run = (
+        "env=pettingzoo",
+        f"env.factory={CORRIDOR}",
+        "env.kwargs.length=6",
+        "env.kwargs.max_steps=15",
+        "agent=dqn",
+        "agent.exploration_fraction=0",  # epsilon's horizon is fixed when a run starts: the same in both
+        "agent.learning_starts=40",
+        "agent.hidden=[16]",
+        "eval_every=50",
+        "eval_episodes=3",
+        "checkpoint_every=70",
+    )
+    whole = run_train(tmp_path, *run, "total_steps=400", run_dir=tmp_path / "whole")
+    # Stopped at a step that evaluates anyway (an extra final evaluation would shift later evaluations'
+    # seeds), in the middle of an episode: its checkpoint holds the episode's seed and actions.
+    stopped = run_train(tmp_path, *run, "total_steps=250", run_dir=tmp_path / "stopped")
+    _, state = load_training_state(stopped.run_dir / "checkpoints" / "training_state.safetensors")
+    assert state["episode"] is not None and len(state["episode"]["game"]["actions"]) > 0
+    resumed = run_train(tmp_path, *run, "total_steps=400", "resume=true", run_dir=tmp_path / "stopped")
+    assert "resumed" in resumed.output
+    assert without_timing(read_metrics(resumed.run_dir)) == without_timing(read_metrics(whole.run_dir))
+    for i in range(2):
+        a, b = (agent_meta(r.run_dir / "checkpoints" / f"agent_{i}.safetensors") for r in (resumed, whole))
+        assert a["digest"] == b["digest"] and a["episodes"] == b["episodes"]
+    assert agent_meta(whole.run_dir / "checkpoints" / "agent_0.safetensors")["env"]["observation_spaces"] == [
+        "Discrete(6)",
+        "Box(0.0, 1.0, (2,), float32)",
+    ]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("overrides", "words"),
+    [
+        (("env=pettingzoo", "env.factory=corridor_env:dict_observations"), ("error:", "Dict(")),
+        (("env=pettingzoo", "env.factory=no_such_package:make"), ("error:", "cannot import no_such_package")),
+        (("env=lbf", "transfer=on"), ("error:", "transfer.source_task=single")),
+    ],
+)
+def test_bad_games_are_refused_in_one_line(tmp_path, monkeypatch, overrides, words):
+    with_corridor(monkeypatch)
+    result = run_train(tmp_path, *overrides, check=False)
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert result.returncode == 1 and len(lines) == 1, result.output
+    for word in words:
+        assert word in lines[0]
+
+
+def random_team_return(factory: str, kwargs: dict, episodes: int, seed: int) -> float:
+    """The mean team return of a uniformly random policy (every live agent picks any action)."""
+    game, rng = PettingZooGame(factory, kwargs), np.random.default_rng(seed)
+    total = 0.0
+    for _ in range(episodes):
+        game.reset(rng)
+        while not game.done:
+            live = game.live
+            total += float(game.step(rng.integers(game.num_actions, size=game.num_agents)).rewards[live].sum())
+    return total / episodes
+
+
+@pytest.mark.slow
+def test_lbf_double_dqn_learns_well_above_a_random_policy(tmp_path):
+    """8x8 field, 2 players, 1 food any player can load, 25 steps: the greedy team return after 15k steps
+    against a uniformly random policy's on the same task (the team return is the food collected, <= 1)."""
+    task = {"size": 8, "players": 2, "food": 1, "max_food_level": 1, "max_steps": 25}
+    result = run_train(
+        tmp_path,
+        "env=lbf",
+        "agent=double_dqn",
+        *(f"env.kwargs.{key}={value}" for key, value in task.items()),
+        # LBF has no step cost: a lower discount makes the shortest way to the food clearly the best
+        "agent.gamma=0.95",
+        "agent.exploration_fraction=0.3",
+        "total_steps=15000",
+        "eval_every=7500",
+        "eval_episodes=100",
+    )
+    trained = read_metrics(result.run_dir)[-1]["team_return"]
+    random = random_team_return("dqn_transfer.envs.lbf:parallel_env", task, episodes=500, seed=1)
+    assert 0.1 < random < 0.45, random  # about 0.33
+    assert trained > random + 0.25, (trained, random)
