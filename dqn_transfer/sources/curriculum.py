@@ -36,13 +36,16 @@ NOT_IN_STAGE_HASH = ("progress", "resume", "eval_pictures", "objective", "logger
 # transfer.* keys a curriculum refuses (at their defaults in every stage), left out of a stage's hash so
 # that the stages cached before they existed stay valid.
 NOT_IN_STAGE_TRANSFER_HASH = ("source_task", "source_map_shift")
+# env.* keys of other games (a curriculum is refused there), likewise left out.
+NOT_IN_STAGE_ENV_HASH = ("factory", "kwargs")
 
 
 def stage_hash(config: TrainConfig, layout: str, previous: str | None) -> str:
     """Hash of everything that shapes a stage's run: its config (the map by its actual ``layout``) and
     the hash of the stage it starts from."""
     plain = {key: value for key, value in to_plain(config).items() if key not in NOT_IN_STAGE_HASH}
-    plain["env"] = {**plain["env"], "layout_file": None, "layout": layout}
+    env = {key: value for key, value in plain["env"].items() if key not in NOT_IN_STAGE_ENV_HASH}
+    plain["env"] = {**env, "layout_file": None, "layout": layout}
     plain["transfer"] = {
         key: value for key, value in plain["transfer"].items() if key not in NOT_IN_STAGE_TRANSFER_HASH
     }
