@@ -106,13 +106,15 @@ def test_sarsa_bootstraps_from_the_cached_next_action_and_plays_it():
 
 def test_sarsa_cache_is_ignored_for_another_observation_and_in_greedy_mode():
     agent = learner("sarsa", num_agents=1)
-    agent.next_action[0], agent.next_action_obs[0] = 0, S1  # "play 0 in S1"
+    agent.load_agent_tensors(0, {"keys": np.stack([S0, S1]), "values": np.array([[0.0, 5.0], [2.0, 4.0]], np.float32)})
+    agent.next_action[0], agent.next_state[0] = 0, agent.state_ids(S1[None], np.array([0]))[0]  # "play 0 in S1"
     # Greedy evaluation: argmax Q(S1) = 1, the cache is not consulted and survives.
     assert agent.greedy(S1[None], np.ones(1, bool))[0] == 1
     assert agent.next_action[0] == 0
-    # A different observation (e.g. after a reset) does not use the cache: greedy on S0 (0, 0) ties.
-    agent.act(S0[None], np.ones(1, bool), epsilon=0.0)
-    assert agent.next_action[0] == 0
+    # A different observation (e.g. after a reset) does not use the cache: greedy on S0 plays 1, and the
+    # stale cache is dropped.
+    assert agent.act(S0[None], np.ones(1, bool), epsilon=0.0)[0] == 1
+    assert agent.next_action[0] == -1
 
 
 def test_dead_agents_are_not_updated_and_get_nan():
@@ -171,7 +173,7 @@ def test_training_state_round_trip_continues_identically():
 
     a = tabular("sarsa", 2, layout, 4, lr=0.1, seed=0)
     run(a, inputs[:30])
-    b = tabular("sarsa", 2, layout, 4, lr=0.1, seed=123)
+    b = tabular("sarsa", 2, layout, 4, lr=0.1, seed=0)  # the seed is the run's; the state holds the counters
     for i in range(2):
         b.load_agent_tensors(i, a.agent_tensors(i))
     b.load_training_state(*a.training_state())
@@ -217,9 +219,9 @@ def test_untrained_agents_evaluate_alike_whatever_their_observation_encodes(seed
         learner = TabularLearner(
             1, game.obs_layout(), game.num_actions, AgentConfig(algorithm=Algorithm.sarsa), seed=seed
         )
-        state = learner.rngs[0].bit_generator.state
+        counters = {stream: count.copy() for stream, count in learner.counters.items()}
         results.append(evaluate(learner, game, episodes=5, seed=seed, evaluation=0))
-        assert learner.rngs[0].bit_generator.state == state  # evaluation draws none of the learner's numbers
+        assert learner.counters == counters  # evaluation draws none of the learner's numbers
     assert results[0] == results[1] == results[2]
     assert len({game.obs_dim for game in [make_game(layout=layout, mode=m) for m in Mode]}) == 2
 
@@ -227,7 +229,7 @@ def test_untrained_agents_evaluate_alike_whatever_their_observation_encodes(seed
 def test_greedy_ties_go_to_a_drawn_best_action_and_never_to_a_worse_one():
     learner = TabularLearner(1, [("position", 2)], 4, AgentConfig(algorithm=Algorithm.qlearning), seed=0)
     obs = np.array([[1.0, 0.0]], dtype=np.float32)
-    learner.tables[0][obs[0].tobytes()] = np.array([5.0, 1.0, 5.0, 5.0], dtype=np.float32)
+    learner.load_agent_tensors(0, {"keys": obs, "values": np.array([[5.0, 1.0, 5.0, 5.0]], dtype=np.float32)})
     live = np.array([True])
     ties = np.random.default_rng(7)
     drawn = {int(learner.greedy(obs, live, ties)[0]) for _ in range(60)}
@@ -237,24 +239,28 @@ def test_greedy_ties_go_to_a_drawn_best_action_and_never_to_a_worse_one():
 
 def test_exchange_best_moves_every_other_table_towards_the_best_agents_over_both_tables_states():
     learner = TabularLearner(3, [("position", 2)], 4, AgentConfig(algorithm=Algorithm.qlearning), seed=0)
-    s1, s2 = np.array([1.0, 0.0], np.float32).tobytes(), np.array([0.0, 1.0], np.float32).tobytes()
-    learner.tables[0] = {s1: np.array([4.0, 0, 0, 0], np.float32)}
-    learner.tables[1] = {s1: np.array([2.0, 2, 0, 0], np.float32), s2: np.array([8.0, 0, 0, 0], np.float32)}
-    best_before = {key: row.copy() for key, row in learner.tables[1].items()}
+    s1, s2 = np.array([1.0, 0.0], np.float32), np.array([0.0, 1.0], np.float32)
+    learner.load_agent_tensors(0, {"keys": s1[None], "values": np.array([[4.0, 0, 0, 0]], np.float32)})
+    best = {"keys": np.stack([s2, s1]), "values": np.array([[8.0, 0, 0, 0], [2.0, 2, 0, 0]], np.float32)}
+    learner.load_agent_tensors(1, best)
     window_returns = np.array([[0.0, 10.0, 1.0], [2.0, 6.0, 1.0]])  # agent 1 has the best mean, 8
     assert exchange_best(learner, window_returns, tau=0.5) == 1
-    np.testing.assert_array_equal(learner.tables[0][s1], [3, 1, 0, 0])  # (4 + 2) / 2, (0 + 2) / 2
-    np.testing.assert_array_equal(learner.tables[0][s2], [4, 0, 0, 0])  # unseen by agent 0: 0 -> halfway to 8
-    np.testing.assert_array_equal(learner.tables[2][s2], [4, 0, 0, 0])
-    assert learner.tables[1].keys() == best_before.keys()
-    assert all(np.array_equal(learner.tables[1][key], best_before[key]) for key in best_before)
+    # Agent 0's table: its own s1 first, then s2 (new to it, in the best agent's order).
+    table0 = learner.agent_tensors(0)
+    np.testing.assert_array_equal(table0["keys"], np.stack([s1, s2]))
+    np.testing.assert_array_equal(table0["values"], [[3, 1, 0, 0], [4, 0, 0, 0]])  # (4 + 2) / 2; 0 -> halfway to 8
+    table2 = learner.agent_tensors(2)  # agent 2 held nothing: both of the best agent's states, halfway
+    np.testing.assert_array_equal(table2["keys"], np.stack([s2, s1]))
+    np.testing.assert_array_equal(table2["values"], [[4, 0, 0, 0], [1, 1, 0, 0]])
+    after = learner.agent_tensors(1)
+    assert all(np.array_equal(after[name], best[name]) for name in best)  # the best agent is unchanged
 
 
 @pytest.mark.parametrize("algorithm", [Algorithm.qlearning, Algorithm.sarsa])
 def test_exchange_replay_updates_each_table_on_its_team_mates_transitions(algorithm):
     learner = TabularLearner(2, [("position", 2)], 4, AgentConfig(algorithm=algorithm, lr=0.5, gamma=0.9), seed=0)
     s1, s2 = np.array([1.0, 0.0], np.float32), np.array([0.0, 1.0], np.float32)
-    learner.tables[1][s2.tobytes()] = np.array([0.0, 5.0, 5.0, 5.0], np.float32)  # every action worth 5 at s2
+    learner.load_agent_tensors(1, {"keys": s2[None], "values": np.array([[0.0, 5.0, 5.0, 5.0]], np.float32)})
     # agent 0 moved s1 -> s2 with action 2 and reward 1; agent 1 was already done
     step = Transition(
         np.stack([s1, s1]),
@@ -268,6 +274,6 @@ def test_exchange_replay_updates_each_table_on_its_team_mates_transitions(algori
     exchange_replay(learner, [step])
     # agent 1: Q(s1, 2) = 0 + 0.5 * (1 + 0.9 * Q(s2, a') - 0); Q-learning a' = argmax (5), SARSA a' is
     # epsilon-greedy with epsilon 0 (no act yet): a greedy one, also 5
-    np.testing.assert_allclose(learner.tables[1][s1.tobytes()], [0, 0, 2.75, 0])
-    assert s1.tobytes() not in learner.tables[0]  # agent 0 learns only from team-mates (none were live)
+    np.testing.assert_allclose(learner.agent_q_values(1, s1), [0, 0, 2.75, 0])
+    assert len(learner.agent_tensors(0)["keys"]) == 0  # agent 0 learns only from team-mates (none were live)
     assert (learner.next_action == -1).all()  # SARSA's cached next action belongs to the agent's own steps

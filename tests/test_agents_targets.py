@@ -6,7 +6,6 @@ import pytest
 import torch
 
 from dqn_transfer.agents import double_dqn_targets, dqn_targets, epsilon_greedy, linear_schedule
-from dqn_transfer.agents.base import epsilon_greedy_action
 
 GAMMA = 0.9
 # Three transitions, two actions. Rows: a normal step, a step where DQN and Double DQN disagree
@@ -97,13 +96,3 @@ def test_epsilon_greedy_extremes():
     explored = epsilon_greedy(greedy, 1.0, 4, rng)
     assert set(explored.tolist()) == {0, 1, 2, 3}
     assert explored.dtype == np.int64
-
-
-@pytest.mark.parametrize("epsilon", [0.0, 0.3, 1.0])
-def test_one_agents_epsilon_greedy_draws_what_the_batched_one_draws(epsilon):
-    """The tabular learners' scalar form takes the same random numbers: same actions, same stream after."""
-    batched, scalar = np.random.default_rng(7), np.random.default_rng(7)
-    for greedy in [0, 3, 1, 2] * 50:
-        want = int(epsilon_greedy(np.array([greedy]), epsilon, 4, batched)[0])
-        assert epsilon_greedy_action(greedy, epsilon, 4, scalar) == want
-    assert batched.bit_generator.state == scalar.bit_generator.state

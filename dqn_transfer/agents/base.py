@@ -219,14 +219,6 @@ def epsilon_greedy(
     return np.where(explore, random_actions, greedy_actions).astype(np.int64)
 
 
-def epsilon_greedy_action(greedy_action: int, epsilon: float, num_actions: int, rng: np.random.Generator) -> int:
-    """:func:`epsilon_greedy` for one agent: the same two draws, taken as scalars (numpy's scalar and
-    size-1 draws consume the same random numbers), at a fraction of the per-call cost."""
-    explore = rng.random() < epsilon
-    random_action = int(rng.integers(0, num_actions))
-    return random_action if explore else greedy_action
-
-
 def joined(parts: Sequence[np.ndarray]) -> np.ndarray:
     """The replicas' rows as one array; a lone replica's own array as it is (no copy: callers pass
     fresh arrays that nothing else holds)."""

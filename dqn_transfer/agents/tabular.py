@@ -1,9 +1,13 @@
-"""Tabular SARSA (the study's base learner) and Q-learning for K agents.
+"""Tabular SARSA (the study's base learner) and Q-learning for K agents, in R replicas, as arrays.
 
-Each agent has its own Q-table keyed by the exact observation (the bytes of its float32 vector).
-An unseen observation is worth 0 for every action, unless the agent has *fallbacks*: tables from
-another agent (set by transfer), each looked up on a projection of the observation, in turn; the
-first that knows it initialises the entry the first time it is updated.
+Each agent has its own Q-table over the exact observations (float32 vectors) of its game. The
+observations a replica's agents meet get dense ids in the order they are first seen (one index per
+replica: its agents share the game), so every agent's table is a row of one array ``Q [R * K, S, A]``
+and acting or updating all agents of all replicas is a few array operations. An observation is worth
+0 for every action until its agent updates it, unless the agent has *fallbacks*: tables from another
+agent (set by transfer), each looked up on a projection of the observation, in turn; the first that
+knows it gives the entry's starting values. An agent's table (what its checkpoint holds) is the
+entries it has updated, in the order it first updated them.
 
 Update of agent i for a transition ``(s, a, r, s')``, learning rate ``alpha = lr``::
 
@@ -15,6 +19,12 @@ Update of agent i for a transition ``(s, a, r, s')``, learning rate ``alpha = lr
 A truncated episode (time limit) bootstraps like any non-terminal step. SARSA picks ``a'`` at
 update time with the epsilon of the last ``act``, and the next ``act`` on ``s'`` returns that same
 action, so the update follows the policy actually played (on-policy).
+
+Random numbers are counter-based (:mod:`~dqn_transfer.agents.random_streams`): every agent-step takes
+three uniforms (explore?, which random action, which of tied best actions) keyed by the replica's
+seed, the purpose (acting, SARSA's ``a'``, learning from team-mates), a per-replica counter and the
+agent. So all agents draw at once, replica (seed s) is the lone run of seed s, and a checkpoint needs
+only the counters.
 """
 
 from __future__ import annotations
@@ -34,8 +44,9 @@ from dqn_transfer.agents.base import (
     Transition,
     UpdateStats,
     check_tensor_shape,
-    epsilon_greedy_action,
 )
+from dqn_transfer.agents.dqn_update import huber
+from dqn_transfer.agents.random_streams import uniforms
 from dqn_transfer.agents.replicas import team_view
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm
@@ -43,10 +54,21 @@ from dqn_transfer.enums import Algorithm
 _NO_ACTION = -1  # empty slot of the SARSA next-action cache
 
 
-def huber(td_error: float) -> float:
-    """The DQN loss of a TD error (smooth L1), so tabular and deep ``td_loss`` curves compare."""
-    magnitude = abs(td_error)
-    return 0.5 * magnitude**2 if magnitude < 1.0 else magnitude - 0.5
+# The purposes of the counter-based draws (one stream each).
+ACT_STREAM, NEXT_ACTION_STREAM, LEARN_FROM_STREAM = 1, 2, 3
+DRAWS_PER_AGENT_STEP = 3  # explore?, a random action, a pick among tied best actions
+_INITIAL_STATES = 64  # ids a replica's index holds before it first grows (doubling)
+
+
+def epsilon_greedy_rows(q: np.ndarray, epsilon: np.ndarray, draws: np.ndarray) -> np.ndarray:
+    """Per row of ``q [N, A]``: with probability ``epsilon [N]`` a uniformly random action, else a best
+    action, ties going to a uniformly drawn one of them; ``draws [N, 3]`` uniforms in ``[0, 1)`` (one
+    per choice, always all three)."""
+    best = q == q.max(axis=1, keepdims=True)
+    pick = np.floor(draws[:, 2] * best.sum(axis=1)).astype(np.int64)  # the pick-th best action
+    greedy = np.argmax(np.cumsum(best, axis=1) > pick[:, None], axis=1)
+    random_action = np.floor(draws[:, 1] * q.shape[1]).astype(np.int64)
+    return np.where(draws[:, 0] < epsilon, random_action, greedy)
 
 
 def fallback_names(level: int) -> tuple[str, str, str]:
@@ -82,17 +104,23 @@ class _Fallback:
         return self.table.get(obs[self.projection].tobytes())
 
 
-def _best_actions(q: np.ndarray) -> list[int]:
-    """The actions of the highest value (in Python: for a handful of actions, cheaper than numpy calls)."""
-    values = q.tolist()
-    top = max(values)
-    return [action for action, value in enumerate(values) if value == top]
+def check_fallback(
+    keys: np.ndarray, values: np.ndarray, projection: np.ndarray, obs_dim: int, num_actions: int
+) -> None:
+    """``ValueError`` unless a fallback table fits observations of ``obs_dim`` values and ``num_actions``."""
+    if keys.ndim != 2 or projection.shape != (keys.shape[1],) or values.shape != (len(keys), num_actions):
+        raise ValueError(
+            f"fallback table is malformed: keys {list(keys.shape)}, values {list(values.shape)}, "
+            f"projection {list(projection.shape)}, {num_actions} actions"
+        )
+    if projection.size and (projection.min() < 0 or projection.max() >= obs_dim):
+        raise ValueError(f"fallback projection points outside the {obs_dim} observation columns")
 
 
 class TabularLearner(Learner, KnowledgeExchange):
-    """K independent Q-tables updated by SARSA or Q-learning (see the module docstring), in R replicas:
-    ``R * K`` tables, row ``r * K + k``, replica r exploring and breaking ties with its own generator
-    (exactly the team a lone learner of its seed would be)."""
+    """K Q-tables updated by SARSA or Q-learning (see the module docstring), in R replicas: ``R * K``
+    tables, row ``r * K + k``, replica r exploring with its own seed's draws (exactly the team a lone
+    learner of its seed would be)."""
 
     def __init__(
         self,
@@ -118,206 +146,269 @@ class TabularLearner(Learner, KnowledgeExchange):
         self.lr = hp.lr
         self.gamma = hp.gamma
         seeds = [int(seed)] if isinstance(seed, (int, np.integer)) else [int(s) for s in seed]
-        self.num_replicas = len(seeds)
-        self.num_rows = rows = self.num_replicas * num_agents
-        self.rngs = [np.random.default_rng(s) for s in seeds]
-        self.tables: list[dict[bytes, np.ndarray]] = [{} for _ in range(rows)]
+        if min(seeds) < 0:
+            raise ValueError(f"seeds must be non-negative, got {seeds}")
+        self.num_replicas = replicas = len(seeds)
+        self.num_rows = rows = replicas * num_agents
+        self.row_seed = np.repeat(np.asarray(seeds, dtype=np.int64), num_agents)
+        self.row_replica = np.repeat(np.arange(replicas), num_agents)
+        self.row_agent = np.tile(np.arange(num_agents), replicas)
+        # Each replica's observations by id (its agents share the index), and how many it has.
+        self._ids: list[dict[bytes, int]] = [{} for _ in range(replicas)]
+        self.state_keys = np.zeros((replicas, _INITIAL_STATES, self.obs_dim), dtype=np.float32)
+        self.num_states = np.zeros(replicas, dtype=np.int64)
+        self.q = np.zeros((rows, _INITIAL_STATES, num_actions), dtype=np.float32)
+        # Entry order: when the agent first updated it (-1: not in its table, the value is a start value).
+        self.entry_order = np.full((rows, _INITIAL_STATES), -1, dtype=np.int32)
+        self._entries = 0  # entries entered so far, all rows together (the next entry's order)
         self.fallbacks: list[list[_Fallback]] = [[] for _ in range(rows)]
-        # SARSA: the action chosen for next_obs at the last update, and that observation.
-        self.epsilon = np.zeros(rows)  # per agent: transferred agents may explore less
+        # Per replica: the counters of its draws, by purpose (what a checkpoint saves of them).
+        self.counters = {stream: np.zeros(replicas, dtype=np.int64) for stream in _STREAM_NAMES}
+        self.epsilon = np.zeros(rows)  # per agent, from the last act: transferred agents may explore less
+        # SARSA: the action chosen at the last update for the next state, and that state's id.
         self.next_action = np.full(rows, _NO_ACTION, dtype=np.int64)
-        self.next_action_obs = np.zeros((rows, self.obs_dim), dtype=np.float32)
+        self.next_state = np.full(rows, -1, dtype=np.int64)
 
     def replica(self, r: int) -> Team:
         return team_view(self, r)
 
-    def _rows(self, replica: int | None) -> range:
+    def _rows(self, replica: int | None) -> np.ndarray:
         """The rows of ``replica`` (None: all)."""
         k = self.num_agents
-        return range(self.num_rows) if replica is None else range(replica * k, (replica + 1) * k)
-
-    def _rng(self, i: int) -> np.random.Generator:
-        return self.rngs[i // self.num_agents]
+        return np.arange(self.num_rows) if replica is None else np.arange(replica * k, (replica + 1) * k)
 
     # ---------------------------------------------------------------------------------- tables
 
+    def state_ids(self, obs: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """The id of each row's observation ``obs [N, D]`` in its replica's index (``rows [N]``), new
+        observations getting the next ids (their entries start at the fallbacks' values, else 0)."""
+        obs = np.ascontiguousarray(obs, dtype=np.float32)
+        replicas = self.row_replica[rows].tolist()
+        keys = [row.tobytes() for row in obs]
+        ids = [self._ids[r].get(key, -1) for r, key in zip(replicas, keys)]
+        for n, found in enumerate(ids):
+            if found < 0:
+                ids[n] = self._new_state(replicas[n], keys[n], obs[n])
+        return np.asarray(ids, dtype=np.int64)
+
+    def _new_state(self, r: int, key: bytes, obs: np.ndarray) -> int:
+        known = self._ids[r].get(key)  # the same observation twice in one call
+        if known is not None:
+            return known
+        state = int(self.num_states[r])
+        if state == self.q.shape[1]:
+            self._grow()
+        self._ids[r][key] = state
+        self.state_keys[r, state] = obs
+        self.num_states[r] += 1
+        for row in self._rows(r).tolist():
+            self.q[row, state] = self._start_values(row, obs)
+        return state
+
+    def _grow(self) -> None:
+        """Double every replica's room for states."""
+        extra = self.q.shape[1]
+        self.q = np.concatenate([self.q, np.zeros_like(self.q)], axis=1)
+        self.entry_order = np.concatenate([self.entry_order, np.full_like(self.entry_order, -1)], axis=1)
+        self.state_keys = np.concatenate([self.state_keys, np.zeros_like(self.state_keys)], axis=1)
+        assert self.q.shape[1] == 2 * extra
+
+    def _start_values(self, row: int, obs: np.ndarray) -> np.ndarray:
+        """What an entry of ``row`` holds before its agent updates it: the first fallback that knows
+        ``obs``, else 0."""
+        for fallback in self.fallbacks[row]:
+            values = fallback.get(obs)
+            if values is not None:
+                return values
+        return np.zeros(self.num_actions, dtype=np.float32)
+
     def q_values(self, obs: np.ndarray, replica: int | None = None) -> np.ndarray:
         """Each agent's Q-values of its own observation: ``obs [rows, D] -> [rows, A]``."""
-        obs = np.asarray(obs, dtype=np.float32)
-        return np.stack([self.agent_q_values(i, obs[n]) for n, i in enumerate(self._rows(replica))])
+        rows = self._rows(replica)
+        states = self.state_ids(obs, rows)  # before reading self.q: new states may grow it
+        return self.q[rows, states]
 
     def agent_q_values(self, i: int, obs: np.ndarray) -> np.ndarray:
-        """Agent i's Q-values of one observation, without adding an entry (do not modify)."""
-        row = self.tables[i].get(obs.tobytes())
-        for fallback in self.fallbacks[i]:
-            if row is not None:
-                break
-            row = fallback.get(obs)
-        return row if row is not None else np.zeros(self.num_actions, dtype=np.float32)
-
-    def _entry(self, i: int, obs: np.ndarray) -> np.ndarray:
-        """Agent i's table row for ``obs``, created (from the fallback, else zeros) when unseen."""
-        key = obs.tobytes()
-        if key not in self.tables[i]:
-            self.tables[i][key] = self.agent_q_values(i, obs).copy()
-        return self.tables[i][key]
-
-    def _greedy(self, q: np.ndarray, rng: np.random.Generator) -> int:
-        """Argmax with random tie-breaking: a fresh table is all ties, and always taking the
-        first action would bias early exploration towards it."""
-        best = _best_actions(q)
-        return best[0] if len(best) == 1 else int(rng.choice(best))
-
-    def _epsilon_greedy(self, i: int, q: np.ndarray) -> int:
-        rng = self._rng(i)
-        return epsilon_greedy_action(self._greedy(q, rng), self.epsilon[i], self.num_actions, rng)
+        """Agent (row) i's Q-values of one observation (a copy)."""
+        state = self.state_ids(np.asarray(obs)[None], np.array([i]))[0]  # before reading self.q (may grow)
+        return self.q[i, state].copy()
 
     def add_fallback(
         self, keys: np.ndarray, values: np.ndarray, projection: np.ndarray, agent: int | None = None
     ) -> None:
-        """Initialise unseen entries from a table keyed on ``obs[projection]`` (all agents by default),
+        """Start unseen entries from a table keyed on ``obs[projection]`` (all agents by default),
         looked up after the fallbacks added before it.
 
         ``keys [N, Ds]`` float32, ``values [N, A]`` float32, ``projection [Ds]``: the indices of the
         observation columns that form a key. Observations no table knows stay at 0.
         """
         keys, values, projection = np.asarray(keys), np.asarray(values), np.asarray(projection)
-        well_formed = keys.ndim == 2 and projection.shape == (keys.shape[1],)
-        if not well_formed or values.shape != (len(keys), self.num_actions):
-            raise ValueError(
-                f"fallback table is malformed: keys {list(keys.shape)}, values {list(values.shape)}, "
-                f"projection {list(projection.shape)}, {self.num_actions} actions"
-            )
-        if projection.size and (projection.min() < 0 or projection.max() >= self.obs_dim):
-            raise ValueError(f"fallback projection points outside the {self.obs_dim} observation columns")
-        agents = range(self.num_rows) if agent is None else [agent]
-        for i in agents:
-            self.fallbacks[i].append(_Fallback(keys, values, projection))
+        check_fallback(keys, values, projection, self.obs_dim, self.num_actions)
+        for row in range(self.num_rows) if agent is None else [agent]:
+            self.fallbacks[row].append(_Fallback(keys, values, projection))
+            self._restart_entries(row)
+
+    def _restart_entries(self, row: int) -> None:
+        """Set the entries of ``row`` that its agent has not updated to their start values."""
+        r = int(self.row_replica[row])
+        for state in np.flatnonzero(self.entry_order[row, : self.num_states[r]] < 0).tolist():
+            self.q[row, state] = self._start_values(row, self.state_keys[r, state])
+
+    def _enter(self, rows: np.ndarray, states: np.ndarray) -> None:
+        """Count ``(rows[n], states[n])`` as in their agents' tables, in this order, if not yet."""
+        new = self.entry_order[rows, states] < 0
+        if new.any():
+            # One running number across all rows keeps each row's entries in the order they came.
+            count = int(new.sum())
+            self.entry_order[rows[new], states[new]] = self._entries + np.arange(count)
+            self._entries += count
 
     # ---------------------------------------------------------------------------------- acting
+
+    def _draws(self, stream: str, rows: np.ndarray) -> np.ndarray:
+        """``[len(rows), 3]`` uniforms of ``stream`` at each row's replica's current counter."""
+        counters = self.counters[stream][self.row_replica[rows]]
+        key = _STREAM_NAMES[stream]
+        return uniforms(self.row_seed[rows], key, counters, self.row_agent[rows], DRAWS_PER_AGENT_STEP)
+
+    def _advance(self, stream: str, replica: int | None) -> None:
+        if replica is None:
+            self.counters[stream] += 1
+        else:
+            self.counters[stream][replica] += 1
 
     def act(
         self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, replica: int | None = None
     ) -> np.ndarray:
         """Epsilon-greedy per live agent; SARSA replays the action its last update chose for ``obs``.
-        Non-live agents get action 0 and draw no random numbers."""
-        obs = np.asarray(obs, dtype=np.float32)
+        Non-live agents get action 0 (every agent takes its draws, live or not)."""
         rows = self._rows(replica)
-        actions = np.zeros(len(rows), dtype=np.int64)
-        self.epsilon[rows.start : rows.stop] = epsilon
-        for n in np.flatnonzero(live).tolist():
-            i = rows.start + n
-            if self._cached(i, obs[n]):
-                actions[n] = self.next_action[i]
-                self.next_action[i] = _NO_ACTION
-            else:
-                actions[n] = self._epsilon_greedy(i, self.agent_q_values(i, obs[n]))
-        return actions
+        live = np.asarray(live, dtype=bool)
+        self.epsilon[rows] = epsilon
+        states = self.state_ids(obs, rows)
+        actions = epsilon_greedy_rows(self.q[rows, states], self.epsilon[rows], self._draws("act", rows))
+        cached = live & (self.next_action[rows] != _NO_ACTION) & (self.next_state[rows] == states)
+        actions = np.where(cached, self.next_action[rows], actions)
+        self.next_action[rows[live]] = _NO_ACTION
+        self._advance("act", replica)
+        return np.where(live, actions, 0).astype(np.int64)
 
     def best_actions(self, obs: np.ndarray, replica: int | None = None) -> np.ndarray:
-        """Each agent's actions of the highest value: every action of a state its table and fallbacks
-        do not know (all 0). Uses no cached action and no random numbers, so evaluating does not change
-        the training run; :meth:`greedy` breaks the ties with the evaluation episode's generator, so that
-        agents whose values are equal play the same moves whatever their observations encode."""
-        obs = np.asarray(obs, dtype=np.float32)
-        rows = self._rows(replica)
-        best = np.zeros((len(rows), self.num_actions), dtype=bool)
-        for n, i in enumerate(rows):
-            best[n, _best_actions(self.agent_q_values(i, obs[n]))] = True
-        return best
-
-    def _cached(self, i: int, obs: np.ndarray) -> bool:
-        """Whether agent i's last update chose its next action for exactly this observation."""
-        return self.next_action[i] != _NO_ACTION and self.next_action_obs[i].tobytes() == obs.tobytes()
+        """Each agent's actions of the highest value: every action of a state whose entry is still all
+        0. Uses no cached action and no random numbers, so evaluating does not change the training run;
+        :meth:`greedy` breaks the ties with the evaluation episode's generator, so that agents whose
+        values are equal play the same moves whatever their observations encode."""
+        q = self.q_values(obs, replica)
+        return q == q.max(axis=1, keepdims=True)
 
     # -------------------------------------------------------------------------------- learning
 
     def update(self, transition: Transition, step: int) -> UpdateStats:
         """One table update per live agent. ``q_mean`` is ``Q(s, a)`` before the update, ``td_loss``
         the Huber loss of the TD error. ``step`` is unused (tabular learning has no schedule)."""
-        obs = np.asarray(transition.obs, dtype=np.float32)
-        next_obs = np.asarray(transition.next_obs, dtype=np.float32)
-        rewards = np.asarray(transition.rewards, dtype=np.float32)
-        actions, terminated, truncated = transition.actions, transition.terminated, transition.truncated
         td_loss = np.full(self.num_rows, np.nan)
         q_mean = np.full(self.num_rows, np.nan)
-        for i in np.flatnonzero(transition.live).tolist():
-            q_mean[i], td_loss[i] = self._update_one(
-                i, obs[i], int(actions[i]), rewards[i], next_obs[i], terminated[i], cache=not truncated[i]
+        live = np.flatnonzero(transition.live)
+        draws = self._draws("next_action", live)
+        self._advance("next_action", None)
+        if live.size:
+            q_mean[live], td_loss[live] = self._learn(
+                live,
+                transition.obs[live],
+                np.asarray(transition.actions)[live],
+                np.asarray(transition.rewards, dtype=np.float32)[live],
+                transition.next_obs[live],
+                np.asarray(transition.terminated, dtype=bool)[live],
+                cache=~np.asarray(transition.truncated, dtype=bool)[live],
+                draws=draws,
             )
         return UpdateStats(td_loss, q_mean)
 
-    def _update_one(
-        self, i: int, obs: np.ndarray, a: int, reward: np.float32, next_obs: np.ndarray, terminated: bool, cache: bool
-    ) -> tuple[np.float32, float]:
-        """Agent i's table update on one transition; returns ``Q(s, a)`` before it and the Huber loss."""
-        self.next_action[i] = _NO_ACTION
-        row = self._entry(i, obs)
-        target = reward
-        if not terminated:
-            bootstrap = self._bootstrap(i, next_obs, cache=cache)
-            target = reward + np.float32(self.gamma) * bootstrap
-        td_error = target - row[a]
-        q_mean, td_loss = row[a], huber(float(td_error))
-        row[a] += np.float32(self.lr) * td_error
-        return q_mean, td_loss
-
-    def _bootstrap(self, i: int, next_obs: np.ndarray, cache: bool) -> np.float32:
-        """The value of ``next_obs`` the target uses: Q(s', a') for SARSA, max Q(s', .) for Q-learning.
-
-        SARSA caches a' to be played next, unless the episode ends here (truncation): then the next
-        act() starts a new episode and a' is used only in this target.
-        """
-        q_next = self.agent_q_values(i, next_obs)
+    def _learn(
+        self,
+        rows: np.ndarray,
+        obs: np.ndarray,
+        actions: np.ndarray,
+        rewards: np.ndarray,
+        next_obs: np.ndarray,
+        terminated: np.ndarray,
+        cache: np.ndarray,
+        draws: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """One update of each of ``rows`` (distinct) on its transition; returns ``Q(s, a)`` before it
+        and the Huber loss of the TD error. SARSA draws ``a'`` from ``draws`` and, where ``cache`` and
+        the transition does not terminate, keeps it for the agent's next :meth:`act`."""
+        states, next_states = self.state_ids(obs, rows), self.state_ids(next_obs, rows)
+        self.next_action[rows] = _NO_ACTION
+        q_next = self.q[rows, next_states]
         if self.algorithm == Algorithm.qlearning.value:
-            return q_next.max()
-        next_action = self._epsilon_greedy(i, q_next)
-        if cache:
-            self.next_action[i] = next_action
-            self.next_action_obs[i] = next_obs
-        return q_next[next_action]
+            bootstrap = q_next.max(axis=1)
+        else:
+            next_action = epsilon_greedy_rows(q_next, self.epsilon[rows], draws)
+            bootstrap = q_next[np.arange(len(rows)), next_action]
+            keep = cache & ~terminated
+            self.next_action[rows[keep]] = next_action[keep]
+            self.next_state[rows[keep]] = next_states[keep]
+        q_sa = self.q[rows, states, actions]
+        target = np.where(terminated, rewards, rewards + np.float32(self.gamma) * bootstrap).astype(np.float32)
+        td_error = target - q_sa
+        self.q[rows, states, actions] = q_sa + np.float32(self.lr) * td_error
+        self._enter(rows, states)
+        return q_sa, huber(td_error.astype(np.float64))  # DQN's loss, so td_loss curves compare
 
     # -------------------------------------------------------------------------- knowledge exchange
 
     def soft_copy_best(self, best: int, tau: float, replica: int = 0) -> None:
         """Q_i(s) <- (1 - tau) Q_i(s) + tau Q_best(s) for every other agent i of the replica, on every
-        state either table holds (a state one of them never saw counts at the value it would look up:
-        its fallback's, or 0)."""
+        state either table holds (a state one of them never updated counts at its start value: its
+        fallback's, or 0)."""
         rows = self._rows(replica)
-        best = rows.start + best
-        best_table = self.tables[best]
-        for i in rows:
-            if i == best:
+        best_row = int(rows[best])
+        count = int(self.num_states[replica])
+        best_order = self.entry_order[best_row, :count]
+        for row in rows.tolist():
+            if row == best_row:
                 continue
-            for key in list(dict.fromkeys([*self.tables[i], *best_table])):
-                obs = np.frombuffer(key, dtype=np.float32)
-                self.tables[i][key] = (
-                    (1 - tau) * self.agent_q_values(i, obs) + tau * self.agent_q_values(best, obs)
-                ).astype(np.float32)
+            held = (self.entry_order[row, :count] >= 0) | (best_order >= 0)
+            mixed = (1 - tau) * self.q[row, :count] + tau * self.q[best_row, :count]
+            self.q[row, :count] = np.where(held[:, None], mixed.astype(np.float32), self.q[row, :count])
+            new = np.flatnonzero((self.entry_order[row, :count] < 0) & (best_order >= 0))
+            new = new[np.argsort(best_order[new], kind="stable")]  # in the best agent's order
+            self._enter(np.full(len(new), row), new)
 
     def learn_from(self, i: int, experience: Experience) -> None:
         """A table has no replay: one update of agent i per transition, as if it had been its own (SARSA
-        draws the next action from its own epsilon-greedy policy). One that does not terminate
-        bootstraps like any non-terminal step but caches no next action: the cache belongs to the
-        agent's own next step (each update clears it, as its own updates do)."""
-        obs = np.asarray(experience.obs, dtype=np.float32)
-        next_obs = np.asarray(experience.next_obs, dtype=np.float32)
+        draws the next action from its own epsilon-greedy policy, from its learn-from stream). One that
+        does not terminate bootstraps like any non-terminal step but caches no next action: the cache
+        belongs to the agent's own next step (each update clears it, as its own updates do)."""
+        rows = np.array([i])
+        replica = int(self.row_replica[i])
         rewards = np.asarray(experience.rewards, dtype=np.float32)
-        for o, a, r, o2, done in zip(obs, experience.actions, rewards, next_obs, experience.terminated):
-            self._update_one(i, o, int(a), r, o2, done, cache=False)
+        for n, (obs, action, next_obs) in enumerate(zip(experience.obs, experience.actions, experience.next_obs)):
+            draws = self._draws("learn_from", rows)
+            self._advance("learn_from", replica)
+            self._learn(
+                rows,
+                np.asarray(obs)[None],
+                np.array([int(action)]),
+                rewards[n : n + 1],
+                np.asarray(next_obs)[None],
+                np.array([bool(experience.terminated[n])]),
+                cache=np.array([False]),
+                draws=draws,
+            )
 
     # ----------------------------------------------------------------------------- checkpoints
 
     def agent_tensors(self, i: int) -> dict[str, np.ndarray]:
-        """``keys [N, D]`` / ``values [N, A]`` float32 in insertion order, plus the fallbacks in lookup
-        order (``fallback_keys``, ``fallback_values``, ``fallback_projection`` int64, then ``fallback1_*``...)."""
-        table = self.tables[i]
-        keys = np.zeros((len(table), self.obs_dim), dtype=np.float32)
-        values = np.zeros((len(table), self.num_actions), dtype=np.float32)
-        for n, (key, row) in enumerate(table.items()):
-            keys[n] = np.frombuffer(key, dtype=np.float32)
-            values[n] = row
-        tensors = {"keys": keys, "values": values}
+        """``keys [N, D]`` / ``values [N, A]`` float32 of the entries agent i has updated, in the order
+        it first did, plus the fallbacks in lookup order (``fallback_keys``, ``fallback_values``,
+        ``fallback_projection`` int64, then ``fallback1_*``...)."""
+        r = int(self.row_replica[i])
+        order = self.entry_order[i, : self.num_states[r]]
+        states = np.flatnonzero(order >= 0)
+        states = states[np.argsort(order[states], kind="stable")]
+        tensors = {"keys": self.state_keys[r, states].copy(), "values": self.q[i, states].copy()}
         for level, fallback in enumerate(self.fallbacks[i]):
             arrays: tuple[np.ndarray, ...] = (fallback.keys, fallback.values, fallback.projection)
             for name, array in zip(fallback_names(level), arrays):
@@ -330,23 +421,49 @@ class TabularLearner(Learner, KnowledgeExchange):
         check_tensor_shape("keys", keys, (keys.shape[0], self.obs_dim))
         check_tensor_shape("values", tensors["values"], (keys.shape[0], self.num_actions))
         values = np.asarray(tensors["values"], dtype=np.float32)
-        self.tables[i] = {key.tobytes(): row.copy() for key, row in zip(keys, values)}
+        tables = fallback_tables(tensors)
+        for table in tables:  # checked before anything changes
+            check_fallback(*table, self.obs_dim, self.num_actions)
         self.fallbacks[i] = []
-        for table in fallback_tables(tensors):
-            self.add_fallback(*table, agent=i)
+        self.entry_order[i] = -1
+        for table in tables:
+            self.fallbacks[i].append(_Fallback(*table))
+        self._restart_entries(i)
+        rows = np.full(len(keys), i)
+        states = self.state_ids(keys, rows)
+        self.q[i, states] = values
+        self._enter(rows, states)
 
     def network_meta(self) -> dict[str, Any]:
         return {"obs_dim": self.obs_dim, "num_actions": self.num_actions}
 
     def training_state(self, replica: int = 0) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        """One replica's SARSA next-action cache and RNG state (the tables are in ``agent_tensors``)."""
-        rows = slice(self._rows(replica).start, self._rows(replica).stop)
-        arrays = {"next_action": self.next_action[rows].copy(), "next_action_obs": self.next_action_obs[rows].copy()}
-        return arrays, {"rng": self.rngs[replica].bit_generator.state, "epsilon": self.epsilon[rows].tolist()}
+        """One replica's SARSA next-action cache and draw counters (the tables are in ``agent_tensors``)."""
+        rows = self._rows(replica)
+        cached = self.next_action[rows] != _NO_ACTION
+        next_obs = np.zeros((len(rows), self.obs_dim), dtype=np.float32)
+        next_obs[cached] = self.state_keys[replica, self.next_state[rows[cached]]]
+        arrays = {"next_action": self.next_action[rows].copy(), "next_action_obs": next_obs}
+        counters = {stream: int(counts[replica]) for stream, counts in self.counters.items()}
+        return arrays, {"draw_counters": counters, "epsilon": self.epsilon[rows].tolist()}
 
     def load_training_state(self, arrays: dict[str, np.ndarray], meta: dict[str, Any], replica: int = 0) -> None:
-        rows = slice(self._rows(replica).start, self._rows(replica).stop)
-        self.next_action[rows] = np.asarray(arrays["next_action"], dtype=np.int64)
-        self.next_action_obs[rows] = np.asarray(arrays["next_action_obs"], dtype=np.float32)
-        self.rngs[replica].bit_generator.state = meta["rng"]
+        if "draw_counters" not in meta:
+            raise ValueError(
+                "this tabular checkpoint was written before the tabular learners drew counter-based random "
+                "numbers (2026-12-02): its run cannot continue exactly; start it again, or warm-start from "
+                "its agent files (transfer.source=...)"
+            )
+        rows = self._rows(replica)
+        next_action = np.asarray(arrays["next_action"], dtype=np.int64)
+        cached = next_action != _NO_ACTION
+        next_state = np.full(len(rows), -1, dtype=np.int64)
+        next_state[cached] = self.state_ids(np.asarray(arrays["next_action_obs"])[cached], rows[cached])
+        self.next_action[rows], self.next_state[rows] = next_action, next_state
+        for stream, count in meta["draw_counters"].items():
+            self.counters[stream][replica] = int(count)
         self.epsilon[rows] = np.broadcast_to(np.asarray(meta["epsilon"], dtype=float), (self.num_agents,))
+
+
+# The counter-based streams by name (as checkpoints save their counters) and number (in the draws' key).
+_STREAM_NAMES = {"act": ACT_STREAM, "next_action": NEXT_ACTION_STREAM, "learn_from": LEARN_FROM_STREAM}

@@ -1,0 +1,53 @@
+"""Counter-based random numbers: a uniform draw is a pure function of its key, computed for whole arrays.
+
+A generator object has a position in its stream, so the draws of R replicas x K agents must be taken
+one after another, and how many a step takes depends on the data (ties, live agents). Here a draw is
+``uniform(seed, stream, counter, agent, slot)``: the key is hashed with SplitMix64's mixing function
+(Steele, Lea & Flood 2014: the generator behind ``java.util.SplittableRandom``, which Vigna recommends
+for seeding xoshiro), one 64-bit hash per draw, and its top 53 bits are the uniform
+float in ``[0, 1)``. So:
+
+* every agent of every replica draws in one array operation, and a fixed number of draws per
+  agent-step (``slot``) makes the numbers independent of what other agents did;
+* replica ``(seed s)`` of a batch draws exactly what a lone run of seed ``s`` draws (the replica's
+  position in the batch is not in the key);
+* a run resumes with its counters alone (no generator state to save).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)  # 2^64 / golden ratio, SplitMix64's increment
+_MIX1, _MIX2 = np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB)
+_S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(11)
+_TO_UNIT = 2.0**-53
+
+
+def mix64(x: np.ndarray) -> np.ndarray:
+    """SplitMix64's finalizer of ``uint64`` values (a bijection that scatters every input bit)."""
+    x = (x ^ (x >> _S30)) * _MIX1
+    x = (x ^ (x >> _S27)) * _MIX2
+    return x ^ (x >> _S31)
+
+
+def _absorb(key: np.ndarray, value: np.ndarray | int) -> np.ndarray:
+    return mix64(key + np.asarray(value).astype(np.uint64) * _GOLDEN + _GOLDEN)
+
+
+def uniforms(seeds: np.ndarray, stream: int, counters: np.ndarray | int, agents: np.ndarray, slots: int) -> np.ndarray:
+    """``float64 [N, slots]`` uniform in ``[0, 1)``: draw ``j`` of row ``n`` is keyed by ``(seeds[n],
+    stream, counters[n], agents[n], j)``.
+
+    :param seeds: ``[N]`` non-negative integers, the run's seed of each row
+    :param stream: what the numbers are for (a constant per purpose, so two purposes never share draws)
+    :param counters: ``[N]`` (or one for all rows) the position in the stream, e.g. the step
+    :param agents: ``[N]`` the agent of each row within its team
+    :param slots: how many draws each row takes
+    """
+    with np.errstate(over="ignore"):  # uint64 arithmetic wraps by design
+        key = _absorb(np.asarray(seeds).astype(np.uint64), stream)
+        key = _absorb(key, np.broadcast_to(np.asarray(counters), key.shape))
+        key = _absorb(key, agents)
+        bits = _absorb(key[:, None], np.arange(slots, dtype=np.uint64)[None, :])
+    return (bits >> _S11).astype(np.float64) * _TO_UNIT
