@@ -13,20 +13,19 @@ from __future__ import annotations
 import json
 import logging
 import time
-import warnings
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
-from dqn_transfer.agents import Learner, Transition, UpdateStats, linear_schedule
+from dqn_transfer.agents import Learner, Transition, UpdateStats
+from dqn_transfer.agents.schedules import linear_schedules
 from dqn_transfer.config import TrainConfig, to_plain
-from dqn_transfer.enums import Exchange
+from dqn_transfer.enums import Exchange, RewardMode
 from dqn_transfer.envs import Game, TreasureHuntGame
-from dqn_transfer.evaluation.rollout import team_return_of
 from dqn_transfer.evaluation.watch import EvaluationViews, evaluation_views
 from dqn_transfer.storage.run_dir import RunDir
 from dqn_transfer.training.loggers import RunLoggers
@@ -39,20 +38,95 @@ def exploration_steps(config: TrainConfig) -> int:
     return max(1, int(config.agent.exploration_fraction * config.total_steps))
 
 
-def epsilons_at(config: TrainConfig, step: int, transferred: np.ndarray, duration: int) -> np.ndarray:
-    """Per-agent exploration rate: linear decay over ``duration`` steps, from ``transfer.epsilon_start``
-    for transferred agents."""
-    return np.array(
-        [
-            linear_schedule(
-                config.transfer.epsilon_start if is_transferred else config.agent.eps_start,
-                config.agent.eps_end,
-                duration,
-                step,
-            )
-            for is_transferred in transferred
-        ]
-    )
+class EpsilonSchedule(NamedTuple):
+    """Per-agent exploration rates (rows of any number of replicas): each decays linearly from
+    ``start`` to ``end`` over ``duration`` steps."""
+
+    start: np.ndarray
+    end: np.ndarray
+    duration: np.ndarray
+
+    def at(self, step: int) -> np.ndarray:
+        return linear_schedules(self.start, self.end, self.duration, step)
+
+    @staticmethod
+    def joined(schedules: Sequence[EpsilonSchedule]) -> EpsilonSchedule:
+        return EpsilonSchedule(*(np.concatenate(column) for column in zip(*schedules)))
+
+
+class EpisodeSums:
+    """Running sums of R replicas' episodes in progress (row r: replica r), as the loop adds each joint
+    step of all of them, and each replica's recent team returns (the progress bar's)."""
+
+    def __init__(self, replicas: int, agents: int, reward_mode: RewardMode) -> None:
+        self.team_mode = RewardMode(reward_mode) is RewardMode.team
+        self.returns = np.zeros((replicas, agents))
+        self.lengths = np.zeros((replicas, agents), dtype=np.int64)
+        self.traps = np.zeros(replicas, dtype=np.int64)
+        self.team_return = np.zeros(replicas)
+        self.recent_team_returns: list[deque[float]] = [deque(maxlen=20) for _ in range(replicas)]
+
+    def add(self, rewards: np.ndarray, live: np.ndarray, traps: np.ndarray) -> None:
+        """One joint step: ``rewards`` float32, ``live`` (who acted) and ``traps`` bool, all ``[R, K]``."""
+        self.returns += rewards
+        self.lengths += live
+        self.traps += traps.sum(axis=1)
+        # The step's team return: the live agents' rewards summed (in team mode every live agent received
+        # the sum: counted once), as team_return_of does for one replica.
+        if self.team_mode:
+            step_return = np.where(live, rewards, -np.inf).max(axis=1)
+        else:
+            step_return = np.where(live, rewards, np.float32(0.0)).sum(axis=1)
+        self.team_return += np.where(live.any(axis=1), step_return, 0.0).astype(np.float64)
+
+
+class EpisodeStats:
+    """Replica r's row of :class:`EpisodeSums`: its episode in progress."""
+
+    def __init__(self, sums: EpisodeSums, r: int) -> None:
+        self.sums, self.r = sums, r
+
+    @property
+    def returns(self) -> np.ndarray:
+        return self.sums.returns[self.r]
+
+    @property
+    def lengths(self) -> np.ndarray:
+        return self.sums.lengths[self.r]
+
+    @property
+    def traps(self) -> int:
+        return int(self.sums.traps[self.r])
+
+    @property
+    def team_return(self) -> float:
+        return float(self.sums.team_return[self.r])
+
+    @property
+    def recent_team_returns(self) -> deque[float]:
+        return self.sums.recent_team_returns[self.r]
+
+    def reset(self) -> None:
+        self.recent_team_returns.append(self.team_return)
+        self.sums.returns[self.r] = 0.0
+        self.sums.lengths[self.r] = 0
+        self.sums.traps[self.r] = 0
+        self.sums.team_return[self.r] = 0.0
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "returns": self.returns.tolist(),
+            "lengths": self.lengths.tolist(),
+            "traps": self.traps,
+            "team_return": self.team_return,
+            "recent_team_returns": list(self.recent_team_returns),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.sums.returns[self.r] = state["returns"]
+        self.sums.lengths[self.r] = state["lengths"]
+        self.sums.traps[self.r], self.sums.team_return[self.r] = int(state["traps"]), float(state["team_return"])
+        self.recent_team_returns.extend(state["recent_team_returns"])
 
 
 @dataclass
@@ -65,45 +139,6 @@ class Counters:
     next_checkpoint: int = 0
     exploration_steps: int = 1  # epsilon's decay horizon, fixed when the run starts (resume may extend total_steps)
     env_rng_state: dict = field(default_factory=dict)
-
-
-class EpisodeStats:
-    """Running sums of the episode in progress, and the recent team returns the progress bar shows."""
-
-    def __init__(self, num_agents: int):
-        self.returns = np.zeros(num_agents)
-        self.lengths = np.zeros(num_agents, dtype=np.int64)
-        self.traps = 0
-        self.team_return = 0.0
-        self.recent_team_returns: deque[float] = deque(maxlen=20)
-
-    def add(self, transition: Transition, traps: np.ndarray, reward_mode) -> None:
-        self.returns += transition.rewards
-        self.lengths += transition.live
-        self.traps += int(traps.sum())
-        self.team_return += team_return_of(transition.rewards[transition.live], reward_mode)
-
-    def reset(self) -> None:
-        self.recent_team_returns.append(self.team_return)
-        self.returns[:] = 0.0
-        self.lengths[:] = 0
-        self.traps = 0
-        self.team_return = 0.0
-
-    def state_dict(self) -> dict[str, Any]:
-        return {
-            "returns": self.returns.tolist(),
-            "lengths": self.lengths.tolist(),
-            "traps": self.traps,
-            "team_return": self.team_return,
-            "recent_team_returns": list(self.recent_team_returns),
-        }
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.returns[:] = state["returns"]
-        self.lengths[:] = state["lengths"]
-        self.traps, self.team_return = int(state["traps"]), float(state["team_return"])
-        self.recent_team_returns.extend(state["recent_team_returns"])
 
 
 class Replica:
@@ -119,8 +154,19 @@ class Replica:
         game: Game,
         learner: Learner,
         source: Path | Sequence[Path] | None,
+        episodes: EpisodeSums,
         pictures: bool = True,
     ) -> None:
+        """
+        :param index: r, the replica's place in the batch (its learner rows ``r * K .. r * K + K - 1``)
+        :param config: its own config (seed, map)
+        :param run_dir: its run directory
+        :param game: its game (the map and rules; the loop's game batch plays the episodes)
+        :param learner: its team's view of the batched learner
+        :param source: the checkpoint(s) its transfer targets start from
+        :param episodes: the batch's episode sums, of which row r is its episode in progress
+        :param pictures: evaluations draw their first episode and its Q-values for TensorBoard
+        """
         self.index, self.config, self.run_dir = index, config, RunDir(run_dir)
         # Evaluations draw their first episode and its Q-values for TensorBoard (the treasure hunt's map only).
         self.pictures = pictures and isinstance(game, TreasureHuntGame)
@@ -134,8 +180,7 @@ class Replica:
         # Team knowledge exchange window (saved with checkpoints, so a resumed run exchanges the same):
         self.window_returns: list[np.ndarray] = []  # per-agent episodic returns since the last exchange
         self.shared_transitions: list[Transition] = []  # shared_replay: the window's transitions
-        self.episode = EpisodeStats(k)
-        self.window: list[UpdateStats] = []  # update statistics since the last training-curve point
+        self.episode = EpisodeStats(episodes, index)
         self.env_rng = np.random.default_rng([config.seed, 17])  # the chest ties of its training games
         self.episode_state: dict[str, Any] | None = None  # a mid-episode checkpoint's game, until the loop starts
         self._logger: RunLoggers | None = None
@@ -149,8 +194,18 @@ class Replica:
             flags[self.transfer_info["targets"]] = True
         return flags
 
+    def epsilon_schedule(self) -> EpsilonSchedule:
+        """Each agent's exploration rate: a linear decay over the run's exploration steps, from
+        ``transfer.epsilon_start`` for transferred agents."""
+        agent, k = self.config.agent, self.game.num_agents
+        return EpsilonSchedule(
+            np.where(self.transferred, self.config.transfer.epsilon_start, agent.eps_start).astype(np.float64),
+            np.full(k, agent.eps_end, dtype=np.float64),
+            np.full(k, self.counters.exploration_steps, dtype=np.float64),
+        )
+
     def epsilon(self, step: int) -> np.ndarray:
-        return epsilons_at(self.config, step, self.transferred, self.counters.exploration_steps)
+        return self.epsilon_schedule().at(step)
 
     # ------------------------------------------------------------------ logs
     def open_logs(self, resume: bool, group: str) -> None:
@@ -188,28 +243,9 @@ class Replica:
         else:
             self.game.reset(self.env_rng)
 
-    def record_step(
-        self,
-        step: int,
-        transition: Transition,
-        stats: UpdateStats,
-        trap: np.ndarray,
-        shared_replay: bool,
-        episode_treasures: int | None,
-    ) -> None:
-        """Count the replica's part of a joint step; at its episode's end (``episode_treasures``: the
-        chests its team emptied in it, else None), log it and exchange knowledge when due. The loop
-        then starts the next episode."""
-        self.counters.step = step
-        self.window.append(stats)
-        if shared_replay:
-            self.shared_transitions.append(transition)
-        self.episode.add(transition, trap, self.game.reward_mode)
-        if episode_treasures is not None:
-            self._end_episode(episode_treasures)
-
-    def _end_episode(self, treasures: int) -> None:
-        """Log the finished episode and exchange knowledge when due (before the reset)."""
+    def end_episode(self, treasures: int) -> None:
+        """The episode just ended (its team emptied ``treasures`` chests): log it and exchange knowledge
+        when due. The loop then starts the next one."""
         counters, transfer = self.counters, self.config.transfer
         counters.episodes += 1
         self._log_episode(treasures)
@@ -241,22 +277,16 @@ class Replica:
             self.shared_transitions.clear()
         self.window_returns.clear()
 
-    def log_training(self, sps: float) -> None:
-        """A training-curve point: the window's mean losses and Q-values, epsilon and speed."""
-        logger, window, step = self.logger, self.window, self.counters.step
+    def log_training(self, sps: float, window_means: UpdateStats | None) -> None:
+        """A training-curve point: the mean losses and Q-values of the updates since the last point
+        (``window_means``, the agents' rows; None when there was none), epsilon and speed."""
+        logger, step = self.logger, self.counters.step
         points: list[tuple[str, float]] = []
-        with warnings.catch_warnings():  # all-NaN columns (no update yet) are expected and skipped
-            warnings.simplefilter("ignore", RuntimeWarning)
-            if window:
-                points += logger.agent_values(
-                    "td_loss", np.nanmean(np.asarray([s.td_loss for s in window], dtype=float), axis=0)
-                )
-                points += logger.agent_values(
-                    "q_mean", np.nanmean(np.asarray([s.q_mean for s in window], dtype=float), axis=0)
-                )
+        if window_means is not None:
+            points += logger.agent_values("td_loss", window_means.td_loss)
+            points += logger.agent_values("q_mean", window_means.q_mean)
         points += [("train/epsilon", float(self.epsilon(step).mean())), ("train/sps", sps)]
         logger.scalars(points, step)  # one event
-        self.window = []
 
     # ------------------------------------------------------------------ evaluation
     def evaluation_views(self) -> EvaluationViews | None:

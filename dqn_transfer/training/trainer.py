@@ -26,6 +26,7 @@ import json
 import logging
 import sys
 import time
+import warnings
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, cast
@@ -37,7 +38,7 @@ from omegaconf import OmegaConf
 from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
-from dqn_transfer.agents import Learner, Transition, UpdateStats, joined, make_replicas
+from dqn_transfer.agents import Learner, Transition, UpdateStats, make_replicas
 from dqn_transfer.config import ConfigError, to_plain
 from dqn_transfer.enums import Algorithm, Exchange, Logger
 from dqn_transfer.envs.game_batch import GameBatch, game_batch
@@ -46,7 +47,7 @@ from dqn_transfer.storage.checkpoint import CheckpointError, atomic_write, atomi
 from dqn_transfer.storage.run_dir import RunDir, existing_run_message
 from dqn_transfer.timing import Stopwatch
 from dqn_transfer.training.plan import RunPlan
-from dqn_transfer.training.replica import Replica
+from dqn_transfer.training.replica import EpisodeSums, EpsilonSchedule, Replica
 from dqn_transfer.training.run_state import encode_checkpoint, load_checkpoint
 from dqn_transfer.training.stop import Interrupted, StopRequest
 from dqn_transfer.transfer.capabilities import check_capabilities
@@ -109,6 +110,7 @@ class Trainer:
         lone = len(plan.replicas) == 1
         pictures = config.eval_pictures if config.eval_pictures is not None else not in_multirun()
         per_replica = list(sources) if sources is not None else [None] * len(plan.replicas)
+        self.episodes = EpisodeSums(len(games), first.num_agents, first.reward_mode)  # every replica's episode
         self.replicas = [
             Replica(
                 r,
@@ -117,6 +119,7 @@ class Trainer:
                 game,
                 cast(Learner, self.learner.replica(r)),
                 source,
+                self.episodes,
                 pictures=pictures,
             )
             for r, (replica, game, source) in enumerate(zip(plan.replicas, games, per_replica))
@@ -218,6 +221,8 @@ class Trainer:
             rep.start_episodes()
         self.games = games = game_batch([rep.game for rep in replicas], [rep.env_rng for rep in replicas])
         num_rows = games.num_replicas * games.num_agents
+        schedule = EpsilonSchedule.joined([rep.epsilon_schedule() for rep in replicas])
+        window: list[UpdateStats] = []  # the updates' statistics since the last training-curve point
         shared_replay = config.transfer.exchange is Exchange.shared_replay
         bar = tqdm(
             total=config.total_steps,
@@ -233,7 +238,7 @@ class Trainer:
         while self.step < config.total_steps:
             # 1. act: one batched forward for every agent of every replica
             step = self.step
-            epsilon = joined([rep.epsilon(step) for rep in replicas])
+            epsilon = schedule.at(step)
             live = games.live.reshape(num_rows)
             obs = games.obs.reshape(num_rows, -1)
             actions = learner.act(obs, live, epsilon=epsilon)
@@ -249,13 +254,16 @@ class Trainer:
                 outcome.truncated.reshape(num_rows),
                 live,
             )
-            stats = learner.update(transition, step)
-            # 3. each replica's part; at its episode's end: log, exchange knowledge; then the next episodes
-            for r, rep in enumerate(replicas):
-                own = Transition(*(column[rep.rows] for column in transition))
-                own_stats = UpdateStats(*(column[rep.rows] for column in stats))
-                ended = int(outcome.episode_treasures[r]) if outcome.episode_end[r] else None
-                rep.record_step(step, own, own_stats, outcome.trap[r], shared_replay, ended)
+            window.append(learner.update(transition, step))
+            # 3. the episodes' sums; where one ended: log it, exchange knowledge; then the next episodes
+            self.episodes.add(outcome.rewards, live.reshape(outcome.rewards.shape), outcome.trap)
+            for rep in replicas:
+                rep.counters.step = step
+            if shared_replay:
+                for rep in replicas:
+                    rep.shared_transitions.append(Transition(*(column[rep.rows] for column in transition)))
+            for r in np.flatnonzero(outcome.episode_end).tolist():
+                replicas[r].end_episode(int(outcome.episode_treasures[r]))
             games.reset(outcome.episode_end)
             # 4. evaluation
             if step % config.eval_every == 0:
@@ -265,8 +273,12 @@ class Trainer:
                 now = time.perf_counter()
                 sps = (step - sps_step) / max(now - sps_clock, 1e-9)
                 sps_clock, sps_step = now, step
+                means = window_means(window)
                 for rep in replicas:
-                    rep.log_training(sps)
+                    rep.log_training(
+                        sps, None if means is None else UpdateStats(*(column[rep.rows] for column in means))
+                    )
+                window = []
                 recent = [r for rep in replicas for r in rep.episode.recent_team_returns]
                 bar.set_postfix(
                     team_return=f"{np.mean(recent):.1f}" if recent else "-",
@@ -400,6 +412,21 @@ def train(
     the caller moves each replica's directory afterwards (a cache entry), the paths the log then names.
     """
     return Trainer(plan, run_dir, sources=sources, tag=tag, final_dirs=final_dirs).run()
+
+
+def window_means(window: Sequence[UpdateStats]) -> UpdateStats | None:
+    """Each row's mean ``td_loss`` and ``q_mean`` over the updates of ``window`` that had it (None for an
+    empty window; NaN for a row that had none)."""
+    if not window:
+        return None
+    with warnings.catch_warnings():  # all-NaN columns (no update yet) are expected
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return UpdateStats(
+            *(
+                np.nanmean(np.asarray([getattr(s, name) for s in window], dtype=float), axis=0)
+                for name in UpdateStats._fields
+            )
+        )
 
 
 def in_multirun() -> bool:
