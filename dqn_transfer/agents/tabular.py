@@ -157,6 +157,8 @@ class TabularLearner(Learner, KnowledgeExchange):
         self._ids: list[dict[bytes, int]] = [{} for _ in range(replicas)]
         self.state_keys = np.zeros((replicas, _INITIAL_STATES, self.obs_dim), dtype=np.float32)
         self.num_states = np.zeros(replicas, dtype=np.int64)
+        self._last_obs = np.zeros((rows, self.obs_dim), dtype=np.uint32)  # each row's last observation's bits
+        self._last_ids = np.full(rows, -1, dtype=np.int64)  # ... and its id (-1: none yet)
         self.q = np.zeros((rows, _INITIAL_STATES, num_actions), dtype=np.float32)
         # Entry order: when the agent first updated it (-1: not in its table, the value is a start value).
         self.entry_order = np.full((rows, _INITIAL_STATES), -1, dtype=np.int32)
@@ -180,16 +182,28 @@ class TabularLearner(Learner, KnowledgeExchange):
     # ---------------------------------------------------------------------------------- tables
 
     def state_ids(self, obs: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        """The id of each row's observation ``obs [N, D]`` in its replica's index (``rows [N]``), new
-        observations getting the next ids (their entries start at the fallbacks' values, else 0)."""
+        """The id of each row's observation ``obs [N, D]`` in its replica's index (``rows [N]``),
+        new observations getting the next ids (their entries start at the fallbacks' values, else 0).
+
+        A row's last observation and id are remembered: the loop asks for the same observation again
+        (act on s', then update on it), so only the rows whose observation changed are looked up."""
         obs = np.ascontiguousarray(obs, dtype=np.float32)
-        replicas = self.row_replica[rows].tolist()
-        keys = [row.tobytes() for row in obs]
-        ids = [self._ids[r].get(key, -1) for r, key in zip(replicas, keys)]
-        for n, found in enumerate(ids):
-            if found < 0:
-                ids[n] = self._new_state(replicas[n], keys[n], obs[n])
-        return np.asarray(ids, dtype=np.int64)
+        rows = np.asarray(rows, dtype=np.int64)
+        bits = obs.view(np.uint32)  # compared bit for bit, as the index's keys are
+        same = (self._last_ids[rows] >= 0) & (bits == self._last_obs[rows]).all(axis=1)
+        ids = self._last_ids[rows]
+        changed = np.flatnonzero(~same)
+        if changed.size:
+            replicas = self.row_replica[rows[changed]].tolist()
+            keys = [row.tobytes() for row in obs[changed]]
+            found = [self._ids[r].get(key, -1) for r, key in zip(replicas, keys)]
+            for n, state in enumerate(found):
+                if state < 0:
+                    found[n] = self._new_state(replicas[n], keys[n], obs[changed[n]])
+            ids[changed] = found
+            self._last_obs[rows[changed]] = bits[changed]
+            self._last_ids[rows[changed]] = ids[changed]
+        return ids
 
     def _new_state(self, r: int, key: bytes, obs: np.ndarray) -> int:
         known = self._ids[r].get(key)  # the same observation twice in one call
