@@ -13,14 +13,23 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import agent_meta, read_metrics, run_train, without_timing
+from PIL import Image
 
+from dqn_transfer.cli.play import main as play
+from dqn_transfer.config import AgentConfig, ReplicasConfig, TrainConfig
 from dqn_transfer.envs import PettingZooGame, UnsupportedEnv
 from dqn_transfer.envs.lbf import lbf_segments
+from dqn_transfer.envs.settings import EnvConfig
+from dqn_transfer.sharing.model_card import ExportError, export_team
 from dqn_transfer.storage.checkpoint import load_agent_checkpoint, load_training_state
+from dqn_transfer.training.plan import plan_run
+from dqn_transfer.training.trainer import train
 from dqn_transfer.transfer.mapping import TransferError, segment_slices
 from dqn_transfer.transfer.warm_start import check_same_game
 
 CORRIDOR = "corridor_env:parallel_env"
+LBF = "dqn_transfer.envs.lbf:parallel_env"
+SPREAD = "mpe2.simple_spread_v3:parallel_env"
 TESTS = Path(__file__).resolve().parent
 
 
@@ -279,3 +288,72 @@ def test_lbf_double_dqn_learns_well_above_a_random_policy(tmp_path):
     random = random_team_return("dqn_transfer.envs.lbf:parallel_env", task, episodes=500, seed=1)
     assert 0.1 < random < 0.45, random  # about 0.33
     assert trained > random + 0.25, (trained, random)
+
+
+# ------------------------------------------------------------------------------------ watching
+
+
+def trained_run(run_dir: Path, factory: str, kwargs: dict, seeds: int = 1, **keys) -> Path:
+    """A short Double DQN run of another game in this process (a few updates: its checkpoints are real)."""
+    config = TrainConfig(
+        env=EnvConfig(factory=factory, kwargs=kwargs),
+        agent=AgentConfig(hidden=[8], learning_starts=10),
+        replicas=ReplicasConfig(seeds=seeds),
+        total_steps=20,
+        eval_every=20,
+        eval_episodes=1,
+        progress=False,
+        **keys,
+    )
+    train(plan_run(config), run_dir)
+    return run_dir
+
+
+@pytest.fixture(scope="module")
+def spread_run(tmp_path_factory) -> Path:
+    kwargs = {"N": 2, "max_cycles": 5, "continuous_actions": False}
+    return trained_run(tmp_path_factory.mktemp("spread") / "run", SPREAD, kwargs)
+
+
+def test_play_writes_a_gif_of_another_games_greedy_episodes(spread_run, tmp_path, capsys, monkeypatch):
+    """The particle world draws with pygame, headless here: each frame is the env's own picture."""
+    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
+    gif = tmp_path / "spread.gif"
+    assert play([str(spread_run), "--episodes", "2", "--gif", str(gif)]) == 0
+    out = capsys.readouterr().out
+    assert f"double_dqn team of 2 on {SPREAD}, trained 20 steps" in out
+    assert "episode 1: 5 steps, team return -" in out and "episode 2: 5 steps" in out
+    assert f"wrote {gif} (12 frames)" in out  # 5 steps plus the first, twice
+    with Image.open(gif) as picture:
+        assert picture.n_frames == 12 and max(picture.size) <= 522  # scaled to 480 a side, plus the caption
+        frames = []
+        for index in (0, 5):
+            picture.seek(index)
+            frames.append(np.asarray(picture.convert("RGB")))
+    assert not np.array_equal(frames[0], frames[1])  # the agents moved
+
+
+def test_play_refuses_another_game_it_cannot_draw_in_one_line(spread_run, tmp_path, capsys, monkeypatch):
+    """LBF draws with pyglet, which needs a display; the corridor has no rgb_array mode; --ansi is the
+    treasure hunt's grid. Each is one ``error:`` line and no GIF; an export (map, model card) is refused."""
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.setenv("PYTHONPATH", str(TESTS))
+    monkeypatch.syspath_prepend(str(TESTS))
+    lbf = trained_run(tmp_path / "lbf", LBF, {"size": 5, "food": 1})
+    corridor_run = trained_run(tmp_path / "corridor", CORRIDOR, {"length": 4})
+    gif = tmp_path / "out.gif"
+    cases = [
+        ([str(lbf), "--gif", str(gif)], f"env.factory={LBF}: the env cannot draw an RGB frame here (NoSuchDisplay"),
+        ([str(corridor_run), "--gif", str(gif)], "render_modes are [], without rgb_array"),
+        ([str(spread_run), "--ansi"], "--ansi prints the treasure hunt's grid"),
+    ]
+    for argv, words in cases:
+        assert play(argv) == 1
+        captured = capsys.readouterr()
+        assert captured.out == "" and captured.err.count("\n") == 1 and captured.err.startswith("error: ")
+        assert words in captured.err, captured.err
+        assert not gif.exists()
+    assert play([str(lbf)]) == 0  # without a GIF nothing is drawn: it plays
+    assert "episode 1: " in capsys.readouterr().out
+    with pytest.raises(ExportError, match=f"a team of {SPREAD}: an export .* is a treasure hunt's"):
+        export_team(spread_run, tmp_path / "export")
