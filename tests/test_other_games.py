@@ -16,12 +16,13 @@ from conftest import agent_meta, read_metrics, run_train, without_timing
 from PIL import Image
 
 from dqn_transfer.cli.play import main as play
-from dqn_transfer.config import AgentConfig, ReplicasConfig, TrainConfig
+from dqn_transfer.config import AgentConfig, ReplicasConfig, TrainConfig, TransferConfig
 from dqn_transfer.envs import PettingZooGame, UnsupportedEnv
 from dqn_transfer.envs.lbf import lbf_segments
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.sharing.model_card import ExportError, export_team
-from dqn_transfer.storage.checkpoint import load_agent_checkpoint, load_training_state
+from dqn_transfer.sources.resolve import transfer_sources
+from dqn_transfer.storage.checkpoint import CheckpointError, load_agent_checkpoint, load_training_state
 from dqn_transfer.training.plan import plan_run
 from dqn_transfer.training.trainer import train
 from dqn_transfer.transfer.mapping import TransferError, segment_slices
@@ -290,7 +291,7 @@ def test_lbf_double_dqn_learns_well_above_a_random_policy(tmp_path):
     assert trained > random + 0.25, (trained, random)
 
 
-# ------------------------------------------------------------------------------------ watching
+# ------------------------------------------------------------------------------------ watching, per-replica sources
 
 
 def trained_run(run_dir: Path, factory: str, kwargs: dict, seeds: int = 1, **keys) -> Path:
@@ -357,3 +358,25 @@ def test_play_refuses_another_game_it_cannot_draw_in_one_line(spread_run, tmp_pa
     assert "episode 1: " in capsys.readouterr().out
     with pytest.raises(ExportError, match=f"a team of {SPREAD}: an export .* is a treasure hunt's"):
         export_team(spread_run, tmp_path / "export")
+
+
+def test_a_run_of_replicas_as_the_source_transfers_seed_for_seed(tmp_path):
+    """``transfer.source`` = a run of replicas: each replica of a run of replicas starts from the source
+    replica of its seed; a seed the source lacks is refused in one line; a lone run still must name one."""
+    source = trained_run(tmp_path / "source", LBF, {"size": 5, "food": 1}, seeds=3)
+
+    def sources(seed: int, seeds: int) -> list[list[Path]] | None:
+        transfer = TransferConfig(enabled=True, source=str(source))
+        config = TrainConfig(
+            env=EnvConfig(factory=LBF, kwargs={"size": 5, "food": 2}),
+            transfer=transfer,
+            replicas=ReplicasConfig(seeds=seeds),
+            seed=seed,
+        )
+        return transfer_sources(plan_run(config), tmp_path)
+
+    assert sources(1, 2) == [[source / f"seed_{s}" / "checkpoints" / "agent_0.safetensors"] * 2 for s in (1, 2)]
+    with pytest.raises(CheckpointError, match="has no seed_3: each replica of this run starts from the source"):
+        sources(2, 2)
+    with pytest.raises(CheckpointError, match="is a run of 3 replicas: pass one replica's directory"):
+        sources(0, 1)
