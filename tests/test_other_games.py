@@ -13,14 +13,27 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import agent_meta, read_metrics, run_train, without_timing
+from PIL import Image
 
+from dqn_transfer.analysis.runs import load_config
+from dqn_transfer.cli.play import main as play
+from dqn_transfer.config import AgentConfig, ReplicasConfig, TrainConfig, TransferConfig
 from dqn_transfer.envs import PettingZooGame, UnsupportedEnv
 from dqn_transfer.envs.lbf import lbf_segments
-from dqn_transfer.storage.checkpoint import load_agent_checkpoint, load_training_state
+from dqn_transfer.envs.settings import EnvConfig
+from dqn_transfer.evaluation.rollout import evaluate
+from dqn_transfer.sharing.model_card import ExportError, export_team
+from dqn_transfer.sharing.team import load_team
+from dqn_transfer.sources.resolve import transfer_sources
+from dqn_transfer.storage.checkpoint import CheckpointError, load_agent_checkpoint, load_training_state
+from dqn_transfer.training.plan import plan_run
+from dqn_transfer.training.trainer import train
 from dqn_transfer.transfer.mapping import TransferError, segment_slices
 from dqn_transfer.transfer.warm_start import check_same_game
 
 CORRIDOR = "corridor_env:parallel_env"
+LBF = "dqn_transfer.envs.lbf:parallel_env"
+SPREAD = "mpe2.simple_spread_v3:parallel_env"
 TESTS = Path(__file__).resolve().parent
 
 
@@ -258,24 +271,125 @@ def random_team_return(factory: str, kwargs: dict, episodes: int, seed: int) -> 
     return total / episodes
 
 
+def greedy_and_random(run_dir: Path, episodes: int, random_episodes: int) -> tuple[float, float]:
+    """A finished run's team, played greedily for ``episodes``, and a uniformly random policy on its task:
+    their mean team returns."""
+    team = load_team(run_dir)
+    assert isinstance(team.game, PettingZooGame)
+    trained = evaluate(team.learner, team.game, episodes=episodes, seed=0, evaluation=0)["team_return"]
+    return trained, random_team_return(team.game.factory, team.game.kwargs, random_episodes, seed=1)
+
+
 @pytest.mark.slow
-def test_lbf_double_dqn_learns_well_above_a_random_policy(tmp_path):
-    """8x8 field, 2 players, 1 food any player can load, 25 steps: the greedy team return after 15k steps
+def test_the_plain_lbf_command_learns_well_above_a_random_policy(tmp_path):
+    """``python train.py env=lbf agent=double_dqn`` with its shipped defaults (8x8, 2 players, 1 food any
+    player loads, 25 steps; gamma 0.95, 20,000 steps): the trained team's greedy return over 200 episodes
     against a uniformly random policy's on the same task (the team return is the food collected, <= 1)."""
-    task = {"size": 8, "players": 2, "food": 1, "max_food_level": 1, "max_steps": 25}
-    result = run_train(
-        tmp_path,
-        "env=lbf",
-        "agent=double_dqn",
-        *(f"env.kwargs.{key}={value}" for key, value in task.items()),
-        # LBF has no step cost: a lower discount makes the shortest way to the food clearly the best
-        "agent.gamma=0.95",
-        "agent.exploration_fraction=0.3",
-        "total_steps=15000",
-        "eval_every=7500",
-        "eval_episodes=100",
+    result = run_train(tmp_path, "env=lbf", "agent=double_dqn")
+    config = load_config(result.run_dir)
+    assert config is not None and config["total_steps"] == 20_000 and config["agent"]["gamma"] == 0.95
+    trained, random = greedy_and_random(result.run_dir, episodes=200, random_episodes=1000)
+    assert 0.2 < random < 0.4, random  # about 0.30
+    assert trained > random + 0.3, (trained, random)  # about 0.8
+
+
+@pytest.mark.slow
+def test_mpe_spread_learns_above_a_random_policy(tmp_path):
+    """``python train.py env=mpe_spread agent=double_dqn`` for 10,000 of its 30,000 steps (gamma 0.9): the
+    greedy team return over 100 episodes against a uniformly random policy's, about -79 (episodes vary
+    by about 23, so 500 random episodes pin it to about 1; the trained team is about 15 above)."""
+    result = run_train(tmp_path, "env=mpe_spread", "agent=double_dqn", "total_steps=10000")
+    trained, random = greedy_and_random(result.run_dir, episodes=100, random_episodes=500)
+    assert -85 < random < -73, random
+    assert trained > random + 8, (trained, random)
+
+
+# ------------------------------------------------------------------------------------ watching, per-replica sources
+
+
+def trained_run(run_dir: Path, factory: str, kwargs: dict, seeds: int = 1, **keys) -> Path:
+    """A short Double DQN run of another game in this process (a few updates: its checkpoints are real)."""
+    config = TrainConfig(
+        env=EnvConfig(factory=factory, kwargs=kwargs),
+        agent=AgentConfig(hidden=[8], learning_starts=10),
+        replicas=ReplicasConfig(seeds=seeds),
+        total_steps=20,
+        eval_every=20,
+        eval_episodes=1,
+        progress=False,
+        **keys,
     )
-    trained = read_metrics(result.run_dir)[-1]["team_return"]
-    random = random_team_return("dqn_transfer.envs.lbf:parallel_env", task, episodes=500, seed=1)
-    assert 0.1 < random < 0.45, random  # about 0.33
-    assert trained > random + 0.25, (trained, random)
+    train(plan_run(config), run_dir)
+    return run_dir
+
+
+@pytest.fixture(scope="module")
+def spread_run(tmp_path_factory) -> Path:
+    kwargs = {"N": 2, "max_cycles": 5, "continuous_actions": False}
+    return trained_run(tmp_path_factory.mktemp("spread") / "run", SPREAD, kwargs)
+
+
+def test_play_writes_a_gif_of_another_games_greedy_episodes(spread_run, tmp_path, capsys, monkeypatch):
+    """The particle world draws with pygame, headless here: each frame is the env's own picture."""
+    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
+    gif = tmp_path / "spread.gif"
+    assert play([str(spread_run), "--episodes", "2", "--gif", str(gif)]) == 0
+    out = capsys.readouterr().out
+    assert f"double_dqn team of 2 on {SPREAD}, trained 20 steps" in out
+    assert "episode 1: 5 steps, team return -" in out and "episode 2: 5 steps" in out
+    assert f"wrote {gif} (12 frames)" in out  # 5 steps plus the first, twice
+    with Image.open(gif) as picture:
+        assert picture.n_frames == 12 and max(picture.size) <= 522  # scaled to 480 a side, plus the caption
+        frames = []
+        for index in (0, 5):
+            picture.seek(index)
+            frames.append(np.asarray(picture.convert("RGB")))
+    assert not np.array_equal(frames[0], frames[1])  # the agents moved
+
+
+def test_play_refuses_another_game_it_cannot_draw_in_one_line(spread_run, tmp_path, capsys, monkeypatch):
+    """LBF draws with pyglet, which needs a display; the corridor has no rgb_array mode; --ansi is the
+    treasure hunt's grid. Each is one ``error:`` line and no GIF; an export (map, model card) is refused."""
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.setenv("PYTHONPATH", str(TESTS))
+    monkeypatch.syspath_prepend(str(TESTS))
+    lbf = trained_run(tmp_path / "lbf", LBF, {"size": 5, "food": 1})
+    corridor_run = trained_run(tmp_path / "corridor", CORRIDOR, {"length": 4})
+    gif = tmp_path / "out.gif"
+    cases = [
+        ([str(lbf), "--gif", str(gif)], f"env.factory={LBF}: the env cannot draw an RGB frame here (NoSuchDisplay"),
+        ([str(corridor_run), "--gif", str(gif)], "render_modes are [], without rgb_array"),
+        ([str(spread_run), "--ansi"], "--ansi prints the treasure hunt's grid"),
+    ]
+    for argv, words in cases:
+        assert play(argv) == 1
+        captured = capsys.readouterr()
+        assert captured.out == "" and captured.err.count("\n") == 1 and captured.err.startswith("error: ")
+        assert words in captured.err, captured.err
+        assert not gif.exists()
+    assert play([str(lbf)]) == 0  # without a GIF nothing is drawn: it plays
+    assert "episode 1: " in capsys.readouterr().out
+    with pytest.raises(ExportError, match=f"a team of {SPREAD}: an export .* is a treasure hunt's"):
+        export_team(spread_run, tmp_path / "export")
+
+
+def test_a_run_of_replicas_as_the_source_transfers_seed_for_seed(tmp_path):
+    """``transfer.source`` = a run of replicas: each replica of a run of replicas starts from the source
+    replica of its seed; a seed the source lacks is refused in one line; a lone run still must name one."""
+    source = trained_run(tmp_path / "source", LBF, {"size": 5, "food": 1}, seeds=3)
+
+    def sources(seed: int, seeds: int) -> list[list[Path]] | None:
+        transfer = TransferConfig(enabled=True, source=str(source))
+        config = TrainConfig(
+            env=EnvConfig(factory=LBF, kwargs={"size": 5, "food": 2}),
+            transfer=transfer,
+            replicas=ReplicasConfig(seeds=seeds),
+            seed=seed,
+        )
+        return transfer_sources(plan_run(config), tmp_path)
+
+    assert sources(1, 2) == [[source / f"seed_{s}" / "checkpoints" / "agent_0.safetensors"] * 2 for s in (1, 2)]
+    with pytest.raises(CheckpointError, match="has no seed_3: each replica of this run starts from the source"):
+        sources(2, 2)
+    with pytest.raises(CheckpointError, match="is a run of 3 replicas: pass one replica's directory"):
+        sources(0, 1)

@@ -86,7 +86,9 @@ class TransferConfig:
 
     enabled: bool = documented(False, "start the target agents from a source agent (the group transfer=on)")
     source: Optional[str] = documented(
-        None, "checkpoint file, run directory or exported folder; null: pretrain one (transfer.source_task)"
+        None,
+        "checkpoint file, run directory or exported folder (a run of replicas: each replica from its seed's); "
+        "null: pretrain one (transfer.source_task)",
     )
     source_agent: Any = documented(
         0,

@@ -44,6 +44,7 @@ from dqn_transfer.envs.game import StepOutcome
 # The widest flattened observation an MLP learner is given (a 64x64 RGB image is 12288 wide).
 MAX_OBS_WIDTH = 4096
 SEED_RANGE = 2**31 - 1
+RGB_ARRAY = "rgb_array"  # the render mode whose frames dqn-transfer-play writes to a GIF
 SUPPORTED_OBSERVATIONS = "Box, Discrete or MultiDiscrete"
 
 
@@ -221,6 +222,44 @@ class PettingZooGame:
     def replica(self) -> PettingZooGame:
         """An independent game from the same factory and kwargs (e.g. for evaluation)."""
         return PettingZooGame(self.factory, self.kwargs)
+
+    # ------------------------------------------------------------------ pictures
+    @property
+    def draws(self) -> bool:
+        """Whether the env was made to draw RGB frames (``render_mode="rgb_array"`` in its kwargs)."""
+        return self.kwargs.get("render_mode") == RGB_ARRAY
+
+    def drawing(self) -> PettingZooGame:
+        """The same game made with ``render_mode="rgb_array"``, checked to draw a frame after a reset;
+        :class:`UnsupportedEnv` (one line) if the env has no such mode or cannot draw here (e.g. no display)."""
+        modes = list(getattr(self.env, "metadata", {}).get("render_modes", []))
+        if RGB_ARRAY not in modes:
+            raise UnsupportedEnv(
+                f"env.factory={self.factory}: the env cannot draw an RGB frame (its metadata's render_modes "
+                f"are {modes}, without {RGB_ARRAY})"
+            )
+        game = PettingZooGame(self.factory, {**self.kwargs, "render_mode": RGB_ARRAY})
+        game.reset(np.random.default_rng(0))
+        game.frame()
+        return game
+
+    def frame(self) -> np.ndarray:
+        """The env's picture of the current state, ``[H, W, 3]`` uint8 (:meth:`drawing`'s game); an env that
+        fails to draw is :class:`UnsupportedEnv` naming the env and its error."""
+        try:
+            picture = self.env.render()
+        except Exception as err:  # the env's renderer is the user's: any failure (no display, ...) is one line
+            reason = " ".join(str(err).split())  # one line
+            raise UnsupportedEnv(
+                f"env.factory={self.factory}: the env cannot draw an RGB frame here ({type(err).__name__}: {reason})"
+            ) from None
+        array = np.asarray(picture if picture is not None else [])
+        if array.ndim != 3 or array.shape[2] not in (3, 4):
+            raise UnsupportedEnv(
+                f"env.factory={self.factory}: render() returned {type(picture).__name__} of shape "
+                f"{array.shape}, not an RGB frame [H, W, 3]"
+            )
+        return np.ascontiguousarray(array[:, :, :3], dtype=np.uint8)
 
     # ------------------------------------------------------------------ dynamics
     def _observe(self, observations: Mapping[str, Any]) -> None:

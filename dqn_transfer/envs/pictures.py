@@ -1,5 +1,5 @@
 """Pictures of a game state for people: the GIF of a trained team, TensorBoard's evaluation image and
-the docs' map picture.
+the docs' map picture; and another game's own frames with a caption (:func:`captioned`).
 
 The game's own ``render_rgb`` is a bare array of coloured cells for the RL faces; this draws with
 Pillow what a viewer needs to follow an episode: the grid, obstacles (dark grey), traps (red, crossed),
@@ -57,16 +57,43 @@ def draw_state(
     """
     n = grid_map.size
     text = font(max(10, cell_px * 3 // 10 + 2))
-    line_px = int(text.size) + 4
-    height = n * cell_px + (len(caption) * line_px + 6 if caption else 0)
-    image = Image.new("RGB", (n * cell_px, height), CAPTION_BACKGROUND)
+    image = Image.new("RGB", (n * cell_px, n * cell_px + caption_height(caption, text)), CAPTION_BACKGROUND)
     draw = ImageDraw.Draw(image)
     _draw_cells(draw, grid_map, chest_full, cell_px)
     for agent, trail in enumerate(trails):
         _draw_trail(draw, trail, agent, len(trails), cell_px)
     _draw_agents(draw, positions, live, cell_px)
+    _write_caption(draw, n * cell_px, caption, text)
+    return image
+
+
+def caption_height(caption: Sequence[str], text: ImageFont.FreeTypeFont) -> int:
+    """The pixels ``caption``'s lines take under a picture in the font ``text`` (0 for no caption).
+
+    :param caption: the lines.
+    :param text: their font.
+    """
+    return len(caption) * (int(text.size) + 4) + 6 if caption else 0
+
+
+def _write_caption(draw: ImageDraw.ImageDraw, top: int, caption: Sequence[str], text: ImageFont.FreeTypeFont) -> None:
     for i, line in enumerate(caption):
-        draw.text((4, n * cell_px + 3 + i * line_px), line, fill=INK, font=text)
+        draw.text((4, top + 3 + i * (int(text.size) + 4)), line, fill=INK, font=text)
+
+
+def captioned(picture: np.ndarray, caption: Sequence[str], text_px: int = 14) -> Image.Image:
+    """An env's own RGB frame ``[H, W, 3]`` (another game's, drawn by its ``render()``) with ``caption``'s
+    lines under it, as the treasure hunt's pictures have theirs.
+
+    :param picture: the frame, uint8.
+    :param caption: lines of text under it.
+    :param text_px: the font's size in pixels.
+    """
+    text = font(text_px)
+    height, width = picture.shape[:2]
+    image = Image.new("RGB", (width, height + caption_height(caption, text)), CAPTION_BACKGROUND)
+    image.paste(Image.fromarray(picture), (0, 0))
+    _write_caption(ImageDraw.Draw(image), height, caption, text)
     return image
 
 

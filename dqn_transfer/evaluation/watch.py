@@ -5,6 +5,10 @@ An episode of T steps is T + 1 :class:`Frame` s: the state after the reset, then
 Each frame is drawn with the agents' trails up to it (:mod:`dqn_transfer.envs.pictures`) and a caption
 with the step and the team return so far; the GIF holds every frame of every episode watched, the
 terminal replay prints the same frames as text (:func:`~dqn_transfer.envs.game.text_grid`).
+
+Another game (a PettingZoo env, :class:`~dqn_transfer.envs.PettingZooGame`) is recorded as a
+:class:`DrawnEpisode`: the env's own RGB frames (``render_mode="rgb_array"``), when its game draws, each
+with the same caption; it has no text grid.
 """
 
 from __future__ import annotations
@@ -14,15 +18,16 @@ import sys
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import NamedTuple, TextIO
+from typing import NamedTuple, TextIO, overload
 
 import numpy as np
 from PIL import Image
 
 from dqn_transfer.agents.base import Team
 from dqn_transfer.enums import RewardMode
+from dqn_transfer.envs import Game, PettingZooGame
 from dqn_transfer.envs.game import COLOURS, TreasureHuntGame, text_grid
-from dqn_transfer.envs.pictures import agent_colour, draw_state
+from dqn_transfer.envs.pictures import agent_colour, captioned, draw_state
 from dqn_transfer.evaluation.rollout import (
     EpisodeResult,
     Policy,
@@ -35,6 +40,7 @@ from dqn_transfer.evaluation.rollout import (
 GIF_FRAME_MS = 250  # the faces' render_fps of 4
 GIF_LAST_FRAME_MS = 1500  # a pause on each episode's outcome
 GIF_CELL_PX = 40
+GIF_MAX_SIDE_PX = 480  # another game's larger frames are scaled down to this side
 TENSORBOARD_CELL_PX = 32  # small: the evaluation image is written at every evaluation
 
 
@@ -81,15 +87,71 @@ def record_episode(game: TreasureHuntGame, policy: Policy, rng: np.random.Genera
     return RecordedEpisode(game, frames, observations, result)
 
 
-def watch_team(game: TreasureHuntGame, learner: Team, episodes: int, seed: int) -> list[RecordedEpisode]:
-    """``episodes`` greedy episodes; episode i draws its chest ties and its greedy ties from ``(seed, i)``."""
+@dataclass
+class DrawnEpisode:
+    """One episode of another game as played: the env's own RGB frames ``[H, W, 3]`` after the reset and
+    after every step (none when the game does not draw, :attr:`PettingZooGame.draws`), the team return
+    so far at each of those moments, and its outcome."""
+
+    game: PettingZooGame
+    frames: list[np.ndarray]
+    returns: list[float]
+    result: EpisodeResult
+
+
+def record_drawn_episode(game: PettingZooGame, policy: Policy, rng: np.random.Generator) -> DrawnEpisode:
+    """Play one episode of another game with ``policy``, keeping the env's frame of every state if it draws.
+
+    :param game: the game (made with :meth:`PettingZooGame.drawing` for frames).
+    :param policy: the team's policy.
+    :param rng: draws the env's reset seed.
+    """
+    frames: list[np.ndarray] = []
+    returns: list[float] = []
+
+    def snapshot(team_return: float) -> None:
+        returns.append(team_return)
+        if game.draws:
+            frames.append(game.frame())
+
+    def on_step(transition, info) -> None:
+        snapshot(returns[-1] + team_return_of(transition.rewards[transition.live], RewardMode(game.reward_mode)))
+
+    result = play_episode(game, policy, rng, on_step=on_step, on_reset=lambda: snapshot(0.0))
+    return DrawnEpisode(game, frames, returns, result)
+
+
+Watched = RecordedEpisode | DrawnEpisode
+
+
+@overload
+def watch_team(game: TreasureHuntGame, learner: Team, episodes: int, seed: int) -> list[RecordedEpisode]: ...
+@overload
+def watch_team(game: PettingZooGame, learner: Team, episodes: int, seed: int) -> list[DrawnEpisode]: ...
+@overload
+def watch_team(game: Game, learner: Team, episodes: int, seed: int) -> list[RecordedEpisode] | list[DrawnEpisode]: ...
+
+
+def watch_team(game: Game, learner: Team, episodes: int, seed: int) -> list[RecordedEpisode] | list[DrawnEpisode]:
+    """``episodes`` greedy episodes; episode i draws its chest ties (another game: its reset seed) and its
+    greedy ties from ``(seed, i)``.
+
+    :param game: the treasure hunt, or another game (:class:`DrawnEpisode` s).
+    :param learner: the team.
+    :param episodes: how many.
+    :param seed: seeds the episodes.
+    """
     rngs = [np.random.default_rng([seed, i]) for i in range(episodes)]
+    if isinstance(game, PettingZooGame):
+        return [record_drawn_episode(game, greedy_policy(learner, rng), rng) for rng in rngs]
     return [record_episode(game, greedy_policy(learner, rng), rng) for rng in rngs]
 
 
-def outcome(episode: RecordedEpisode) -> str:
+def outcome(episode: Watched) -> str:
     """One line: what the team achieved."""
     r = episode.result
+    if isinstance(episode, DrawnEpisode):
+        return f"{r.length} steps, team return {r.team_return:.4g}"
     return (
         f"{r.length} steps, team return {r.team_return:g}, "
         f"chests {r.treasures_collected}/{episode.game.num_treasures}, "
@@ -122,16 +184,35 @@ def frame_picture(episode: RecordedEpisode, index: int, label: str = "", cell_px
     )
 
 
-def episode_pictures(episodes: Sequence[RecordedEpisode]) -> Iterable[tuple[Image.Image, int]]:
+def drawn_picture(episode: DrawnEpisode, index: int, label: str = "") -> Image.Image:
+    """Frame ``index`` of another game's episode as its env drew it, scaled down to at most
+    :data:`GIF_MAX_SIDE_PX` a side, with the step and the team return so far under it.
+
+    :param episode: the episode.
+    :param index: the frame (0: after the reset).
+    :param label: put before the step, e.g. which episode.
+    """
+    picture = Image.fromarray(episode.frames[index])
+    picture.thumbnail((GIF_MAX_SIDE_PX, GIF_MAX_SIDE_PX))
+    caption = [f"{label}step {index}/{episode.result.length}", f"team return {episode.returns[index]:.4g}"]
+    return captioned(np.asarray(picture), caption)
+
+
+def episode_pictures(episodes: Sequence[Watched]) -> Iterable[tuple[Image.Image, int]]:
     """Every frame of every episode, with how long the GIF shows it (ms)."""
     for number, episode in enumerate(episodes, 1):
         label = f"episode {number}/{len(episodes)}  " if len(episodes) > 1 else ""
         for index in range(len(episode.frames)):
             last = index == len(episode.frames) - 1
-            yield frame_picture(episode, index, label), GIF_LAST_FRAME_MS if last else GIF_FRAME_MS
+            picture = (
+                drawn_picture(episode, index, label)
+                if isinstance(episode, DrawnEpisode)
+                else frame_picture(episode, index, label)
+            )
+            yield picture, GIF_LAST_FRAME_MS if last else GIF_FRAME_MS
 
 
-def gif_bytes(episodes: Sequence[RecordedEpisode]) -> bytes:
+def gif_bytes(episodes: Sequence[Watched]) -> bytes:
     """The episodes as one looping GIF: one frame per step plus each episode's first."""
     pictures, durations = zip(*episode_pictures(episodes))
     buffer = io.BytesIO()

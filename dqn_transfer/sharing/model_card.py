@@ -31,6 +31,7 @@ import yaml
 
 from dqn_transfer.documented import format_default
 from dqn_transfer.enums import Algorithm
+from dqn_transfer.envs import PettingZooGame, TreasureHuntGame
 from dqn_transfer.envs.settings import DEFAULTS, MAP_KEYS, EnvConfig
 from dqn_transfer.evaluation.watch import RecordedEpisode, gif_bytes, watch_team
 from dqn_transfer.sharing.team import TeamError, TrainedTeam, load_team
@@ -57,11 +58,14 @@ def export_team(run_path: str | Path, out_dir: str | Path) -> Path:
         team = load_team(run_path)
     except TeamError as err:
         raise ExportError(str(err)) from None
-    episodes = watch_team(team.game, team.learner, EVAL_EPISODES, EVAL_SEED)
+    game = team.game
+    if isinstance(game, PettingZooGame):
+        raise ExportError(f"{run_path}: a team of {game.factory}: an export (map, model card) is a treasure hunt's")
+    episodes = watch_team(game, team.learner, EVAL_EPISODES, EVAL_SEED)
     files = {out_dir / f"agent_{i}.safetensors": file.read_bytes() for i, file in enumerate(unique(team.files))}
-    files[out_dir / MAP_FILE] = (team.game.map.layout + "\n").encode()
+    files[out_dir / MAP_FILE] = (game.map.layout + "\n").encode()
     files[out_dir / GIF_FILE] = gif_bytes(episodes[:1])
-    files[out_dir / CARD_FILE] = model_card(team, episodes).encode()
+    files[out_dir / CARD_FILE] = model_card(team, game, episodes).encode()
     write_folder(out_dir, files)
     return out_dir
 
@@ -185,8 +189,8 @@ def started_from(chain: list[dict[str, Any]]) -> str:
     )
 
 
-def model_card(team: TrainedTeam, episodes: list[RecordedEpisode]) -> str:
-    meta, game = team.meta, team.game
+def model_card(team: TrainedTeam, game: TreasureHuntGame, episodes: list[RecordedEpisode]) -> str:
+    meta = team.meta
     algorithm = Algorithm(meta["algorithm"])
     metrics = evaluation(episodes)
     size = f"{game.size}x{game.size}"

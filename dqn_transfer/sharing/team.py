@@ -4,7 +4,8 @@
 ``checkpoints/`` directory, an exported folder (``dqn-transfer-ckpt export``) or one agent's
 checkpoint file. Every file is verified (never unpickled); its meta says the map (its layout), the
 rules, the learner and the network, so nothing else is needed. A lone agent file drives every agent
-of its map, as a warm start would start them.
+of its map, as a warm start would start them. A team trained on another game (a PettingZoo env) plays
+the env its meta names (``env.factory`` and ``env.kwargs``), which must be importable here.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from typing import Any
 
 from dqn_transfer.agents import Learner, make_learner
 from dqn_transfer.config import AgentConfig
-from dqn_transfer.envs import TreasureHuntGame, make_game
+from dqn_transfer.envs import Game, PettingZooGame, TreasureHuntGame, UnsupportedEnv, make_game
 from dqn_transfer.storage.checkpoint import CheckpointError, find_checkpoints, load_agent_checkpoint
 from dqn_transfer.storage.run_dir import RunDir
 
@@ -26,7 +27,7 @@ class TeamError(Exception):
 
 @dataclass
 class TrainedTeam:
-    game: TreasureHuntGame
+    game: Game
     learner: Learner
     files: list[Path]  # agent i's checkpoint (one file for every agent when a lone file was given)
     meta: dict[str, Any]  # agent 0's checkpoint meta: the map, the rules, the learner, steps, last_eval
@@ -34,6 +35,8 @@ class TrainedTeam:
     @property
     def description(self) -> str:
         meta, game = self.meta, self.game
+        if isinstance(game, PettingZooGame):
+            return f"{meta['algorithm']} team of {game.num_agents} on {game.factory}, trained {meta['steps']} steps"
         return (
             f"{meta['algorithm']} team of {game.num_agents}, {meta['mode']} mode, {game.size}x{game.size} map, "
             f"trained {meta['steps']} steps"
@@ -55,6 +58,17 @@ def team_files(path: Path) -> list[Path]:
         raise TeamError(f"{err} (not a run directory, an exported folder or a checkpoint file)") from None
 
 
+def trained_game(env: dict[str, Any]) -> Game:
+    """The game an agent file's ``env`` meta describes: the PettingZoo env its ``factory`` makes with its
+    ``kwargs``, else the treasure hunt on the recorded map.
+
+    :param env: the meta's ``env`` entry.
+    """
+    if env.get("factory") is not None:
+        return PettingZooGame(env["factory"], env["kwargs"])
+    return make_game(**env)
+
+
 def load_team(path: str | Path) -> TrainedTeam:
     """The trained team at ``path`` (see the module docstring), greedy-ready on the CPU."""
     path = Path(path)
@@ -62,8 +76,8 @@ def load_team(path: str | Path) -> TrainedTeam:
     try:
         loaded = [load_agent_checkpoint(file) for file in files]
         meta = loaded[0][1]
-        game = make_game(**meta["env"])
-        if meta.get("source_task"):
+        game = trained_game(meta["env"])
+        if meta.get("source_task") and isinstance(game, TreasureHuntGame):
             game = game.single_agent_game()
         if len(files) == 1:
             files = files * game.num_agents
@@ -78,7 +92,7 @@ def load_team(path: str | Path) -> TrainedTeam:
         )
         for i, (tensors, _) in enumerate(loaded):
             learner.load_agent_tensors(i, tensors)
-    except CheckpointError as err:
+    except (CheckpointError, UnsupportedEnv) as err:
         raise TeamError(str(err)) from None
     except (KeyError, TypeError, ValueError) as err:  # a meta this format never writes, or an unloadable map
         raise TeamError(f"{files[0]}: cannot rebuild its team ({type(err).__name__}: {err})") from None

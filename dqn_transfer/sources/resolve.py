@@ -1,6 +1,7 @@
 """Where a ``transfer=on`` run's source checkpoint comes from; this module sits above the trainer.
 
-- ``transfer.source`` is a checkpoint file, or a run directory (then ``transfer.source_agent``);
+- ``transfer.source`` is a checkpoint file, or a run directory (then ``transfer.source_agent``); a run
+  of replicas gives each replica of a run of replicas the source replica of the same name (its seed);
 - unset, a source is pretrained for ``transfer.pretrain_steps`` on ``transfer.source_task``:
   ``single``, ``TreasureHunt-v0`` (the single-agent MDP of the map), or ``team``, the run's own
   multi-agent game, whose member ``transfer.source_agent`` each target starts from; on the run's map,
@@ -14,6 +15,7 @@ Either way the result is a path, which the trainer's warm start (:mod:`dqn_trans
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import logging
@@ -154,12 +156,20 @@ def team_members(transfer: TransferConfig, num_agents: int, num_targets: int) ->
     return per_target
 
 
+def source_path(transfer: TransferConfig, launch_dir: Path) -> Path:
+    """``transfer.source`` as a path, a relative one taken from ``launch_dir``.
+
+    :param transfer: the run's transfer config (its ``source`` set).
+    :param launch_dir: the directory the run was launched from.
+    """
+    path = Path(str(transfer.source)).expanduser()
+    return path if path.is_absolute() else launch_dir / path
+
+
 def resolve_source(transfer: TransferConfig, launch_dir: Path, num_targets: int) -> list[Path]:
     """The checkpoint file of each of the ``num_targets`` target agents: ``transfer.source`` itself if it
     is a file, else agent ``transfer.source_agent`` (one index, or one per target) of a run directory."""
-    path = Path(str(transfer.source)).expanduser()
-    if not path.is_absolute():
-        path = launch_dir / path
+    path = source_path(transfer, launch_dir)
     files = find_checkpoints(path)
     wanted = transfer.source_agent
     if path.is_file():
@@ -186,18 +196,45 @@ def resolve_source(transfer: TransferConfig, launch_dir: Path, num_targets: int)
     return [by_name[agent_file_name(index)] for index in per_target]
 
 
+def given_sources(plan: RunPlan, launch_dir: Path) -> list[list[Path]]:
+    """``transfer.source`` resolved for each replica of ``plan``: the same checkpoints for every replica,
+    except that a run of replicas as the source gives each replica of a run of replicas the source
+    replica of its own name (``seed_<s>``), so a batch of seeds transfers seed for seed; a replica the
+    source lacks is refused in one line.
+
+    :param plan: the run (its ``transfer.source`` set).
+    :param launch_dir: relative sources are taken from here.
+    """
+    transfer, num_targets = plan.config.transfer, len(plan.targets)
+    path = source_path(transfer, launch_dir)
+    by_name = {directory.name: directory for directory in RunDir(path).replica_dirs()}
+    if not by_name or len(plan.replicas) == 1:
+        return [resolve_source(transfer, launch_dir, num_targets)] * len(plan.replicas)
+    missing = [replica.name for replica in plan.replicas if replica.name not in by_name]
+    if missing:
+        raise CheckpointError(
+            f"transfer.source={transfer.source} is a run of replicas {', '.join(by_name)}, which has no "
+            f"{', '.join(missing)}: each replica of this run starts from the source replica of its own name"
+        )
+    return [
+        resolve_source(dataclasses.replace(transfer, source=str(by_name[replica.name])), launch_dir, num_targets)
+        for replica in plan.replicas
+    ]
+
+
 def transfer_sources(plan: RunPlan, launch_dir: Path) -> list[list[Path]] | None:
     """The checkpoint of each target agent of each replica (one list for a lone run): None without
     transfer (or when resuming, which has its agents already), ``transfer.source`` resolved against
-    ``launch_dir`` for every replica, else a source pretrained with each replica's own seed on its own
-    map (or on the map ``transfer.source_map_shift`` map seeds further): the one single-agent source
-    for every target, or the team source's member ``transfer.source_agent`` (one per target)."""
+    ``launch_dir`` for every replica (:func:`given_sources`), else a source pretrained with each
+    replica's own seed on its own map (or on the map ``transfer.source_map_shift`` map seeds further):
+    the one single-agent source for every target, or the team source's member ``transfer.source_agent``
+    (one per target)."""
     config = plan.config
     if not config.transfer.enabled or config.resume:
         return None
     num_targets = len(plan.targets)
     if config.transfer.source is not None:
-        return [resolve_source(config.transfer, launch_dir, num_targets)] * len(plan.replicas)
+        return given_sources(plan, launch_dir)
     if SourceTask(config.transfer.source_task) is SourceTask.team:
         members = team_members(config.transfer, plan.num_agents, num_targets)
     elif not isinstance(config.transfer.source_agent, int):
