@@ -1,5 +1,7 @@
 """Every config option composes through Hydra; typos, wrong types and out-of-range values are refused."""
 
+import json
+
 import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
@@ -8,7 +10,7 @@ from omegaconf import OmegaConf
 from omegaconf.errors import ValidationError
 
 from dqn_transfer.agents import make_learner
-from dqn_transfer.config import CONFIG_DIR, AgentConfig, ConfigError, TrainConfig, register_configs, validate
+from dqn_transfer.config import CONFIG_DIR, AgentConfig, ConfigError, TrainConfig, register_configs, to_plain, validate
 from dqn_transfer.enums import Algorithm, Fill, Mode
 
 CONF_DIR = str(CONFIG_DIR)
@@ -179,3 +181,25 @@ def test_a_layout_warns_only_about_generation_keys_the_user_set(tmp_path, group)
         plan_run(compose_config(group, layout, "env.size=9", "env.map_seed=3"))
     [message] = [str(w.message) for w in caught]
     assert message.endswith("size=9 (layout: 5), map_seed=3 (a layout is not generated)"), message
+
+
+@pytest.mark.parametrize(
+    "overrides",
+    [
+        (),
+        ("agent=sarsa", "mode=deliberative", "env=complex", "transfer=on", "agent.lr=1"),
+        ("curriculum=nested", "agent=qlearning", "replicas.seeds=3", "logger=[tensorboard,csv]"),
+        ("experiment=hypothesis", "transfer.exchange=best", "transfer.freeze=[0]"),
+        ("experiment=claim2", "env.layout='0.T.X1'", "env.max_steps=7"),
+        ("env=lbf", "agent=dqn", "env.kwargs.sight=2"),
+    ],
+)
+def test_plain_configs_and_their_yaml_are_omegaconfs(overrides):
+    """to_plain reads the dataclasses directly; it must give exactly what OmegaConf's structured config
+    gives (run hashes, checkpoint meta and the replicas' config.yaml are made of it)."""
+    config = compose_config(*(o if not o.startswith("env.kwargs.") else "+" + o for o in overrides))
+    for part in (config, config.agent, config.env, config.transfer):
+        expected = OmegaConf.to_container(OmegaConf.structured(part), resolve=True, enum_to_str=True)
+        assert to_plain(part) == expected
+        assert json.dumps(to_plain(part)) == json.dumps(expected)  # types too: 1.0 stays a float
+    assert OmegaConf.to_yaml(to_plain(config)) == OmegaConf.to_yaml(OmegaConf.structured(config))

@@ -14,8 +14,11 @@ Per run, with R replicas (``replicas.seeds * replicas.maps``), A agents, observa
   ``np.zeros``, committed as it fills, so a run that stops filling it never pays for the rest;
 * DQN networks: R * (1 with share_parameters, else A) members of P parameters (layers D, hidden..., 4),
   5 float32 copies each (online, target, gradient, Adam's two moments);
-* tabular: R * A tables of at most ``min(total_steps + 1, states)`` rows (one new row per step at most;
-  states = cells * 2^k chest flags, * (k + 1) assignments in deliberative mode), each ~ 4 D + 300 bytes;
+* tabular: per replica an index of S observations, S at most ``min(2 A (total_steps + 1), states)``
+  (each agent meets at most one new observation per step, greedy evaluations as many again; states =
+  cells * 2^k chest flags, * (k + 1) assignments in deliberative mode), held in arrays of up to 2 S
+  rows (they grow by doubling): A Q-rows of 4 float32 and an int32 entry order each, the key (D
+  float32), and ~150 bytes of the index's dict entry;
 * the map: per replica two games (training, evaluation) of ``cells * (16 + 12 (2r + 1)^2)`` bytes, and
   with transfer the source's and the target's one-hot position tables (2 * cells^2 float32).
 """
@@ -32,7 +35,7 @@ from dqn_transfer.enums import Algorithm, Exchange, Mode, ObsEncoding
 MAX_SIZE = 64
 FLOAT = 4  # bytes of a float32
 NUM_ACTIONS = 4
-TABLE_ROW_OVERHEAD = 300  # bytes of a Q-table row besides its key: the dict slot, the bytes and array objects
+INDEX_ENTRY_OVERHEAD = 150  # bytes of an observation's entry in a replica's index (its bytes key, the dict slot)
 
 
 def check_size(side: int, what: str = "env.size") -> None:
@@ -92,8 +95,9 @@ def estimate(config: TrainConfig, size: int, num_agents: int, num_treasures: int
             * 2 ** min(num_treasures, 40)
             * (num_treasures + 1 if Mode(config.env.mode) is Mode.deliberative else 1)
         )
-        rows = min(steps + 1, states)
-        return Estimate(tables=replicas * num_agents * rows * (FLOAT * width + TABLE_ROW_OVERHEAD), maps=maps)
+        seen = min(2 * num_agents * (steps + 1), states)
+        per_state = num_agents * (NUM_ACTIONS + 1) * FLOAT + FLOAT * width + INDEX_ENTRY_OVERHEAD
+        return Estimate(tables=replicas * 2 * seen * per_state, maps=maps)
     shared = Exchange(config.transfer.exchange) is Exchange.shared_replay
     filled = min(agent.buffer_size, steps * (num_agents if shared else 1))
     replay = replicas * num_agents * filled * (2 * width + 3) * FLOAT

@@ -172,7 +172,7 @@ class Trainer:
             return
         for rep in self.replicas:
             rep.run_dir.hydra_dir.mkdir(parents=True, exist_ok=True)
-            atomic_write(rep.run_dir.config, OmegaConf.to_yaml(OmegaConf.structured(rep.config)).encode())
+            atomic_write(rep.run_dir.config, OmegaConf.to_yaml(rep.plain_config).encode())
         # With the batch's own config: what resume=true on the batch directory continues with.
         index = {"replicas": [rep.run_dir.path.name for rep in self.replicas], "config": to_plain(self.config)}
         atomic_write(self.run_dir.replicas_index, (json.dumps(index, indent=2) + "\n").encode())
