@@ -7,8 +7,9 @@ R replicas over 10 generated maps), episodes restarting as they end (the loop re
 the batched core auto-resets), in one process, one after the other, ``--repeats`` times each; a
 "joint step" is one step of one replica. Prints the median rate of each and their ratio.
 
-A script rather than a section of ``dqn-transfer-bench``: the batched core is not used by the trainer
-yet, and the benchmark suite's records and tables would have to change for a section nobody runs.
+A script rather than a section of ``dqn-transfer-bench`` (the suite's records and tables are built for
+the learners' sections); its figures set ``envs.game_batch.BATCHED_CORE_MIN_REPLICAS``, below which the
+training loop steps the one-game core in a loop.
 """
 
 from __future__ import annotations

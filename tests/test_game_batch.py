@@ -8,7 +8,7 @@ import pytest
 from test_batched_core import TIE_MAP, greedy_table
 
 from dqn_transfer.envs.game import TreasureHuntGame
-from dqn_transfer.envs.game_batch import BatchedTreasureHunts, LoopedGames, game_batch
+from dqn_transfer.envs.game_batch import BATCHED_CORE_MIN_REPLICAS, BatchedTreasureHunts, LoopedGames, game_batch
 from dqn_transfer.envs.maps import generate_layout, parse_layout
 
 
@@ -64,10 +64,13 @@ def test_the_batched_core_and_the_loop_agree_step_by_step_and_across_a_saved_epi
     assert episodes >= 20 and ties >= 20  # the streams ended many episodes and emptied many chests
 
 
-def test_game_batch_takes_the_batched_core_only_for_treasure_hunts_that_share_a_batch():
-    same = games_of(LAYOUTS[1:], mode="cooperative")
-    assert isinstance(game_batch(*started(same, 0)), BatchedTreasureHunts)
-    mixed_rules = [*games_of(LAYOUTS[1:2], mode="cooperative"), *games_of(LAYOUTS[2:], mode="competitive")]
+def test_game_batch_takes_the_batched_core_for_enough_treasure_hunts_that_share_a_batch():
+    many = BATCHED_CORE_MIN_REPLICAS * LAYOUTS[1:]
+    assert isinstance(game_batch(*started(games_of(many, mode="cooperative"), 0)), BatchedTreasureHunts)
+    few = (BATCHED_CORE_MIN_REPLICAS - 1) * LAYOUTS[1:2]  # the loop is faster for a few
+    assert isinstance(game_batch(*started(games_of(few, mode="cooperative"), 0)), LoopedGames)
+    half = BATCHED_CORE_MIN_REPLICAS * LAYOUTS[1:2]
+    mixed_rules = [*games_of(half, mode="cooperative"), *games_of(half, mode="competitive")]
     assert isinstance(game_batch(*started(mixed_rules, 0)), LoopedGames)
 
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from dqn_transfer.agents import TabularLearner, Transition
-from dqn_transfer.agents.random_streams import mix64, uniforms
+from dqn_transfer.agents.random_streams import mix64, stream_keys, uniforms
 from dqn_transfer.agents.tabular import epsilon_greedy_rows
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm
@@ -22,25 +22,25 @@ def test_splitmix64_finalizer_matches_its_reference_values():
     assert [hex(int(v)) for v in mix64(states)] == ["0xe220a8397b1dcdaf", "0x6e789e6aa1b965f4", "0x6c45d188009454f"]
 
 
+def draws(seed: int, stream: int, counter: int, agents: list[int]) -> np.ndarray:
+    keys = stream_keys(np.full(len(agents), seed), stream, np.array(agents))
+    return uniforms(keys, counter, 3)
+
+
 def test_a_draw_depends_on_every_part_of_its_key_and_on_nothing_else():
-    base = uniforms(np.array([7, 7]), 1, np.array([3, 3]), np.array([0, 1]), 3)
+    base = draws(7, 1, 3, [0, 1])
     assert base.shape == (2, 3) and ((base >= 0) & (base < 1)).all()
-    np.testing.assert_array_equal(base, uniforms(np.array([7, 7]), 1, 3, np.array([0, 1]), 3))  # pure
-    one_row = uniforms(np.array([7]), 1, np.array([3]), np.array([1]), 3)
-    np.testing.assert_array_equal(one_row[0], base[1])  # a row's draws do not depend on the other rows
-    for changed in (
-        uniforms(np.array([8, 8]), 1, 3, np.array([0, 1]), 3),  # seed
-        uniforms(np.array([7, 7]), 2, 3, np.array([0, 1]), 3),  # stream
-        uniforms(np.array([7, 7]), 1, 4, np.array([0, 1]), 3),  # counter
-        uniforms(np.array([7, 7]), 1, 3, np.array([2, 3]), 3),  # agent
-    ):
+    keys = stream_keys(np.array([7, 7]), 1, np.array([0, 1]))
+    np.testing.assert_array_equal(base, uniforms(keys, np.array([3, 3]), 3))  # pure
+    np.testing.assert_array_equal(draws(7, 1, 3, [1])[0], base[1])  # a row's draws ignore the other rows
+    for changed in (draws(8, 1, 3, [0, 1]), draws(7, 2, 3, [0, 1]), draws(7, 1, 4, [0, 1]), draws(7, 1, 3, [2, 3])):
         assert not np.isin(changed, base).any()
     assert len(set(base.ravel().tolist())) == 6  # slots differ too
 
 
 def test_draws_are_uniform_and_successive_counters_are_uncorrelated():
     n = 200_000
-    u = uniforms(np.full(n, 11), 1, np.arange(n), np.zeros(n, dtype=np.int64), 2)
+    u = uniforms(stream_keys(np.full(n, 11), 1, np.zeros(n, dtype=np.int64)), np.arange(n), 2)
     counts = np.bincount((u[:, 0] * 20).astype(int), minlength=20)
     chi2 = float(((counts - n / 20) ** 2 / (n / 20)).sum())
     assert chi2 < 45.3  # the 0.999 quantile of chi-square with 19 degrees of freedom
@@ -106,3 +106,18 @@ def test_the_table_grows_past_its_first_room_and_keeps_every_value():
     np.testing.assert_array_equal(table0["values"][:, 1], np.arange(300))
     np.testing.assert_array_equal(table1["keys"], states[::-1])
     np.testing.assert_array_equal(table1["values"][:, 0], -np.arange(300))
+
+
+def test_a_draw_is_the_documented_splitmix64_construction_worked_in_plain_integers():
+    mask, golden = 2**64 - 1, 0x9E3779B97F4A7C15
+
+    def splitmix(seed: int, position: int) -> int:  # output number position + 1 of SplitMix64(seed)
+        z = (seed + (position + 1) * golden) & mask
+        z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & mask
+        z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & mask
+        return z ^ (z >> 31)
+
+    seed, stream, agent, counter = 12345, 2, 3, 987
+    key = splitmix(splitmix(seed, stream), agent)
+    expected = [(splitmix(splitmix(key, counter), slot) >> 11) * 2.0**-53 for slot in range(3)]
+    assert draws(seed, stream, counter, [agent])[0].tolist() == expected

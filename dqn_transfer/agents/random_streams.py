@@ -2,10 +2,11 @@
 
 A generator object has a position in its stream, so the draws of R replicas x K agents must be taken
 one after another, and how many a step takes depends on the data (ties, live agents). Here a draw is
-``uniform(seed, stream, counter, agent, slot)``: the key is hashed with SplitMix64's mixing function
-(Steele, Lea & Flood 2014: the generator behind ``java.util.SplittableRandom``, which Vigna recommends
-for seeding xoshiro), one 64-bit hash per draw, and its top 53 bits are the uniform
-float in ``[0, 1)``. So:
+``uniform(seed, stream, agent, counter, slot)``, built from SplitMix64 (Steele, Lea & Flood 2014: the
+generator behind ``java.util.SplittableRandom``, which Vigna recommends for seeding xoshiro): a row's
+key is SplitMix64's output for (seed, purpose, agent); the draws at ``counter`` are the first outputs
+of the SplitMix64 sequence seeded with that key's output at position ``counter``; the top 53 bits of
+each are the uniform float in ``[0, 1)``. So:
 
 * every agent of every replica draws in one array operation, and a fixed number of draws per
   agent-step (``slot``) makes the numbers independent of what other agents did;
@@ -32,22 +33,27 @@ def mix64(x: np.ndarray) -> np.ndarray:
 
 
 def _absorb(key: np.ndarray, value: np.ndarray | int) -> np.ndarray:
+    """SplitMix64's output at position ``value`` of the sequence seeded with ``key``."""
     return mix64(key + np.asarray(value).astype(np.uint64) * _GOLDEN + _GOLDEN)
 
 
-def uniforms(seeds: np.ndarray, stream: int, counters: np.ndarray | int, agents: np.ndarray, slots: int) -> np.ndarray:
-    """``float64 [N, slots]`` uniform in ``[0, 1)``: draw ``j`` of row ``n`` is keyed by ``(seeds[n],
-    stream, counters[n], agents[n], j)``.
-
-    :param seeds: ``[N]`` non-negative integers, the run's seed of each row
-    :param stream: what the numbers are for (a constant per purpose, so two purposes never share draws)
-    :param counters: ``[N]`` (or one for all rows) the position in the stream, e.g. the step
-    :param agents: ``[N]`` the agent of each row within its team
-    :param slots: how many draws each row takes
-    """
+def stream_keys(seeds: np.ndarray, stream: int, agents: np.ndarray) -> np.ndarray:
+    """``uint64 [N]``: the key of each row's stream, from its run's seed, the stream's purpose (a constant
+    per purpose, so two purposes never share draws) and its agent within the team (computed once)."""
     with np.errstate(over="ignore"):  # uint64 arithmetic wraps by design
         key = _absorb(np.asarray(seeds).astype(np.uint64), stream)
-        key = _absorb(key, np.broadcast_to(np.asarray(counters), key.shape))
-        key = _absorb(key, agents)
-        bits = _absorb(key[:, None], np.arange(slots, dtype=np.uint64)[None, :])
+        return _absorb(key, agents)
+
+
+def uniforms(keys: np.ndarray, counters: np.ndarray | int, slots: int) -> np.ndarray:
+    """``float64 [N, slots]`` uniform in ``[0, 1)``: draw ``j`` of row ``n`` at position ``counters[n]``
+    of the stream ``keys[n]`` (:func:`stream_keys`).
+
+    :param keys: ``[N]`` each row's stream key
+    :param counters: ``[N]`` (or one for all rows) the position in the stream, e.g. the step
+    :param slots: how many draws each row takes there
+    """
+    with np.errstate(over="ignore"):
+        position = _absorb(np.asarray(keys), np.broadcast_to(np.asarray(counters), np.shape(keys)))
+        bits = _absorb(position[:, None], np.arange(slots, dtype=np.uint64)[None, :])
     return (bits >> _S11).astype(np.float64) * _TO_UNIT

@@ -46,7 +46,7 @@ from dqn_transfer.agents.base import (
     check_tensor_shape,
 )
 from dqn_transfer.agents.dqn_update import huber
-from dqn_transfer.agents.random_streams import uniforms
+from dqn_transfer.agents.random_streams import stream_keys, uniforms
 from dqn_transfer.agents.replicas import team_view
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm
@@ -164,8 +164,12 @@ class TabularLearner(Learner, KnowledgeExchange):
         self.entry_order = np.full((rows, _INITIAL_STATES), -1, dtype=np.int32)
         self._entries = 0  # entries entered so far, all rows together (the next entry's order)
         self.fallbacks: list[list[_Fallback]] = [[] for _ in range(rows)]
-        # Per replica: the counters of its draws, by purpose (what a checkpoint saves of them).
+        # Per replica: the counters of its draws, by purpose (what a checkpoint saves of them); per row the
+        # key of each purpose's stream.
         self.counters = {stream: np.zeros(replicas, dtype=np.int64) for stream in _STREAM_NAMES}
+        self.stream_keys = {
+            stream: stream_keys(self.row_seed, number, self.row_agent) for stream, number in _STREAM_NAMES.items()
+        }
         self.epsilon = np.zeros(rows)  # per agent, from the last act: transferred agents may explore less
         # SARSA: the action chosen at the last update for the next state, and that state's id.
         self.next_action = np.full(rows, _NO_ACTION, dtype=np.int64)
@@ -282,8 +286,7 @@ class TabularLearner(Learner, KnowledgeExchange):
     def _draws(self, stream: str, rows: np.ndarray) -> np.ndarray:
         """``[len(rows), 3]`` uniforms of ``stream`` at each row's replica's current counter."""
         counters = self.counters[stream][self.row_replica[rows]]
-        key = _STREAM_NAMES[stream]
-        return uniforms(self.row_seed[rows], key, counters, self.row_agent[rows], DRAWS_PER_AGENT_STEP)
+        return uniforms(self.stream_keys[stream][rows], counters, DRAWS_PER_AGENT_STEP)
 
     def _advance(self, stream: str, replica: int | None) -> None:
         if replica is None:

@@ -218,7 +218,15 @@ def fits_one_batch(games: Sequence[Game]) -> TypeGuard[Sequence[TreasureHuntGame
     )
 
 
+# Below this many replicas the one-game core in a loop is faster (8x8, 4 agents: the batched core's rate
+# is 0.4x the loop's at 1 replica, 1.0x at 4, 1.8x at 8 in the cooperative mode, 0.3x / 0.8x / 1.2x
+# deliberative; scripts/bench_batched_core.py, 2026-12-02). Either gives the same numbers.
+BATCHED_CORE_MIN_REPLICAS = 6
+
+
 def game_batch(games: Sequence[Game], rngs: Sequence[np.random.Generator]) -> GameBatch:
-    """The replicas' games as one batch: the batched core for treasure hunts that fit one batch, else
-    a loop over the games."""
-    return BatchedTreasureHunts(games, rngs) if fits_one_batch(games) else LoopedGames(games, rngs)
+    """The replicas' games as one batch: the batched core for at least :data:`BATCHED_CORE_MIN_REPLICAS`
+    treasure hunts that fit one batch, else a loop over the games."""
+    if len(games) >= BATCHED_CORE_MIN_REPLICAS and fits_one_batch(games):
+        return BatchedTreasureHunts(games, rngs)
+    return LoopedGames(games, rngs)
