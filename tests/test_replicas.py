@@ -17,6 +17,7 @@ from dqn_transfer.agents import DQNLearner, Transition
 from dqn_transfer.analysis.runs import find_run_dirs, load_config
 from dqn_transfer.config import AgentConfig, ConfigError, ReplicasConfig, TrainConfig, TransferConfig, validate
 from dqn_transfer.enums import Algorithm, Mode
+from dqn_transfer.envs.game_batch import BATCHED_CORE_MIN_REPLICAS
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.sources.resolve import resolve_source
 from dqn_transfer.storage.checkpoint import CheckpointError, find_checkpoints
@@ -71,13 +72,15 @@ def assert_same_run(a: Path, b: Path) -> None:
     ids=["dqn_nothing_learned", "dqn_learning", "sarsa"],
 )
 def test_each_replica_is_the_lone_run_of_its_seed_and_map(tmp_path, agent):
-    """2 seeds x 2 maps: every replica's evaluations, agent files and resume state are those of the lone
-    run with its seed and map seed. Bit for bit, learning included: on the CPU each member's batched
-    matrix product is computed on its own, so a replica's numbers do not depend on its neighbours."""
-    Trainer(plan_run(config(agent, seeds=2, maps=2)), tmp_path / "batch").run()
+    """3 seeds x 2 maps (enough replicas for the batched game core): every replica's evaluations, agent
+    files and resume state are those of the lone run with its seed and map seed (which steps the
+    one-game core). Bit for bit, learning included: on the CPU each member's batched matrix product is
+    computed on its own, so a replica's numbers do not depend on its neighbours."""
+    assert BATCHED_CORE_MIN_REPLICAS <= 3 * 2
+    Trainer(plan_run(config(agent, seeds=3, maps=2)), tmp_path / "batch").run()
     names = sorted(p.name for p in (tmp_path / "batch").iterdir() if p.is_dir() and not p.name.startswith("."))
-    assert names == ["seed_4-map_3", "seed_4-map_4", "seed_5-map_3", "seed_5-map_4"]
-    for seed, map_seed in ((4, 3), (5, 4)):  # the first replica and the last one
+    assert names == [f"seed_{s}-map_{m}" for s in (4, 5, 6) for m in (3, 4)]
+    for seed, map_seed in ((4, 3), (6, 4)):  # the first replica and the last one
         Trainer(plan_run(config(agent, seed=seed, map_seed=map_seed)), tmp_path / f"lone_{seed}_{map_seed}").run()
         assert_same_run(tmp_path / "batch" / f"seed_{seed}-map_{map_seed}", tmp_path / f"lone_{seed}_{map_seed}")
 
