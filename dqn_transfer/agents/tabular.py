@@ -225,11 +225,9 @@ class TabularLearner(Learner, KnowledgeExchange):
 
     def _grow(self) -> None:
         """Double every replica's room for states."""
-        extra = self.q.shape[1]
         self.q = np.concatenate([self.q, np.zeros_like(self.q)], axis=1)
         self.entry_order = np.concatenate([self.entry_order, np.full_like(self.entry_order, -1)], axis=1)
         self.state_keys = np.concatenate([self.state_keys, np.zeros_like(self.state_keys)], axis=1)
-        assert self.q.shape[1] == 2 * extra
 
     def _start_values(self, row: int, obs: np.ndarray) -> np.ndarray:
         """What an entry of ``row`` holds before its agent updates it: the first fallback that knows
