@@ -393,3 +393,26 @@ def test_a_run_of_replicas_as_the_source_transfers_seed_for_seed(tmp_path):
         sources(2, 2)
     with pytest.raises(CheckpointError, match="is a run of 3 replicas: pass one replica's directory"):
         sources(0, 1)
+
+
+@pytest.mark.parametrize(
+    "learning",
+    [
+        ("agent=dqn", "agent.share_parameters=true", "agent.learning_starts=40", "agent.hidden=[16]"),
+        ("agent=sarsa", "transfer.exchange=best", "transfer.exchange_every=5", "replicas.seeds=2"),
+        ("agent=qlearning", "transfer.exchange=shared_replay", "transfer.exchange_every=5"),
+    ],
+    ids=["shared_parameters", "exchange_best_replicas", "exchange_shared_replay"],
+)
+def test_parameter_sharing_and_knowledge_exchange_train_on_another_game(tmp_path, monkeypatch, learning):
+    """The team-level options are not the treasure hunt's: they run on a game named on the command line
+    and evaluate into every replica's metrics.jsonl (``best`` logs the agent it copied, every 5 episodes)."""
+    with_corridor(monkeypatch)
+    overrides = ("env=pettingzoo", f"env.factory={CORRIDOR}", *learning, "total_steps=300", "eval_every=100")
+    result = run_train(tmp_path, *overrides, "logger=[csv]")
+    replicas = "replicas.seeds=2" in learning
+    runs = [result.run_dir / "seed_0", result.run_dir / "seed_1"] if replicas else [result.run_dir]
+    for run in runs:
+        assert [line["step"] for line in read_metrics(run)] == [0, 100, 200, 300]
+        copies = (run / "scalars.csv").read_text().count("team/exchange_best_agent")
+        assert (copies >= 3) if "transfer.exchange=best" in learning else copies == 0
