@@ -1,10 +1,10 @@
 """The R games of a run's replicas as one object the training loop steps: arrays in, arrays out.
 
-:func:`game_batch` picks how: R treasure hunts of one size go through the batched core
-(:mod:`dqn_transfer.envs.batched`, one array program for all of them); any other games (another
-game, or maps that cannot share a batch) are stepped one after another (:class:`LoopedGames`). Both
-give the same numbers: a replica's chest ties are drawn from its own generator, in the same order
-(``tests/test_game_batch.py``).
+:func:`game_batch` picks how: enough treasure hunts of one size (:data:`BATCHED_CORE_MIN_REPLICAS`)
+go through the batched core (:mod:`dqn_transfer.envs.batched`, one array program for all of them);
+fewer, and any other games (another game, or maps that cannot share a batch), are stepped one after
+another (:class:`LoopedGames`). Both give the same numbers: a replica's chest ties are drawn from its
+own generator, in the same order (``tests/test_game_batch.py``).
 
 A batch never resets on its own: the loop logs a replica's finished episode first, then calls
 :meth:`GameBatch.reset` for it. A replica's episode in progress is saved and restored in the one-game

@@ -72,7 +72,8 @@ class EpisodeSums:
         self.lengths += live
         self.traps += traps.sum(axis=1)
         # The step's team return: the live agents' rewards summed (in team mode every live agent received
-        # the sum: counted once), as team_return_of does for one replica.
+        # the sum: counted once), as team_return_of does for one replica (the same floats for fewer than 8
+        # agents; beyond, numpy's pairwise sum may round the last bit of fractional rewards differently).
         if self.team_mode:
             step_return = np.where(live, rewards, -np.inf).max(axis=1)
         else:
