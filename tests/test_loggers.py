@@ -10,14 +10,15 @@ import csv
 import json
 import signal
 import struct
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import read_metrics, run_train, start_train
+from conftest import run_train, start_train
 from omegaconf import OmegaConf
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+from test_run_safety import LONG_RUN as SIGNALLED_RUN
+from test_run_safety import MAP, wait_for_evaluations
 
 from dqn_transfer.config import AgentConfig, TrainConfig
 from dqn_transfer.config.schema import ConfigError, validate
@@ -28,8 +29,6 @@ from dqn_transfer.storage.run_dir import RunDir
 from dqn_transfer.training.loggers import import_wandb
 from dqn_transfer.training.plan import plan_run
 from dqn_transfer.training.trainer import Trainer, train
-
-MAP = "0...T\n.#...\n...#.\nX....\n1..T.\n"
 
 
 def config(logger: list[str], resume: bool = False, **overrides) -> TrainConfig:
@@ -106,12 +105,9 @@ class _Killed(Exception):
     """Stands in for SIGKILL."""
 
 
-@pytest.mark.filterwarnings("ignore:a layout fixes the map")
-def test_resumed_run_continues_the_csv_without_duplicates(tmp_path, monkeypatch):
-    """Die right before the checkpoint at step 400: the rows of steps 201..400 are in the CSV, the
-    checkpoint at 200 does not know them; the resumed run logs them again, once."""
-    loggers = ["tensorboard", "csv"]
-    train(plan_run(config(loggers)), tmp_path / "reference")
+def killed_before_checkpoint(monkeypatch, loggers: list[str], run_dir: Path) -> None:
+    """Train ``config(loggers)`` into ``run_dir`` and die right before the checkpoint at step 400 (the last
+    one written is at 200), as a SIGKILL there would."""
     original = Trainer.save_checkpoint
 
     def die_at_400(self):
@@ -119,12 +115,21 @@ def test_resumed_run_continues_the_csv_without_duplicates(tmp_path, monkeypatch)
             raise _Killed
         original(self)
 
-    monkeypatch.setattr(Trainer, "save_checkpoint", die_at_400)
-    with pytest.raises(_Killed):
-        train(plan_run(config(loggers)), tmp_path / "killed")
+    with monkeypatch.context() as patched:
+        patched.setattr(Trainer, "save_checkpoint", die_at_400)
+        with pytest.raises(_Killed):
+            train(plan_run(config(loggers)), run_dir)
+
+
+@pytest.mark.filterwarnings("ignore:a layout fixes the map")
+def test_resumed_run_continues_the_csv_without_duplicates(tmp_path, monkeypatch):
+    """Die right before the checkpoint at step 400: the rows of steps 201..400 are in the CSV, the
+    checkpoint at 200 does not know them; the resumed run logs them again, once."""
+    loggers = ["tensorboard", "csv"]
+    train(plan_run(config(loggers)), tmp_path / "reference")
+    killed_before_checkpoint(monkeypatch, loggers, tmp_path / "killed")
     killed = RunDir(tmp_path / "killed")
     assert max(step for step, _, _ in csv_points(killed)) > 200  # logged after the last checkpoint
-    monkeypatch.setattr(Trainer, "save_checkpoint", original)
     train(plan_run(config(loggers, resume=True)), tmp_path / "killed")
 
     rows = csv_points(killed)
@@ -227,20 +232,10 @@ def test_a_resumed_run_is_a_new_wandb_run_whose_history_is_the_csv_after_the_che
     whose history is the CSV's rows after step 200 (which the resumed run logged again), value for
     value; together up to 200 and after it they are the run's scalars."""
     loggers = ["csv", "wandb"]
-    original = Trainer.save_checkpoint
-
-    def die_at_400(self):
-        if self.step == 400:
-            raise _Killed
-        original(self)
-
-    monkeypatch.setattr(Trainer, "save_checkpoint", die_at_400)
-    with pytest.raises(_Killed):
-        train(plan_run(config(loggers)), tmp_path / "run")
+    killed_before_checkpoint(monkeypatch, loggers, tmp_path / "run")
     run = RunDir(tmp_path / "run")
     killed_rows = sorted(csv_points(run))
     assert max(step for step, _, _ in killed_rows) == 400
-    monkeypatch.setattr(Trainer, "save_checkpoint", original)
     train(plan_run(config(loggers, resume=True)), tmp_path / "run")
 
     rows = sorted(csv_points(run))
@@ -254,21 +249,7 @@ def test_a_resumed_run_is_a_new_wandb_run_whose_history_is_the_csv_after_the_che
     assert resumed_pictures == [300, 400, 500, 600]
 
 
-LONG_RUN = (  # tests/test_run_safety.py's run: long enough to be signalled while it learns
-    "env.layout_file=map.txt",
-    "env.num_agents=2",
-    "agent=dqn",
-    "mode=cooperative",
-    "agent.learning_starts=100",
-    "agent.hidden=[32]",
-    "agent.batch_size=32",
-    "total_steps=1500",
-    "checkpoint_every=100000",
-    "eval_every=100",
-    "eval_episodes=2",
-    "seed=5",
-    "logger=[csv,wandb]",
-)
+LONG_RUN = (*SIGNALLED_RUN, "logger=[csv,wandb]")  # long enough to be signalled while it learns
 
 
 @pytest.mark.slow
@@ -282,11 +263,7 @@ def test_a_run_stopped_by_a_signal_and_resumed_splits_its_wandb_history_at_the_c
     (tmp_path / "map.txt").write_text(MAP)
     run_dir = tmp_path / "run"
     proc = start_train(tmp_path, *LONG_RUN, run_dir=run_dir)
-    deadline = time.monotonic() + 120
-    while len(read_metrics(run_dir)) < 3:
-        assert proc.poll() is None, "the run ended before it was signalled"
-        assert time.monotonic() < deadline, "the run is too slow to reach its evaluations"
-        time.sleep(0.05)
+    wait_for_evaluations(run_dir, 3, proc)
     proc.send_signal(signum)
     assert proc.wait(timeout=60) == 128 + signum
     run = RunDir(run_dir)

@@ -239,6 +239,22 @@ def test_a_run_directory_beneath_a_file_is_one_line(tmp_path):
     )
 
 
+def run_interleaved(command: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    """Run ``command`` to a successful end with one output stream, as on a terminal: the bar (stderr)
+    and the log lines (stdout) interleave in ``stdout``."""
+    result = subprocess.run(
+        command,
+        cwd=cwd,
+        env=train_env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        timeout=TRAIN_TIMEOUT,
+    )
+    assert result.returncode == 0, result.stdout
+    return result
+
+
 def test_log_lines_never_glue_onto_the_progress_bar(tmp_path):
     (tmp_path / "map.txt").write_text(MAP)
     command = [
@@ -251,17 +267,7 @@ def test_log_lines_never_glue_onto_the_progress_bar(tmp_path):
         "progress=true",
         f"hydra.run.dir={tmp_path / 'run'}",
     ]
-    # One stream, as on a terminal: the bar (stderr) and the log lines (stdout) interleave.
-    result = subprocess.run(
-        command,
-        cwd=tmp_path,
-        env=train_env(),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        timeout=TRAIN_TIMEOUT,
-    )
-    assert result.returncode == 0, result.stdout
+    result = run_interleaved(command, tmp_path)
     # The bar redraws with carriage returns; every log line must start a line of its own.
     pieces = result.stdout.replace("\r", "\n").splitlines()
     evals = [p for p in pieces if "eval step" in p]
@@ -334,16 +340,7 @@ def test_a_sweeps_captured_output_glues_no_line_onto_a_progress_bar(tmp_path, la
     ]
     if launcher == "joblib":
         command.append("hydra.launcher.n_jobs=2")
-    result = subprocess.run(
-        command,
-        cwd=tmp_path,
-        env=train_env(),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        timeout=TRAIN_TIMEOUT,
-    )
-    assert result.returncode == 0, result.stdout
+    result = run_interleaved(command, tmp_path)
     assert_log_lines_start_lines(result.stdout)
     for job in (0, 1):
         assert sum(f"[job {job}] eval step" in line for line in result.stdout.splitlines()) == 7, result.stdout
