@@ -23,7 +23,7 @@ from dqn_transfer.enums import RewardMode
 from dqn_transfer.envs import Game, batched
 from dqn_transfer.envs.game import TreasureHuntGame
 from dqn_transfer.envs.game_batch import fits_one_batch
-from dqn_transfer.evaluation.rollout import EpisodeResult, evaluate, evaluation_rng, summarize
+from dqn_transfer.evaluation.rollout import EpisodeResult, evaluate, evaluation_rng, summarize, team_returns_of
 
 
 def evaluate_replicas(
@@ -66,7 +66,7 @@ def play_greedy_batch(
     """Replica r's greedy episodes ``0..episodes-1`` (episode 0 a placeholder where ``skip_first[r]``),
     all played in one batch of the batched core."""
     replicas, agents = len(games), games[0].num_agents
-    chests, team_mode = games[0].num_treasures, RewardMode(games[0].reward_mode) is RewardMode.team
+    chests, reward_mode = games[0].num_treasures, RewardMode(games[0].reward_mode)
     slots = [(e, r) for e in range(episodes) for r in range(replicas)]  # game g = e * R + r
     maps = batched.batch_maps([games[r].map for _, r in slots], **games[0].settings())
     rngs = [evaluation_rng(seeds[r], evaluations[r], e) for e, r in slots]
@@ -89,10 +89,7 @@ def play_greedy_batch(
             actions[row] = choices[int(ties[row // agents].integers(len(choices)))]
         state, outcome = batched.step(maps, state, actions.reshape(count, agents), rngs, finished_stay=True)
         active = live.any(axis=1)
-        if team_mode:  # every live agent received the sum: count it once
-            step_return = np.where(live, outcome.rewards, -np.inf).max(axis=1).astype(np.float64)
-        else:
-            step_return = np.where(live, outcome.rewards, np.float32(0.0)).sum(axis=1).astype(np.float64)
+        step_return = team_returns_of(outcome.rewards, live, reward_mode)
         team_return[active] += step_return[active]
         agent_returns += outcome.rewards  # 0 for agents that are done
         trapped += outcome.trap.sum(axis=1)

@@ -45,6 +45,17 @@ def team_return_of(rewards: np.ndarray, reward_mode: RewardMode) -> float:
     return float(rewards.max() if reward_mode is RewardMode.team and rewards.size else rewards.sum())
 
 
+def team_returns_of(rewards: np.ndarray, live: np.ndarray, reward_mode: RewardMode) -> np.ndarray:
+    """:func:`team_return_of` of every row of ``rewards [N, K]`` float32 at once, its live agents those of
+    ``live [N, K]``: ``float64 [N]``, 0 for a row with none. The same floats for fewer than 8 agents;
+    beyond, numpy's pairwise sum may round the last bit of fractional rewards differently."""
+    if RewardMode(reward_mode) is RewardMode.team:
+        step = np.where(live, rewards, -np.inf).max(axis=1)
+    else:
+        step = np.where(live, rewards, np.float32(0.0)).sum(axis=1)
+    return np.where(live.any(axis=1), step, 0.0).astype(np.float64)
+
+
 def greedy_policy(learner: Team, episode_rng: np.random.Generator | None = None) -> Policy:
     """The learner's greedy actions; consumes none of its random numbers. Ties between equal values are
     drawn from a child of ``episode_rng`` (the generator the episode resets with, whose own stream a

@@ -26,6 +26,7 @@ from dqn_transfer.agents.schedules import linear_schedules
 from dqn_transfer.config import TrainConfig, to_plain
 from dqn_transfer.enums import Exchange, RewardMode
 from dqn_transfer.envs import Game, TreasureHuntGame
+from dqn_transfer.evaluation.rollout import team_returns_of
 from dqn_transfer.evaluation.watch import EvaluationViews, evaluation_views
 from dqn_transfer.storage.run_dir import RunDir
 from dqn_transfer.training.loggers import RunLoggers
@@ -59,7 +60,7 @@ class EpisodeSums:
     step of all of them, and each replica's recent team returns (the progress bar's)."""
 
     def __init__(self, replicas: int, agents: int, reward_mode: RewardMode) -> None:
-        self.team_mode = RewardMode(reward_mode) is RewardMode.team
+        self.reward_mode = RewardMode(reward_mode)
         self.returns = np.zeros((replicas, agents))
         self.lengths = np.zeros((replicas, agents), dtype=np.int64)
         self.traps = np.zeros(replicas, dtype=np.int64)
@@ -71,14 +72,7 @@ class EpisodeSums:
         self.returns += rewards
         self.lengths += live
         self.traps += traps.sum(axis=1)
-        # The step's team return: the live agents' rewards summed (in team mode every live agent received
-        # the sum: counted once), as team_return_of does for one replica (the same floats for fewer than 8
-        # agents; beyond, numpy's pairwise sum may round the last bit of fractional rewards differently).
-        if self.team_mode:
-            step_return = np.where(live, rewards, -np.inf).max(axis=1)
-        else:
-            step_return = np.where(live, rewards, np.float32(0.0)).sum(axis=1)
-        self.team_return += np.where(live.any(axis=1), step_return, 0.0).astype(np.float64)
+        self.team_return += team_returns_of(rewards, live, self.reward_mode)
 
 
 class EpisodeStats:
