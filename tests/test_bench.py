@@ -24,7 +24,7 @@ from omegaconf import OmegaConf
 from torch import nn
 
 from dqn_transfer.agents import DQNLearner, make_learner
-from dqn_transfer.benchmark import processes, suite, tables, whole_process
+from dqn_transfer.benchmark import game_batches, processes, suite, tables, whole_process
 from dqn_transfer.benchmark.config import (
     BENCH_AGENT,
     BENCH_MAP,
@@ -539,3 +539,9 @@ def test_missing_sb3_is_one_error_unless_no_section_needs_it(tmp_path, monkeypat
     assert cli.main(["--out", str(tmp_path / "bench.json")]) == 1
     assert "pip install -e '.[dev]'" in capsys.readouterr().err
     assert cli.check_ready(tmp_path / "bench.json", ["env", "team"]) is None
+
+
+def test_the_game_batch_rates_measure_both_ways_the_loop_can_step_its_games():
+    rows = list(game_batches.measure([2, 6], ["deliberative"], repeats=1, seconds=0.01))
+    assert [(row.mode, row.replicas) for row in rows] == [("deliberative", 2), ("deliberative", 6)]
+    assert all(0 < row.looped < float("inf") and 0 < row.batched < float("inf") for row in rows)

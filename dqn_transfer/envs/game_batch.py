@@ -218,10 +218,11 @@ def fits_one_batch(games: Sequence[Game]) -> TypeGuard[Sequence[TreasureHuntGame
     )
 
 
-# Below this many replicas the one-game core in a loop is faster (8x8, 4 agents: the batched core's rate
-# is 0.4x the loop's at 1 replica, 1.0x at 4, 1.8x at 8 in the cooperative mode, 0.3x / 0.8x / 1.2x
-# deliberative; scripts/bench_batched_core.py, 2026-12-02). Either gives the same numbers.
-BATCHED_CORE_MIN_REPLICAS = 6
+# Below this many replicas the one-game core in a loop is faster (8x8, 4 agents, stepped as the loop
+# steps them: the batched core's rate is 0.9x the loop's at 1 replica, 1.6x at 4, 2.0x at 8 and 11.5x at
+# 100 in the cooperative mode, 0.6x / 1.2x / 1.6x / 5.5x deliberative; benchmark/game_batches.py,
+# 2026-12-02, median of 3). Either gives the same numbers.
+BATCHED_CORE_MIN_REPLICAS = 4
 
 
 def game_batch(games: Sequence[Game], rngs: Sequence[np.random.Generator]) -> GameBatch:
