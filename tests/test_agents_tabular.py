@@ -277,3 +277,38 @@ def test_exchange_replay_updates_each_table_on_its_team_mates_transitions(algori
     np.testing.assert_allclose(learner.agent_q_values(1, s1), [0, 0, 2.75, 0])
     assert len(learner.agent_tensors(0)["keys"]) == 0  # agent 0 learns only from team-mates (none were live)
     assert (learner.next_action == -1).all()  # SARSA's cached next action belongs to the agent's own steps
+
+
+def first_seen_ids(stream: list[tuple[np.ndarray, np.ndarray]], replica_of_row: np.ndarray) -> list[np.ndarray]:
+    """Each lookup's ids numbered by hand: per replica, observations in the order first met."""
+    seen: list[dict[bytes, int]] = [{} for _ in range(int(replica_of_row.max()) + 1)]
+    expected = []
+    for obs, rows in stream:
+        ids = []
+        for row, o in zip(rows, obs):
+            index = seen[replica_of_row[row]]
+            ids.append(index.setdefault(o.tobytes(), len(index)))
+        expected.append(np.array(ids))
+    return expected
+
+
+@pytest.mark.parametrize("collide", [False, True])
+def test_state_ids_number_each_replicas_observations_in_the_order_first_met(monkeypatch, collide):
+    """Ids are found by hash, checked against the stored observation: with every hash equal (all
+    observations collide) the ids are still the first-seen numbering."""
+    if collide:
+        monkeypatch.setattr(
+            "dqn_transfer.agents.tabular.observation_hashes", lambda bits, replicas: np.zeros(len(bits), np.uint64)
+        )
+    agents, replicas = 2, 3
+    table = TabularLearner(agents, [("cell", 3)], 2, AgentConfig(algorithm=Algorithm.sarsa), seed=list(range(replicas)))
+    rng = np.random.default_rng(0)
+    values = np.array([0.0, -0.0, 1.0, 0.5], dtype=np.float32)  # -0.0 and 0.0: different bits, different states
+    stream = []
+    for _ in range(300):  # lookups of all rows, of one replica's rows, of a few rows with repeats
+        rows = [np.arange(6), np.arange(2, 4), rng.integers(0, 6, size=4)][rng.integers(3)]
+        stream.append((values[rng.integers(0, 4, size=(len(rows), 3))], np.asarray(rows)))
+    got = [table.state_ids(obs, rows) for obs, rows in stream]
+    for g, e in zip(got, first_seen_ids(stream, table.row_replica)):
+        np.testing.assert_array_equal(g, e)
+    assert table.num_states.tolist() == [64, 64, 64]  # all 4^3 observations met, in every replica

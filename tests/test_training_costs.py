@@ -17,7 +17,7 @@ from omegaconf import OmegaConf
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from dqn_transfer.agents.numpy_dqn import NumpyMLP
-from dqn_transfer.config import AgentConfig, TrainConfig
+from dqn_transfer.config import AgentConfig, ReplicasConfig, TrainConfig
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.storage.run_dir import RunDir
 from dqn_transfer.training import trainer
@@ -124,6 +124,15 @@ def test_a_sweep_job_draws_no_pictures_unless_asked(tmp_path, hydra_mode):
     assert images_and_histograms(tmp_path / "sweep") == ([], [])
     train(plan_run(small_config(total_steps=20, eval_pictures=True)), tmp_path / "asked")
     assert images_and_histograms(tmp_path / "asked")[0] == ["eval/episode"]
+
+
+def test_a_batch_of_replicas_draws_the_first_replicas_pictures_unless_asked(tmp_path):
+    train(plan_run(small_config(total_steps=20, replicas=ReplicasConfig(seeds=3))), tmp_path / "default")
+    drawn = [images_and_histograms(tmp_path / "default" / f"seed_{s}")[0] for s in range(3)]
+    assert drawn == [["eval/episode"], [], []]
+    every = small_config(total_steps=20, replicas=ReplicasConfig(seeds=2), eval_pictures=True)
+    train(plan_run(every), tmp_path / "all")
+    assert [images_and_histograms(tmp_path / "all" / f"seed_{s}")[0] for s in range(2)] == [["eval/episode"]] * 2
 
 
 def test_the_study_experiments_draw_no_pictures():

@@ -46,12 +46,21 @@ from dqn_transfer.agents.base import (
     check_tensor_shape,
 )
 from dqn_transfer.agents.dqn_update import huber
-from dqn_transfer.agents.random_streams import stream_keys, uniforms
+from dqn_transfer.agents.random_streams import mix64, stream_keys, uniforms
 from dqn_transfer.agents.replicas import team_view
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm
 
 _NO_ACTION = -1  # empty slot of the SARSA next-action cache
+
+
+def observation_hashes(bits: np.ndarray, replicas: np.ndarray) -> np.ndarray:
+    """``uint64 [N]``: a hash of each row's (replica, observation bits ``[N, D]`` uint32) pair. Each
+    value is mixed with its column first, so the sum over columns tells reordered values apart."""
+    columns = np.arange(bits.shape[1], dtype=np.uint64) << np.uint64(32)
+    with np.errstate(over="ignore"):  # uint64 arithmetic wraps by design
+        values = mix64(bits.astype(np.uint64) | columns).sum(axis=1, dtype=np.uint64)
+        return mix64(values + mix64(np.asarray(replicas).astype(np.uint64)))
 
 
 # The purposes of the counter-based draws (one stream each).
@@ -155,6 +164,12 @@ class TabularLearner(Learner, KnowledgeExchange):
         self.row_agent = np.tile(np.arange(num_agents), replicas)
         # Each replica's observations by id (its agents share the index), and how many it has.
         self._ids: list[dict[bytes, int]] = [{} for _ in range(replicas)]
+        # In front of the dicts, for lookups of all rows at once: the known (replica, observation) pairs'
+        # hashes, sorted, and their ids. A hit is checked against the stored observation, so a hash
+        # collision only sends that observation to its dict.
+        self._hashes = np.zeros(0, dtype=np.uint64)
+        self._hashed_ids = np.zeros(0, dtype=np.int64)
+        self._new_hashes: list[tuple[int, int]] = []  # (hash, id) of the states added in this lookup
         self.state_keys = np.zeros((replicas, _INITIAL_STATES, self.obs_dim), dtype=np.float32)
         self.num_states = np.zeros(replicas, dtype=np.int64)
         self._last_obs = np.zeros((rows, self.obs_dim), dtype=np.uint32)  # each row's last observation's bits
@@ -198,30 +213,54 @@ class TabularLearner(Learner, KnowledgeExchange):
         ids = self._last_ids[rows]
         changed = np.flatnonzero(~same)
         if changed.size:
-            replicas = self.row_replica[rows[changed]].tolist()
-            keys = [row.tobytes() for row in obs[changed]]
-            found = [self._ids[r].get(key, -1) for r, key in zip(replicas, keys)]
-            for n, state in enumerate(found):
-                if state < 0:
-                    found[n] = self._new_state(replicas[n], keys[n], obs[changed[n]])
+            replicas = self.row_replica[rows[changed]]
+            hashes = observation_hashes(bits[changed], replicas)
+            found = self._known_ids(hashes, replicas, bits[changed])
+            for n in np.flatnonzero(found < 0).tolist():  # unseen, or a hash collision: the dict decides
+                r, key = int(replicas[n]), obs[changed[n]].tobytes()
+                known = self._ids[r].get(key)
+                found[n] = self._new_state(r, key, obs[changed[n]], int(hashes[n])) if known is None else known
+            self._index_new_hashes()
             ids[changed] = found
             self._last_obs[rows[changed]] = bits[changed]
             self._last_ids[rows[changed]] = ids[changed]
         return ids
 
-    def _new_state(self, r: int, key: bytes, obs: np.ndarray) -> int:
-        known = self._ids[r].get(key)  # the same observation twice in one call
-        if known is not None:
-            return known
+    def _known_ids(self, hashes: np.ndarray, replicas: np.ndarray, bits: np.ndarray) -> np.ndarray:
+        """The ids the hash index gives (``-1``: no hit, or a hit on another observation)."""
+        at = np.minimum(np.searchsorted(self._hashes, hashes), max(len(self._hashes) - 1, 0))
+        hit = np.flatnonzero(self._hashes[at] == hashes) if len(self._hashes) else np.zeros(0, dtype=np.int64)
+        found = np.full(len(hashes), -1, dtype=np.int64)
+        candidates = self._hashed_ids[at[hit]]
+        stored = self.state_keys[replicas[hit], candidates].view(np.uint32)
+        found[hit] = np.where((stored == bits[hit]).all(axis=1), candidates, -1)
+        return found
+
+    def _new_state(self, r: int, key: bytes, obs: np.ndarray, hashed: int) -> int:
         state = int(self.num_states[r])
         if state == self.q.shape[1]:
             self._grow()
         self._ids[r][key] = state
+        self._new_hashes.append((hashed, state))
         self.state_keys[r, state] = obs
         self.num_states[r] += 1
         for row in self._rows(r).tolist():
             self.q[row, state] = self._start_values(row, obs)
         return state
+
+    def _index_new_hashes(self) -> None:
+        """Add the states of this lookup to the hash index, one insertion for all. A hash already
+        there (a collision) keeps its first state; the other observation is found in its dict."""
+        if not self._new_hashes:
+            return
+        hashes = np.array([hashed for hashed, _ in self._new_hashes], dtype=np.uint64)
+        states = np.array([state for _, state in self._new_hashes], dtype=np.int64)
+        self._new_hashes.clear()
+        hashes, first = np.unique(hashes, return_index=True)
+        fresh = ~np.isin(hashes, self._hashes)
+        at = np.searchsorted(self._hashes, hashes[fresh])
+        self._hashes = np.insert(self._hashes, at, hashes[fresh])
+        self._hashed_ids = np.insert(self._hashed_ids, at, states[first][fresh])
 
     def _grow(self) -> None:
         """Double every replica's room for states."""

@@ -179,7 +179,8 @@ class TrainConfig:
     eval_pictures: Optional[bool] = documented(
         None,
         "TensorBoard's picture of each evaluation's first episode and the agents' Q-value histograms there "
-        "(the metrics are the same without); null: in a lone run, not in a multirun sweep (-m)",
+        "(the metrics are the same without); null: the first replica's (a lone run's), not in a multirun sweep (-m); "
+        "true: every replica's",
     )
     objective: Objective = documented(
         Objective.final,

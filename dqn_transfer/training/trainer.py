@@ -108,7 +108,10 @@ class Trainer:
         )
         check_capabilities(config, self.learner, warm_start=config.transfer.enabled and not self.source_task)
         lone = len(plan.replicas) == 1
-        pictures = config.eval_pictures if config.eval_pictures is not None else not in_multirun()
+        # null: someone watches a run started by hand, one replica of it; a sweep's jobs are compared by curves
+        pictures = [r == 0 and not in_multirun() for r in range(len(plan.replicas))]
+        if config.eval_pictures is not None:
+            pictures = [config.eval_pictures] * len(plan.replicas)
         per_replica = list(sources) if sources is not None else [None] * len(plan.replicas)
         self.episodes = EpisodeSums(len(games), first.num_agents, first.reward_mode)  # every replica's episode
         self.replicas = [
@@ -120,7 +123,7 @@ class Trainer:
                 cast(Learner, self.learner.replica(r)),
                 source,
                 self.episodes,
-                pictures=pictures,
+                pictures=pictures[r],
             )
             for r, (replica, game, source) in enumerate(zip(plan.replicas, games, per_replica))
         ]
