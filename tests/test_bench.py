@@ -14,6 +14,7 @@ import functools
 import json
 import statistics
 import sys
+from pathlib import Path
 
 import gymnasium
 import numpy as np
@@ -24,7 +25,7 @@ from omegaconf import OmegaConf
 from torch import nn
 
 from dqn_transfer.agents import DQNLearner, make_learner
-from dqn_transfer.benchmark import game_batches, processes, suite, tables, whole_process
+from dqn_transfer.benchmark import game_batches, processes, suite, tables, tabular_batches, whole_process
 from dqn_transfer.benchmark.config import (
     BENCH_AGENT,
     BENCH_MAP,
@@ -38,6 +39,7 @@ from dqn_transfer.benchmark.config import (
     sb3_kwargs,
 )
 from dqn_transfer.benchmark.env_throughput import measure_env_throughput
+from dqn_transfer.benchmark.records import Load
 from dqn_transfer.benchmark.team_scaling import TeamRig
 from dqn_transfer.benchmark.training import greedy_check, measure_ours_training, measure_sb3_training
 from dqn_transfer.benchmark.update_cost import SB3UpdateRig, UpdateRig
@@ -482,7 +484,7 @@ def test_cli_prints_the_table_and_writes_the_document(tmp_path, monkeypatch, cap
 def test_cli_profile_and_sections_choose_what_is_measured(tmp_path, monkeypatch, capsys):
     calls = []
 
-    def fake_run(profile, seed, repeats, threads, sections):
+    def fake_run(profile, seed, repeats, threads, sections, baseline):
         calls.append((profile, list(sections)))
         return suite.run_benchmark(
             profile, seed, repeats, threads, sizes=TINY_SIZES, sections=["env"], progress=lambda what: None
@@ -545,3 +547,70 @@ def test_the_game_batch_rates_measure_both_ways_the_loop_can_step_its_games():
     rows = list(game_batches.measure([2, 6], ["deliberative"], repeats=1, seconds=0.01))
     assert [(row.mode, row.replicas) for row in rows] == [("deliberative", 2), ("deliberative", 6)]
     assert all(0 < row.looped < float("inf") and 0 < row.batched < float("inf") for row in rows)
+
+
+FAKE_TRAIN = """import json, os, sys
+with open(os.path.join(os.path.dirname(__file__), "calls.jsonl"), "a") as calls:
+    call = {"argv": sys.argv[1:], "pythonpath": os.environ.get("PYTHONPATH"), "cwd": os.getcwd()}
+    calls.write(json.dumps(call) + "\\n")
+"""
+
+
+def fake_checkout(tmp_path):
+    (tmp_path / "dqn_transfer").mkdir()
+    (tmp_path / "train.py").write_text(FAKE_TRAIN)
+    return tmp_path
+
+
+def test_a_baseline_checkout_runs_its_own_train_py_twice_on_the_study_command_line(tmp_path):
+    checkout = fake_checkout(tmp_path)
+    out = tabular_batches.measure_marginal(checkout, replicas=3, mode="deliberative", short=10, long=30, seed=5)
+    calls = [json.loads(line) for line in (checkout / "calls.jsonl").read_text().splitlines()]
+    assert [call["pythonpath"] for call in calls] == [str(checkout)] * 2  # its own package, not ours
+    assert [call["cwd"] for call in calls] == [str(checkout)] * 2
+    for call, steps in zip(calls, (10, 30)):
+        argv = call["argv"]
+        assert {"agent=sarsa", "env=study/m4", "mode=deliberative", "replicas.seeds=3", "seed=5"} <= set(argv)
+        assert f"total_steps={steps}" in argv and f"checkpoint_every={steps}" in argv
+    assert out["seconds_per_1k_steps"] == pytest.approx((out["long_seconds"] - out["short_seconds"]) * 1000 / 20)
+
+
+def test_our_side_of_the_tabular_section_is_a_command_line_the_cli_accepts():
+    command = tabular_batches.tabular_command(None, Path("/tmp/x"), 60, 4, "cooperative", 0)
+    assert command[1:3] == ["-m", "dqn_transfer.cli.train"]
+    check_overrides(command[3:])  # every override names a key of the schema
+
+
+def test_the_tabular_section_pairs_each_repeat_and_tables_it(tmp_path, monkeypatch):
+    seconds = {None: iter([2.0, 3.0, 1.0, 1.5]), "baseline": iter([10.0, 9.0, 8.0, 9.0])}
+
+    def fake_marginal(checkout, replicas, mode, short, long, seed):
+        value = next(seconds[None if checkout is None else "baseline"])
+        return {
+            "seconds_per_1k_steps": value,
+            "cpu_seconds_per_1k_steps": value / 2,
+            "agent_steps_per_s": 1000 * replicas * 4 / value,
+            "max_rss_mb": 100.0,
+        }
+
+    monkeypatch.setattr(suite, "measure_marginal", fake_marginal)
+    sizes = dataclasses.replace(TINY_SIZES, tabular_counts=(1, 2), tabular_modes=("cooperative",))
+    section = suite.tabular_section(sizes, seed=0, repeats=2, baseline=fake_checkout(tmp_path), progress=print)
+    # rows in order R = 1, 2; per row, repeat 0 then 1; ratios baseline / ours by repeat, then the median
+    assert [row.speedup for row in section.rows] == [
+        statistics.median([10 / 2, 9 / 3]),
+        statistics.median([8 / 1, 9 / 1.5]),
+    ]
+    assert [row.ours.seconds_per_1k_steps for row in section.rows] == [2.5, 1.25]
+    machine = suite.machine_info([1], Load(None, None))
+    document = suite.Benchmark(settings=None, machine=machine, method="", tabular=section)  # type: ignore[arg-type]
+    table = "\n".join(tables._tabular_table(document))
+    assert "## 7." in table and "| cooperative | 2 | 1.25 |" in table and "7.00x" in table
+
+
+def test_a_bad_baseline_is_one_error_before_measuring(tmp_path, capsys):
+    out = str(tmp_path / "bench.json")
+    assert cli.main(["--only", "tabular", "--baseline", str(tmp_path), "--out", out]) == 1
+    assert "not a checkout of dqn_transfer" in capsys.readouterr().err
+    assert cli.main(["--only", "env", "--baseline", str(fake_checkout(tmp_path)), "--out", out]) == 1
+    assert "--only tabular" in capsys.readouterr().err

@@ -10,7 +10,16 @@ from omegaconf import OmegaConf
 from omegaconf.errors import ValidationError
 
 from dqn_transfer.agents import make_learner
-from dqn_transfer.config import CONFIG_DIR, AgentConfig, ConfigError, TrainConfig, register_configs, to_plain, validate
+from dqn_transfer.config import (
+    CONFIG_DIR,
+    AgentConfig,
+    ConfigError,
+    TrainConfig,
+    plain_yaml,
+    register_configs,
+    to_plain,
+    validate,
+)
 from dqn_transfer.enums import Algorithm, Fill, Mode
 
 CONF_DIR = str(CONFIG_DIR)
@@ -203,3 +212,4 @@ def test_plain_configs_and_their_yaml_are_omegaconfs(overrides):
         assert to_plain(part) == expected
         assert json.dumps(to_plain(part)) == json.dumps(expected)  # types too: 1.0 stays a float
     assert OmegaConf.to_yaml(to_plain(config)) == OmegaConf.to_yaml(OmegaConf.structured(config))
+    assert plain_yaml(to_plain(config)) == OmegaConf.to_yaml(OmegaConf.structured(config))

@@ -1,6 +1,6 @@
 """The benchmark: our code against the references it replaces, side by side in one run on one machine.
 
-Six measurements, driven by :mod:`dqn_transfer.benchmark.suite` (the command line is
+Seven measurements, driven by :mod:`dqn_transfer.benchmark.suite` (the command line is
 ``dqn-transfer-bench`` / ``python -m dqn_transfer.cli.bench``):
 
 1. :mod:`~dqn_transfer.benchmark.env_throughput`: joint steps/s of random play through the PettingZoo
@@ -16,6 +16,8 @@ Six measurements, driven by :mod:`dqn_transfer.benchmark.suite` (the command lin
    bare-PyTorch loop (the two reference programs are :mod:`~dqn_transfer.benchmark.processes`).
 6. :mod:`~dqn_transfer.benchmark.whole_process` (``replicas``): sweep throughput, one process of R
    replicas of a 4-agent team against SB3 one learner per process, one process per core.
+7. :mod:`~dqn_transfer.benchmark.tabular_batches` (``tabular``): the study's tabular jobs, R replicas
+   of a SARSA team, marginal cost per step, this checkout against an earlier one (``--baseline DIR``).
 
 The matched hyperparameters and maps are in :mod:`~dqn_transfer.benchmark.config`; the method (interleaved
 repeats, paired ratios, two clocks, threads) is described in :mod:`~dqn_transfer.benchmark.suite`.

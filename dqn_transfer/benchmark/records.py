@@ -169,6 +169,43 @@ class ReplicasSection:
 
 
 @dataclass(frozen=True)
+class MarginalFigures:
+    """Section 7, one checkout's pairs of processes: medians over repeats of the marginal cost."""
+
+    seconds_per_1k_steps: float
+    cpu_seconds_per_1k_steps: float
+    agent_steps_per_s: float
+    max_rss_mb: float
+
+
+@dataclass(frozen=True)
+class TabularRow:
+    """Section 7, one mode and replica count R: one process of R replicas of the SARSA team."""
+
+    mode: str
+    replicas: int
+    ours: MarginalFigures
+    baseline: MarginalFigures | None  # None: no --baseline
+    speedup: float | None  # the baseline's wall seconds per step over ours', paired by repeat (> 1: ours faster)
+    speedup_cpu: float | None
+    raw: dict[str, Raw]  # "ours" and "baseline"
+
+
+@dataclass(frozen=True)
+class TabularSection:
+    """Section 7: the study's tabular jobs, this checkout against an earlier one (``--baseline``)."""
+
+    env: str
+    agents: int
+    steps: list[int]  # total_steps of the short and the long process
+    eval_every: int
+    baseline: str | None  # the baseline checkout's directory
+    baseline_commit: str | None  # its git commit, where git knows it
+    rows: list[TabularRow]
+    load: Load
+
+
+@dataclass(frozen=True)
 class Machine:
     cpu_model: str
     cpu_count: int | None
@@ -213,6 +250,7 @@ class Benchmark:
     update: UpdateSection | None = None
     lone: LoneSection | None = None
     replicas: ReplicasSection | None = None
+    tabular: TabularSection | None = None
 
     def to_json(self) -> dict[str, Any]:
         """The document: plain JSON types throughout (enums by value, tuples as lists), unmeasured sections left out."""

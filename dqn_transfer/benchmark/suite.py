@@ -1,4 +1,4 @@
-"""The driver: the six measurements, interleaved repeats, paired ratios, summarised as typed records.
+"""The driver: the seven measurements, interleaved repeats, paired ratios, summarised as typed records.
 
 Threads. Sections 1-4 run at ``threads`` torch threads (the CLI's default is 1: for networks this
 small, intra-op parallelism costs more in synchronisation than it gains, and on a busy machine a second
@@ -27,11 +27,13 @@ import dataclasses
 import os
 import platform
 import statistics
+import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -47,16 +49,20 @@ from dqn_transfer.benchmark.records import (
     LoneContender,
     LoneSection,
     Machine,
+    MarginalFigures,
     ProcessFigures,
     ReplicaRow,
     ReplicasSection,
     Settings,
     StepCost,
+    TabularRow,
+    TabularSection,
     TeamRow,
     TrainingRow,
     UpdateSection,
     UpdateTiming,
 )
+from dqn_transfer.benchmark.tabular_batches import TABULAR_AGENTS, TABULAR_ENV, TABULAR_EVAL_EVERY, measure_marginal
 from dqn_transfer.benchmark.team_scaling import TeamRig
 from dqn_transfer.benchmark.training import measure_ours_training, measure_sb3_training
 from dqn_transfer.benchmark.update_cost import THREAD_NAMES, UPDATE_NAMES, SB3UpdateRig, UpdateRig
@@ -70,7 +76,7 @@ from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Engine
 from dqn_transfer.timing import cpu_model, cpus_available
 
-SECTIONS = ("env", "training", "team", "update", "lone", "replicas")
+SECTIONS = ("env", "training", "team", "update", "lone", "replicas", "tabular")
 NEEDS_SB3 = ("training", "update", "lone", "replicas")
 ENV_AGENTS = (1, 4, 8)
 TEAM_SIZES = (1, 2, 4, 8)
@@ -93,6 +99,9 @@ class Sizes:
     replica_steps: int = 3_000  # section 6: joint env steps per process
     replica_counts: tuple[int, ...] = (1, 4, 10, 16, 64)  # section 6: replicas.seeds of our processes
     replica_learning_starts: int = 500  # section 6: env steps before the first update, ours and SB3's
+    tabular_steps: tuple[int, int] = (1_000, 4_000)  # section 7: total_steps of the short and long process
+    tabular_counts: tuple[int, ...] = (1, 10, 100)  # section 7: replicas.seeds
+    tabular_modes: tuple[str, ...] = ("cooperative", "deliberative")  # section 7
 
 
 PROFILES = {
@@ -123,6 +132,9 @@ PROFILES = {
         replica_steps=300,
         replica_counts=(1, 2),
         replica_learning_starts=100,
+        tabular_steps=(20, 60),
+        tabular_counts=(1, 4),
+        tabular_modes=("cooperative",),
     ),
 }
 
@@ -202,7 +214,7 @@ def _series(runs: Sequence[dict[str, Any]], key: str) -> list[float]:
     return [run[key] for run in runs]
 
 
-# ----------------------------------------------------------------------------- the six sections
+# ----------------------------------------------------------------------------- the sections
 def env_section(sizes: Sizes, seed: int, repeats: int, progress: ProgressFn) -> list[EnvRow]:
     raw: dict[int, list[dict[str, Any]]] = {k: [] for k in ENV_AGENTS}
     for r in range(repeats):
@@ -434,6 +446,73 @@ def replicas_section(sizes: Sizes, seed: int, repeats: int, cores: int, progress
     )
 
 
+def _marginal_figures(runs: Sequence[dict[str, Any]]) -> MarginalFigures:
+    return MarginalFigures(
+        median(_series(runs, "seconds_per_1k_steps")),
+        median(_series(runs, "cpu_seconds_per_1k_steps")),
+        median(_series(runs, "agent_steps_per_s")),
+        median(_series(runs, "max_rss_mb")),
+    )
+
+
+def _git_commit(checkout: Path) -> str | None:
+    try:
+        done = subprocess.run(["git", "-C", str(checkout), "rev-parse", "HEAD"], capture_output=True, text=True)
+    except OSError:  # no git
+        return None
+    return done.stdout.strip() if done.returncode == 0 else None
+
+
+def tabular_section(
+    sizes: Sizes, seed: int, repeats: int, baseline: Path | None, progress: ProgressFn
+) -> TabularSection:
+    """Section 7: per mode and R, the marginal cost of this checkout's process of R SARSA replicas and,
+    with ``baseline``, of that checkout's, the two alternating within each repeat."""
+    loadavg_start = _loadavg()
+    checkouts = {"ours": None, **({"baseline": baseline} if baseline is not None else {})}
+    short, long = sizes.tabular_steps
+    rows = []
+    for mode in sizes.tabular_modes:
+        for count in sizes.tabular_counts:
+            raw: dict[str, list[dict[str, Any]]] = {who: [] for who in checkouts}
+            for r in range(repeats):
+                for who in alternate(list(checkouts), r):
+                    out = measure_marginal(checkouts[who], count, mode, short, long, seed + r)
+                    raw[who].append(out)
+                    progress(
+                        f"tabular, {who}, {mode}, {count} replica(s), repeat {r + 1}/{repeats}: "
+                        f"{out['seconds_per_1k_steps']:.2f} s per 1,000 steps"
+                    )
+            paired = baseline is not None
+            rows.append(
+                TabularRow(
+                    mode=mode,
+                    replicas=count,
+                    ours=_marginal_figures(raw["ours"]),
+                    baseline=_marginal_figures(raw["baseline"]) if paired else None,
+                    speedup=paired_ratio(*(_series(raw[w], "seconds_per_1k_steps") for w in ("baseline", "ours")))
+                    if paired
+                    else None,
+                    speedup_cpu=paired_ratio(
+                        *(_series(raw[w], "cpu_seconds_per_1k_steps") for w in ("baseline", "ours"))
+                    )
+                    if paired
+                    else None,
+                    raw=raw,
+                )
+            )
+    return TabularSection(
+        env=TABULAR_ENV,
+        agents=TABULAR_AGENTS,
+        steps=[short, long],
+        eval_every=TABULAR_EVAL_EVERY,
+        baseline=None if baseline is None else str(baseline),
+        baseline_commit=None if baseline is None else _git_commit(baseline),
+        rows=rows,
+        load=Load(loadavg_start, _loadavg()),
+    )
+
+
 # ----------------------------------------------------------------------------- the document
 def run_benchmark(
     profile: str,
@@ -445,11 +524,13 @@ def run_benchmark(
     agent: AgentConfig = BENCH_AGENT,
     sections: Sequence[str] = SECTIONS,
     progress: ProgressFn | None = None,
+    baseline: Path | None = None,
 ) -> Benchmark:
-    """The measurements of ``sections`` (all six by default).
+    """The measurements of ``sections`` (all seven by default).
 
     ``sizes`` defaults to ``PROFILES[profile]``; ``train_threads`` (torch threads of section 2) to
-    ``[threads]``; ``progress`` to numbered lines on stderr.
+    ``[threads]``; ``progress`` to numbered lines on stderr; ``baseline``: the earlier checkout section 7
+    runs beside this one (None: this one alone).
     """
     sizes = PROFILES[profile] if sizes is None else sizes
     train_threads = [threads] if train_threads is None else list(train_threads)
@@ -467,6 +548,7 @@ def run_benchmark(
             "update": 2 + repeats * (len(UPDATE_NAMES) + (len(THREAD_NAMES) if with_default_threads else 0)),
             "lone": repeats * len(LONE_CONTENDERS),
             "replicas": repeats * (1 + len(REPLICA_ENGINES) * len(sizes.replica_counts)),
+            "tabular": repeats * len(sizes.tabular_modes) * len(sizes.tabular_counts) * (1 if baseline is None else 2),
         }
         progress = Progress(sum(steps[section] for section in sections))
     loadavg_start = _loadavg()
@@ -484,6 +566,7 @@ def run_benchmark(
     )
     lone = lone_section(sizes, seed, repeats, progress) if "lone" in sections else None
     replicas = replicas_section(sizes, seed, repeats, cpus_available(), progress) if "replicas" in sections else None
+    tabular = tabular_section(sizes, seed, repeats, baseline, progress) if "tabular" in sections else None
     settings = Settings(
         profile=profile,
         seed=seed,
@@ -498,4 +581,4 @@ def run_benchmark(
         source_map=SOURCE_MAP,
     )
     machine = machine_info(sorted({threads, *train_threads}), Load(loadavg_start, _loadavg()))
-    return Benchmark(settings, machine, METHOD, env, training, team, update, lone, replicas)
+    return Benchmark(settings, machine, METHOD, env, training, team, update, lone, replicas, tabular)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
-from dqn_transfer.benchmark.records import Benchmark, Load, ProcessFigures
+from dqn_transfer.benchmark.records import Benchmark, Load, ProcessFigures, TabularRow
 from dqn_transfer.config import AgentConfig
 
 
@@ -294,6 +294,51 @@ def _replicas_table(res: Benchmark) -> list[str]:
     )
 
 
+def _tabular_table(res: Benchmark) -> list[str]:
+    tab = res.tabular
+    assert tab is not None
+    short, long = tab.steps
+    paired = tab.baseline is not None
+    against = (
+        f" Baseline: the checkout `{tab.baseline}`"
+        + (f" (commit {tab.baseline_commit[:12]})" if tab.baseline_commit else "")
+        + ", its own `train.py` and package; baseline / ours: its seconds per step over ours', paired by "
+        "repeat (> 1: ours is faster)."
+        if paired
+        else " No baseline was given (`--baseline DIR` runs an earlier checkout beside this one)."
+    )
+    columns = ["mode", "R", "ours s / 1k steps", "ours CPU s / 1k steps", "ours agent-steps/s", "ours peak RSS MB"]
+    if paired:
+        columns += ["baseline s / 1k steps", "baseline agent-steps/s", "baseline / ours (wall)", "(CPU)"]
+
+    def cells(row: TabularRow) -> list[str]:
+        ours = [
+            row.mode,
+            str(row.replicas),
+            _fmt(row.ours.seconds_per_1k_steps, 2),
+            _fmt(row.ours.cpu_seconds_per_1k_steps, 2),
+            _fmt(row.ours.agent_steps_per_s),
+            _fmt(row.ours.max_rss_mb),
+        ]
+        if row.baseline is None or row.speedup is None or row.speedup_cpu is None:
+            return ours
+        baseline = [_fmt(row.baseline.seconds_per_1k_steps, 2), _fmt(row.baseline.agent_steps_per_s)]
+        return ours + baseline + [_x(row.speedup), _x(row.speedup_cpu)]
+
+    return _part(
+        f"## 7. The study's tabular jobs: R replicas of a {tab.agents}-agent SARSA team in one process, "
+        "marginal cost per step",
+        f"{_machine_line(res, tab.load)} Settings: `python train.py agent=sarsa env={tab.env} mode=M "
+        f"replicas.seeds=R total_steps=T eval_every={tab.eval_every} checkpoint_every=T progress=false`; the "
+        f"marginal cost is the wall (CPU) time of T = {long:,} minus that of T = {short:,}, per 1,000 joint "
+        f"steps (start-up, config writing and the final checkpoint cancel); agent-steps/s = "
+        f"{long - short:,} x R x {tab.agents} / that difference.{against}",
+        columns,
+        (cells(row) for row in tab.rows),
+        label_column=True,
+    )
+
+
 # (the section measured?, its part of the table), in table order
 TABLES: dict[str, tuple[Callable[[Benchmark], object], Callable[[Benchmark], list[str]]]] = {
     "env": (lambda r: r.env, _env_table),
@@ -302,6 +347,7 @@ TABLES: dict[str, tuple[Callable[[Benchmark], object], Callable[[Benchmark], lis
     "update": (lambda r: r.update, _update_table),
     "lone": (lambda r: r.lone, _lone_table),
     "replicas": (lambda r: r.replicas, _replicas_table),
+    "tabular": (lambda r: r.tabular, _tabular_table),
 }
 
 

@@ -129,7 +129,9 @@ def reference_command(
     ]
 
 
-def run_together(commands: Sequence[Sequence[str]]) -> dict[str, Any]:
+def run_together(
+    commands: Sequence[Sequence[str]], cwd: Path | None = None, env: dict[str, str] | None = None
+) -> dict[str, Any]:
     """Start every command at once and wait for all of them.
 
     Returns ``seconds`` (first spawn to last exit), ``cpu_seconds`` (summed over the processes) and
@@ -138,6 +140,8 @@ def run_together(commands: Sequence[Sequence[str]]) -> dict[str, Any]:
     non-zero. If this is interrupted, it kills and reaps the processes it started.
 
     :param commands: the argv of each process
+    :param cwd: their working directory (None: this one's)
+    :param env: their environment (None: this one's)
     """
     n = len(commands)
     children: list[subprocess.Popen] = []
@@ -156,7 +160,9 @@ def run_together(commands: Sequence[Sequence[str]]) -> dict[str, Any]:
                 with open(out, "wb") as stdout, open(err, "wb") as stderr:
                     starts.append(time.perf_counter())
                     children.append(
-                        subprocess.Popen(list(command), stdin=subprocess.DEVNULL, stdout=stdout, stderr=stderr)
+                        subprocess.Popen(
+                            list(command), stdin=subprocess.DEVNULL, stdout=stdout, stderr=stderr, cwd=cwd, env=env
+                        )
                     )
             waiters = [threading.Thread(target=reap, args=(i,), daemon=True) for i in range(n)]
             for waiter in waiters:

@@ -1,15 +1,16 @@
 """``dqn-transfer-bench`` / ``python -m dqn_transfer.cli.bench``: the benchmark table, and its JSON document.
 
-    dqn-transfer-bench [--profile full|quick] [--sections env,training,team,update,lone,replicas]
-                       [--out outputs/bench.json] [--seed 0] [--repeats 3] [--threads 1]
+    dqn-transfer-bench [--profile full|quick] [--sections env,training,team,update,lone,replicas,tabular]
+                       [--out outputs/bench.json] [--seed 0] [--repeats 3] [--threads 1] [--baseline DIR]
 
 (``--quick`` = ``--profile quick``; ``--only SECTION``, repeatable, adds to ``--sections``.) Measures our
 environment, trainer and learner against PettingZoo's API, Stable-Baselines3 and bare PyTorch, in
-process and as whole processes (:mod:`dqn_transfer.benchmark`, whose suite module explains the
-method). The table goes to
+process and as whole processes, and the study's tabular jobs against an earlier checkout
+(:mod:`dqn_transfer.benchmark`, whose suite module explains the method). The table goes to
 stdout, progress to stderr, and everything (the raw per-repeat figures and the machine) to ``--out``,
 written atomically. What would fail after minutes of measuring (SB3 missing, ``--out`` not writable)
-is checked first: one ``error:`` line and exit code 1.
+or a ``--baseline`` that is not a checkout of the project, is checked first: one ``error:`` line and exit
+code 1.
 """
 
 from __future__ import annotations
@@ -50,7 +51,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="dqn-transfer-bench",
         description="Benchmark table: env throughput, DQN training vs SB3, team size, gradient-update overhead, "
-        "whole processes (one learner vs SB3 and bare PyTorch; replica sweeps vs SB3).",
+        "whole processes (one learner vs SB3 and bare PyTorch; replica sweeps vs SB3), the study's tabular jobs "
+        "against an earlier checkout.",
     )
     parser.add_argument(
         "--profile",
@@ -90,13 +92,25 @@ def build_parser() -> argparse.ArgumentParser:
         default=[],
         help="measure this section too (repeatable; the same as listing it in --sections)",
     )
+    parser.add_argument(
+        "--baseline",
+        type=Path,
+        help="section tabular: a checkout of an earlier commit of this project (e.g. `git worktree add "
+        "/tmp/v0 COMMIT`), whose train.py runs beside ours on the same command line",
+    )
     return parser
 
 
-def check_ready(out: Path, sections: list[str]) -> str | None:
-    """What would make the run fail at its end, as a message (None: ready): SB3 absent, --out unwritable."""
+def check_ready(out: Path, sections: list[str], baseline: Path | None = None) -> str | None:
+    """What would make the run fail, as a message (None: ready): SB3 absent, --out unwritable, a
+    --baseline that is no checkout of the project or that no chosen section uses."""
     if any(section in NEEDS_SB3 for section in sections) and find_spec("stable_baselines3") is None:
         return "the benchmark compares against Stable-Baselines3: pip install -e '.[dev]'"
+    if baseline is not None:
+        if "tabular" not in sections:
+            return "--baseline is run by the tabular section only: add --only tabular"
+        if not (baseline / "train.py").is_file() or not (baseline / "dqn_transfer").is_dir():
+            return f"--baseline {baseline}: not a checkout of dqn_transfer (no train.py and dqn_transfer/ there)"
     if out.is_dir():
         return f"--out {out} is a directory; give a file path such as {out / 'bench.json'}"
     try:
@@ -115,12 +129,13 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     chosen = {*args.sections, *args.only}
     sections = [s for s in SECTIONS if s in chosen] if chosen else list(SECTIONS)
-    problem = check_ready(args.out, sections)
+    baseline = None if args.baseline is None else args.baseline.resolve()
+    problem = check_ready(args.out, sections, baseline)
     if problem is not None:
         print(f"error: {problem}", file=sys.stderr)
         return 1
     start = time.perf_counter()
-    results = run_benchmark(args.profile, args.seed, args.repeats, args.threads, sections=sections)
+    results = run_benchmark(args.profile, args.seed, args.repeats, args.threads, sections=sections, baseline=baseline)
     total_seconds = time.perf_counter() - start
     table = render_markdown(results)
     print(table)

@@ -15,6 +15,7 @@ from dqn_transfer.config.schema import (
     StageConfig,
     TrainConfig,
     TransferConfig,
+    plain_yaml,
     register_configs,
     replica_configs,
     to_plain,
@@ -34,6 +35,7 @@ __all__ = [
     "TransferConfig",
     "register_configs",
     "replica_configs",
+    "plain_yaml",
     "to_plain",
     "validate",
 ]

@@ -34,12 +34,11 @@ from typing import Any, cast
 import numpy as np
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
-from omegaconf import OmegaConf
 from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
 from dqn_transfer.agents import Learner, Transition, UpdateStats, make_replicas
-from dqn_transfer.config import ConfigError, to_plain
+from dqn_transfer.config import ConfigError, plain_yaml, to_plain
 from dqn_transfer.enums import Algorithm, Exchange, Logger
 from dqn_transfer.envs.game_batch import GameBatch, game_batch
 from dqn_transfer.evaluation.batched_rollout import evaluate_replicas
@@ -175,7 +174,7 @@ class Trainer:
             return
         for rep in self.replicas:
             rep.run_dir.hydra_dir.mkdir(parents=True, exist_ok=True)
-            atomic_write(rep.run_dir.config, OmegaConf.to_yaml(rep.plain_config).encode())
+            atomic_write(rep.run_dir.config, plain_yaml(rep.plain_config).encode())
         # With the batch's own config: what resume=true on the batch directory continues with.
         index = {"replicas": [rep.run_dir.path.name for rep in self.replicas], "config": to_plain(self.config)}
         atomic_write(self.run_dir.replicas_index, (json.dumps(index, indent=2) + "\n").encode())
