@@ -31,8 +31,8 @@ sigma_run^2 / (M S)`` (nearly right when the maps differ much more than the runs
 map-level variance at all, ``sqrt(2 - 1/S)`` times wider than the run-level bootstrap). And with few maps it
 is too narrow, as every percentile bootstrap over few units is: its variance carries the factor ``(M - 1) /
 M``, and its quantiles are normal ones where Student's would hold. With 5 maps the second error wins (a
-nominal 95% interval is a 88-90% one in the study's pilot); :func:`power` at no effect tells by how much for
-a design.
+nominal 95% interval is an 87-93% one at the study's pilot variances); :func:`power` at no effect tells by
+how much for a design.
 """
 
 from __future__ import annotations
