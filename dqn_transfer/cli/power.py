@@ -1,0 +1,43 @@
+"""The second edition's power analysis, with the first edition's runs as the pilot.
+
+    python -m dqn_transfer.cli.power --pilot results/data/hypothesis.jsonl [--metric final_score|score]
+
+Prints a Markdown table (:func:`dqn_transfer.experiments.power.format_power_rows`): for each primary
+comparison, the pilot's paired difference with maps resampled, its map-level and run-level standard
+deviations, and the maps needed for 80% power.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from dqn_transfer.experiments.power import METRICS, format_power_rows, power_rows
+from dqn_transfer.experiments.raw_data import DataError, read_data
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Print the power table; exit 2 with one ``error:`` line on a pilot that cannot be read or used."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument(
+        "--pilot", required=True, type=Path, metavar="JSONL", help="raw data of the hypothesis experiment"
+    )
+    parser.add_argument(
+        "--metric", choices=sorted(METRICS), default="final_score", help="the run value compared (default: final_score)"
+    )
+    parser.add_argument("--seed", type=int, default=0, help="bootstrap and simulation RNG seed")
+    args = parser.parse_args(argv)
+    try:
+        rows = power_rows(read_data(args.pilot), METRICS[args.metric], np.random.default_rng(args.seed))
+    except (DataError, ValueError) as e:  # ValueError: too few maps or runs to analyse
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    print(format_power_rows(rows, args.metric))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
