@@ -150,7 +150,7 @@ def oracle_policy(game: TreasureHuntGame) -> Policy:
 def greedy_policy(game: TreasureHuntGame) -> Policy:
     """The greedy team of ``game``: each agent from its own observation row alone (its cell, the chests
     it believes full, and in deliberative mode the coordinator's ``assignment``, followed when it names
-    a chest; an agent it names none falls back on its nearest chest believed full)."""
+    a chest; one without a chest there goes to its nearest chest believed full)."""
     walker = Walker(game.map)
     offsets = game.obs_offsets()
     position, treasures = (slice(*offsets[name]) for name in ("position", "treasures"))
@@ -181,12 +181,9 @@ def evaluate_bound(game: TreasureHuntGame, kind: Bound | str, episodes: int, see
     Episode ``e`` resets with ``evaluation_rng(seed, 0, e)``: the generator of a run of ``seed``'s first
     evaluation, which draws only the winners of chest ties (the bounds draw nothing else).
     """
-    make_policy = POLICIES[Bound(kind)]
-    results = []
-    for episode in range(episodes):
-        rng = evaluation_rng(seed, 0, episode)
-        results.append(play_episode(game, make_policy(game), rng))
-    return summarize(results)
+    policy = POLICIES[Bound(kind)](game)  # it keeps nothing between steps, so one serves every episode
+    rngs = (evaluation_rng(seed, 0, episode) for episode in range(episodes))
+    return summarize([play_episode(game, policy, rng) for rng in rngs])
 
 
 class _OneLineErrors(argparse.ArgumentParser):
