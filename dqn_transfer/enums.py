@@ -111,6 +111,13 @@ class SourceTask(Enum):
     team = "team"  # the run's own multi-agent game; the targets start from one of its members
 
 
+class Bound(Enum):
+    """A scripted reference team drawn beside the learners (``evaluation/bounds.py``, docs/bounds.md)."""
+
+    oracle = "oracle"  # the whole map known, agents matched to chests for the least total distance
+    greedy = "greedy"  # each agent to its nearest chest believed full, no coordination
+
+
 def values(enum: type[Enum]) -> tuple[str, ...]:
     """The accepted spellings of an enum, in declaration order (for checks and messages)."""
     return tuple(member.value for member in enum)

@@ -316,6 +316,10 @@ class TreasureHuntGame:
         """Named observation segments, in order; the same for every agent."""
         return list(self._layout)
 
+    def obs_offsets(self) -> dict[str, tuple[int, int]]:
+        """Each observation segment's ``(start, end)`` columns."""
+        return dict(self._offsets)
+
     def position_codes(self) -> np.ndarray:
         """The ``position`` segment of each cell, row-major: ``[n * n, width]`` float32."""
         if self.obs_encoding is ObsEncoding.onehot:

@@ -1,0 +1,233 @@
+"""Scripted reference teams drawn beside the learners, on the same maps and evaluation episodes.
+
+See docs/bounds.md. There are two:
+
+* :data:`~dqn_transfer.enums.Bound.oracle`, the upper reference: it sees the whole game (every agent's
+  cell, the true chests) and, at every step, matches the live agents to the full chests for the least
+  total shortest-path length (:func:`~dqn_transfer.envs.game.assign_agents`, the deliberative
+  coordinator's rule and tie-break); each agent takes one step along a shortest path to its chest.
+* :data:`~dqn_transfer.enums.Bound.greedy`, the floor: each agent, from its own observation alone,
+  takes one step towards the nearest chest it believes full (or, when its observation carries a
+  deliberative ``assignment``, towards that chest), with no coordination.
+
+Both are :data:`~dqn_transfer.evaluation.rollout.Policy` callables played by :func:`play_episode`
+through the game's own ``step``, so a bound's record is :func:`summarize`'s, key for key.
+
+Paths are the BFS shortest paths of :meth:`~dqn_transfer.envs.maps.GridMap.distances_from`, around
+obstacles and traps: an agent never walks into either while it has a chest to go to. A chest that no
+trap-free path reaches (impossible on a map that passed ``parse_layout``, whose rule 3 forbids it) is
+out of reach: the agent does not cross a trap for it, and stays instead. Of several shortest paths,
+an agent takes the first action in the order up, down, left, right. An agent without a chest stays:
+the game has no "stay" action, so it moves off the grid if it can (which leaves it in place), else onto
+a free cell or a chest believed empty, else into an obstacle (back to its start) or a full chest, and
+into a trap only if nothing else is left.
+
+    python -m dqn_transfer.evaluation.bounds --map-seed 0 --size 8 --num-treasures 4 --num-traps 4 \\
+        --num-agents 4 --mode cooperative --episodes 5
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import typing
+from dataclasses import fields
+from enum import Enum
+from typing import Any
+
+import numpy as np
+
+from dqn_transfer.documented import HELP
+from dqn_transfer.enums import Bound, values
+from dqn_transfer.envs.game import ACTION_MOVES, TreasureHuntGame, assign_agents, make_game
+from dqn_transfer.envs.maps import GridMap
+from dqn_transfer.envs.settings import ENV_KEYS, EnvConfig
+from dqn_transfer.evaluation.rollout import Policy, evaluation_rng, play_episode, summarize
+
+# How an agent without a chest ranks a move (lowest first): staying in place, a harmless cell, a move
+# that ends its wait anyway (an obstacle sends it to its start, a full chest ends it with the treasure),
+# a trap.
+_STAYS, _HARMLESS, _DISPLACES, _TRAPPED = range(4)
+
+
+class Walker:
+    """Moves on one map: a step along a shortest trap-free path to a chest, or staying put.
+
+    Cells are flat indices ``row * n + col``, as in the game's ``position`` segment.
+    """
+
+    def __init__(self, grid_map: GridMap) -> None:
+        n = grid_map.size
+        cells = n * n
+        # [k, cells] BFS steps from each cell to each chest around obstacles and traps; -1: no such path.
+        self.distances = np.stack([grid_map.distances_from(chest).reshape(-1) for chest in grid_map.chests])
+        rows, cols = np.divmod(np.arange(cells), n)
+        self.neighbours = np.empty((cells, len(ACTION_MOVES)), dtype=np.int64)  # a move off the grid stays
+        for action, (dr, dc) in enumerate(ACTION_MOVES):
+            r, c = rows + dr, cols + dc
+            inside = (r >= 0) & (r < n) & (c >= 0) & (c < n)
+            self.neighbours[:, action] = np.where(inside, r * n + c, np.arange(cells))
+        self.obstacle = np.zeros(cells, dtype=bool)
+        self.obstacle[[r * n + c for r, c in grid_map.obstacles]] = True
+        self.trap = np.zeros(cells, dtype=bool)
+        self.trap[[r * n + c for r, c in grid_map.traps]] = True
+        self.chest_at = np.full(cells, -1, dtype=np.int64)
+        self.chest_at[[r * n + c for r, c in grid_map.chests]] = np.arange(grid_map.num_treasures)
+
+    def toward(self, cell: int, chest: int) -> int | None:
+        """The first action one step nearer ``chest``; ``None`` when no trap-free path reaches it."""
+        distance = self.distances[chest]
+        if distance[cell] < 0:
+            return None
+        return next(a for a in range(len(ACTION_MOVES)) if distance[self.neighbours[cell, a]] == distance[cell] - 1)
+
+    def stay(self, cell: int, full: np.ndarray) -> int:
+        """The action that best keeps an agent where it is, ``full`` the chests it believes full."""
+        return min(range(len(ACTION_MOVES)), key=lambda action: self._stay_rank(cell, action, full))
+
+    def _stay_rank(self, cell: int, action: int, full: np.ndarray) -> int:
+        to = self.neighbours[cell, action]
+        if to == cell:
+            return _STAYS
+        if self.trap[to]:
+            return _TRAPPED
+        if self.obstacle[to] or (self.chest_at[to] >= 0 and full[self.chest_at[to]]):
+            return _DISPLACES
+        return _HARMLESS
+
+    def act(self, cell: int, chest: int, full: np.ndarray) -> int:
+        """A step towards ``chest`` (``-1``: none), else staying put."""
+        move = self.toward(cell, chest) if chest >= 0 else None
+        return self.stay(cell, full) if move is None else move
+
+    def nearest(self, cell: int, full: np.ndarray) -> int:
+        """The nearest reachable chest of those ``full`` marks (the lower number on equal distance), ``-1``: none."""
+        distance = self.distances[:, cell]
+        candidates = np.flatnonzero(full & (distance >= 0))
+        return int(candidates[np.argmin(distance[candidates])]) if candidates.size else -1
+
+    def matching(self, cells: np.ndarray, live: np.ndarray, full: np.ndarray) -> np.ndarray:
+        """Each agent's chest (``-1``: none) in a minimum-total-distance matching of the ``live`` agents at
+        ``cells`` to the ``full`` chests, with :func:`assign_agents`' tie-break."""
+        agents, chests = np.flatnonzero(live), np.flatnonzero(full)
+        targets = np.full(len(cells), -1, dtype=np.int64)
+        if agents.size and chests.size:
+            distance = self.distances[np.ix_(chests, cells[agents])].T
+            # Worse than any matching of reachable pairs (as in the game's coordinator), so as many agents as
+            # possible get a chest they can reach; one matched out of reach stays (Walker.toward: None).
+            unreachable = len(cells) * self.distances.shape[1]
+            picks = assign_agents(np.where(distance < 0, unreachable, distance))
+            targets[agents] = np.where(picks >= 0, chests[picks], -1)
+        return targets
+
+
+def oracle_policy(game: TreasureHuntGame) -> Policy:
+    """The oracle team of ``game``: reads the game's true state, re-matches every step.
+
+    Re-matching every step is consistent: each matched agent's step shortens the matching in hand by
+    one, so the best total falls by the number of matched agents per step and the team walks exactly
+    the minimum total distance, whichever optimal matching the tie-break picks. An emptied chest, or
+    an agent that ended, simply leaves the next matching. A shortest path may cross another full
+    chest; the agent then takes that one (and ends), which never costs the team a step (an exchange
+    of the two agents' chests is at least as short).
+    """
+    walker = Walker(game.map)
+
+    def act(obs: np.ndarray, live: np.ndarray) -> np.ndarray:
+        rows, cols = game.positions.T
+        cells = rows * game.size + cols
+        full = game.chest_full
+        targets = walker.matching(cells, live, full)
+        actions = np.zeros(len(live), dtype=np.int64)  # a finished agent's action is ignored
+        for agent in np.flatnonzero(live).tolist():
+            actions[agent] = walker.act(int(cells[agent]), int(targets[agent]), full)
+        return actions
+
+    return act
+
+
+def greedy_policy(game: TreasureHuntGame) -> Policy:
+    """The greedy team of ``game``: each agent from its own observation row alone (its cell, the chests
+    it believes full, and in deliberative mode the coordinator's ``assignment``, followed when it names
+    a chest; one without a chest there goes to its nearest chest believed full)."""
+    walker = Walker(game.map)
+    offsets = game.obs_offsets()
+    position, treasures = (slice(*offsets[name]) for name in ("position", "treasures"))
+    assignment = slice(*offsets.get("assignment", (0, 0)))  # empty outside deliberative mode
+    codes = game.position_codes()  # the agent's cell is the one whose code its `position` segment holds
+
+    def act(obs: np.ndarray, live: np.ndarray) -> np.ndarray:
+        cells = np.abs(obs[:, None, position] - codes[None]).sum(axis=2).argmin(axis=1)
+        believed_full = obs[:, treasures] > 0.5
+        # A finished agent's action is ignored (and a deliberative one still shows the chest it ended on).
+        actions = np.zeros(len(live), dtype=np.int64)
+        for agent in np.flatnonzero(live).tolist():
+            cell = int(cells[agent])
+            assigned = obs[agent, assignment]  # one-hot, or all 0: no chest assigned
+            chest = int(assigned.argmax()) if assigned.any() else walker.nearest(cell, believed_full[agent])
+            actions[agent] = walker.act(cell, chest, believed_full[agent])
+        return actions
+
+    return act
+
+
+POLICIES = {Bound.oracle: oracle_policy, Bound.greedy: greedy_policy}
+
+
+def evaluate_bound(game: TreasureHuntGame, kind: Bound | str, episodes: int, seed: int) -> dict[str, Any]:
+    """``episodes`` episodes of the ``kind`` team, as :func:`summarize` records a learner's evaluation.
+
+    Episode ``e`` resets with ``evaluation_rng(seed, 0, e)``: the generator of a run of ``seed``'s first
+    evaluation, which draws only the winners of chest ties (the bounds draw nothing else).
+    """
+    policy = POLICIES[Bound(kind)](game)  # it keeps nothing between steps, so one serves every episode
+    rngs = (evaluation_rng(seed, 0, episode) for episode in range(episodes))
+    return summarize([play_episode(game, policy, rng) for rng in rngs])
+
+
+class _OneLineErrors(argparse.ArgumentParser):
+    """Bad input is one ``error:`` line on stderr and exit code 2, without the usage block."""
+
+    def error(self, message: str) -> typing.NoReturn:
+        print(f"error: {message}", file=sys.stderr)
+        sys.exit(2)
+
+
+def _env_options(parser: argparse.ArgumentParser) -> None:
+    """One ``--key`` per treasure-hunt key of EnvConfig (``num_agents`` as ``--num-agents``); a key left
+    out is not given, as in ``make_game``."""
+    hints = typing.get_type_hints(EnvConfig)
+    documented = {field.name: field.metadata[HELP] for field in fields(EnvConfig)}
+    for key in ENV_KEYS:
+        if key == "render_mode":
+            continue  # the bounds render nothing
+        kind = next((arg for arg in typing.get_args(hints[key]) if arg is not type(None)), hints[key])
+        flag = "--" + key.replace("_", "-")
+        if isinstance(kind, type) and issubclass(kind, Enum):
+            parser.add_argument(flag, dest=key, choices=values(kind), help=documented[key])
+        else:
+            parser.add_argument(flag, dest=key, type=kind, help=documented[key])
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Print the oracle's and the greedy team's evaluation records as JSON lines."""
+    parser = _OneLineErrors(description=__doc__.split("\n\n")[0])
+    _env_options(parser)
+    parser.add_argument("--episodes", type=int, default=5, help="evaluation episodes per bound (default 5)")
+    parser.add_argument("--seed", type=int, default=0, help="the evaluation seed (it draws chest ties)")
+    args = vars(parser.parse_args(argv))
+    episodes, seed = args.pop("episodes"), args.pop("seed")
+    if episodes < 1:
+        parser.error(f"--episodes must be at least 1, got {episodes}")
+    try:
+        game = make_game(**{key: value for key, value in args.items() if value is not None})
+    except ValueError as err:
+        parser.error(str(err))
+    for kind in Bound:
+        print(json.dumps({"bound": kind.value, **evaluate_bound(game, kind, episodes, seed)}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
