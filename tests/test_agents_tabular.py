@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from dqn_transfer.agents import TabularLearner, Transition
+from dqn_transfer.agents import Experience, TabularLearner, Transition
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm, Mode
 from dqn_transfer.envs.game import make_game
@@ -312,3 +312,57 @@ def test_state_ids_number_each_replicas_observations_in_the_order_first_met(monk
     for g, e in zip(got, first_seen_ids(stream, table.row_replica)):
         np.testing.assert_array_equal(g, e)
     assert table.num_states.tolist() == [64, 64, 64]  # all 4^3 observations met, in every replica
+
+
+def learn_from_one_at_a_time(table: TabularLearner, i: int, experience) -> None:
+    """The statement learn_from computes faster: one ``_learn`` per transition, each with its own draws."""
+    rows, replica = np.array([i]), int(table.row_replica[i])
+    for n in range(len(experience.obs)):
+        draws = table._draws("learn_from", rows)
+        table._advance("learn_from", replica)
+        table._learn(
+            rows,
+            experience.obs[n][None],
+            np.array([experience.actions[n]]),
+            np.asarray(experience.rewards, dtype=np.float32)[n : n + 1],
+            experience.next_obs[n][None],
+            np.array([experience.terminated[n]]),
+            cache=np.array([False]),
+            draws=draws,
+        )
+
+
+@pytest.mark.parametrize("algorithm", ["sarsa", "qlearning"])
+def test_learning_from_team_mates_is_one_update_per_transition_in_order(algorithm):
+    """Few states, so later transitions bootstrap from entries earlier ones changed; a fallback gives
+    unseen states start values; replica 1's agent 2 learns, replica 0 is untouched."""
+    tables = [tabular(algorithm, 3, layout=[("cell", 2)], actions=3, seed=[4, 9]) for _ in range(2)]
+    rng = np.random.default_rng(1)
+    cells = np.array([[x, y] for x in range(3) for y in range(3)], dtype=np.float32)
+    for table in tables:
+        table.add_fallback(cells[:4], rng.normal(size=(4, 3)).astype(np.float32), np.array([0, 1]), agent=5)
+        table.epsilon[:] = 0.3  # SARSA's a' explores
+        table.next_action[:] = 1  # a cached action the update must clear
+        rng = np.random.default_rng(1)  # both tables the same
+    rng = np.random.default_rng(2)
+    for _ in range(3):  # three windows, so the draw counters and entry order carry on
+        size = 200
+        experience = Experience(
+            cells[rng.integers(0, 9, size)],
+            rng.integers(0, 3, size),
+            rng.normal(size=size).astype(np.float32),
+            cells[rng.integers(0, 9, size)],
+            rng.random(size) < 0.1,
+        )
+        tables[0].learn_from(5, experience)
+        learn_from_one_at_a_time(tables[1], 5, experience)
+    fast, reference = tables
+    assert np.array_equal(fast.q.view(np.uint32), reference.q.view(np.uint32))  # bit for bit
+    assert np.array_equal(fast.entry_order, reference.entry_order) and fast._entries == reference._entries
+    assert np.array_equal(fast.num_states, reference.num_states)
+    assert np.array_equal(fast.state_keys, reference.state_keys)
+    assert fast.counters["learn_from"].tolist() == reference.counters["learn_from"].tolist() == [0, 600]
+    assert np.array_equal(fast.next_action, reference.next_action) and fast.next_action[5] == -1
+    for i in range(6):
+        for name, array in fast.agent_tensors(i).items():
+            assert np.array_equal(array, reference.agent_tensors(i)[name]), (i, name)

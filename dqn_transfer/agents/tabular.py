@@ -29,6 +29,7 @@ only the counters.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -222,8 +223,10 @@ class TabularLearner(Learner, KnowledgeExchange):
                 found[n] = self._new_state(r, key, obs[changed[n]], int(hashes[n])) if known is None else known
             self._index_new_hashes()
             ids[changed] = found
-            self._last_obs[rows[changed]] = bits[changed]
-            self._last_ids[rows[changed]] = ids[changed]
+            # Remember each row's last looked-up observation (a row may come more than once).
+            last = len(changed) - 1 - np.unique(rows[changed][::-1], return_index=True)[1]
+            self._last_obs[rows[changed[last]]] = bits[changed[last]]
+            self._last_ids[rows[changed[last]]] = found[last]
         return ids
 
     def _known_ids(self, hashes: np.ndarray, replicas: np.ndarray, bits: np.ndarray) -> np.ndarray:
@@ -431,26 +434,48 @@ class TabularLearner(Learner, KnowledgeExchange):
             self._enter(np.full(len(new), row), new)
 
     def learn_from(self, i: int, experience: Experience) -> None:
-        """A table has no replay: one update of agent i per transition, as if it had been its own (SARSA
-        draws the next action from its own epsilon-greedy policy, from its learn-from stream). One that
-        does not terminate bootstraps like any non-terminal step but caches no next action: the cache
-        belongs to the agent's own next step (each update clears it, as its own updates do)."""
-        rows = np.array([i])
+        """A table has no replay: one update of agent i per transition, in order, as if it had been its
+        own (SARSA draws the next action from its own epsilon-greedy policy, from its learn-from stream).
+        One that does not terminate bootstraps like any non-terminal step but caches no next action: the
+        cache belongs to the agent's own next step (each update clears it, as its own updates do).
+
+        :meth:`_learn` once per transition, computed with scalars: the ids, draws and entry order
+        are found for all transitions at once (none depends on the values), then the values are updated
+        one after another, each update reading the ones before (tests check it against :meth:`_learn`)."""
+        count = len(experience.obs)
+        if count == 0:
+            return
         replica = int(self.row_replica[i])
+        # The ids in the order one-at-a-time updates meet them (s then s' of each), so new states get theirs.
+        met = np.stack([np.asarray(experience.obs), np.asarray(experience.next_obs)], axis=1).reshape(2 * count, -1)
+        ids = self.state_ids(met, np.full(2 * count, i)).reshape(count, 2)
+        counters = self.counters["learn_from"][replica] + np.arange(count)
+        draws = uniforms(np.full(count, self.stream_keys["learn_from"][i]), counters, DRAWS_PER_AGENT_STEP)
+        self.counters["learn_from"][replica] += count
+        self.next_action[i] = _NO_ACTION
+        q = self.q[i]  # a view: the updates below land in the table
+        num_actions = self.num_actions
+        gamma, lr, epsilon = np.float32(self.gamma), np.float32(self.lr), float(self.epsilon[i])
+        sarsa = self.algorithm == Algorithm.sarsa.value
         rewards = np.asarray(experience.rewards, dtype=np.float32)
-        for n, (obs, action, next_obs) in enumerate(zip(experience.obs, experience.actions, experience.next_obs)):
-            draws = self._draws("learn_from", rows)
-            self._advance("learn_from", replica)
-            self._learn(
-                rows,
-                np.asarray(obs)[None],
-                np.array([int(action)]),
-                rewards[n : n + 1],
-                np.asarray(next_obs)[None],
-                np.array([bool(experience.terminated[n])]),
-                cache=np.array([False]),
-                draws=draws,
-            )
+        terminated = np.asarray(experience.terminated, dtype=bool).tolist()
+        actions = np.asarray(experience.actions).tolist()
+        for n, ((state, next_state), draw) in enumerate(zip(ids.tolist(), draws.tolist())):
+            q_next = q[next_state]
+            if sarsa:  # epsilon_greedy_rows for one row
+                if draw[0] < epsilon:
+                    next_action = math.floor(draw[1] * num_actions)
+                else:
+                    best = np.flatnonzero(q_next == q_next.max())
+                    next_action = int(best[math.floor(draw[2] * len(best))])
+                bootstrap = q_next[next_action]
+            else:
+                bootstrap = q_next.max()
+            q_sa = q[state, actions[n]]
+            target = rewards[n] if terminated[n] else rewards[n] + gamma * bootstrap
+            q[state, actions[n]] = q_sa + lr * (target - q_sa)
+        first = np.sort(np.unique(ids[:, 0], return_index=True)[1])  # each state where first updated
+        self._enter(np.full(len(first), i), ids[first, 0])
 
     # ----------------------------------------------------------------------------- checkpoints
 
