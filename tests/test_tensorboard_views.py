@@ -23,13 +23,15 @@ import pytest
 from conftest import DOWN, always_acting_team
 from PIL import Image
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+from tensorboard.compat.proto.event_pb2 import Event
 from tensorboard.compat.proto.summary_pb2 import Summary
+from tensorboard.summary.writer.record_writer import RecordWriter
 
 from dqn_transfer.config import AgentConfig, TrainConfig, TransferConfig
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.storage.run_dir import RunDir
 from dqn_transfer.training.plan import plan_run
-from dqn_transfer.training.tensorboard import RunLogger
+from dqn_transfer.training.tensorboard import EventFile, RunLogger, event_record
 from dqn_transfer.training.trainer import train
 
 CELL = 32  # TensorBoard's cell size in pixels
@@ -202,3 +204,26 @@ def test_scalars_written_together_read_back_as_one_event_each(tmp_path, monkeypa
         assert together[tag], tag
     assert [step for step, _ in together.pop("train/sps")] == [step for step, _ in apart.pop("train/sps")]
     assert together == apart  # train/sps aside, which measures the clock
+
+
+def test_event_files_are_framed_as_tensorboards_own_writer_frames_them(tmp_path):
+    """EventFile computes the records' CRC32C in C; TensorBoard's RecordWriter (a Python loop) is the
+    reference, byte for byte, and TensorBoard reads the file back."""
+    events = [
+        Event(step=s, wall_time=1.5 * s, summary=Summary(value=[Summary.Value(tag="x", simple_value=s)]))
+        for s in range(50)
+    ]
+    events.append(Event(step=7, file_version="brain.Event:2"))  # and an event of another kind
+    reference = io.BytesIO()
+    writer = RecordWriter(reference)
+    for event in events:
+        writer.write(event.SerializeToString())
+    assert b"".join(event_record(event.SerializeToString()) for event in events) == reference.getvalue()
+    file = EventFile(tmp_path / "tb")
+    for event in events[:50]:
+        file.add_event(event)
+    file.close()
+    accumulator = EventAccumulator(str(tmp_path / "tb"))
+    accumulator.Reload()
+    assert [(e.step, e.value) for e in accumulator.Scalars("x")] == [(s, float(s)) for s in range(50)]
+    assert EventFile(tmp_path / "tb")._file.name != file._file.name  # a second file never overwrites the first
