@@ -25,6 +25,9 @@ three uniforms (explore?, which random action, which of tied best actions) keyed
 seed, the purpose (acting, SARSA's ``a'``, learning from team-mates), a per-replica counter and the
 agent. So all agents draw at once, replica (seed s) is the lone run of seed s, and a checkpoint needs
 only the counters.
+
+Each agent also counts its visits of each state (its updates there on its own transitions), which the
+exchanges by visit counts read (:mod:`~dqn_transfer.agents.visit_exchange`: confidence merging, advice).
 """
 
 from __future__ import annotations
