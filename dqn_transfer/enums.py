@@ -55,6 +55,13 @@ class Exchange(Enum):
     none = "none"
     best = "best"  # the others soft-copy the best agent's weights
     shared_replay = "shared_replay"  # team-mates' transitions go into each agent's replay
+    confidence = "confidence"  # tables: merge a team-mate's values on the states it visited more (Tan 1993)
+    advice = "advice"  # tables: a rarely-visited state's action comes from the most experienced team-mate
+
+    @property
+    def reads_visits(self) -> bool:
+        """Whether it weighs the agents' visit counts of table entries (the tabular learners' only)."""
+        return self in (Exchange.confidence, Exchange.advice)
 
 
 class Device(Enum):

@@ -5,8 +5,9 @@ one home of every hyperparameter's default), ``make_replicas`` one batched over 
 learner can do is a set of capabilities (:mod:`dqn_transfer.agents.base`): every learner is a
 :class:`Learner` (acting, learning, checkpointing, batched over replicas) and implements
 :class:`KnowledgeExchange`; the DQN family also :class:`WarmStart` (freezing layers, carrying optimizer
-state over). Code outside this package calls these methods and checks a capability with :func:`require`,
-never a learner's class.
+state over), the tabular one :class:`VisitExchange` (exchange by visit counts: confidence, advice). Code
+outside this package calls these methods and checks a capability with :func:`require`, never a learner's
+class.
 
 The DQN family has two engines (``agent.engine``, whose default ``auto`` means numpy on the CPU and
 torch on a GPU): ``torch`` (:mod:`~dqn_transfer.agents.dqn`) and ``numpy``
@@ -46,6 +47,7 @@ from dqn_transfer.agents.replay import ReplayBatch, ReplayBuffer
 from dqn_transfer.agents.replicas import TeamView, team_view
 from dqn_transfer.agents.schedules import linear_schedule
 from dqn_transfer.agents.tabular import TabularLearner
+from dqn_transfer.agents.visit_exchange import AdviceRules, VisitExchange
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm, Device, Engine, resolve_engine
 
@@ -57,6 +59,7 @@ _TORCH_NAMES = {
 
 __all__ = [
     "Acting",
+    "AdviceRules",
     "BatchedDQN",
     "BatchedMLP",
     "Checkpointing",
@@ -72,6 +75,7 @@ __all__ = [
     "TeamView",
     "Transition",
     "UpdateStats",
+    "VisitExchange",
     "WarmStart",
     "break_ties",
     "double_dqn_targets",

@@ -4,7 +4,8 @@ Every learner is batched over R independent replicas of a team of K agents (rows
 DQN family in one network module, the tabular learners as R x K tables), and is a lone team when
 R = 1. The trainer runs each replica as a run of its own (run directory, checkpoints, evaluation,
 transfer, exchange) through :func:`team_view`: replica r's K agents, with exactly the capabilities of
-the learner (:class:`~dqn_transfer.agents.base.KnowledgeExchange`, :class:`~dqn_transfer.agents.base.WarmStart`).
+the learner (:class:`~dqn_transfer.agents.base.KnowledgeExchange`, :class:`~dqn_transfer.agents.base.WarmStart`,
+:class:`~dqn_transfer.agents.visit_exchange.VisitExchange`).
 A view reads and writes the learner's own values; nothing is copied.
 
 What a view forwards to, :class:`ReplicaBatched`, is the learner's side: the team-wide methods take
@@ -19,6 +20,7 @@ from typing import Any, Protocol, cast
 import numpy as np
 
 from dqn_transfer.agents.base import Experience, KnowledgeExchange, Learner, Team, WarmStart
+from dqn_transfer.agents.visit_exchange import AdviceRules, VisitExchange
 
 
 class ReplicaBatched(Protocol):
@@ -41,6 +43,11 @@ class ReplicaBatched(Protocol):
 class ExchangeBatched(ReplicaBatched, Protocol):
     def soft_copy_best(self, best: int, tau: float, replica: int = 0) -> None: ...
     def learn_from(self, row: int, experience: Experience) -> None: ...
+
+
+class VisitExchangeBatched(ReplicaBatched, Protocol):
+    def merge_confident(self, weight: float, replica: int = 0) -> None: ...
+    def start_advice(self, rules: AdviceRules, replica: int | None = None) -> None: ...
 
 
 class WarmStartBatched(ReplicaBatched, Protocol):
@@ -97,6 +104,14 @@ class _ExchangeView(TeamView, KnowledgeExchange):
         cast(ExchangeBatched, self.batched).learn_from(self._row(i), experience)
 
 
+class _VisitExchangeView(TeamView, VisitExchange):
+    def merge_confident(self, weight: float) -> None:
+        cast(VisitExchangeBatched, self.batched).merge_confident(weight, replica=self.index)
+
+    def start_advice(self, rules: AdviceRules) -> None:
+        cast(VisitExchangeBatched, self.batched).start_advice(rules, replica=self.index)
+
+
 class _WarmStartView(TeamView, WarmStart):
     def freeze(self, layer_indices: Sequence[int]) -> None:
         """Layers are stacked for all agents: freezing applies to every replica of the learner."""
@@ -108,6 +123,7 @@ class _WarmStartView(TeamView, WarmStart):
 
 _CAPABILITY_VIEWS: tuple[tuple[type, type[TeamView]], ...] = (
     (KnowledgeExchange, _ExchangeView),
+    (VisitExchange, _VisitExchangeView),
     (WarmStart, _WarmStartView),
 )
 _VIEW_CLASSES: dict[tuple[type[TeamView], ...], type[TeamView]] = {}

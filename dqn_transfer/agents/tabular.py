@@ -25,6 +25,9 @@ three uniforms (explore?, which random action, which of tied best actions) keyed
 seed, the purpose (acting, SARSA's ``a'``, learning from team-mates), a per-replica counter and the
 agent. So all agents draw at once, replica (seed s) is the lone run of seed s, and a checkpoint needs
 only the counters.
+
+Each agent also counts its visits of each state (its updates there on its own transitions), which the
+exchanges by visit counts read (:mod:`~dqn_transfer.agents.visit_exchange`: confidence merging, advice).
 """
 
 from __future__ import annotations
@@ -49,6 +52,7 @@ from dqn_transfer.agents.base import (
 from dqn_transfer.agents.dqn_update import huber
 from dqn_transfer.agents.random_streams import mix64, stream_keys, uniforms
 from dqn_transfer.agents.replicas import team_view
+from dqn_transfer.agents.visit_exchange import AdviceRules, VisitExchange, advised_actions, confident_merge
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm
 
@@ -127,7 +131,7 @@ def check_fallback(
         raise ValueError(f"fallback projection points outside the {obs_dim} observation columns")
 
 
-class TabularLearner(Learner, KnowledgeExchange):
+class TabularLearner(Learner, KnowledgeExchange, VisitExchange):
     """K Q-tables updated by SARSA or Q-learning (see the module docstring), in R replicas: ``R * K``
     tables, row ``r * K + k``, replica r exploring with its own seed's draws (exactly the team a lone
     learner of its seed would be)."""
@@ -179,6 +183,11 @@ class TabularLearner(Learner, KnowledgeExchange):
         # Entry order: when the agent first updated it (-1: not in its table, the value is a start value).
         self.entry_order = np.full((rows, _INITIAL_STATES), -1, dtype=np.int32)
         self._entries = 0  # entries entered so far, all rows together (the next entry's order)
+        # Visits: how many of its own transitions each agent has learned from in each state (what the
+        # exchanges by visit counts weigh, agents/visit_exchange.py); team-mates' transitions do not count.
+        self.visits = np.zeros((rows, _INITIAL_STATES), dtype=np.int64)
+        self.advice: AdviceRules | None = None  # None: no advice (transfer.exchange=advice sets it)
+        self.advice_left = np.zeros(rows, dtype=np.int64)  # each agent's remaining advised steps
         self.fallbacks: list[list[_Fallback]] = [[] for _ in range(rows)]
         # Per replica: the counters of its draws, by purpose (what a checkpoint saves of them); per row the
         # key of each purpose's stream.
@@ -269,6 +278,7 @@ class TabularLearner(Learner, KnowledgeExchange):
         """Double every replica's room for states."""
         self.q = np.concatenate([self.q, np.zeros_like(self.q)], axis=1)
         self.entry_order = np.concatenate([self.entry_order, np.full_like(self.entry_order, -1)], axis=1)
+        self.visits = np.concatenate([self.visits, np.zeros_like(self.visits)], axis=1)
         self.state_keys = np.concatenate([self.state_keys, np.zeros_like(self.state_keys)], axis=1)
 
     def _start_values(self, row: int, obs: np.ndarray) -> np.ndarray:
@@ -337,8 +347,10 @@ class TabularLearner(Learner, KnowledgeExchange):
     def act(
         self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, replica: int | None = None
     ) -> np.ndarray:
-        """Epsilon-greedy per live agent; SARSA replays the action its last update chose for ``obs``.
-        Non-live agents get action 0 (every agent takes its draws, live or not)."""
+        """Epsilon-greedy per live agent; SARSA replays the action its last update chose for ``obs``
+        (advised or not, as decided then). With advice, an agent may play a team-mate's greedy action
+        instead (:meth:`start_advice`). Non-live agents get action 0 (every agent takes its draws, live
+        or not)."""
         rows = self._rows(replica)
         live = np.asarray(live, dtype=bool)
         self.epsilon[rows] = epsilon
@@ -346,6 +358,7 @@ class TabularLearner(Learner, KnowledgeExchange):
         actions = epsilon_greedy_rows(self.q[rows, states], self.epsilon[rows], self._draws("act", rows))
         cached = live & (self.next_action[rows] != _NO_ACTION) & (self.next_state[rows] == states)
         actions = np.where(cached, self.next_action[rows], actions)
+        actions = self._advise(rows, states, actions, asking=live & ~cached)
         self.next_action[rows[live]] = _NO_ACTION
         self._advance("act", replica)
         return np.where(live, actions, 0).astype(np.int64)
@@ -393,17 +406,22 @@ class TabularLearner(Learner, KnowledgeExchange):
         draws: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray]:
         """One update of each of ``rows`` (distinct) on its transition; returns ``Q(s, a)`` before it
-        and the Huber loss of the TD error. SARSA draws ``a'`` from ``draws`` and, where ``cache`` and
-        the transition does not terminate, keeps it for the agent's next :meth:`act`."""
+        and the Huber loss of the TD error. The transitions are the agents' own: each counts as a visit.
+        SARSA draws ``a'`` from ``draws`` and, where ``cache`` and the transition does not terminate,
+        keeps it for the agent's next :meth:`act`: that is where advice replaces it, so the update
+        bootstraps on the action the agent then plays."""
         states, next_states = self.state_ids(obs, rows), self.state_ids(next_obs, rows)
+        self.visits[rows, states] += 1  # after the lookups, which may grow the arrays
         self.next_action[rows] = _NO_ACTION
         q_next = self.q[rows, next_states]
         if self.algorithm == Algorithm.qlearning.value:
             bootstrap = q_next.max(axis=1)
         else:
-            next_action = epsilon_greedy_rows(q_next, self.epsilon[rows], draws)
-            bootstrap = q_next[np.arange(len(rows)), next_action]
             keep = cache & ~terminated
+            next_action = self._advise(
+                rows, next_states, epsilon_greedy_rows(q_next, self.epsilon[rows], draws), asking=keep
+            )
+            bootstrap = q_next[np.arange(len(rows)), next_action]
             self.next_action[rows[keep]] = next_action[keep]
             self.next_state[rows[keep]] = next_states[keep]
         q_sa = self.q[rows, states, actions]
@@ -477,6 +495,39 @@ class TabularLearner(Learner, KnowledgeExchange):
         first = np.sort(np.unique(ids[:, 0], return_index=True)[1])  # each state where first updated
         self._enter(np.full(len(first), i), ids[first, 0])
 
+    def merge_confident(self, weight: float, replica: int = 0) -> None:
+        """Confidence-weighted merge inside the replica (:func:`~dqn_transfer.agents.visit_exchange.confident_merge`).
+        A merged entry new to an agent enters its table grouped by the team-mate it came from (the lowest
+        index first), each group in that team-mate's order: an order a resumed run rebuilds exactly."""
+        rows = self._rows(replica)
+        count = int(self.num_states[replica])
+        values, merged, source = confident_merge(self.q[rows, :count], self.visits[rows, :count], weight)
+        self.q[rows, :count] = values
+        for agent, row in enumerate(rows.tolist()):
+            new = np.flatnonzero(merged[agent] & (self.entry_order[row, :count] < 0))
+            mates = source[agent, new]
+            new = new[np.lexsort((self.entry_order[rows[mates], new], mates))]
+            self._enter(np.full(len(new), row), new)
+
+    def start_advice(self, rules: AdviceRules, replica: int | None = None) -> None:
+        """Advise the exploring actions by ``rules`` from now on; the replica's (None: every) agents get
+        the full budget."""
+        self.advice = rules
+        self.advice_left[self._rows(replica)] = rules.budget
+
+    def _advise(self, rows: np.ndarray, states: np.ndarray, actions: np.ndarray, asking: np.ndarray) -> np.ndarray:
+        """``actions`` of ``rows`` in ``states``, where ``asking`` and advice is given (by :attr:`advice`,
+        within each agent's budget, which it spends) the advisor's greedy action. No random numbers."""
+        if self.advice is None or not asking.any():
+            return actions
+        team = (rows - self.row_agent[rows])[:, None] + np.arange(self.num_agents)  # [N, K] each row's team
+        advised, advice = advised_actions(
+            self.visits[team, states[:, None]], self.row_agent[rows], self.q[team, states[:, None]], self.advice
+        )
+        advised &= asking & (self.advice_left[rows] > 0)
+        self.advice_left[rows[advised]] -= 1
+        return np.where(advised, advice, actions)
+
     # ----------------------------------------------------------------------------- checkpoints
 
     def agent_tensors(self, i: int) -> dict[str, np.ndarray]:
@@ -505,6 +556,7 @@ class TabularLearner(Learner, KnowledgeExchange):
             check_fallback(*table, self.obs_dim, self.num_actions)
         self.fallbacks[i] = []
         self.entry_order[i] = -1
+        self.visits[i] = 0  # a loaded table brings no visits of this run (a resume state brings them back)
         for table in tables:
             self.fallbacks[i].append(_Fallback(*table))
         self._restart_entries(i)
@@ -517,12 +569,20 @@ class TabularLearner(Learner, KnowledgeExchange):
         return {"obs_dim": self.obs_dim, "num_actions": self.num_actions}
 
     def training_state(self, replica: int = 0) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        """One replica's SARSA next-action cache and draw counters (the tables are in ``agent_tensors``)."""
+        """One replica's SARSA next-action cache, draw counters, visit counts (by observation: the states'
+        ids are not kept) and advice budgets (the tables are in ``agent_tensors``)."""
         rows = self._rows(replica)
         cached = self.next_action[rows] != _NO_ACTION
         next_obs = np.zeros((len(rows), self.obs_dim), dtype=np.float32)
         next_obs[cached] = self.state_keys[replica, self.next_state[rows[cached]]]
-        arrays = {"next_action": self.next_action[rows].copy(), "next_action_obs": next_obs}
+        visited = np.flatnonzero(self.visits[rows, : self.num_states[replica]].any(axis=0))
+        arrays = {
+            "next_action": self.next_action[rows].copy(),
+            "next_action_obs": next_obs,
+            "visit_keys": self.state_keys[replica, visited].copy(),
+            "visits": self.visits[rows[:, None], visited],
+            "advice_left": self.advice_left[rows].copy(),
+        }
         counters = {stream: int(counts[replica]) for stream, counts in self.counters.items()}
         return arrays, {"draw_counters": counters, "epsilon": self.epsilon[rows].tolist()}
 
@@ -539,6 +599,12 @@ class TabularLearner(Learner, KnowledgeExchange):
         next_state = np.full(len(rows), -1, dtype=np.int64)
         next_state[cached] = self.state_ids(np.asarray(arrays["next_action_obs"])[cached], rows[cached])
         self.next_action[rows], self.next_state[rows] = next_action, next_state
+        self.visits[rows] = 0
+        if "visits" in arrays:  # a checkpoint from before visits were counted: none
+            keys = np.asarray(arrays["visit_keys"])
+            states = self.state_ids(keys, np.full(len(keys), rows[0]))  # before indexing: may grow
+            self.visits[rows[:, None], states] = arrays["visits"]
+            self.advice_left[rows] = arrays["advice_left"]
         for stream, count in meta["draw_counters"].items():
             self.counters[stream][replica] = int(count)
         self.epsilon[rows] = np.broadcast_to(np.asarray(meta["epsilon"], dtype=float), (self.num_agents,))

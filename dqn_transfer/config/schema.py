@@ -118,10 +118,22 @@ class TransferConfig:
     epsilon_start: float = documented(0.3, "transferred agents explore less than agent.eps_start")
     freeze: List[int] = documented(factory=list, doc="indices of layers kept fixed")
     exchange: Exchange = documented(
-        Exchange.none, "knowledge exchange inside the team during training: none | best | shared_replay"
+        Exchange.none,
+        "knowledge exchange inside the team during training: none | best | shared_replay | confidence | advice "
+        "(the last two for tabular learners)",
     )
     exchange_every: int = documented(20, "episodes between exchanges")
     exchange_tau: float = documented(0.5, "'best': weight of the best agent in the soft copy")
+    confidence_weight: float = documented(
+        1.0,
+        "'confidence': in (0, 1], scales the merge weight n_j / (n_i + n_j) toward the team-mate j that "
+        "visited a state most (only where it visited it more than agent i)",
+    )
+    advice_ask_below: int = documented(3, "'advice': an agent asks when it has visited its state fewer times than this")
+    advice_answer_from: int = documented(
+        10, "'advice': the team-mate that visited the state most answers if it visited it at least this often"
+    )
+    advice_budget: int = documented(500, "'advice': advised steps per agent per run")
 
 
 @dataclass
@@ -229,6 +241,9 @@ _AT_LEAST = {
     "threads": 1,
     "transfer.pretrain_steps": 1,
     "transfer.exchange_every": 1,
+    "transfer.advice_ask_below": 0,
+    "transfer.advice_answer_from": 1,
+    "transfer.advice_budget": 0,
     "replicas.seeds": 1,
     "replicas.maps": 1,
 }
@@ -242,7 +257,7 @@ _IN_UNIT_INTERVAL = (
     "agent.exploration_fraction",
     "transfer.epsilon_start",
 )  # [0, 1]
-_IN_HALF_OPEN_UNIT = ("agent.tau", "transfer.exchange_tau")  # (0, 1]
+_IN_HALF_OPEN_UNIT = ("agent.tau", "transfer.exchange_tau", "transfer.confidence_weight")  # (0, 1]
 
 
 def _value(cfg: DictConfig | TrainConfig, key: str) -> Any:
@@ -282,6 +297,11 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
         f"transfer.freeze={list(transfer.freeze)} keeps transferred layers fixed: it needs transfer=on",
     )
     is_tabular = Algorithm(agent.algorithm).is_tabular
+    _check(
+        is_tabular or not Exchange(transfer.exchange).reads_visits,
+        f"transfer.exchange={Exchange(transfer.exchange).value} works on visit counts of table entries: "
+        f"it needs a tabular learner (agent=sarsa or agent=qlearning), not agent={Algorithm(agent.algorithm).value}",
+    )
     if is_tabular:
         _check(not transfer.freeze, "transfer.freeze applies to network layers; tabular learners have none")
         _check(not agent.share_parameters, "agent.share_parameters applies to the DQN learners only")

@@ -31,8 +31,13 @@ from dqn_transfer.evaluation.watch import EvaluationViews, evaluation_views
 from dqn_transfer.storage.run_dir import RunDir
 from dqn_transfer.training.loggers import RunLoggers
 from dqn_transfer.transfer.exchange import exchange_best, exchange_replay
+from dqn_transfer.transfer.visit_exchange import exchange_confidence
 
 log = logging.getLogger("dqn_transfer.train")
+
+
+# The exchanges made every ``exchange_every`` episodes (advice acts at every step, inside the learner).
+EXCHANGES_AT_EPISODE_ENDS = (Exchange.best, Exchange.shared_replay, Exchange.confidence)
 
 
 def exploration_steps(config: TrainConfig) -> int:
@@ -246,7 +251,7 @@ class Replica:
         self._log_episode(treasures)
         self.window_returns.append(self.episode.returns.copy())
         self.episode.reset()
-        if transfer.exchange is not Exchange.none and counters.episodes % transfer.exchange_every == 0:
+        if transfer.exchange in EXCHANGES_AT_EPISODE_ENDS and counters.episodes % transfer.exchange_every == 0:
             self._exchange()
 
     def _log_episode(self, treasures: int) -> None:
@@ -267,6 +272,8 @@ class Replica:
         if transfer.exchange is Exchange.best:
             best = exchange_best(self.learner, np.asarray(self.window_returns), transfer.exchange_tau)
             self.logger.scalar("team/exchange_best_agent", best, self.counters.step)
+        elif transfer.exchange is Exchange.confidence:
+            exchange_confidence(self.learner, transfer.confidence_weight)
         else:
             exchange_replay(self.learner, self.shared_transitions)
             self.shared_transitions.clear()

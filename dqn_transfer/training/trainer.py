@@ -50,6 +50,7 @@ from dqn_transfer.training.replica import EpisodeSums, EpsilonSchedule, Replica
 from dqn_transfer.training.run_state import encode_checkpoint, load_checkpoint
 from dqn_transfer.training.stop import Interrupted, StopRequest
 from dqn_transfer.transfer.capabilities import check_capabilities
+from dqn_transfer.transfer.visit_exchange import start_advice
 from dqn_transfer.transfer.warm_start import apply_transfer, lineage_table
 
 log = logging.getLogger("dqn_transfer.train")
@@ -106,6 +107,8 @@ class Trainer:
             threads=config.threads,
         )
         check_capabilities(config, self.learner, warm_start=config.transfer.enabled and not self.source_task)
+        if config.transfer.exchange is Exchange.advice:  # full budgets; a resumed run then loads what was left
+            start_advice(self.learner, config.transfer)
         lone = len(plan.replicas) == 1
         # null: someone watches a run started by hand, one replica of it; a sweep's jobs are compared by curves
         pictures = [r == 0 and not in_multirun() for r in range(len(plan.replicas))]
