@@ -267,7 +267,7 @@ class Replica:
         if transfer.exchange is Exchange.best:
             best = exchange_best(self.learner, np.asarray(self.window_returns), transfer.exchange_tau)
             self.logger.scalar("team/exchange_best_agent", best, self.counters.step)
-        else:
+        elif transfer.exchange is Exchange.shared_replay:
             exchange_replay(self.learner, self.shared_transitions)
             self.shared_transitions.clear()
         self.window_returns.clear()
