@@ -55,6 +55,7 @@ class Exchange(Enum):
     none = "none"
     best = "best"  # the others soft-copy the best agent's weights
     shared_replay = "shared_replay"  # team-mates' transitions go into each agent's replay
+    experience = "experience"  # DQN: each gradient step also on team-mates' replay samples (SEAC's shared experience)
     confidence = "confidence"  # tables: merge a team-mate's values on the states it visited more (Tan 1993)
     advice = "advice"  # tables: a rarely-visited state's action comes from the most experienced team-mate
 

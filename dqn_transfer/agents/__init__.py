@@ -5,9 +5,9 @@ one home of every hyperparameter's default), ``make_replicas`` one batched over 
 learner can do is a set of capabilities (:mod:`dqn_transfer.agents.base`): every learner is a
 :class:`Learner` (acting, learning, checkpointing, batched over replicas) and implements
 :class:`KnowledgeExchange`; the DQN family also :class:`WarmStart` (freezing layers, carrying optimizer
-state over), the tabular one :class:`VisitExchange` (exchange by visit counts: confidence, advice). Code
-outside this package calls these methods and checks a capability with :func:`require`, never a learner's
-class.
+state over), :class:`ExperienceSharing` (``transfer.exchange=experience``) and the tabular one
+:class:`VisitExchange` (exchange by visit counts: confidence, advice). Code outside this package calls these
+methods and checks a capability with :func:`require`, never a learner's class.
 
 The DQN family has two engines (``agent.engine``, whose default ``auto`` means numpy on the CPU and
 torch on a GPU): ``torch`` (:mod:`~dqn_transfer.agents.dqn`) and ``numpy``
@@ -28,6 +28,7 @@ from dqn_transfer.agents.base import (
     Acting,
     Checkpointing,
     Experience,
+    ExperienceSharing,
     KnowledgeExchange,
     Learner,
     Learning,
@@ -65,6 +66,7 @@ __all__ = [
     "Checkpointing",
     "DQNLearner",
     "Experience",
+    "ExperienceSharing",
     "KnowledgeExchange",
     "Learner",
     "Learning",

@@ -157,6 +157,16 @@ class WarmStart(ABC):
         """Start agent ``i``'s optimizer from a source's moments (``moments[tensor]['exp_avg' | 'exp_avg_sq']``)."""
 
 
+class ExperienceSharing(ABC):
+    """Shared experience (``transfer.exchange=experience``): every gradient step of an agent also on its
+    team-mates' replay samples (the DQN family; :mod:`dqn_transfer.agents.shared_experience`)."""
+
+    @abstractmethod
+    def share_experience(self, experience_lambda: float) -> None:
+        """From now on, draw each agent's batches from all its team-mates' replays, their samples weighing
+        ``experience_lambda`` times its own in its loss."""
+
+
 class Team(TeamShape, Acting, Checkpointing):
     """K agents that act and checkpoint: what evaluation, checkpoints and transfer use. The agent
     indices of every method are 0..K-1."""

@@ -19,7 +19,7 @@ import torch
 from dqn_transfer.agents.adam import FlatAdam
 from dqn_transfer.agents.base import ObsLayout, UpdateStats
 from dqn_transfer.agents.dqn_base import BatchedDQN
-from dqn_transfer.agents.dqn_update import double_dqn_targets, dqn_targets, huber, td_loss_grad
+from dqn_transfer.agents.dqn_update import double_dqn_targets, dqn_targets, td_loss_grad, td_losses
 from dqn_transfer.agents.networks import BatchedMLP
 from dqn_transfer.agents.replay import ReplayBatch
 from dqn_transfer.config import AgentConfig, ConfigError
@@ -66,7 +66,7 @@ class DQNLearner(BatchedDQN):
         self.target_network = BatchedMLP(self.num_members, self.obs_dim, self.hidden, num_actions, device=self.device)
         self.target_network.update_from(self.q_network, tau=1.0)
         self.optimizer = FlatAdam(self.q_network.flat, self.q_network.flat_grad, self.q_network.spans, lr=self.lr)
-        self._device_loss_weights: tuple[np.ndarray, torch.Tensor] | None = None  # (host array, its device copy)
+        self._device_weights: dict[str, tuple[np.ndarray, torch.Tensor]] = {}  # name: (host array, its device copy)
 
     def _to_engine(self, array: np.ndarray) -> torch.Tensor:
         return torch.as_tensor(array, device=self.device)
@@ -90,36 +90,37 @@ class DQNLearner(BatchedDQN):
         return q_values.view(*obs.shape[:2], -1) if self.share_parameters else q_values
 
     @torch.no_grad()
-    def q_values(self, obs: np.ndarray, replica: int | None = None) -> np.ndarray:
-        obs_t = torch.as_tensor(np.asarray(obs, dtype=np.float32), device=self.device)
-        return self._q_values(self.q_network, obs_t.unsqueeze(1), replica).squeeze(1).cpu().numpy()
+    def _online_q_values(self, inputs: np.ndarray, replica: int | None) -> np.ndarray:
+        inputs_t = torch.as_tensor(inputs, device=self.device)
+        return self._q_values(self.q_network, inputs_t.unsqueeze(1), replica).squeeze(1).cpu().numpy()
 
-    def _greedy_actions(self, obs: np.ndarray, replica: int | None) -> np.ndarray:
+    def _greedy_actions(self, inputs: np.ndarray, replica: int | None) -> np.ndarray:
         """On the CPU the Q-values are first computed in numpy, several times cheaper for these tiny
         batches. numpy's kernels may differ from torch's in the last bits, which can only change an
         argmax whose best two values are that close: when every row's best action leads by more than
         ACTION_MARGIN, numpy's argmax is torch's; otherwise (a near-tie, e.g. fresh or copied weights)
         torch decides. The actions are exactly torch's either way.
         """
-        q_values = self.q_network.predict_numpy(self._team_batch_numpy(obs), self._members(replica))
+        q_values = self.q_network.predict_numpy(self._team_batch_numpy(inputs), self._members(replica))
         if q_values is not None:
-            q_values = q_values.reshape(obs.shape[0], -1)
+            q_values = q_values.reshape(inputs.shape[0], -1)
             top_two = np.partition(q_values, -2, axis=-1)[:, -2:]
             if (top_two[:, 1] - top_two[:, 0] > ACTION_MARGIN * (1.0 + np.abs(top_two[:, 1]))).all():
                 return q_values.argmax(axis=-1)
-        obs_t = torch.from_numpy(obs).to(self.device).unsqueeze(1)
-        return self._q_values(self.q_network, obs_t, replica).argmax(dim=-1).view(-1).cpu().numpy()
+        inputs_t = torch.from_numpy(inputs).to(self.device).unsqueeze(1)
+        return self._q_values(self.q_network, inputs_t, replica).argmax(dim=-1).view(-1).cpu().numpy()
 
     # ---------------------------------------------------------------------------------- learning
 
-    def _loss_weights(self, valid: np.ndarray) -> torch.Tensor:
-        """:meth:`loss_weights` on the device, copied there once per new host array."""
-        weights = self.loss_weights(valid)
-        if self._device_loss_weights is None or self._device_loss_weights[0] is not weights:
-            self._device_loss_weights = (weights, torch.from_numpy(weights).to(self.device))
-        return self._device_loss_weights[1]
+    def _on_device(self, name: str, weights: np.ndarray) -> torch.Tensor:
+        """A cached host array of weights (:meth:`loss_weights`, ``SharedExperience.sample_weights``) on the
+        device, copied there once per new host array."""
+        copy = self._device_weights.get(name)
+        if copy is None or copy[0] is not weights:
+            copy = self._device_weights[name] = (weights, torch.from_numpy(weights).to(self.device))
+        return copy[1]
 
-    def train_on(self, batch: ReplayBatch) -> UpdateStats:
+    def train_on(self, batch: ReplayBatch, sample_weights: np.ndarray | None = None) -> UpdateStats:
         """One Adam step for all agents on ``batch`` (``[rows, B, ...]``, numpy on the host):
         :func:`~dqn_transfer.agents.dqn_update.reference_update` for every network at once.
 
@@ -140,11 +141,12 @@ class DQNLearner(BatchedDQN):
             actions = actions.unsqueeze(-1)
             q_taken = q_values.gather(-1, actions).squeeze(-1)  # Q(s, a) [rows, B]
             error = q_taken - targets
-            agent_losses = huber(error).mean(dim=1)  # [rows]
+            sample_weights_t = None if sample_weights is None else self._on_device("sample", sample_weights)
+            agent_losses = td_losses(error, sample_weights_t)  # [rows]
             valid = self.replay.size > 0
 
             # d loss / d Q(s, a), scattered onto the actions taken, then back through the network.
-            grad_taken = td_loss_grad(error, self._loss_weights(valid))
+            grad_taken = td_loss_grad(error, self._on_device("loss", self.loss_weights(valid)), sample_weights_t)
             grad_q = torch.zeros_like(q_values).scatter_add_(-1, actions, grad_taken.unsqueeze(-1))
             layers = self.trainable_layers
             self.q_network.backward(inputs, self._team_batch(grad_q), layers)

@@ -32,8 +32,10 @@ from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 
+from dqn_transfer.agents.agent_id import agent_id_rows, append_agent_id, with_agent_id
 from dqn_transfer.agents.base import (
     Experience,
+    ExperienceSharing,
     KnowledgeExchange,
     Learner,
     ObsLayout,
@@ -47,6 +49,7 @@ from dqn_transfer.agents.base import (
 )
 from dqn_transfer.agents.replay import ReplayBatch, ReplayBuffer
 from dqn_transfer.agents.replicas import team_view
+from dqn_transfer.agents.shared_experience import SharedExperience
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm
 
@@ -78,10 +81,13 @@ NetworkT = TypeVar("NetworkT", bound=StackedNetwork)
 OptimizerT = TypeVar("OptimizerT", bound=StackedOptimizer)
 
 
-class BatchedDQN(Learner, KnowledgeExchange, WarmStart, Generic[NetworkT, OptimizerT]):
+class BatchedDQN(Learner, KnowledgeExchange, ExperienceSharing, WarmStart, Generic[NetworkT, OptimizerT]):
     """K DQN / Double DQN agents, in R independent replicas (see the module docstring): a ``Learner``
     of the R x K agents as rows ``r * K + k`` (:meth:`replica` is one replica's team), with knowledge
-    exchange and warm start.
+    exchange, shared experience and warm start.
+
+    ``obs_layout`` and ``obs_dim`` describe the networks' input: the game's observation, and with
+    ``agent_id_input`` the ``agent_id`` segment the learner appends to it (:mod:`~dqn_transfer.agents.agent_id`).
 
     The engine contract: a subclass builds the members below in its ``__init__`` and implements the
     abstract methods (the engine hooks).
@@ -106,7 +112,9 @@ class BatchedDQN(Learner, KnowledgeExchange, WarmStart, Generic[NetworkT, Optimi
         algorithm = Algorithm(hp.algorithm)
         if algorithm.is_tabular:
             raise ValueError(f"{type(self).__name__} trains the DQN family, not {algorithm.value}")
-        super().__init__(algorithm, num_agents, obs_layout, num_actions)
+        self.agent_id_input = hp.agent_id_input
+        network_layout = with_agent_id(obs_layout, num_agents) if self.agent_id_input else obs_layout
+        super().__init__(algorithm, num_agents, network_layout, num_actions)
         self.double = algorithm is Algorithm.double_dqn
         self.lr = hp.lr
         self.gamma = hp.gamma
@@ -129,9 +137,13 @@ class BatchedDQN(Learner, KnowledgeExchange, WarmStart, Generic[NetworkT, Optimi
         # are JSON-able); the engine draws the initial weights from the seed itself.
         streams = [np.random.SeedSequence(s).spawn(2) for s in self.seeds]
         self.rngs = [np.random.default_rng(explore) for explore, _ in streams]
+        # Each row's agent-id columns (None: no such input); the replay stores the game's observations.
+        self._agent_ids = agent_id_rows(self.num_rows, num_agents) if self.agent_id_input else None
+        game_obs_dim = self.obs_dim - (num_agents if self.agent_id_input else 0)
         self.replay = ReplayBuffer(
-            self.num_rows, hp.buffer_size, self.obs_dim, [np.random.default_rng(replay) for _, replay in streams]
+            self.num_rows, hp.buffer_size, game_obs_dim, [np.random.default_rng(replay) for _, replay in streams]
         )
+        self.shared_experience: SharedExperience | None = None  # transfer.exchange=experience
         self.frozen_layers: list[int] = []
         self.num_gradient_steps = 0
         # What update returns when it does not train (read-only: the trainer only reads statistics).
@@ -140,16 +152,19 @@ class BatchedDQN(Learner, KnowledgeExchange, WarmStart, Generic[NetworkT, Optimi
 
     # ======================================================================== engine hooks
     @abstractmethod
-    def q_values(self, obs: np.ndarray, replica: int | None = None) -> np.ndarray:
-        """Each agent's online Q-values of its own observation: ``obs [rows, D] -> [rows, A]``."""
+    def _online_q_values(self, inputs: np.ndarray, replica: int | None) -> np.ndarray:
+        """The online networks' Q-values of their inputs: ``inputs`` float32 ``[rows, obs_dim] -> [rows, A]``
+        (rows of ``replica``, or of all)."""
 
     @abstractmethod
-    def _greedy_actions(self, obs: np.ndarray, replica: int | None) -> np.ndarray:
-        """``argmax_a Q(obs, a)`` per row, ``obs`` float32 ``[rows, D]`` (of ``replica``, or of all)."""
+    def _greedy_actions(self, inputs: np.ndarray, replica: int | None) -> np.ndarray:
+        """``argmax_a Q(inputs, a)`` per row, ``inputs`` float32 ``[rows, obs_dim]`` (of ``replica``, or of all)."""
 
     @abstractmethod
-    def train_on(self, batch: ReplayBatch) -> UpdateStats:
-        """One Adam step for all agents on ``batch`` (``[rows, B, ...]``)."""
+    def train_on(self, batch: ReplayBatch, sample_weights: np.ndarray | None = None) -> UpdateStats:
+        """One Adam step for all agents on ``batch`` (``[rows, B, ...]``, the networks' inputs); each row's
+        loss is its batch's mean, or with ``sample_weights`` ``[rows, B]`` their weighted sum
+        (:func:`~dqn_transfer.agents.dqn_update.td_losses`)."""
 
     @abstractmethod
     def _to_engine(self, array: np.ndarray) -> Any:
@@ -173,6 +188,13 @@ class BatchedDQN(Learner, KnowledgeExchange, WarmStart, Generic[NetworkT, Optimi
         m = self.members_per_replica
         return None if replica is None else slice(replica * m, (replica + 1) * m)
 
+    def _network_inputs(self, obs: np.ndarray, replica: int | None = None) -> np.ndarray:
+        """Observations ``[rows, ..., D]`` (rows of ``replica``, or of all) as the networks' inputs: with
+        ``agent_id_input`` each row's agent-id one-hot appended, else the observations themselves."""
+        if self._agent_ids is None:
+            return obs
+        return append_agent_id(obs, self._agent_ids if replica is None else self._agent_ids[self._rows(replica)])
+
     def _team_batch_numpy(self, obs: np.ndarray) -> np.ndarray:
         """``obs [rows, D]`` as the members' inputs ``[members, B, D]``: a shared network sees its
         replica's agents as one batch."""
@@ -181,6 +203,10 @@ class BatchedDQN(Learner, KnowledgeExchange, WarmStart, Generic[NetworkT, Optimi
         return obs[:, None, :]
 
     # ------------------------------------------------------------------------------ acting
+    def q_values(self, obs: np.ndarray, replica: int | None = None) -> np.ndarray:
+        """Each agent's online Q-values of its own observation: ``obs [rows, D] -> [rows, A]``."""
+        return self._online_q_values(self._network_inputs(np.asarray(obs, dtype=np.float32), replica), replica)
+
     def act(
         self, obs: np.ndarray, live: np.ndarray, epsilon: float | np.ndarray, replica: int | None = None
     ) -> np.ndarray:
@@ -203,13 +229,13 @@ class BatchedDQN(Learner, KnowledgeExchange, WarmStart, Generic[NetworkT, Optimi
         actions = joined(draws)
         exploit = actions < 0
         if exploit.any():
-            np.copyto(actions, self._greedy_actions(obs, replica), where=exploit)
+            np.copyto(actions, self._greedy_actions(self._network_inputs(obs, replica), replica), where=exploit)
         np.copyto(actions, 0, where=~np.asarray(live, dtype=bool))
         return actions
 
     def best_actions(self, obs: np.ndarray, replica: int | None = None) -> np.ndarray:
         """The first best action of each row (network outputs practically never tie), as a mask."""
-        greedy = self._greedy_actions(np.asarray(obs, dtype=np.float32), replica)
+        greedy = self._greedy_actions(self._network_inputs(np.asarray(obs, dtype=np.float32), replica), replica)
         best = np.zeros((len(greedy), self.num_actions), dtype=bool)
         best[np.arange(len(greedy)), greedy] = True
         return best
@@ -242,8 +268,23 @@ class BatchedDQN(Learner, KnowledgeExchange, WarmStart, Generic[NetworkT, Optimi
         return [l for l in range(self.q_network.num_layers) if l not in self.frozen_layers]
 
     def gradient_step(self) -> UpdateStats:
-        """One Adam step for all agents on a fresh replay batch (what ``update`` runs on schedule)."""
-        return self.train_on(self.replay.sample(self.batch_size))
+        """One Adam step for all agents on a fresh replay batch (what ``update`` runs on schedule): each
+        agent's own, or with shared experience drawn from all its team-mates' replays."""
+        if self.shared_experience is None:
+            batch, sample_weights = self.replay.sample(self.batch_size), None
+        else:
+            batch = self.replay.sample_rows(self.shared_experience.sources)
+            sample_weights = self.shared_experience.sample_weights(self.replay.size > 0)
+        if self._agent_ids is not None:
+            batch = batch._replace(obs=self._network_inputs(batch.obs), next_obs=self._network_inputs(batch.next_obs))
+        return self.train_on(batch, sample_weights)
+
+    def share_experience(self, experience_lambda: float) -> None:
+        """Draw every agent's batches from all its team-mates' replays (its replica's), their samples weighing
+        ``experience_lambda`` times its own (:mod:`~dqn_transfer.agents.shared_experience`)."""
+        self.shared_experience = SharedExperience(
+            self.num_replicas, self.num_agents, self.batch_size, experience_lambda
+        )
 
     def loss_weights(self, valid: np.ndarray) -> np.ndarray:
         """``[rows]`` weight of each row's mean loss in the total: 1 (each agent's gradient is its own

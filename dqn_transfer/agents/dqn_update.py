@@ -14,8 +14,9 @@ gradients and updated weights against :func:`reference_update` on the same weigh
 algorithm's decisions the engines need are the functions above it, array-generic (numpy arrays and
 torch tensors alike) and written once: :func:`dqn_targets` / :func:`double_dqn_targets` (with the
 termination mask), :func:`huber` and :func:`huber_grad` (the loss and its derivative, reduced by
-:func:`td_loss_grad`), :func:`clip_coefficient` (the clip rule). An engine keeps only numeric kernels:
-forward and backward matrix products, the gradient norms, Adam's arithmetic.
+:func:`td_losses` and :func:`td_loss_grad`, optionally with per-sample weights), :func:`clip_coefficient`
+(the clip rule). An engine keeps only numeric kernels: forward and backward matrix products, the gradient
+norms, Adam's arithmetic.
 
 This module imports no torch at import time (the numpy engine uses it and never imports torch);
 :func:`reference_update` imports torch when called.
@@ -96,10 +97,22 @@ def huber_grad(error: Array) -> Array:
     return _xp(error).clip(error, -1.0, 1.0)
 
 
-def td_loss_grad(error: Array, weights: Array) -> Array:
-    """d loss / d ``Q(s, a)`` ``[rows, B]`` for the engines' loss ``sum_rows weights[row] * mean_batch
-    huber(error[row])`` (``weights`` ``[rows]``: see ``BatchedDQN.loss_weights``)."""
-    return huber_grad(error) * (weights[:, None] / error.shape[-1])
+def td_losses(error: Array, sample_weights: Array | None = None) -> Array:
+    """Each row's loss ``[rows]``: the mean :func:`huber` of its batch ``error [rows, B]``, or with
+    ``sample_weights`` ``[rows, B]`` (each row's summing to 1, or all 0) their weighted sum: the weighted
+    mean of ``transfer.exchange=experience``, where a team-mate's sample weighs ``experience_lambda``
+    times an own one (:mod:`~dqn_transfer.agents.shared_experience`)."""
+    if sample_weights is None:
+        return huber(error).mean(-1)
+    return (huber(error) * sample_weights).sum(-1)
+
+
+def td_loss_grad(error: Array, weights: Array, sample_weights: Array | None = None) -> Array:
+    """d loss / d ``Q(s, a)`` ``[rows, B]`` for the engines' loss ``sum_rows weights[row] *
+    td_losses(error, sample_weights)[row]`` (``weights`` ``[rows]``: see ``BatchedDQN.loss_weights``)."""
+    if sample_weights is None:
+        return huber_grad(error) * (weights[:, None] / error.shape[-1])
+    return huber_grad(error) * (weights[:, None] * sample_weights)
 
 
 def clip_coefficient(norms: Array, max_norm: float) -> Array:
@@ -118,6 +131,7 @@ def reference_update(
     gamma: float,
     double: bool,
     max_grad_norm: float,
+    sample_weights: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """One gradient step of one Q-network (an ``nn.Module`` and its Adam), with autograd: the algorithm.
 
@@ -126,8 +140,9 @@ def reference_update(
     ``share_parameters``. ``weights`` ``[n]`` is each agent's share of the loss (``loss_weights``: 1 for
     its own network, 1/K for a shared one, 0 for an agent with no data yet). ``optimizer`` is
     ``torch.optim.Adam(q_network.parameters(), lr=agent.lr)`` (torch's defaults otherwise); a parameter
-    that does not require a gradient (a frozen layer) is neither clipped nor stepped. Returns each agent's
-    mean loss and mean ``Q(s, a)`` ``[n]``.
+    that does not require a gradient (a frozen layer) is neither clipped nor stepped. ``sample_weights``
+    ``[n, B]`` (``transfer.exchange=experience``) makes each agent's loss the weighted mean of its batch
+    instead of the plain mean (each row sums to 1). Returns each agent's loss and mean ``Q(s, a)`` ``[n]``.
 
     The engines take this step for every network at once; the gradient clip is per network (per agent,
     or per replica's shared network), never over all of them together.
@@ -148,7 +163,11 @@ def reference_update(
 
     # The loss: Huber between Q(s, a) and the target, averaged over each agent's batch, weighted over agents.
     q_taken = q_network(obs).gather(-1, actions.unsqueeze(-1)).squeeze(-1)
-    agent_losses = F.smooth_l1_loss(q_taken, td_target, reduction="none").mean(dim=-1)
+    sample_losses = F.smooth_l1_loss(q_taken, td_target, reduction="none")
+    if sample_weights is None:
+        agent_losses = sample_losses.mean(dim=-1)
+    else:
+        agent_losses = (sample_weights * sample_losses).sum(dim=-1)
     loss = (weights * agent_losses).sum()
 
     # The step: gradient, its norm clipped to max_grad_norm (agent.max_grad_norm), Adam.

@@ -19,7 +19,7 @@ import numpy as np
 
 from dqn_transfer.agents.base import ObsLayout, UpdateStats
 from dqn_transfer.agents.dqn_base import BatchedDQN
-from dqn_transfer.agents.dqn_update import clip_coefficient, double_dqn_targets, dqn_targets, huber, td_loss_grad
+from dqn_transfer.agents.dqn_update import clip_coefficient, double_dqn_targets, dqn_targets, td_loss_grad, td_losses
 from dqn_transfer.agents.replay import ReplayBatch
 from dqn_transfer.agents.stacked import SMALLEST_NORMAL, AdamState, StackedLayout
 from dqn_transfer.config import AgentConfig
@@ -244,16 +244,15 @@ class NumpyDQNLearner(BatchedDQN):
             obs = obs.reshape(rows // self.num_agents, self.num_agents * batch, width)
         return network.predict(obs, self._members(replica), inputs).reshape(rows, batch, -1)
 
-    def q_values(self, obs: np.ndarray, replica: int | None = None) -> np.ndarray:
-        obs = np.asarray(obs, dtype=np.float32)
-        return self._predict(self.q_network, obs[:, None, :], replica)[:, 0]
+    def _online_q_values(self, inputs: np.ndarray, replica: int | None) -> np.ndarray:
+        return self._predict(self.q_network, inputs[:, None, :], replica)[:, 0]
 
-    def _greedy_actions(self, obs: np.ndarray, replica: int | None) -> np.ndarray:
-        return self.q_values(obs, replica).argmax(axis=-1)
+    def _greedy_actions(self, inputs: np.ndarray, replica: int | None) -> np.ndarray:
+        return self._online_q_values(inputs, replica).argmax(axis=-1)
 
-    def train_on(self, batch: ReplayBatch) -> UpdateStats:
+    def train_on(self, batch: ReplayBatch, sample_weights: np.ndarray | None = None) -> UpdateStats:
         """One Adam step for all agents on ``batch`` (``[rows, B, ...]``): the torch engine's loss,
-        ``sum_rows weight[row] * mean_batch Huber(Q(s, a) - y)``, and its gradient by the chain rule."""
+        ``sum_rows weight[row] * td_losses(Q(s, a) - y, sample_weights)[row]``, and its gradient by the chain rule."""
         obs, actions, rewards, next_obs, terminated = batch
         rows, cols = self._batch_grid(actions.shape)  # (row, sample) of each Q(s, a) picked below
         next_q_target = self._predict(self.target_network, next_obs)
@@ -268,11 +267,11 @@ class NumpyDQNLearner(BatchedDQN):
         q_values = self._predict(self.q_network, obs, inputs=inputs)
         q_taken = q_values[rows, cols, actions]  # Q(s, a) [rows, B]
         error = q_taken - targets
-        agent_losses = huber(error).mean(axis=1)
+        agent_losses = td_losses(error, sample_weights)
         valid = self.replay.size > 0
 
         # d loss / d Q(s, a), scattered onto the actions taken, then back through the network.
-        grad_taken = td_loss_grad(error, self.loss_weights(valid))
+        grad_taken = td_loss_grad(error, self.loss_weights(valid), sample_weights)
         grad_q = np.zeros_like(q_values)
         grad_q[rows, cols, actions] = grad_taken
         if self.share_parameters:

@@ -139,9 +139,24 @@ class ReplayBuffer:
         cols = np.concatenate(
             [rng.integers(0, high[r * k : (r + 1) * k], size=(k, batch_size)) for r, rng in enumerate(self.rngs)]
         )
+        return self._gather(np.arange(self.num_rows)[:, None], cols)
+
+    def sample_rows(self, sources: np.ndarray) -> ReplayBatch:
+        """``sources [rows, B]``: sample b of row i is drawn uniformly (with replacement) from the filled
+        range of row ``sources[i, b]`` (a row of the same replica: each replica's generator draws its
+        rows' samples). ``transfer.exchange=experience`` draws an agent's batch from its team-mates' rows
+        this way (:mod:`~dqn_transfer.agents.shared_experience`). An empty source row gives placeholders
+        (slot 0), whose weight in the loss must be 0."""
+        high = np.maximum(self.size, 1)[sources]
+        k = self.rows_per_rng
+        cols = np.concatenate([rng.integers(0, high[r * k : (r + 1) * k]) for r, rng in enumerate(self.rngs)])
+        return self._gather(sources, cols)
+
+    def _gather(self, rows: np.ndarray, cols: np.ndarray) -> ReplayBatch:
+        """The transitions at slots ``cols [rows, B]`` of rows ``rows`` (broadcast against ``cols``)."""
         # One flat gather (row k, slot c is element k * capacity + c of the [rows * capacity, width] view).
-        flat = (np.arange(self.num_rows)[:, None] * self.capacity + cols).reshape(-1)
-        picked = self.storage.reshape(-1, self.storage.shape[-1])[flat].reshape(self.num_rows, batch_size, -1)
+        flat = (rows * self.capacity + cols).reshape(-1)
+        picked = self.storage.reshape(-1, self.storage.shape[-1])[flat].reshape(*cols.shape, -1)
         c = self.columns
         return ReplayBatch(
             picked[..., c["obs"]],

@@ -61,6 +61,11 @@ class AgentConfig:
         "DQN arithmetic: auto (numpy on device=cpu, else torch) | torch (any device) | numpy (CPU, no torch "
         "import: ~3x torch on these small networks)",
     )
+    agent_id_input: bool = documented(
+        False,
+        "with share_parameters: append a one-hot of the agent's index to its observation (segment agent_id), "
+        "so the shared network can tell the agents apart",
+    )
 
 
 # Each AgentConfig key -> Stable-Baselines3 DQN's keyword for the same quantity ("hidden" becomes
@@ -119,8 +124,8 @@ class TransferConfig:
     freeze: List[int] = documented(factory=list, doc="indices of layers kept fixed")
     exchange: Exchange = documented(
         Exchange.none,
-        "knowledge exchange inside the team during training: none | best | shared_replay | confidence | advice "
-        "(the last two for tabular learners)",
+        "knowledge exchange inside the team during training: none | best | shared_replay | experience (DQN) | "
+        "confidence | advice (tabular learners)",
     )
     exchange_every: int = documented(20, "episodes between exchanges")
     exchange_tau: float = documented(0.5, "'best': weight of the best agent in the soft copy")
@@ -134,6 +139,11 @@ class TransferConfig:
         10, "'advice': the team-mate that visited the state most answers if it visited it at least this often"
     )
     advice_budget: int = documented(500, "'advice': advised steps per agent per run")
+    experience_lambda: float = documented(
+        1.0,
+        "'experience': weight of the team-mates' samples in each agent's loss, relative to its own (0: no "
+        "sharing in the loss)",
+    )
 
 
 @dataclass
@@ -304,7 +314,12 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
     )
     if is_tabular:
         _check(not transfer.freeze, "transfer.freeze applies to network layers; tabular learners have none")
+        _check(not agent.agent_id_input, "agent.agent_id_input applies to the DQN learners only")
         _check(not agent.share_parameters, "agent.share_parameters applies to the DQN learners only")
+        _check(
+            Exchange(transfer.exchange) is not Exchange.experience,
+            "transfer.exchange=experience samples the team-mates' replay: it applies to the DQN learners only",
+        )
     else:
         layers = len(agent.hidden) + 1
         _check(
@@ -327,6 +342,7 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
         "map in this run's: they need transfer=on",
     )
     _check_source_agent("transfer.source_agent", transfer.source_agent)
+    _check_team_inputs(cfg)
     _check_pretraining(cfg)
     _check_curriculum(cfg)
     if agent.share_parameters:
@@ -339,6 +355,22 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
             transfer.exchange != Exchange.best,
             "transfer.exchange=best: with agent.share_parameters=true there is only one network to exchange",
         )
+
+
+def _check_team_inputs(cfg: DictConfig | TrainConfig) -> None:
+    """``agent.agent_id_input`` tells the agents of a shared network apart: it needs one;
+    ``transfer.experience_lambda`` weighs shared experience: it needs ``transfer.exchange=experience``."""
+    agent, transfer = cfg.agent, cfg.transfer
+    _check(
+        agent.share_parameters or not agent.agent_id_input,
+        "agent.agent_id_input=true tells the agents of a shared network apart: it needs agent.share_parameters=true",
+    )
+    lam = transfer.experience_lambda
+    _check(0.0 <= lam < math.inf, f"transfer.experience_lambda must be >= 0 and finite, got {lam}")
+    _check(
+        lam == 1.0 or Exchange(transfer.exchange) is Exchange.experience,
+        f"transfer.experience_lambda={lam} weighs shared experience: it needs transfer.exchange=experience",
+    )
 
 
 def _check_pretraining(cfg: DictConfig | TrainConfig) -> None:

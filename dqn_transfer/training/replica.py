@@ -274,7 +274,7 @@ class Replica:
             self.logger.scalar("team/exchange_best_agent", best, self.counters.step)
         elif transfer.exchange is Exchange.confidence:
             exchange_confidence(self.learner, transfer.confidence_weight)
-        else:
+        elif transfer.exchange is Exchange.shared_replay:
             exchange_replay(self.learner, self.shared_transitions)
             self.shared_transitions.clear()
         self.window_returns.clear()

@@ -101,7 +101,7 @@ def estimate(config: TrainConfig, size: int, num_agents: int, num_treasures: int
     shared = Exchange(config.transfer.exchange) is Exchange.shared_replay
     filled = min(agent.buffer_size, steps * (num_agents if shared else 1))
     replay = replicas * num_agents * filled * (2 * width + 3) * FLOAT
-    sizes = [width, *agent.hidden, NUM_ACTIONS]
+    sizes = [width + (num_agents if agent.agent_id_input else 0), *agent.hidden, NUM_ACTIONS]
     parameters = sum(a * b + b for a, b in zip(sizes, sizes[1:]))
     members = replicas * (1 if agent.share_parameters else num_agents)
     return Estimate(replay=replay, networks=members * parameters * 5 * FLOAT, maps=maps)

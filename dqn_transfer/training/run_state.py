@@ -35,7 +35,7 @@ def agent_meta(rep: Replica, index: int, algorithm: Algorithm, source_task: bool
     return {
         "algorithm": algorithm.value,
         "agent_index": index,
-        "obs_layout": [[name, size] for name, size in game.obs_layout()],
+        "obs_layout": [[name, size] for name, size in rep.learner.obs_layout],  # the networks' inputs
         "num_actions": game.num_actions,
         "network": rep.learner.network_meta(),
         # The game as played: for the treasure hunt its map (``make_game(**meta["env"])`` rebuilds it from
@@ -76,7 +76,7 @@ def encode_checkpoint(
         "learner": learner_meta,
         "last_eval": rep.last_eval,
         "transfer": rep.transfer_info,
-        "obs_layout": [[name, size] for name, size in rep.game.obs_layout()],
+        "obs_layout": [[name, size] for name, size in rep.learner.obs_layout],
         "algorithm": algorithm.value,
         "config": rep.plain_config,  # what resume=true continues with
         "layout": rep.game.identity(),  # the map itself (a layout file may have changed since), or the game's spaces
@@ -89,7 +89,7 @@ def encode_checkpoint(
 def load_checkpoint(rep: Replica, algorithm: Algorithm) -> None:
     """Restore the replica from its resume state, refusing one made with another learner or map."""
     arrays, meta = load_training_state(rep.run_dir.training_state)
-    expected_layout = [[name, size] for name, size in rep.game.obs_layout()]
+    expected_layout = [[name, size] for name, size in rep.learner.obs_layout]
     if meta.get("obs_layout") != expected_layout or meta.get("algorithm") != algorithm.value:
         raise CheckpointError(
             f"{rep.run_dir.checkpoints}: the run was made with algorithm {meta.get('algorithm')} and obs layout "

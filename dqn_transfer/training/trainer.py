@@ -37,7 +37,7 @@ from hydra.types import RunMode
 from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
-from dqn_transfer.agents import Learner, Transition, UpdateStats, make_replicas
+from dqn_transfer.agents import ExperienceSharing, Learner, Transition, UpdateStats, make_replicas, require
 from dqn_transfer.config import ConfigError, plain_yaml, to_plain
 from dqn_transfer.enums import Algorithm, Exchange, Logger
 from dqn_transfer.envs.game_batch import GameBatch, game_batch
@@ -109,6 +109,9 @@ class Trainer:
         check_capabilities(config, self.learner, warm_start=config.transfer.enabled and not self.source_task)
         if config.transfer.exchange is Exchange.advice:  # full budgets; a resumed run then loads what was left
             start_advice(self.learner, config.transfer)
+        if config.transfer.exchange is Exchange.experience:
+            sharing = require(self.learner, ExperienceSharing, "transfer.exchange=experience")
+            sharing.share_experience(config.transfer.experience_lambda)
         lone = len(plan.replicas) == 1
         # null: someone watches a run started by hand, one replica of it; a sweep's jobs are compared by curves
         pictures = [r == 0 and not in_multirun() for r in range(len(plan.replicas))]

@@ -6,7 +6,7 @@ refused with a ``ConfigError`` naming the key, before any step is taken, not in 
 
 from __future__ import annotations
 
-from dqn_transfer.agents import KnowledgeExchange, Team, VisitExchange, WarmStart, require
+from dqn_transfer.agents import ExperienceSharing, KnowledgeExchange, Team, VisitExchange, WarmStart, require
 from dqn_transfer.config import TrainConfig
 from dqn_transfer.enums import Exchange
 
@@ -16,10 +16,13 @@ def needed_capabilities(config: TrainConfig, warm_start: bool) -> list[tuple[typ
     its agents from a transfer source (a source task's own run does not)."""
     transfer = config.transfer
     needed: list[tuple[type, str]] = []
-    if Exchange(transfer.exchange) is not Exchange.none:
-        needed.append((KnowledgeExchange, f"transfer.exchange={Exchange(transfer.exchange).value}"))
-    if Exchange(transfer.exchange).reads_visits:
-        needed.append((VisitExchange, f"transfer.exchange={Exchange(transfer.exchange).value}"))
+    exchange = Exchange(transfer.exchange)
+    if exchange is Exchange.experience:
+        needed.append((ExperienceSharing, "transfer.exchange=experience"))
+    elif exchange is not Exchange.none:
+        needed.append((KnowledgeExchange, f"transfer.exchange={exchange.value}"))
+    if exchange.reads_visits:
+        needed.append((VisitExchange, f"transfer.exchange={exchange.value}"))
     if warm_start and transfer.freeze:
         needed.append((WarmStart, f"transfer.freeze={list(transfer.freeze)}"))
     if warm_start and not transfer.reset_optimizer:

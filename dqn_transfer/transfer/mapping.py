@@ -11,7 +11,11 @@ the source and the target may order them differently:
   MDP carries over unchanged into the expanded state, and training only has to learn how the new
   segments should change it;
 - a segment only the source has is dropped, with a warning (the network then behaves as if that
-  segment were all zeros).
+  segment were all zeros);
+- ``agent_id`` (a shared network's one-hot of the agent's index, ``agent.agent_id_input``) may change
+  size with the team: column k is agent k's on both sides, so agent k < min(K_source, K_target) keeps
+  its columns, a new agent's column gets zero weights (it reads no index) and a source-only agent's is
+  dropped.
 
 The maps may differ too (an :class:`Embedding`): the source map is placed at ``offset`` inside a target
 map at least as large. A source cell maps to its shifted target cell, and a source chest to the target
@@ -48,6 +52,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dqn_transfer.agents.agent_id import AGENT_ID
 from dqn_transfer.agents.tabular import fallback_names, fallback_tables
 
 Layout = Sequence[tuple[str, int]]
@@ -184,8 +189,17 @@ class SegmentPlan:
 
 
 def _resized_by(embedding: Embedding | None, name: str) -> bool:
-    """Whether ``embedding`` maps segment ``name`` between sizes (cells or chests)."""
-    return embedding is not None and (name == "position" or name in CHEST_SEGMENTS)
+    """Whether segment ``name`` may differ in size: ``agent_id`` (another team size), and with an
+    ``embedding`` the cells and chests it maps."""
+    return name == AGENT_ID or (embedding is not None and (name == "position" or name in CHEST_SEGMENTS))
+
+
+def _index_pairs(seg: SharedSegment) -> tuple[np.ndarray, np.ndarray]:
+    """Source and target columns of a segment copied column by column: the first ``min`` of the two
+    sizes (the same size but for ``agent_id``, whose column k is agent k's on both sides; a new agent's
+    column reads nothing, a source-only agent's is dropped)."""
+    n = min(seg.source.stop - seg.source.start, seg.target.stop - seg.target.start)
+    return seg.source.start + np.arange(n), seg.target.start + np.arange(n)
 
 
 def _check_against_maps(layout: list[tuple[str, int]], geometry: MapGeometry, which: str) -> None:
@@ -266,7 +280,7 @@ def input_map(plan: SegmentPlan, embedding: Embedding | None = None) -> tuple[np
             kept = np.flatnonzero(chests >= 0)
             matrix[s + kept, t + chests[kept]] = 1.0
         else:
-            matrix[seg.source, seg.target] = np.eye(seg.source.stop - s)
+            matrix[_index_pairs(seg)] = 1.0
     return matrix, shift
 
 
@@ -397,7 +411,8 @@ def _column_targets(plan: SegmentPlan, embedding: Embedding | None) -> np.ndarra
             chests = embedding.chest_targets()
             targets[seg.source] = np.where(chests >= 0, seg.target.start + chests, -1)
         else:
-            targets[seg.source] = np.arange(seg.target.start, seg.target.stop)
+            source_columns, target_columns = _index_pairs(seg)
+            targets[source_columns] = target_columns
     return targets
 
 

@@ -33,6 +33,7 @@ from dqn_transfer.storage.checkpoint import (
 from dqn_transfer.storage.run_dir import TRAINING_STATE_FILE
 from dqn_transfer.transfer.mapping import (
     Embedding,
+    Layout,
     MapGeometry,
     SegmentPlan,
     TransferError,
@@ -132,11 +133,12 @@ class MappedSource:
         return record
 
 
-def map_source(config: TrainConfig, game: Game, path: Path) -> MappedSource:
-    """Load ``path`` and map its tensors onto ``game``'s agents; every refusal is one TransferError line."""
+def map_source(config: TrainConfig, game: Game, path: Path, target_layout: Layout) -> MappedSource:
+    """Load ``path`` and map its tensors onto ``game``'s agents, whose inputs are ``target_layout`` (the
+    learner's: the game's segments, and ``agent_id`` with ``agent.agent_id_input``); every refusal is one
+    TransferError line."""
     tensors, meta = load_agent_checkpoint(path)
     algorithm = Algorithm(config.agent.algorithm)
-    target_layout = game.obs_layout()
     try:
         check_compatible(meta, {"algorithm": algorithm.value, "num_actions": game.num_actions})
         check_same_game(meta, game)
@@ -164,7 +166,7 @@ def apply_transfer(config: TrainConfig, learner: Team, game: Game, source: Path 
         raise TransferError(f"{len(files)} source checkpoints for {len(targets)} target agents {targets}")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        mapped = {path: map_source(config, game, path) for path in dict.fromkeys(files)}
+        mapped = {path: map_source(config, game, path, learner.obs_layout) for path in dict.fromkeys(files)}
     for warning in caught:
         log.warning("transfer: %s", warning.message)
     per_target = [mapped[path] for path in files]
