@@ -86,8 +86,8 @@ def test_sb3_kwargs_give_sb3_our_values_under_its_names():
         "device": "cpu",
     }
     # Every hyperparameter the DQN learner and the trainer read is matched (a new key must be added).
-    # hidden: net_arch; the others fixed (engine: what computes ours, not a hyperparameter)
-    matched = {*SB3_NAMES, "hidden", "algorithm", "share_parameters", "engine"}
+    # hidden: net_arch; the others fixed (engine: what computes ours, not a hyperparameter; agent_id_input off)
+    matched = {*SB3_NAMES, "hidden", "algorithm", "share_parameters", "agent_id_input", "engine"}
     assert matched == {field.name for field in dataclasses.fields(AgentConfig)}
     model = sb3_dqn(TINY, TINY_MAP, seed=0)  # and SB3 keeps them as given
     assert (model.batch_size, model.buffer_size, model.learning_starts) == (8, 200, 20)

@@ -569,13 +569,17 @@ class TabularLearner(Learner, KnowledgeExchange, VisitExchange):
         return {"obs_dim": self.obs_dim, "num_actions": self.num_actions}
 
     def training_state(self, replica: int = 0) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        """One replica's SARSA next-action cache, draw counters, visit counts (by observation: the states'
-        ids are not kept) and advice budgets (the tables are in ``agent_tensors``)."""
+        """One replica's SARSA next-action cache, draw counters, visit counts (by observation, sorted: the
+        states' ids are not kept) and advice budgets (the tables are in ``agent_tensors``)."""
         rows = self._rows(replica)
         cached = self.next_action[rows] != _NO_ACTION
         next_obs = np.zeros((len(rows), self.obs_dim), dtype=np.float32)
         next_obs[cached] = self.state_keys[replica, self.next_state[rows[cached]]]
         visited = np.flatnonzero(self.visits[rows, : self.num_states[replica]].any(axis=0))
+        # In the observations' lexicographic order: ids depend on the order of lookups (an evaluation
+        # picture looks up states early; a resume enters them anew), the checkpoint must not.
+        keys = self.state_keys[replica, visited]
+        visited = visited[np.lexsort(keys.T[::-1])]
         arrays = {
             "next_action": self.next_action[rows].copy(),
             "next_action_obs": next_obs,
