@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from dqn_transfer.agents import Experience, TabularLearner, Transition
+from dqn_transfer.agents.base import Acting
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm, Mode
 from dqn_transfer.envs.game import make_game
@@ -366,3 +367,21 @@ def test_learning_from_team_mates_is_one_update_per_transition_in_order(algorith
     for i in range(6):
         for name, array in fast.agent_tensors(i).items():
             assert np.array_equal(array, reference.agent_tensors(i)[name]), (i, name)
+
+
+def test_best_actions_of_stacked_observations_are_one_lookup_of_the_one_at_a_time_answers():
+    """The tables answer E observations per row in one lookup: the same actions as E calls of
+    best_actions (Acting's own loop), and the same states numbered in the same order."""
+    tables = [tabular("sarsa", 2, layout=[("cell", 2)], actions=3, seed=[1, 2, 3]) for _ in range(2)]
+    rng = np.random.default_rng(3)
+    cells = np.array([[x, y] for x in range(3) for y in range(3)], dtype=np.float32)
+    known = {"keys": cells[:5], "values": rng.integers(0, 3, size=(5, 3)).astype(np.float32)}  # with ties
+    for table in tables:
+        for i in range(6):
+            table.load_agent_tensors(i, known)
+    for _ in range(3):
+        obs = cells[rng.integers(0, 9, size=(4, 6))]  # E = 4 observations for each of the 6 rows
+        fast, reference = tables[0].best_actions_stacked(obs), Acting.best_actions_stacked(tables[1], obs)
+        assert fast.shape == (4, 6, 3) and np.array_equal(fast, reference)
+    assert np.array_equal(tables[0].num_states, tables[1].num_states)
+    assert np.array_equal(tables[0].state_keys, tables[1].state_keys)

@@ -94,6 +94,11 @@ class Acting(ABC):
     def q_values(self, obs: np.ndarray) -> np.ndarray:
         """Each agent's Q-values of its own observation: ``obs [K, D] -> [K, A]`` (a copy)."""
 
+    def best_actions_stacked(self, obs: np.ndarray) -> np.ndarray:
+        """:meth:`best_actions` of E observations per agent, ``obs [E, K, D] -> bool [E, K, A]`` (E
+        evaluation episodes side by side); a learner may answer them in one pass."""
+        return np.stack([self.best_actions(stacked) for stacked in obs])
+
     def greedy(self, obs: np.ndarray, live: np.ndarray, ties: np.random.Generator | None = None) -> np.ndarray:
         """The live agents' best actions (the others' are 0), consuming none of the learner's random
         numbers: a tie goes to a best action drawn from ``ties`` (an evaluation episode's own generator),

@@ -269,10 +269,10 @@ class TabularLearner(Learner, KnowledgeExchange, VisitExchange):
         states = np.array([state for _, state in self._new_hashes], dtype=np.int64)
         self._new_hashes.clear()
         hashes, first = np.unique(hashes, return_index=True)
-        fresh = ~np.isin(hashes, self._hashes)
-        at = np.searchsorted(self._hashes, hashes[fresh])
-        self._hashes = np.insert(self._hashes, at, hashes[fresh])
-        self._hashed_ids = np.insert(self._hashed_ids, at, states[first][fresh])
+        at = np.searchsorted(self._hashes, hashes)
+        fresh = self._hashes[np.minimum(at, len(self._hashes) - 1)] != hashes if len(self._hashes) else at >= 0
+        self._hashes = np.insert(self._hashes, at[fresh], hashes[fresh])
+        self._hashed_ids = np.insert(self._hashed_ids, at[fresh], states[first][fresh])
 
     def _grow(self) -> None:
         """Double every replica's room for states."""
@@ -292,7 +292,10 @@ class TabularLearner(Learner, KnowledgeExchange, VisitExchange):
 
     def q_values(self, obs: np.ndarray, replica: int | None = None) -> np.ndarray:
         """Each agent's Q-values of its own observation: ``obs [rows, D] -> [rows, A]``."""
-        rows = self._rows(replica)
+        return self.q_values_of(obs, self._rows(replica))
+
+    def q_values_of(self, obs: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """Row ``rows[n]``'s Q-values of ``obs[n]`` (rows may repeat)."""
         states = self.state_ids(obs, rows)  # before reading self.q: new states may grow it
         return self.q[rows, states]
 
@@ -370,6 +373,14 @@ class TabularLearner(Learner, KnowledgeExchange, VisitExchange):
         values are equal play the same moves whatever their observations encode."""
         q = self.q_values(obs, replica)
         return q == q.max(axis=1, keepdims=True)
+
+    def best_actions_stacked(self, obs: np.ndarray) -> np.ndarray:
+        """:meth:`best_actions` of E observations per row (``obs [E, rows, D]``, every replica's rows),
+        all looked up at once."""
+        episodes = len(obs)
+        rows = np.tile(self._rows(None), episodes)
+        q = self.q_values_of(obs.reshape(episodes * self.num_rows, -1), rows)
+        return (q == q.max(axis=1, keepdims=True)).reshape(episodes, self.num_rows, -1)
 
     # -------------------------------------------------------------------------------- learning
 

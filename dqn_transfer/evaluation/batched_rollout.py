@@ -4,8 +4,8 @@ side through the batched core, with the numbers of :func:`~dqn_transfer.evaluati
 An evaluation of replica r plays ``episodes`` greedy episodes, episode e reset with
 :func:`~dqn_transfer.evaluation.rollout.evaluation_rng` ``(seed_r, evaluation_r, e)`` (which draws the
 chest ties) and breaking the ties between equal values with a child of it. Here the ``R x E`` games
-are one batch (game ``e * R + r``, so that one episode slot of all replicas is one forward of the
-learner's ``R * K`` rows), stepped until every episode has ended; each game draws from its own
+are one batch (game ``e * R + r``, so that the learner's ``R * K`` rows answer every episode slot in
+one call, ``best_actions_stacked``), stepped until every episode has ended; each game draws from its own
 generators in the same order as when played alone, so every record is the one
 :func:`~dqn_transfer.evaluation.rollout.evaluate` gives (``tests/test_batched_rollout.py``). Games
 the batched core cannot step together (another game) are evaluated replica by replica.
@@ -82,11 +82,15 @@ def play_greedy_batch(
     while state.live.any():
         live = state.live
         obs = state.obs.reshape(episodes, replicas * agents, -1)
-        best = np.concatenate([learner.best_actions(obs[e]) for e in range(episodes)])  # [G * K, A]
+        best = learner.best_actions_stacked(obs).reshape(count * agents, -1)  # [G * K, A]
         actions = np.where(live.reshape(-1), best.argmax(axis=1), 0).astype(np.int64)
-        for row in np.flatnonzero(live.reshape(-1) & (best.sum(axis=1) > 1)).tolist():
-            choices = np.flatnonzero(best[row])  # a tie, drawn as break_ties draws it
-            actions[row] = choices[int(ties[row // agents].integers(len(choices)))]
+        counts = best.sum(axis=1)
+        tied = np.flatnonzero(live.reshape(-1) & (counts > 1))
+        if tied.size:  # each tie drawn as break_ties draws it: the k-th of the best actions
+            picks = [
+                int(ties[row // agents].integers(count)) for row, count in zip(tied.tolist(), counts[tied].tolist())
+            ]
+            actions[tied] = np.argmax(np.cumsum(best[tied], axis=1) > np.array(picks)[:, None], axis=1)
         state, outcome = batched.step(maps, state, actions.reshape(count, agents), rngs, finished_stay=True)
         active = live.any(axis=1)
         step_return = team_returns_of(outcome.rewards, live, reward_mode)
