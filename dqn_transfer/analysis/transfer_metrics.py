@@ -34,7 +34,9 @@ def mean_curve(curves: Sequence[Curve]) -> Curve:
     return steps, values.mean(axis=0)
 
 
-def _check_curve(curve: Curve) -> Curve:
+def check_curve(curve: Curve) -> Curve:
+    """``curve`` as two float arrays; a ValueError unless they are non-empty, 1-D, of equal length, with
+    strictly increasing steps."""
     steps, values = (np.asarray(a, dtype=np.float64) for a in curve)
     if steps.ndim != 1 or steps.shape != values.shape or steps.size == 0:
         raise ValueError("a curve is two non-empty 1-D arrays (steps, values) of equal length")
@@ -45,7 +47,7 @@ def _check_curve(curve: Curve) -> Curve:
 
 def jumpstart(transfer_curve: Curve, baseline_curve: Curve) -> float:
     """Initial gain from transfer: transfer minus baseline value at their first common step."""
-    (ts, tv), (bs, bv) = _check_curve(transfer_curve), _check_curve(baseline_curve)
+    (ts, tv), (bs, bv) = check_curve(transfer_curve), check_curve(baseline_curve)
     common = np.intersect1d(ts, bs)
     if common.size == 0:
         raise ValueError("the curves share no evaluation step; jumpstart is undefined")
@@ -53,21 +55,30 @@ def jumpstart(transfer_curve: Curve, baseline_curve: Curve) -> float:
     return float(tv[ts == first][0] - bv[bs == first][0])
 
 
+def tail_count(size: int, tail_fraction: float) -> int:
+    """How many evaluations the last ``tail_fraction`` of ``size`` holds: ``ceil(tail_fraction * size)``,
+    at least one; a curve's tail in :func:`asymptotic_performance` and in the budget rule's slopes.
+
+    :param size: the curve's number of evaluations.
+    :param tail_fraction: the share of the evaluations, in (0, 1].
+    """
+    if not 0.0 < tail_fraction <= 1.0:
+        raise ValueError(f"tail_fraction must be in (0, 1], got {tail_fraction}")
+    return max(1, math.ceil(round(tail_fraction * size, 9)))  # round: 0.1 * 30 is 3.0000000000000004
+
+
 def asymptotic_performance(curve: Curve, tail_fraction: float = 0.1) -> float:
     """Final performance: mean of the last ``ceil(tail_fraction * n)`` evaluations (at least one).
 
     Averaging a tail rather than taking the last point damps the noise of a single evaluation.
     """
-    _, values = _check_curve(curve)
-    if not 0.0 < tail_fraction <= 1.0:
-        raise ValueError(f"tail_fraction must be in (0, 1], got {tail_fraction}")
-    count = max(1, math.ceil(round(tail_fraction * values.size, 9)))  # round: 0.1 * 30 is 3.0000000000000004
-    return float(values[-count:].mean())
+    _, values = check_curve(curve)
+    return float(values[-tail_count(values.size, tail_fraction) :].mean())
 
 
 def total_reward(curve: Curve) -> float:
     """Area under the curve over steps (trapezoid rule); 0 for a single evaluation."""
-    steps, values = _check_curve(curve)
+    steps, values = check_curve(curve)
     return _area(steps, values)
 
 
@@ -97,7 +108,7 @@ def transfer_ratio(transfer_curve: Curve, baseline_curve: Curve) -> float:
       ``nan`` when both are flat at the same value (0 / 0), or when the curves do not overlap.
     The floor is data-dependent, so compare ratios only between curves of the same experiment.
     """
-    (ts, tv), (bs, bv) = _check_curve(transfer_curve), _check_curve(baseline_curve)
+    (ts, tv), (bs, bv) = check_curve(transfer_curve), check_curve(baseline_curve)
     start, end = max(ts[0], bs[0]), min(ts[-1], bs[-1])
     if end <= start:
         return math.nan
@@ -118,6 +129,6 @@ def _area(steps: np.ndarray, values: np.ndarray) -> float:
 
 def time_to_threshold(curve: Curve, threshold: float) -> float:
     """First evaluation step whose value is >= ``threshold``; ``nan`` if the curve never gets there."""
-    steps, values = _check_curve(curve)
+    steps, values = check_curve(curve)
     reached = np.flatnonzero(values >= threshold)
     return float(steps[reached[0]]) if reached.size else math.nan
