@@ -12,11 +12,12 @@ import json
 import pytest
 
 from dqn_transfer.agents import make_learner
+from dqn_transfer.cli.bounds import main
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm, Bound
 from dqn_transfer.envs.game import TreasureHuntGame, make_game
 from dqn_transfer.envs.maps import GridMap, optimal_team_return, parse_layout
-from dqn_transfer.evaluation.bounds import evaluate_bound, main
+from dqn_transfer.evaluation.bounds import evaluate_bound
 from dqn_transfer.evaluation.rollout import evaluate
 
 # 8 moves around the wall: down 3, right 2, up 3. 100 - 7 = 93.

@@ -21,7 +21,7 @@ def exit_with(main: Callable[[], int]) -> None:
 
 class OneLineErrors(argparse.ArgumentParser):
     """An argument parser whose bad input is one ``error:`` line on stderr and exit code 2, without the usage
-    block (``python -m dqn_transfer.evaluation.bounds`` has its own, below ``cli/`` in the layers)."""
+    block."""
 
     def error(self, message: str) -> NoReturn:
         print(f"error: {message}", file=sys.stderr)

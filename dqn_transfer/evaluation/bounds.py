@@ -22,27 +22,19 @@ the game has no "stay" action, so it moves off the grid if it can (which leaves 
 a free cell or a chest believed empty, else into an obstacle (back to its start) or a full chest, and
 into a trap only if nothing else is left.
 
-    python -m dqn_transfer.evaluation.bounds --map-seed 0 --size 8 --num-treasures 4 --num-traps 4 \\
+    python -m dqn_transfer.cli.bounds --map-seed 0 --size 8 --num-treasures 4 --num-traps 4 \\
         --num-agents 4 --mode cooperative --episodes 5
 """
 
 from __future__ import annotations
 
-import argparse
-import json
-import sys
-import typing
-from dataclasses import fields
-from enum import Enum
 from typing import Any
 
 import numpy as np
 
-from dqn_transfer.documented import HELP
-from dqn_transfer.enums import Bound, values
-from dqn_transfer.envs.game import ACTION_MOVES, TreasureHuntGame, assign_agents, make_game
+from dqn_transfer.enums import Bound
+from dqn_transfer.envs.game import ACTION_MOVES, TreasureHuntGame, assign_agents
 from dqn_transfer.envs.maps import GridMap
-from dqn_transfer.envs.settings import ENV_KEYS, EnvConfig
 from dqn_transfer.evaluation.rollout import Policy, evaluation_rng, play_episode, summarize
 
 # How an agent without a chest ranks a move (lowest first): staying in place, a harmless cell, a move
@@ -184,50 +176,3 @@ def evaluate_bound(game: TreasureHuntGame, kind: Bound | str, episodes: int, see
     policy = POLICIES[Bound(kind)](game)  # it keeps nothing between steps, so one serves every episode
     rngs = (evaluation_rng(seed, 0, episode) for episode in range(episodes))
     return summarize([play_episode(game, policy, rng) for rng in rngs])
-
-
-class _OneLineErrors(argparse.ArgumentParser):
-    """Bad input is one ``error:`` line on stderr and exit code 2, without the usage block."""
-
-    def error(self, message: str) -> typing.NoReturn:
-        print(f"error: {message}", file=sys.stderr)
-        sys.exit(2)
-
-
-def _env_options(parser: argparse.ArgumentParser) -> None:
-    """One ``--key`` per treasure-hunt key of EnvConfig (``num_agents`` as ``--num-agents``); a key left
-    out is not given, as in ``make_game``."""
-    hints = typing.get_type_hints(EnvConfig)
-    documented = {field.name: field.metadata[HELP] for field in fields(EnvConfig)}
-    for key in ENV_KEYS:
-        if key == "render_mode":
-            continue  # the bounds render nothing
-        kind = next((arg for arg in typing.get_args(hints[key]) if arg is not type(None)), hints[key])
-        flag = "--" + key.replace("_", "-")
-        if isinstance(kind, type) and issubclass(kind, Enum):
-            parser.add_argument(flag, dest=key, choices=values(kind), help=documented[key])
-        else:
-            parser.add_argument(flag, dest=key, type=kind, help=documented[key])
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Print the oracle's and the greedy team's evaluation records as JSON lines."""
-    parser = _OneLineErrors(description=__doc__.split("\n\n")[0])
-    _env_options(parser)
-    parser.add_argument("--episodes", type=int, default=5, help="evaluation episodes per bound (default 5)")
-    parser.add_argument("--seed", type=int, default=0, help="the evaluation seed (it draws chest ties)")
-    args = vars(parser.parse_args(argv))
-    episodes, seed = args.pop("episodes"), args.pop("seed")
-    if episodes < 1:
-        parser.error(f"--episodes must be at least 1, got {episodes}")
-    try:
-        game = make_game(**{key: value for key, value in args.items() if value is not None})
-    except ValueError as err:
-        parser.error(str(err))
-    for kind in Bound:
-        print(json.dumps({"bound": kind.value, **evaluate_bound(game, kind, episodes, seed)}))
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
