@@ -186,7 +186,7 @@ def evaluate_bound(game: TreasureHuntGame, kind: Bound | str, episodes: int, see
     return summarize([play_episode(game, policy, rng) for rng in rngs])
 
 
-class _OneLineErrors(argparse.ArgumentParser):
+class OneLineErrors(argparse.ArgumentParser):
     """Bad input is one ``error:`` line on stderr and exit code 2, without the usage block."""
 
     def error(self, message: str) -> typing.NoReturn:
@@ -212,7 +212,7 @@ def _env_options(parser: argparse.ArgumentParser) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Print the oracle's and the greedy team's evaluation records as JSON lines."""
-    parser = _OneLineErrors(description=__doc__.split("\n\n")[0])
+    parser = OneLineErrors(description=__doc__.split("\n\n")[0])
     _env_options(parser)
     parser.add_argument("--episodes", type=int, default=5, help="evaluation episodes per bound (default 5)")
     parser.add_argument("--seed", type=int, default=0, help="the evaluation seed (it draws chest ties)")
