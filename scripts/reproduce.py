@@ -2,7 +2,7 @@
 """The study: run its sweeps, keep their raw data in ``OUT/data/``, write ``OUT/REPORT.md`` and figures.
 
     python scripts/reproduce.py --profile quick --out /tmp/study     # smoke run: about a minute, NOT evidence
-    python scripts/reproduce.py --profile full --out results         # the evidence, 17 min on 2 cores
+    python scripts/reproduce.py --profile full --out results         # the evidence, 9 min on 2 cores
     python scripts/reproduce.py results --out /tmp/report             # the report again from results/data/
 
 ``--help`` lists every option. The code is :mod:`dqn_transfer.cli.report` (also

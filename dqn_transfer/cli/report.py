@@ -1,7 +1,7 @@
 """The study: run its experiments, keep their raw data, and write ``REPORT.md`` with its figures.
 
     python scripts/reproduce.py --profile quick --out /tmp/study      # smoke run: minutes, NOT evidence
-    python scripts/reproduce.py --profile full --out results          # the evidence: 17 min on 2 cores
+    python scripts/reproduce.py --profile full --out results          # the evidence: 9 min on 2 cores
     dqn-transfer-report results --out /tmp/report                     # the report again from results/data/,
                                                                       # no training, under a minute
     python scripts/reproduce.py --out results --report-only           # re-export OUT/runs/ and report
