@@ -11,7 +11,7 @@ import json
 import os
 import subprocess
 import sys
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -208,3 +208,12 @@ def assert_named_paths_exist(output: str, root: Path) -> list[Path]:
     gone = [str(p) for p in named if not p.exists()]
     assert not gone, f"the output names paths that do not exist: {gone}"
     return named
+
+
+def assert_one_error_line(main: Callable[[list[str]], int], argv: list[str], message: str, capsys) -> None:
+    """``main(argv)`` exits 2 through its argument parser with one ``error:`` line starting with ``message``."""
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith(message) and err.count("\n") == 1

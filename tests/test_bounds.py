@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 
 import pytest
+from conftest import assert_one_error_line
 
 from dqn_transfer.agents import make_learner
 from dqn_transfer.cli.bounds import main
@@ -185,8 +186,4 @@ def test_the_command_prints_both_records(capsys):
     ],
 )
 def test_bad_input_is_one_error_line(argv, message, capsys):
-    with pytest.raises(SystemExit) as exit_info:
-        main(argv)
-    assert exit_info.value.code == 2
-    err = capsys.readouterr().err
-    assert err.startswith(message) and err.count("\n") == 1
+    assert_one_error_line(main, argv, message, capsys)

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from conftest import assert_one_error_line
 
 from dqn_transfer.cli.claim1_exact import main
 from dqn_transfer.enums import Mode
@@ -105,11 +106,7 @@ def test_the_command_prints_a_table(capsys):
     ],
 )
 def test_bad_input_is_one_error_line(argv, message, capsys):
-    with pytest.raises(SystemExit) as exit_info:
-        main(argv)
-    assert exit_info.value.code == 2
-    err = capsys.readouterr().err
-    assert err.startswith(message) and err.count("\n") == 1
+    assert_one_error_line(main, argv, message, capsys)
 
 
 def test_tie_generators_draw_each_winner():
