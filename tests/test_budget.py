@@ -11,6 +11,7 @@ import pytest
 
 from dqn_transfer.analysis.budget import (
     Budget,
+    BudgetRule,
     budget_rule,
     budgets_per_cell,
     converged_step,
@@ -181,7 +182,9 @@ def test_the_rule_refuses_a_safety_below_one_and_a_non_positive_cap_or_rounding(
 
 def test_the_rule_applies_per_cell_with_the_same_parameters():
     steps = np.arange(0, 8_001, 500, dtype=np.float64)
-    budgets = budgets_per_cell({"flat": [kinked()], "rising": [(steps, 0.05 * steps / 1_000)]}, 0.01, cap=20_000)
+    budgets = budgets_per_cell(
+        {"flat": [kinked()], "rising": [(steps, 0.05 * steps / 1_000)]}, BudgetRule(0.01, cap=20_000)
+    )
     assert list(budgets) == ["flat", "rising"]
     assert (budgets["flat"].budget, budgets["rising"].budget) == (7_000, 20_000)
 

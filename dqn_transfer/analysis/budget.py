@@ -21,6 +21,7 @@ runs form a cell of the study is :mod:`dqn_transfer.experiments.budgets`' busine
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -223,27 +224,23 @@ def budget_rule(
     )
 
 
-def budgets_per_cell(
-    cells: Mapping[Cell, Sequence[Curve]],
-    threshold: float,
-    safety: float = SAFETY,
-    cap: int = CAP,
-    round_to: int = ROUND_TO,
-    fraction: float = FRACTION,
-    min_points: int = MIN_POINTS,
-) -> dict[Cell, Budget]:
-    """:func:`budget_rule` applied to each cell's pilot runs, with the same parameters for every cell (the
-    rule is fixed in advance, not tuned per cell).
+@dataclass(frozen=True)
+class BudgetRule:
+    """The rule's parameters, fixed in advance and the same for every cell (not tuned per cell); each
+    as :func:`budget_rule`'s."""
+
+    threshold: float
+    safety: float = SAFETY
+    cap: int = CAP
+    round_to: int = ROUND_TO
+    fraction: float = FRACTION
+    min_points: int = MIN_POINTS
+
+
+def budgets_per_cell(cells: Mapping[Cell, Sequence[Curve]], rule: BudgetRule) -> dict[Cell, Budget]:
+    """:func:`budget_rule` applied to each cell's pilot runs, by one ``rule``.
 
     :param cells: each cell's pilot runs' curves, by cell.
-    :param threshold: as :func:`budget_rule`'s.
-    :param safety: as :func:`budget_rule`'s.
-    :param cap: as :func:`budget_rule`'s.
-    :param round_to: as :func:`budget_rule`'s.
-    :param fraction: as :func:`plateau_slope`'s.
-    :param min_points: as :func:`plateau_slope`'s.
+    :param rule: the rule's parameters.
     """
-    return {
-        cell: budget_rule(curves, threshold, safety, cap, round_to, fraction, min_points)
-        for cell, curves in cells.items()
-    }
+    return {cell: budget_rule(curves, **dataclasses.asdict(rule)) for cell, curves in cells.items()}

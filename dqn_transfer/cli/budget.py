@@ -14,7 +14,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from dqn_transfer.analysis.budget import CAP, FRACTION, ROUND_TO, SAFETY
+from dqn_transfer.analysis.budget import CAP, FRACTION, ROUND_TO, SAFETY, BudgetRule
 from dqn_transfer.cli.console import OneLineErrors
 from dqn_transfer.experiments.budgets import format_pilot_budgets, pilot_budgets
 from dqn_transfer.experiments.raw_data import DataError, read_data
@@ -40,9 +40,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     try:
-        result = pilot_budgets(
-            read_data(args.pilot), args.threshold, args.safety, args.cap, args.round_to, args.fraction
-        )
+        rule = BudgetRule(args.threshold, args.safety, args.cap, args.round_to, args.fraction)
+        result = pilot_budgets(read_data(args.pilot), rule)
     except (DataError, ValueError) as e:  # ValueError: a bad parameter, or too few evaluations for a slope
         print(f"error: {e}", file=sys.stderr)
         return 2

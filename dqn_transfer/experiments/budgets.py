@@ -17,13 +17,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from dqn_transfer.analysis.budget import (
-    CAP,
-    FRACTION,
-    MIN_POINTS,
     PER_STEPS,
-    ROUND_TO,
-    SAFETY,
     Budget,
+    BudgetRule,
     budgets_per_cell,
 )
 from dqn_transfer.experiments.claims import exchange_condition
@@ -69,31 +65,16 @@ class PilotBudgets:
     experiment: str
     columns: tuple[str, ...]
     rows: list[BudgetRow]
-    threshold: float
-    safety: float
-    cap: int
-    round_to: int
-    fraction: float
+    rule: BudgetRule
 
 
-def pilot_budgets(
-    runs: Sequence[RunData],
-    threshold: float,
-    safety: float = SAFETY,
-    cap: int = CAP,
-    round_to: int = ROUND_TO,
-    fraction: float = FRACTION,
-) -> PilotBudgets:
+def pilot_budgets(runs: Sequence[RunData], rule: BudgetRule) -> PilotBudgets:
     """The budget of every cell of a pilot experiment, the primary learner's cells first, then by mode, then
     in the pilot's order.
 
     :param runs: one experiment's runs (:func:`~dqn_transfer.experiments.raw_data.read_data`), one of
         :data:`CELLS`.
-    :param threshold: the slope in score per 1,000 steps below which a cell's median run has converged.
-    :param safety: :func:`~dqn_transfer.analysis.budget.budget_rule`'s.
-    :param cap: :func:`~dqn_transfer.analysis.budget.budget_rule`'s.
-    :param round_to: :func:`~dqn_transfer.analysis.budget.budget_rule`'s.
-    :param fraction: :func:`~dqn_transfer.analysis.budget.plateau_slope`'s.
+    :param rule: the rule's parameters, its threshold a slope in score per 1,000 steps.
     """
     experiments = sorted({run.experiment for run in runs})
     if not experiments:
@@ -107,16 +88,9 @@ def pilot_budgets(
     cells = group(runs, kind.cell)
     rank = {name: index for index, name in enumerate(learners(runs))}
     ordered = sorted(cells, key=lambda cell: (rank[cell[0]], cell[1]))  # stable: then in the pilot's order
-    budgets = budgets_per_cell(
-        {cell: [run.score_curve() for run in cells[cell]] for cell in ordered},
-        threshold,
-        safety,
-        cap,
-        round_to,
-        fraction,
-    )
+    budgets = budgets_per_cell({cell: [run.score_curve() for run in cells[cell]] for cell in ordered}, rule)
     rows = [BudgetRow(cell, len(cells[cell]), budgets[cell]) for cell in ordered]
-    return PilotBudgets(experiment, kind.columns, rows, threshold, safety, cap, round_to, fraction)
+    return PilotBudgets(experiment, kind.columns, rows, rule)
 
 
 def _slope(value: float | None) -> str:
@@ -134,12 +108,13 @@ def format_pilot_budgets(result: PilotBudgets) -> str:
 
     :param result: :func:`pilot_budgets`' result.
     """
+    rule = result.rule
     lines = [
-        f"{result.experiment}: slope = least-squares slope of a run's last {result.fraction:.0%} of evaluations "
-        f"(at least {MIN_POINTS}), in score per {PER_STEPS:,} steps, median over the cell's runs; converged step = "
-        f"the first evaluation step S such that the slope of the runs cut at S, and at every later step, is below "
-        f"{result.threshold:g}; budget = min({result.cap:,}, {result.safety:g} x converged step, rounded up to a "
-        f"multiple of {result.round_to:,}); final slope: at the pilot's end.",
+        f"{result.experiment}: slope = least-squares slope of a run's last {rule.fraction:.0%} of evaluations "
+        f"(at least {rule.min_points}), in score per {PER_STEPS:,} steps, median over the cell's runs; "
+        f"converged step = the first evaluation step S such that the slope of the runs cut at S, and at every later step, is below "
+        f"{rule.threshold:g}; budget = min({rule.cap:,}, {rule.safety:g} x converged step, rounded up to a "
+        f"multiple of {rule.round_to:,}); final slope: at the pilot's end.",
         "",
         "| " + " | ".join((*result.columns, *HEADINGS)) + " |",
         "|" + "---|" * len(result.columns) + "---:|---:|---:|---|---:|---:|",
@@ -155,7 +130,7 @@ def format_pilot_budgets(result: PilotBudgets) -> str:
     lines += ["", f"{len(result.rows) - len(stuck)} of {len(result.rows)} cells converged within the pilot."]
     if stuck:
         lines.append(
-            f"{len(stuck)} did not: their median run's slope was still at or above {result.threshold:g} at the "
+            f"{len(stuck)} did not: their median run's slope was still at or above {rule.threshold:g} at the "
             f"pilot's end, so the pilot cannot say how long they need; their budget is the cap, not a measurement."
         )
     return "\n".join(lines)
