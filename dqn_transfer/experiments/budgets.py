@@ -112,7 +112,8 @@ def format_pilot_budgets(result: PilotBudgets) -> str:
     lines = [
         f"{result.experiment}: slope = least-squares slope of a run's last {rule.fraction:.0%} of evaluations "
         f"(at least {rule.min_points}), in score per {PER_STEPS:,} steps, median over the cell's runs; "
-        f"converged step = the first evaluation step S such that the slope of the runs cut at S, and at every later step, is below "
+        "converged step = the first evaluation step S such that the slope of the runs cut at S, and at every "
+        f"later step, is below "
         f"{rule.threshold:g}; budget = min({rule.cap:,}, {rule.safety:g} x converged step, rounded up to a "
         f"multiple of {rule.round_to:,}); final slope: at the pilot's end.",
         "",
