@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 
 from dqn_transfer.analysis.budget import CAP, FRACTION, ROUND_TO, SAFETY, BudgetRule
-from dqn_transfer.cli.console import OneLineErrors
+from dqn_transfer.cli.console import OneLineErrors, exit_with
 from dqn_transfer.experiments.budgets import format_pilot_budgets, pilot_budgets
 from dqn_transfer.experiments.raw_data import DataError, read_data
 
@@ -50,4 +50,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    exit_with(main)

@@ -8,9 +8,7 @@ optimum by value iteration and each mode's own-observation team replayed through
 
 from __future__ import annotations
 
-import sys
-
-from dqn_transfer.cli.console import OneLineErrors
+from dqn_transfer.cli.console import OneLineErrors, exit_with
 from dqn_transfer.evaluation.value_iteration import DEFAULT_MAPS, format_table, map_values, named_map
 
 
@@ -37,4 +35,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    exit_with(main)

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dqn_transfer.cli.console import exit_with
 from dqn_transfer.experiments.power import METRICS, format_power_rows, power_rows
 from dqn_transfer.experiments.raw_data import DataError, read_data
 
@@ -40,4 +41,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    exit_with(main)
