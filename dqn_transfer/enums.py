@@ -8,6 +8,7 @@ module imports nothing, so every layer (down to the game) may use it.
 from __future__ import annotations
 
 from enum import Enum
+from typing import TypeVar
 
 
 class Mode(Enum):
@@ -30,6 +31,16 @@ class ObsEncoding(Enum):
 
     onehot = "onehot"
     coords = "coords"
+
+
+class Contention(Enum):
+    """Which generated maps a map seed may give, by their contention for the agents' nearest chests
+    (docs/game.md): ``any`` map, ``high`` (every agent's nearest chest is also another's) or ``low``
+    (every agent's nearest chest is its own)."""
+
+    any = "any"
+    high = "high"
+    low = "low"
 
 
 class Algorithm(Enum):
@@ -129,3 +140,19 @@ class Bound(Enum):
 def values(enum: type[Enum]) -> tuple[str, ...]:
     """The accepted spellings of an enum, in declaration order (for checks and messages)."""
     return tuple(member.value for member in enum)
+
+
+E = TypeVar("E", bound=Enum)
+
+
+def check_choice(name: str, value: object, choices: tuple[str, ...]) -> str:
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {', '.join(choices)}; got {value!r}")
+    return value
+
+
+def check_enum(name: str, value: object, enum: type[E]) -> E:
+    """``value`` as a member of ``enum``: a member, or its spelling (the faces take strings)."""
+    if isinstance(value, enum):
+        return value
+    return enum(check_choice(name, value, values(enum)))

@@ -113,10 +113,11 @@ def pretrainings(monkeypatch) -> list[TrainConfig]:
 
 def old_source_hash(config: TrainConfig, layout: str) -> str:
     """The cache key as it was before source_task / source_map_shift existed, written out here: the env
-    keys but mode, reward_mode and render_mode (the layout as text, no file), the agent block, the
-    seed and the pretraining steps."""
+    keys but mode, reward_mode and render_mode (the layout as text, no file; contention, which came later,
+    chooses the layout), the agent block, the seed and the pretraining steps."""
     plain = to_plain(config)
-    env = {key: plain["env"][key] for key in ENV_KEYS if key not in ("mode", "reward_mode", "render_mode")}
+    left_out = ("mode", "reward_mode", "render_mode", "contention")
+    env = {key: plain["env"][key] for key in ENV_KEYS if key not in left_out}
     env.update(layout_file=None, layout=layout)
     key = {
         "env": env,

@@ -12,7 +12,8 @@ What each level is for our runs (docs/integrations.md):
 - **environment**: ``treasurehunt`` (the caller may name another, e.g. one per experiment of the study:
   marl-eval compares algorithms within an environment, over its tasks).
 - **task**: the game a run is scored on, ``<mode>-<K>agents-<size>x<size>-map<map_seed>`` (``layout<hash>``
-  for a fixed layout): the maps are the tasks rliable stratifies by, as in this project's statistics.
+  for a fixed layout; ``-contention_<c>`` after it unless ``env.contention`` is ``any``): the maps are the
+  tasks rliable stratifies by, as in this project's statistics.
 - **algorithm**: the learner and its condition, ``<agent.algorithm>[+transfer][+curriculum][+exchange_<x>]
   [+shared]``; where two runs of one task and seed would still share a name, the config keys that tell
   them apart are appended (``;key=value``, never a comma: marl-eval refuses commas in names).
@@ -43,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from dqn_transfer.analysis.transfer_metrics import asymptotic_performance
+from dqn_transfer.enums import Contention
 
 ENVIRONMENT = "treasurehunt"
 ABSOLUTE = "absolute_metrics"
@@ -79,12 +81,16 @@ def _flat(config: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
 
 
 def task_name(config: Mapping[str, Any]) -> str:
-    """``<mode>-<K>agents-<size>x<size>-map<map_seed>`` (``layout<hash8>`` for a fixed layout)."""
+    """``<mode>-<K>agents-<size>x<size>-map<map_seed>[-contention_<c>]`` (``layout<hash8>`` for a fixed
+    layout; ``env.contention`` named unless ``any``, whose maps are another of the seed's)."""
     env = config["env"]
     layout = env.get("layout") or env.get("layout_file")
+    contention = Contention(env.get("contention") or Contention.any.value)
     where = (
         f"layout{hashlib.sha1(str(layout).encode()).hexdigest()[:8]}" if layout else f"map{env.get('map_seed') or 0}"
     )
+    if contention is not Contention.any:
+        where += f"-contention_{contention.value}"
     return f"{env['mode']}-{env['num_agents']}agents-{env['size']}x{env['size']}-{where}".lower()
 
 

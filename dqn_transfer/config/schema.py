@@ -23,7 +23,18 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from dqn_transfer.documented import documented
-from dqn_transfer.enums import Algorithm, Device, Engine, Exchange, Fill, Logger, Objective, SourceTask, values
+from dqn_transfer.enums import (
+    Algorithm,
+    Contention,
+    Device,
+    Engine,
+    Exchange,
+    Fill,
+    Logger,
+    Objective,
+    SourceTask,
+    values,
+)
 from dqn_transfer.envs.settings import ENV_KEYS, EnvConfig
 
 # The config groups: dqn_transfer/conf/, inside the package (found from any directory, installed or not).
@@ -333,6 +344,11 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
     _check(
         cfg.replicas.maps == 1 or (env.layout is None and env.layout_file is None),
         f"replicas.maps={cfg.replicas.maps} needs a generated map; a layout fixes the map (use replicas.seeds)",
+    )
+    _check(
+        Contention(env.contention) is Contention.any or (env.layout is None and env.layout_file is None),
+        f"env.contention={Contention(env.contention).value} chooses among generated maps; a layout fixes the map "
+        "(leave env.contention at any, or drop the layout)",
     )
     _check_logger(cfg.logger)
     _check_offset("transfer.offset", transfer.offset)

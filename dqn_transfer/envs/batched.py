@@ -37,14 +37,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from dqn_transfer.enums import Mode, ObsEncoding, RewardMode
-from dqn_transfer.envs.game import (
-    ACTION_MOVES,
-    _check_int,
-    _check_reward,
-    assign_agents,
-    check_enum,
-)
+from dqn_transfer.enums import Mode, ObsEncoding, RewardMode, check_enum
+from dqn_transfer.envs.game import ACTION_MOVES, _check_int, _check_reward, assign_agents
 from dqn_transfer.envs.maps import GridMap
 from dqn_transfer.envs.settings import DEFAULTS
 

@@ -30,12 +30,11 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import fields
-from enum import Enum
-from typing import Any, NamedTuple, TypeVar
+from typing import Any, NamedTuple
 
 import numpy as np
 
-from dqn_transfer.enums import Mode, ObsEncoding, RewardMode, values
+from dqn_transfer.enums import Mode, ObsEncoding, RewardMode, check_choice, check_enum
 from dqn_transfer.envs.maps import GridMap, resolve_map
 from dqn_transfer.envs.settings import DEFAULTS, MAP_KEYS, RULE_KEYS, EnvConfig
 
@@ -68,22 +67,6 @@ AGENT_COLOURS = np.array(
     ],
     dtype=np.uint8,
 )
-
-
-E = TypeVar("E", bound=Enum)
-
-
-def check_choice(name: str, value: object, choices: tuple[str, ...]) -> str:
-    if value not in choices:
-        raise ValueError(f"{name} must be one of {', '.join(choices)}; got {value!r}")
-    return value
-
-
-def check_enum(name: str, value: object, enum: type[E]) -> E:
-    """``value`` as a member of ``enum``: a member, or its spelling (the faces take strings)."""
-    if isinstance(value, enum):
-        return value
-    return enum(check_choice(name, value, values(enum)))
 
 
 def check_render_mode(render_mode: str | None) -> str | None:

@@ -17,6 +17,7 @@ Cells are named ``row r, col c`` counting from 0, top-left first: the same conve
 
 from __future__ import annotations
 
+import functools
 import warnings
 from collections import deque
 from collections.abc import Iterable
@@ -25,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dqn_transfer.enums import Contention, check_enum
 from dqn_transfer.envs.settings import DEFAULTS
 
 Cell = tuple[int, int]
@@ -38,6 +40,13 @@ MAX_AGENTS = 10  # one start digit per agent
 _MIN_OBSTACLE_ATTEMPTS = 3
 _MIN_OBJECT_ATTEMPTS = 10
 _WORK_BUDGET = 2000
+# A contention other than `any` takes the first of a map seed's candidate draws that meets it; at most
+# this many are drawn before the request is refused. The rarest of the study's (6 agents on 10x10, low)
+# is 0.8% of candidates: 1,000 would miss about one seed in 3,000, 4,000 one in 10^14.
+CONTENTION_CANDIDATES = 4000
+# contention=high: every agent shares its nearest chest. A laxer rule (half of them) holds on 80-95% of the
+# maps `any` gives teams of 3 to 6 on 10x10 (docs/game.md), so it would hardly differ from `any`.
+HIGH_CONTENTION = 1.0
 
 _STEPS4 = ((-1, 0), (1, 0), (0, -1), (0, 1))
 _STEPS8 = tuple((dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if (dr, dc) != (0, 0))
@@ -111,6 +120,24 @@ class GridMap:
                     dist[nxt] = dist[cur] + 1
                     queue.append(nxt)
         return dist
+
+    def start_distances(self) -> np.ndarray:
+        """``[m, k]`` BFS path lengths from each agent's start to each chest around obstacles and traps
+        (:meth:`distances_from`), ``-1`` where unreachable."""
+        rows, cols = np.array(self.starts).T
+        return np.stack([self.distances_from(chest)[rows, cols] for chest in self.chests], axis=1)
+
+    def nearest_chests(self) -> np.ndarray:
+        """``[m]`` each agent's nearest chest: the shortest trap-free path from its start, the lower chest
+        index on equal length (rule 3 makes every chest reachable on a valid map)."""
+        dist = self.start_distances()
+        return np.where(dist < 0, np.iinfo(dist.dtype).max, dist).argmin(axis=1)
+
+    def contention(self) -> float:
+        """The fraction of agents whose nearest chest (:meth:`nearest_chests`) is also another agent's."""
+        nearest = self.nearest_chests()
+        shared = np.bincount(nearest, minlength=self.num_treasures)[nearest] > 1
+        return float(shared.mean())
 
 
 def parse_layout(text: str) -> GridMap:
@@ -228,8 +255,7 @@ def optimal_team_return(
     # Imported here, as in the deliberative coordinator: scipy.optimize is slow to import.
     from scipy.optimize import linear_sum_assignment
 
-    rows, cols = np.array(grid_map.starts[:num_agents]).T
-    dist = np.stack([grid_map.distances_from(chest)[rows, cols] for chest in grid_map.chests], axis=1)
+    dist = grid_map.start_distances()[:num_agents]
     unreachable = grid_map.size**2 * num_agents + 1  # more than any matching of reachable pairs
     agents, chests = linear_sum_assignment(np.where(dist < 0, unreachable, dist))
     picked = dist[agents, chests]
@@ -247,9 +273,11 @@ def _check_int(name: str, value: object, low: int, high: int | None = None) -> i
     return int(value)
 
 
-def _neighbour_table(size: int, steps: Iterable[Cell]) -> list[list[int]]:
+@functools.cache
+def _neighbour_table(size: int, steps: tuple[Cell, ...]) -> list[list[int]]:
     """Flat-index neighbours of every cell: generation floods thousands of times, so it works on
-    integers and a ``bytearray`` of blocked cells rather than tuples and sets."""
+    integers and a ``bytearray`` of blocked cells rather than tuples and sets. Cached for a contention's
+    candidate draws; nothing changes a table."""
     return [[r * size + c for r, c in _neighbours(divmod(i, size), size, steps)] for i in range(size * size)]
 
 
@@ -340,12 +368,17 @@ def generate_layout(
     num_agents: int | None = None,
     complexity: float = 0.0,
     seed: int | None = None,
+    contention: Contention | str = Contention.any,
 ) -> str:
     """A random layout obeying every map rule, with ``round(complexity * size * size)`` obstacles.
 
     ``num_traps`` and ``num_agents`` default to ``num_treasures``. The same ``seed`` gives the same
-    map. An infeasible request raises ``ValueError`` naming the parameter after a bounded number of
-    attempts (it never loops forever).
+    map. ``contention`` other than ``any`` draws candidates ``k = 0, 1, ...``, candidate ``k`` from the
+    ``k``-th child of ``SeedSequence(seed)`` (``spawn_key=(k,)``, as ``SeedSequence.spawn`` makes it), and
+    returns the first whose :meth:`GridMap.contention` is ``HIGH_CONTENTION`` (``high``: every agent
+    shares its nearest chest) or 0 (``low``: none does), of at most ``CONTENTION_CANDIDATES``. An
+    infeasible request raises ``ValueError`` naming the parameter after a bounded number of attempts (it
+    never loops forever).
     """
     size = _check_int("size", size, 2)
     num_treasures = _check_int("num_treasures", num_treasures, 1)
@@ -360,6 +393,7 @@ def generate_layout(
         raise ValueError(f"complexity must be a number in [0, 1), got {complexity!r}")
     if not 0.0 <= complexity < 1.0:
         raise ValueError(f"complexity must be in [0, 1), got {complexity}")
+    contention = check_enum("contention", contention, Contention)
     cells = size * size
     num_obstacles = round(complexity * size * size)  # round(Rc * n * n)
     num_objects = num_treasures + num_traps + num_agents
@@ -374,12 +408,40 @@ def generate_layout(
             f"leaving {cells - num_obstacles} free cells for num_treasures + num_traps + "
             f"num_agents = {num_objects} objects"
         )
-    rng = np.random.default_rng(seed)
+    if contention is Contention.high and num_agents < 2:
+        raise ValueError("contention=high needs agents that share a nearest chest: give num_agents >= 2")
+    if contention is Contention.low and num_agents > num_treasures:
+        raise ValueError(
+            f"contention=low gives every agent a nearest chest of its own: num_agents={num_agents} is more "
+            f"than num_treasures={num_treasures}"
+        )
+    counts = (num_treasures, num_traps, num_agents)
+    if contention is Contention.any:
+        return _draw_layout(size, *counts, complexity, np.random.default_rng(seed))
+    entropy = np.random.SeedSequence(seed).entropy  # the seed itself; fresh entropy for None
+    for candidate in range(CONTENTION_CANDIDATES):
+        rng = np.random.default_rng(np.random.SeedSequence(entropy, spawn_key=(candidate,)))
+        layout = _draw_layout(size, *counts, complexity, rng)
+        share = parse_layout(layout).contention()
+        if share == (HIGH_CONTENTION if contention is Contention.high else 0.0):
+            return layout
+    raise ValueError(
+        f"no map of contention={contention.value} among the {CONTENTION_CANDIDATES} candidates of seed {seed} "
+        f"(size={size}, num_treasures={num_treasures}, num_traps={num_traps}, num_agents={num_agents}, "
+        f"complexity={complexity})"
+    )
+
+
+def _draw_layout(
+    size: int, num_treasures: int, num_traps: int, num_agents: int, complexity: float, rng: np.random.Generator
+) -> str:
+    """One layout drawn with ``rng``, the arguments checked by :func:`generate_layout`."""
+    cells = size * size
     nbrs, nbrs8 = _neighbour_table(size, _STEPS4), _neighbour_table(size, _STEPS8)
     obstacle_attempts = max(_MIN_OBSTACLE_ATTEMPTS, _WORK_BUDGET // 10 // cells)
     object_attempts = max(_MIN_OBJECT_ATTEMPTS, _WORK_BUDGET // cells)
     for _ in range(obstacle_attempts):
-        obstacles = _place_obstacles(num_obstacles, nbrs, rng)
+        obstacles = _place_obstacles(round(complexity * size * size), nbrs, rng)
         for _ in range(object_attempts):
             placed = _place_objects(obstacles, num_treasures, num_traps, num_agents, nbrs, nbrs8, rng)
             if placed is not None:
@@ -409,6 +471,7 @@ def resolve_map(
     num_agents: int | None = None,
     complexity: float | None = None,
     map_seed: int | None = None,
+    contention: Contention | str | None = None,
     layout: str | None = None,
     layout_file: str | Path | None = None,
 ) -> GridMap:
@@ -418,10 +481,17 @@ def resolve_map(
     :class:`~dqn_transfer.envs.settings.EnvConfig`, so the map of a run is fixed unless asked otherwise.
     A layout fixes the size and the counts, so the generation parameters are ignored; one warning
     names those given that differ from the layout (``map_seed`` has no counterpart in a layout and
-    is named when given and not 0).
+    is named when given and not 0). A contention other than ``any`` chooses among generated maps, so a
+    layout with one is refused.
     """
     if layout is not None and layout_file is not None:
         raise ValueError("give either layout or layout_file, not both")
+    contention = check_enum("contention", DEFAULTS.contention if contention is None else contention, Contention)
+    if contention is not Contention.any and (layout is not None or layout_file is not None):
+        raise ValueError(
+            f"contention={contention.value} chooses among generated maps; a layout fixes the map "
+            "(leave contention at any, or drop the layout)"
+        )
     if layout_file is not None:
         try:
             layout = Path(layout_file).read_text(encoding="utf-8")
@@ -437,6 +507,7 @@ def resolve_map(
                 DEFAULTS.num_agents if num_agents is None else num_agents,
                 DEFAULTS.complexity if complexity is None else complexity,
                 seed=DEFAULTS.map_seed if map_seed is None else map_seed,
+                contention=contention,
             )
         )
     grid_map = parse_layout(layout)

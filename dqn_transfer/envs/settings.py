@@ -11,7 +11,7 @@ from dataclasses import dataclass, fields
 from typing import Any, Dict, Optional
 
 from dqn_transfer.documented import documented
-from dqn_transfer.enums import Mode, ObsEncoding, RewardMode
+from dqn_transfer.enums import Contention, Mode, ObsEncoding, RewardMode
 
 
 @dataclass
@@ -24,6 +24,11 @@ class EnvConfig:
     num_agents: Optional[int] = documented(None, "agents (at most 10); null: k")
     complexity: float = documented(0.1, "obstacle fraction Rc: round(Rc * n * n) obstacles")
     map_seed: int = documented(0, "seeds the generated map, fixed for a run (episodes reset agents and chests only)")
+    contention: Contention = documented(
+        Contention.any,
+        "generated maps only: any map of the seed, or its first candidate where every agent shares its nearest "
+        "chest (high) or none does (low)",
+    )
     layout: Optional[str] = documented(None, "an ASCII map (rows of . # T X 0-9) instead of a generated one")
     layout_file: Optional[str] = documented(None, "a path to an ASCII map")
     max_steps: Optional[int] = documented(None, "truncation horizon in joint steps; null: n * n")
@@ -56,7 +61,20 @@ FACTORY_KEYS = ("factory", "kwargs")
 # The treasure hunt's own keys.
 ENV_KEYS = tuple(f.name for f in fields(EnvConfig) if f.name not in FACTORY_KEYS)
 # The keys that shape the map itself; the rest are rules, observations and rewards.
-MAP_KEYS = ("size", "num_treasures", "num_traps", "num_agents", "complexity", "map_seed", "layout", "layout_file")
+MAP_KEYS = (
+    "size",
+    "num_treasures",
+    "num_traps",
+    "num_agents",
+    "complexity",
+    "map_seed",
+    "contention",
+    "layout",
+    "layout_file",
+)
+# Map keys that only choose which map a seed generates: a cache key that holds the map's layout leaves
+# them out (which keeps the entries cached before they existed valid).
+MAP_CHOICE_KEYS = ("contention",)
 # The game's rules: the keys a game is built with besides its map (render_mode belongs to the faces).
 RULE_KEYS = tuple(key for key in ENV_KEYS if key not in MAP_KEYS and key != "render_mode")
 DEFAULTS = EnvConfig()

@@ -27,6 +27,7 @@ import numpy as np
 from dqn_transfer.analysis.runs import IncompleteLastLine, load_runs, read_metrics, source_steps
 from dqn_transfer.analysis.transfer_metrics import Curve
 from dqn_transfer.envs.maps import optimal_team_return, resolve_map
+from dqn_transfer.envs.settings import MAP_KEYS
 from dqn_transfer.storage.run_dir import natural_key
 from dqn_transfer.timing import cpu_model, cpus_available
 
@@ -97,10 +98,9 @@ def _rounded(value: float) -> float:
 def map_optimum(config: dict[str, Any]) -> float | None:
     """The optimal team return of a run's map, from its config (the map rebuilt as the trainer did)."""
     env = config["env"]
-    keys = ("size", "num_treasures", "num_traps", "num_agents", "complexity", "map_seed", "layout", "layout_file")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # a layout overriding generation keys: the trainer already said so
-        grid = resolve_map(**{key: env.get(key) for key in keys})
+        grid = resolve_map(**{key: env.get(key) for key in MAP_KEYS})
     return optimal_team_return(
         grid, grid.num_agents, float(env.get("treasure_reward", 100.0)), float(env.get("step_reward", -1.0))
     )

@@ -24,6 +24,7 @@ import logging
 from pathlib import Path
 
 from dqn_transfer.config import TrainConfig, TransferConfig, to_plain
+from dqn_transfer.envs.settings import MAP_CHOICE_KEYS
 from dqn_transfer.sources.resolve import resolve_source
 from dqn_transfer.sources.run_cache import RunCache
 from dqn_transfer.training.plan import RunPlan, describe_stage
@@ -36,8 +37,9 @@ NOT_IN_STAGE_HASH = ("progress", "resume", "eval_pictures", "objective", "logger
 # transfer.* keys a curriculum refuses (at their defaults in every stage), left out of a stage's hash so
 # that the stages cached before they existed stay valid.
 NOT_IN_STAGE_TRANSFER_HASH = ("source_task", "source_map_shift")
-# env.* keys of other games (a curriculum is refused there), likewise left out.
-NOT_IN_STAGE_ENV_HASH = ("factory", "kwargs")
+# env.* keys of other games (a curriculum is refused there), and those that only choose the map (its
+# layout is in the hash), likewise left out.
+NOT_IN_STAGE_ENV_HASH = ("factory", "kwargs", *MAP_CHOICE_KEYS)
 
 
 def stage_hash(config: TrainConfig, layout: str, previous: str | None) -> str:

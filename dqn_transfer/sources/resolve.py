@@ -24,7 +24,7 @@ from typing import Any
 
 from dqn_transfer.config import TransferConfig, to_plain
 from dqn_transfer.enums import Mode, SourceTask
-from dqn_transfer.envs.settings import ENV_KEYS
+from dqn_transfer.envs.settings import ENV_KEYS, MAP_CHOICE_KEYS
 from dqn_transfer.sources.run_cache import RunCache
 from dqn_transfer.storage.checkpoint import CheckpointError, find_checkpoints
 from dqn_transfer.storage.run_dir import RunDir, agent_file_name
@@ -51,7 +51,7 @@ def source_hash(plain: dict[str, Any], layout: str, task: SourceTask | str = Sou
     key names its task and keeps the env keys a team depends on (mode, reward_mode)."""
     team = SourceTask(task) is SourceTask.team
     left_out = NOT_IN_TEAM_TASK if team else NOT_IN_SOURCE_TASK
-    env = {key: plain["env"][key] for key in ENV_KEYS if key not in left_out}
+    env = {key: plain["env"][key] for key in ENV_KEYS if key not in left_out and key not in MAP_CHOICE_KEYS}
     env["layout_file"] = None  # the layout text below identifies the map, wherever the file lives
     env["layout"] = layout
     key = {
