@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
+from typing import Any
 
 import yaml
 
@@ -28,6 +29,11 @@ def group_options(group: str, config_dir: Path = CONFIG_DIR) -> list[str]:
     """The options of a group: its YAML files' names, with their folder below the group (``study/m2``)."""
     root = config_dir / group
     return sorted(p.relative_to(root).with_suffix("").as_posix() for p in root.rglob("*.yaml"))
+
+
+def option_values(group: str, option: str, config_dir: Path = CONFIG_DIR) -> dict[str, Any]:
+    """The keys an option's file sets (``option_values("env", "study/m4")``)."""
+    return yaml.safe_load((config_dir / group / f"{option}.yaml").read_text()) or {}
 
 
 def default_options(config_dir: Path = CONFIG_DIR) -> dict[str, str | None]:

@@ -12,13 +12,13 @@ from dataclasses import dataclass
 from functools import cache
 from typing import Any
 
-import yaml
-
-from dqn_transfer.config import CONFIG_DIR
+from dqn_transfer.config.help import group_options, option_values
 from dqn_transfer.experiments.raw_data import RunData
 
-# The env keys that make one of claim 2's team-size ladder maps (conf/env/study/m<m>.yaml).
+# The env keys that make one of claim 2's team-size ladder maps (conf/env/<ladder>/m<m>.yaml).
 LADDER_KEYS = ("size", "num_treasures", "num_traps", "num_agents", "complexity")
+# claim 2's ladders: the first edition's maps that grow with the team, and the second's of one size.
+LADDERS = ("study", "study_fixed")
 
 
 def values(runs: Sequence[RunData], key: Callable[[dict[str, Any]], Any]) -> tuple[Any, ...]:
@@ -28,9 +28,9 @@ def values(runs: Sequence[RunData], key: Callable[[dict[str, Any]], Any]) -> tup
 
 @cache
 def _ladder() -> tuple[dict[str, Any], ...]:
-    """claim 2's study maps, as their env configs give them."""
-    files = sorted((CONFIG_DIR / "env" / "study").glob("*.yaml"))
-    return tuple(yaml.safe_load(f.read_text()) for f in files)
+    """claim 2's study maps, every ladder's rungs, as their env configs give them."""
+    rungs = [option for option in group_options("env") if option.split("/")[0] in LADDERS]
+    return tuple(option_values("env", option) for option in rungs)
 
 
 def on_ladder(env: dict[str, Any]) -> bool:
@@ -73,7 +73,7 @@ class Game:
     chests: tuple[int, ...]
     traps: tuple[int, ...]
     sizes: tuple[int, ...]  # map side
-    study_maps: bool  # every map is one of claim 2's generated team-size ladder
+    study_maps: bool  # every map is one of claim 2's generated team-size ladders
     step_reward: tuple[float, ...]
     trap_reward: tuple[float, ...]
 
