@@ -13,6 +13,7 @@ committed report can be regenerated, and every number in it recomputed, without 
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import platform
@@ -26,7 +27,7 @@ import numpy as np
 
 from dqn_transfer.analysis.runs import IncompleteLastLine, load_runs, read_metrics, source_steps
 from dqn_transfer.analysis.transfer_metrics import Curve
-from dqn_transfer.envs.maps import optimal_team_return, resolve_map
+from dqn_transfer.envs.maps import GridMap, optimal_team_return, resolve_map
 from dqn_transfer.envs.settings import MAP_KEYS
 from dqn_transfer.storage.run_dir import natural_key
 from dqn_transfer.timing import cpu_model, cpus_available
@@ -98,12 +99,19 @@ def _rounded(value: float) -> float:
 def map_optimum(config: dict[str, Any]) -> float | None:
     """The optimal team return of a run's map, from its config (the map rebuilt as the trainer did)."""
     env = config["env"]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # a layout overriding generation keys: the trainer already said so
-        grid = resolve_map(**{key: env.get(key) for key in MAP_KEYS})
+    grid = _run_map(tuple(env.get(key) for key in MAP_KEYS))
     return optimal_team_return(
         grid, grid.num_agents, float(env.get("treasure_reward", 100.0)), float(env.get("step_reward", -1.0))
     )
+
+
+@functools.cache
+def _run_map(settings: tuple[Any, ...]) -> GridMap:
+    """The map of the ``MAP_KEYS`` values ``settings``, built once for all the runs that play it (a
+    contention's map may take a fifth of a second to draw)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a layout overriding generation keys: the trainer already said so
+        return resolve_map(**dict(zip(MAP_KEYS, settings)))
 
 
 def export_sweep(sweep_dir: Path, experiment: str) -> list[RunData]:
