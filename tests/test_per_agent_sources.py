@@ -246,8 +246,8 @@ def test_chest_aware_per_agent_targets_watch_their_own_sources_chest(tmp_path):
 def test_a_source_chest_the_target_map_lacks_is_refused():
     source = parse_layout("0T.\n...\n...")
     target = parse_layout("0..\n...\n..T")
-    codes = np.eye(9, dtype=np.float32)
-    embedding = Embedding(MapGeometry(3, source.chests, "onehot", codes), MapGeometry(3, target.chests, "onehot", codes))
+    geometry = [MapGeometry(3, grid.chests, "onehot", np.eye(9, dtype=np.float32)) for grid in (source, target)]
+    embedding = Embedding(*geometry)
     with pytest.raises(TransferError, match=r"the source's chest \(row 0, col 1, the nearest to its start\) has no"):
         source_chest_column(source.starts[0], source, embedding, [("position", 9), ("treasures", 1)])
 
