@@ -116,6 +116,7 @@ class SourceTask(Enum):
     """What a pretrained transfer source is trained on (``transfer.source_task``)."""
 
     single = "single"  # TreasureHunt-v0: the single-agent MDP of the map (agent 0 alone)
+    per_agent = "per_agent"  # TreasureHunt-v0 from each target agent's own start: one source per target
     team = "team"  # the run's own multi-agent game; the targets start from one of its members
 
 

@@ -106,8 +106,15 @@ class TransferConfig:
     source_task: SourceTask = documented(
         SourceTask.single,
         "what a pretrained source learns: single (TreasureHunt-v0, "
-        "agent 0 alone) | team (this run's own game; targets "
+        "agent 0 alone) | per_agent (TreasureHunt-v0 from each target agent's own start: target i "
+        "starts from a lone agent pretrained from agent i's start) | team (this run's own game; targets "
         "start from member source_agent)",
+    )
+    chest_aware: bool = documented(
+        False,
+        "tabular learners, a source pretrained on TreasureHunt-v0 (source_task single | per_agent): use the "
+        "source's values only while the chest nearest its start is full in the target's `treasures` "
+        "observation; once it reads taken, a state starts at 0 like an empty table's",
     )
     source_map_shift: int = documented(0, "pretrain on the generated map of env.map_seed + this; 0: this run's map")
     cache_dir: Optional[str] = documented(None, "pretrained-source cache; null: <launch dir>/outputs/pretrained")
@@ -344,6 +351,7 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
     _check_source_agent("transfer.source_agent", transfer.source_agent)
     _check_team_inputs(cfg)
     _check_pretraining(cfg)
+    _check_chest_aware(cfg)
     _check_curriculum(cfg)
     if agent.share_parameters:
         _check(
@@ -403,6 +411,29 @@ def _check_pretraining(cfg: DictConfig | TrainConfig) -> None:
             f"transfer.source_map_shift={shift}: the source's map seed "
             f"env.map_seed + shift = {env.map_seed + shift} must be >= 0",
         )
+
+
+def _check_chest_aware(cfg: DictConfig | TrainConfig) -> None:
+    """``transfer.chest_aware`` gates a table's start values from a lone source by the source's chest: it
+    needs transfer=on, a tabular learner, a source pretrained on TreasureHunt-v0, the treasure hunt's
+    chests and no curriculum."""
+    transfer = cfg.transfer
+    if not transfer.chest_aware:
+        return
+    what = "transfer.chest_aware=true uses a lone source's values only while its chest is full"
+    algorithm, task = Algorithm(cfg.agent.algorithm), SourceTask(transfer.source_task)
+    _check(transfer.enabled, f"{what}: it needs transfer=on")
+    _check(
+        algorithm.is_tabular,
+        f"{what}, in a table's start values: it needs agent=sarsa or agent=qlearning, not agent={algorithm.value}",
+    )
+    _check(
+        transfer.source is None and task is not SourceTask.team,
+        f"{what}: it needs a source pretrained on TreasureHunt-v0 (transfer.source unset, transfer.source_task="
+        f"single or per_agent), not transfer.source={transfer.source} with transfer.source_task={task.value}",
+    )
+    _check(cfg.env.factory is None, f"{what}: env.factory={cfg.env.factory} is another game, without chests")
+    _check(not cfg.curriculum.stages, f"{what}: a curriculum's run starts from its last stage (leave it unset)")
 
 
 def _check_logger(names: Any) -> None:

@@ -112,6 +112,21 @@ class GridMap:
                     queue.append(nxt)
         return dist
 
+    def nearest_chest(self, cell: Cell) -> int:
+        """The chest nearest ``cell`` by a path avoiding obstacles and traps (the lower number on equal
+        distance): the one a lone agent starting there reaches soonest. ``-1``: none reachable."""
+        dist = self.distances_from(cell)
+        reachable = [(int(dist[chest]), j) for j, chest in enumerate(self.chests) if dist[chest] >= 0]
+        return min(reachable)[1] if reachable else -1
+
+    def with_start_of(self, agent: int) -> GridMap:
+        """This map with agent ``agent``'s start as agent 0's (the two start digits swapped), so that
+        its single-agent task (agent 0 alone) starts from ``agent``'s cell; agent 0: the map itself."""
+        if agent == 0:
+            return self
+        digits = {"0": str(agent), str(agent): "0"}
+        return parse_layout("\n".join("".join(digits.get(ch, ch) for ch in row) for row in self.rows))
+
 
 def parse_layout(text: str) -> GridMap:
     """Parse and validate an ASCII layout; a broken rule raises ``ValueError`` naming rule and cell.
