@@ -59,3 +59,29 @@ def test_claim1_runs_sarsa_on_thirty_one_chest_maps():
     assert config.agent.algorithm.value == "sarsa"
     assert (config.env.num_agents, config.env.num_treasures, config.env.num_traps) == (2, 1, 1)
     assert (config.replicas.maps, config.replicas.seeds, config.env.map_seed) == (30, 3, 0)
+
+
+@pytest.mark.parametrize("condition", ["scratch_matched", "scratch", "same_map", "same_map_own"])
+@pytest.mark.parametrize("method", ["sarsa_none", "double_dqn_none"])
+def test_claim3_runs_every_condition_for_both_learners(condition, method):
+    assert _sweep("v2/transfer") == {
+        "condition": ["scratch_matched", "scratch", "same_map", "same_map_own"],
+        "method": ["sarsa_none", "double_dqn_none"],
+    }
+    config: TrainConfig = OmegaConf.to_object(
+        _compose("experiment=v2/transfer", f"condition={condition}", f"method={method}")
+    )
+    validate(config)
+    learner = METHODS[method][0]
+    assert (config.replicas.maps, config.replicas.seeds) == (30, SEEDS[learner])
+    assert config.transfer.enabled == condition.startswith("same_map")
+    assert config.transfer.source_task.value == ("per_agent" if condition == "same_map_own" else "single")
+    assert not config.transfer.chest_aware
+
+
+def test_the_chest_aware_condition_is_swept_for_sarsa_alone():
+    assert _sweep("v2/transfer_aware") == {"condition": ["same_map_own_aware"], "method": ["sarsa_none"]}
+    config: TrainConfig = OmegaConf.to_object(_compose("experiment=v2/transfer_aware"))
+    validate(config)
+    assert config.agent.algorithm.value == "sarsa" and config.transfer.chest_aware
+    assert config.transfer.source_task.value == "per_agent" and (config.replicas.maps, config.replicas.seeds) == (30, 3)
