@@ -15,7 +15,9 @@ gradients are clipped per agent. With ``share_parameters`` each replica's team s
 instead (the parameter-sharing baseline): a single member whose forward pass serves its agents, replay
 still per agent, loss the *mean* over the replica's agents. Replica r (rows ``r * K .. r * K + K - 1``)
 has its own initial weights, exploration and replay sampling streams, seeded as a lone learner of its
-seed would be; :meth:`BatchedDQN.replica` is its team (:mod:`dqn_transfer.agents.replicas`).
+seed would be; :meth:`BatchedDQN.replica` is its team (:mod:`dqn_transfer.agents.replicas`). With
+``agent.mixer=vdn`` each replica's team is trained on one TD error instead, from a joint replay of its
+aligned steps (:func:`~dqn_transfer.agents.dqn_update.reference_vdn_update`).
 
 Two engines do the arithmetic (``agent.engine``): ``torch`` (:mod:`dqn_transfer.agents.dqn`, any
 device, bit-identical to autograd and ``torch.optim.Adam``) and ``numpy``

@@ -18,8 +18,13 @@ termination mask), :func:`huber` and :func:`huber_grad` (the loss and its deriva
 (the clip rule). An engine keeps only numeric kernels: forward and backward matrix products, the gradient
 norms, Adam's arithmetic.
 
+VDN (``agent.mixer=vdn``, Sunehag et al. 2018) trains a team on one TD error, ``Q_tot - y_tot`` with
+``Q_tot`` the sum of the live agents' Q-values: :func:`reference_vdn_update` states it in autograd, and
+the engines reuse each agent's own target above and sum (:func:`team_td_errors`, :func:`team_losses`,
+:func:`team_loss_grad`, :func:`live_mean`).
+
 This module imports no torch at import time (the numpy engine uses it and never imports torch);
-:func:`reference_update` imports torch when called.
+:func:`reference_update` and :func:`reference_vdn_update` import torch when called.
 """
 
 from __future__ import annotations
