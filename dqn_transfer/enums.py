@@ -65,6 +65,13 @@ class Exchange(Enum):
         return self in (Exchange.confidence, Exchange.advice)
 
 
+class Mixer(Enum):
+    """How the DQN learners combine the agents' Q-values into what is trained (``agent.mixer``)."""
+
+    none = "none"  # each agent on its own TD error
+    vdn = "vdn"  # the team: Q_tot = sum of the live agents' Q-values on the sum of their rewards (Sunehag et al. 2018)
+
+
 class Device(Enum):
     cpu = "cpu"
     cuda = "cuda"

@@ -23,7 +23,20 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from dqn_transfer.documented import documented
-from dqn_transfer.enums import Algorithm, Device, Engine, Exchange, Fill, Logger, Objective, SourceTask, values
+from dqn_transfer.enums import (
+    Algorithm,
+    Device,
+    Engine,
+    Exchange,
+    Fill,
+    Logger,
+    Mixer,
+    Mode,
+    Objective,
+    RewardMode,
+    SourceTask,
+    values,
+)
 from dqn_transfer.envs.settings import ENV_KEYS, EnvConfig
 
 # The config groups: dqn_transfer/conf/, inside the package (found from any directory, installed or not).
@@ -65,6 +78,11 @@ class AgentConfig:
         False,
         "with share_parameters: append a one-hot of the agent's index to its observation (segment agent_id), "
         "so the shared network can tell the agents apart",
+    )
+    mixer: Mixer = documented(
+        Mixer.none,
+        "none (each agent on its own TD error) | vdn (value decomposition, Sunehag et al. 2018: the team trained "
+        "jointly, Q_tot = sum of the live agents' Q-values on the sum of their rewards; cooperative games)",
     )
 
 
@@ -350,6 +368,7 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
     )
     _check_source_agent("transfer.source_agent", transfer.source_agent)
     _check_team_inputs(cfg)
+    _check_mixer(cfg)
     _check_pretraining(cfg)
     _check_chest_aware(cfg)
     _check_curriculum(cfg)
@@ -378,6 +397,37 @@ def _check_team_inputs(cfg: DictConfig | TrainConfig) -> None:
     _check(
         lam == 1.0 or Exchange(transfer.exchange) is Exchange.experience,
         f"transfer.experience_lambda={lam} weighs shared experience: it needs transfer.exchange=experience",
+    )
+
+
+def _check_mixer(cfg: DictConfig | TrainConfig) -> None:
+    """``agent.mixer=vdn`` trains a DQN team on the sum of its rewards from aligned joint steps: not for
+    tables, not for agents each after their own return (competitive mode) or already given the team's
+    reward, and not with an exchange that moves transitions between the agents' replays."""
+    env, agent, transfer = cfg.env, cfg.agent, cfg.transfer
+    if Mixer(agent.mixer) is Mixer.none:
+        return
+    _check(
+        not Algorithm(agent.algorithm).is_tabular,
+        f"agent.mixer=vdn sums the agents' Q-networks: it needs agent=dqn or agent=double_dqn, "
+        f"not agent={Algorithm(agent.algorithm).value}",
+    )
+    if env.factory is None:  # the treasure hunt's own keys (another game has its own rewards)
+        _check(
+            Mode(env.mode) is not Mode.competitive,
+            "agent.mixer=vdn trains the team on the sum of its rewards, a cooperative objective: use "
+            "mode=cooperative or mode=deliberative, not mode=competitive (each agent after its own return)",
+        )
+        _check(
+            RewardMode(env.reward_mode) is RewardMode.individual,
+            "agent.mixer=vdn sums the agents' own rewards; env.reward_mode=team already gives each the sum, which "
+            "VDN would count once per agent: use env.reward_mode=individual",
+        )
+    exchange = Exchange(transfer.exchange)
+    _check(
+        exchange not in (Exchange.shared_replay, Exchange.experience),
+        f"transfer.exchange={exchange.value} moves transitions between the agents' replays; agent.mixer=vdn "
+        "trains on the team's aligned joint steps: use transfer.exchange=none or best",
     )
 
 
