@@ -10,18 +10,19 @@ from dqn_transfer.enums import Exchange
 
 register_configs()
 
-# The registered methods of the main hypothesis: (learner, exchange, parameter sharing with agent ids).
+# The registered methods of the main hypothesis: (learner, exchange, parameter sharing with agent ids, mixer).
 METHODS = {
-    "sarsa_none": ("sarsa", "none", False),
-    "sarsa_best": ("sarsa", "best", False),
-    "sarsa_shared_replay": ("sarsa", "shared_replay", False),
-    "sarsa_confidence": ("sarsa", "confidence", False),
-    "sarsa_advice": ("sarsa", "advice", False),
-    "double_dqn_none": ("double_dqn", "none", False),
-    "double_dqn_best": ("double_dqn", "best", False),
-    "double_dqn_shared_replay": ("double_dqn", "shared_replay", False),
-    "double_dqn_experience": ("double_dqn", "experience", False),
-    "double_dqn_shared_id": ("double_dqn", "none", True),
+    "sarsa_none": ("sarsa", "none", False, "none"),
+    "sarsa_best": ("sarsa", "best", False, "none"),
+    "sarsa_shared_replay": ("sarsa", "shared_replay", False, "none"),
+    "sarsa_confidence": ("sarsa", "confidence", False, "none"),
+    "sarsa_advice": ("sarsa", "advice", False, "none"),
+    "double_dqn_none": ("double_dqn", "none", False, "none"),
+    "double_dqn_best": ("double_dqn", "best", False, "none"),
+    "double_dqn_shared_replay": ("double_dqn", "shared_replay", False, "none"),
+    "double_dqn_experience": ("double_dqn", "experience", False, "none"),
+    "double_dqn_shared_id": ("double_dqn", "none", True, "none"),
+    "double_dqn_vdn": ("double_dqn", "none", False, "vdn"),
 }
 SEEDS = {"sarsa": 3, "double_dqn": 1}  # the primary learner 3 seeds a map, the deep one 1
 
@@ -42,12 +43,13 @@ def test_the_hypothesis_sweep_is_every_registered_method_in_both_modes():
 
 @pytest.mark.parametrize("method", METHODS)
 def test_each_method_is_its_learner_with_its_exchange(method):
-    algorithm, exchange, shared_id = METHODS[method]
+    algorithm, exchange, shared_id, mixer = METHODS[method]
     config: TrainConfig = OmegaConf.to_object(_compose("experiment=v2/hypothesis", f"method={method}"))
     validate(config)
     assert config.agent.algorithm.value == algorithm
     assert Exchange(config.transfer.exchange).value == exchange
     assert (config.agent.share_parameters, config.agent.agent_id_input) == (shared_id, shared_id)
+    assert config.agent.mixer.value == mixer
     assert (config.replicas.maps, config.replicas.seeds) == (40, SEEDS[algorithm])
     assert config.env.map_seed == 0  # evaluation maps 0..39: the tuning (1000..) and pilot (2000..) maps are apart
     assert (config.env.num_agents, config.env.size, config.env.mode.value) == (4, 8, "cooperative")
