@@ -3,8 +3,8 @@
 Nothing here is a second copy of a page: every page is made at build time from its one source.
 
 - Home: the repository's ``README.md``; the guide's overview page (``guide.md``): ``docs/README.md``
-  (a ``README.md`` would otherwise be the site's home); the study: ``results/REPORT.md``,
-  ``results/VERDICT_RULES.md`` and their figures; ``CHANGELOG.md``. Files outside ``docs/`` keep their
+  (a ``README.md`` would otherwise be the site's home); the study: ``results/VERDICT_RULES.md``,
+  each edition's report, rules and figures (``results/v1/``); ``CHANGELOG.md``. Files outside ``docs/`` keep their
   repository path on the site, so the links to them hold.
 - Relative links are written for the repository (``docs/game.md`` from the README,
   ``../results/REPORT.md`` from a guide page) and mapped onto the site's layout.
@@ -187,8 +187,8 @@ def on_files(files: Files, config: MkDocsConfig) -> Files:
         files.append(File.generated(config, "guide.md", abs_src_path=overview.abs_src_path))
     files.append(File.generated(config, "index.md", abs_src_path=str(ROOT / "README.md")))
     files.append(File.generated(config, "CHANGELOG.md", abs_src_path=str(ROOT / "CHANGELOG.md")))
-    for path in sorted([*RESULTS.glob("*.md"), *RESULTS.glob("*.png")]):
-        files.append(File.generated(config, f"results/{path.name}", abs_src_path=str(path)))
+    for path in sorted(p for p in RESULTS.rglob("*") if p.suffix in (".md", ".png")):  # each edition's
+        files.append(File.generated(config, f"results/{path.relative_to(RESULTS).as_posix()}", abs_src_path=str(path)))
     for name in [PACKAGE, *subpackages()]:
         files.append(File.generated(config, f"api/{name}.md", content=api_page(name)))
     scripts = console_scripts()

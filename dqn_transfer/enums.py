@@ -76,6 +76,13 @@ class Exchange(Enum):
         return self in (Exchange.confidence, Exchange.advice)
 
 
+class Mixer(Enum):
+    """How the DQN learners combine the agents' Q-values into what is trained (``agent.mixer``)."""
+
+    none = "none"  # each agent on its own TD error
+    vdn = "vdn"  # the team: Q_tot = sum of the live agents' Q-values on the sum of their rewards (Sunehag et al. 2018)
+
+
 class Device(Enum):
     cpu = "cpu"
     cuda = "cuda"
@@ -127,6 +134,7 @@ class SourceTask(Enum):
     """What a pretrained transfer source is trained on (``transfer.source_task``)."""
 
     single = "single"  # TreasureHunt-v0: the single-agent MDP of the map (agent 0 alone)
+    per_agent = "per_agent"  # TreasureHunt-v0 from each target agent's own start: one source per target
     team = "team"  # the run's own multi-agent game; the targets start from one of its members
 
 

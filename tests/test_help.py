@@ -37,15 +37,17 @@ def key_line(page: str, key: str) -> str:
 def test_help_names_every_schema_key_with_its_own_description():
     page = help_text("python train.py")
     keys = schema_fields(TrainConfig)
-    assert len(keys) == 75 and {
+    assert len(keys) == 77 and {
         "agent.lr",
         "agent.engine",
+        "agent.mixer",
         "env.size",
         "env.factory",
         "env.contention",
         "env.kwargs",
         "transfer.source",
         "transfer.source_task",
+        "transfer.chest_aware",
         "transfer.source_map_shift",
         "transfer.confidence_weight",
         "transfer.advice_budget",

@@ -32,7 +32,7 @@ from dqn_transfer.experiments.power import pilot_differences
 from dqn_transfer.experiments.raw_data import read_data
 from dqn_transfer.experiments.scoring import score
 
-PILOT = Path(__file__).resolve().parents[1] / "results" / "data" / "hypothesis.jsonl"
+PILOT = Path(__file__).resolve().parents[1] / "results" / "v1" / "data" / "hypothesis.jsonl"
 
 
 def simulated(rng: np.random.Generator, n_maps: int, n_seeds: int, sigma_map: float, sigma_run: float) -> np.ndarray:
@@ -221,7 +221,7 @@ def test_maps_for_power_is_the_fewest_reaching_the_target():
 def test_the_pilots_differences_are_the_first_editions():
     differences = pilot_differences(read_data(PILOT), "best", score)
     assert [d.size for d in differences] == [2] * 5
-    assert np.concatenate(differences).mean() == pytest.approx(-0.0603, abs=5e-5)  # results/REPORT.md
+    assert np.concatenate(differences).mean() == pytest.approx(-0.0603, abs=5e-5)  # results/v1/REPORT.md
 
 
 def test_a_pilot_that_cannot_be_read_is_one_error_line(tmp_path, capsys):

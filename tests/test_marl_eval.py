@@ -27,7 +27,7 @@ from dqn_transfer.training.plan import plan_run
 from dqn_transfer.training.trainer import train
 
 ROOT = Path(__file__).resolve().parents[1]
-DATA = ROOT / "results" / "data"
+DATA = ROOT / "results" / "v1" / "data"
 
 
 def marl_eval_matrices(path: Path, environment: str) -> tuple[dict, list[str]]:

@@ -19,7 +19,16 @@ import torch
 from dqn_transfer.agents.adam import FlatAdam
 from dqn_transfer.agents.base import ObsLayout, UpdateStats
 from dqn_transfer.agents.dqn_base import BatchedDQN
-from dqn_transfer.agents.dqn_update import double_dqn_targets, dqn_targets, td_loss_grad, td_losses
+from dqn_transfer.agents.dqn_update import (
+    double_dqn_targets,
+    dqn_targets,
+    live_mean,
+    td_loss_grad,
+    td_losses,
+    team_loss_grad,
+    team_losses,
+    team_td_errors,
+)
 from dqn_transfer.agents.networks import BatchedMLP
 from dqn_transfer.agents.replay import ReplayBatch
 from dqn_transfer.config import AgentConfig, ConfigError
@@ -120,9 +129,12 @@ class DQNLearner(BatchedDQN):
             copy = self._device_weights[name] = (weights, torch.from_numpy(weights).to(self.device))
         return copy[1]
 
-    def train_on(self, batch: ReplayBatch, sample_weights: np.ndarray | None = None) -> UpdateStats:
+    def train_on(
+        self, batch: ReplayBatch, sample_weights: np.ndarray | None = None, live: np.ndarray | None = None
+    ) -> UpdateStats:
         """One Adam step for all agents on ``batch`` (``[rows, B, ...]``, numpy on the host):
-        :func:`~dqn_transfer.agents.dqn_update.reference_update` for every network at once.
+        :func:`~dqn_transfer.agents.dqn_update.reference_update` for every network at once (with ``live``:
+        :func:`~dqn_transfer.agents.dqn_update.reference_vdn_update` for every replica's team).
 
         The loss is ``sum_rows weight[row] * mean_batch Huber(Q(s, a) - y)`` (see ``loss_weights``);
         its gradient is taken by hand (``td_loss_grad``, then ``BatchedMLP.backward``).
@@ -141,12 +153,21 @@ class DQNLearner(BatchedDQN):
             actions = actions.unsqueeze(-1)
             q_taken = q_values.gather(-1, actions).squeeze(-1)  # Q(s, a) [rows, B]
             error = q_taken - targets
-            sample_weights_t = None if sample_weights is None else self._on_device("sample", sample_weights)
-            agent_losses = td_losses(error, sample_weights_t)  # [rows]
             valid = self.replay.size > 0
+            loss_weights = self._on_device("loss", self.loss_weights(valid))
 
             # d loss / d Q(s, a), scattered onto the actions taken, then back through the network.
-            grad_taken = td_loss_grad(error, self._on_device("loss", self.loss_weights(valid)), sample_weights_t)
+            if live is None:
+                sample_weights_t = None if sample_weights is None else self._on_device("sample", sample_weights)
+                agent_losses = td_losses(error, sample_weights_t)  # [rows]
+                grad_taken = td_loss_grad(error, loss_weights, sample_weights_t)
+                q_mean = q_taken.mean(dim=1)
+            else:
+                live_t = torch.from_numpy(live).to(self.device)
+                team_error = team_td_errors(error, live_t, self.num_agents)
+                agent_losses = team_losses(team_error, self.num_agents)
+                grad_taken = team_loss_grad(team_error, live_t, loss_weights)
+                q_mean = live_mean(q_taken, live_t)
             grad_q = torch.zeros_like(q_values).scatter_add_(-1, actions, grad_taken.unsqueeze(-1))
             layers = self.trainable_layers
             self.q_network.backward(inputs, self._team_batch(grad_q), layers)
@@ -154,5 +175,5 @@ class DQNLearner(BatchedDQN):
             self.optimizer.step([2 * l + kind for l in layers for kind in (0, 1)])
             self.num_gradient_steps += 1
 
-            stats = torch.stack([agent_losses, q_taken.mean(dim=1)]).cpu().numpy()  # one transfer
+            stats = torch.stack([agent_losses, q_mean]).cpu().numpy()  # one transfer
         return UpdateStats(np.where(valid, stats[0], np.nan), np.where(valid, stats[1], np.nan))

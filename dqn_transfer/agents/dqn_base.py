@@ -15,7 +15,9 @@ gradients are clipped per agent. With ``share_parameters`` each replica's team s
 instead (the parameter-sharing baseline): a single member whose forward pass serves its agents, replay
 still per agent, loss the *mean* over the replica's agents. Replica r (rows ``r * K .. r * K + K - 1``)
 has its own initial weights, exploration and replay sampling streams, seeded as a lone learner of its
-seed would be; :meth:`BatchedDQN.replica` is its team (:mod:`dqn_transfer.agents.replicas`).
+seed would be; :meth:`BatchedDQN.replica` is its team (:mod:`dqn_transfer.agents.replicas`). With
+``agent.mixer=vdn`` each replica's team is trained on one TD error instead, from a joint replay of its
+aligned steps (:func:`~dqn_transfer.agents.dqn_update.reference_vdn_update`).
 
 Two engines do the arithmetic (``agent.engine``): ``torch`` (:mod:`dqn_transfer.agents.dqn`, any
 device, bit-identical to autograd and ``torch.optim.Adam``) and ``numpy``
@@ -51,7 +53,7 @@ from dqn_transfer.agents.replay import ReplayBatch, ReplayBuffer
 from dqn_transfer.agents.replicas import team_view
 from dqn_transfer.agents.shared_experience import SharedExperience
 from dqn_transfer.config import AgentConfig
-from dqn_transfer.enums import Algorithm
+from dqn_transfer.enums import Algorithm, Mixer
 
 
 class StackedNetwork(Protocol):
@@ -127,6 +129,7 @@ class BatchedDQN(Learner, KnowledgeExchange, ExperienceSharing, WarmStart, Gener
         self.hidden = [int(h) for h in hp.hidden]
         self.max_grad_norm = hp.max_grad_norm
         self.share_parameters = hp.share_parameters
+        self.vdn = Mixer(hp.mixer) is Mixer.vdn  # the team trained on one TD error (joint replay)
         self.seeds = [int(seed)] if isinstance(seed, (int, np.integer)) else [int(s) for s in seed]
         self.num_replicas = len(self.seeds)
         self.num_rows = self.num_replicas * num_agents
@@ -141,7 +144,11 @@ class BatchedDQN(Learner, KnowledgeExchange, ExperienceSharing, WarmStart, Gener
         self._agent_ids = agent_id_rows(self.num_rows, num_agents) if self.agent_id_input else None
         game_obs_dim = self.obs_dim - (num_agents if self.agent_id_input else 0)
         self.replay = ReplayBuffer(
-            self.num_rows, hp.buffer_size, game_obs_dim, [np.random.default_rng(replay) for _, replay in streams]
+            self.num_rows,
+            hp.buffer_size,
+            game_obs_dim,
+            [np.random.default_rng(replay) for _, replay in streams],
+            joint=self.vdn,
         )
         self.shared_experience: SharedExperience | None = None  # transfer.exchange=experience
         self.frozen_layers: list[int] = []
@@ -161,10 +168,14 @@ class BatchedDQN(Learner, KnowledgeExchange, ExperienceSharing, WarmStart, Gener
         """``argmax_a Q(inputs, a)`` per row, ``inputs`` float32 ``[rows, obs_dim]`` (of ``replica``, or of all)."""
 
     @abstractmethod
-    def train_on(self, batch: ReplayBatch, sample_weights: np.ndarray | None = None) -> UpdateStats:
+    def train_on(
+        self, batch: ReplayBatch, sample_weights: np.ndarray | None = None, live: np.ndarray | None = None
+    ) -> UpdateStats:
         """One Adam step for all agents on ``batch`` (``[rows, B, ...]``, the networks' inputs); each row's
         loss is its batch's mean, or with ``sample_weights`` ``[rows, B]`` their weighted sum
-        (:func:`~dqn_transfer.agents.dqn_update.td_losses`)."""
+        (:func:`~dqn_transfer.agents.dqn_update.td_losses`); with ``live`` ``[rows, B]`` (VDN: a replica's
+        rows are the same joint steps) the loss is each replica's team's
+        (:func:`~dqn_transfer.agents.dqn_update.team_td_errors`), every row reporting its team's loss."""
 
     @abstractmethod
     def _to_engine(self, array: np.ndarray) -> Any:
@@ -270,14 +281,17 @@ class BatchedDQN(Learner, KnowledgeExchange, ExperienceSharing, WarmStart, Gener
     def gradient_step(self) -> UpdateStats:
         """One Adam step for all agents on a fresh replay batch (what ``update`` runs on schedule): each
         agent's own, or with shared experience drawn from all its team-mates' replays."""
-        if self.shared_experience is None:
+        live = None
+        if self.vdn:
+            (batch, live), sample_weights = self.replay.sample_joint(self.batch_size), None
+        elif self.shared_experience is None:
             batch, sample_weights = self.replay.sample(self.batch_size), None
         else:
             batch = self.replay.sample_rows(self.shared_experience.sources)
             sample_weights = self.shared_experience.sample_weights(self.replay.size > 0)
         if self._agent_ids is not None:
             batch = batch._replace(obs=self._network_inputs(batch.obs), next_obs=self._network_inputs(batch.next_obs))
-        return self.train_on(batch, sample_weights)
+        return self.train_on(batch, sample_weights, live)
 
     def share_experience(self, experience_lambda: float) -> None:
         """Draw every agent's batches from all its team-mates' replays (its replica's), their samples weighing
@@ -289,12 +303,13 @@ class BatchedDQN(Learner, KnowledgeExchange, ExperienceSharing, WarmStart, Gener
     def loss_weights(self, valid: np.ndarray) -> np.ndarray:
         """``[rows]`` weight of each row's mean loss in the total: 1 (each agent's gradient is its own
         loss's), with a shared network 1 / (its replica's agents with data), the usual batch mean;
-        0 for a row with no data yet (its batch is placeholders). Cached while the same rows have data
+        0 for a row with no data yet (its batch is placeholders). With VDN the weight of each replica's
+        one team loss, on all its rows: 1, shared network or not. Cached while the same rows have data
         (the same array is returned, so an engine may key its own copy on it)."""
         key = valid.tobytes()
         if self._loss_weights_cache is None or self._loss_weights_cache[0] != key:
             weights = valid.astype(np.float32)
-            if self.share_parameters:
+            if self.share_parameters and not self.vdn:
                 counts = np.maximum(valid.reshape(-1, self.num_agents).sum(axis=1), 1).astype(np.float32)
                 weights = weights / np.repeat(counts, self.num_agents)
             self._loss_weights_cache = (key, weights)

@@ -18,13 +18,19 @@ termination mask), :func:`huber` and :func:`huber_grad` (the loss and its deriva
 (the clip rule). An engine keeps only numeric kernels: forward and backward matrix products, the gradient
 norms, Adam's arithmetic.
 
+VDN (``agent.mixer=vdn``, Sunehag et al. 2018) trains a team on one TD error, ``Q_tot - y_tot`` with
+``Q_tot`` the sum of the live agents' Q-values: :func:`reference_vdn_update` states it in autograd, and
+the engines reuse each agent's own target above and sum (:func:`team_td_errors`, :func:`team_losses`,
+:func:`team_loss_grad`, :func:`live_mean`).
+
 This module imports no torch at import time (the numpy engine uses it and never imports torch);
-:func:`reference_update` imports torch when called.
+:func:`reference_update` and :func:`reference_vdn_update` import torch when called.
 """
 
 from __future__ import annotations
 
 import sys
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -115,6 +121,41 @@ def td_loss_grad(error: Array, weights: Array, sample_weights: Array | None = No
     return huber_grad(error) * (weights[:, None] * sample_weights)
 
 
+def team_td_errors(error: Array, live: Array, num_agents: int) -> Array:
+    """VDN's TD error of each team ``[teams, B]``, from its agents' ``error = Q_k(s, a) - y_k`` ``[rows, B]``
+    (rows ``team * K + k``, their own targets) and ``live`` ``[rows, B]`` (1 where agent k acted in the step):
+    ``sum_k live_k * (Q_k(s, a) - y_k) = Q_tot(s, a) - (r_tot + gamma * sum_k live_k (1 - terminated_k)
+    Q_k^target(s'_k, a*_k))``. An agent done before the step adds nothing (no Q-value, no reward); one that
+    ended in it by termination adds its Q-value and reward but no next value; one truncated bootstraps."""
+    rows, batch = error.shape
+    return (error * live).reshape(rows // num_agents, num_agents, batch).sum(1)
+
+
+def team_losses(team_error: Array, num_agents: int) -> Array:
+    """Each agent's row ``[rows]``: its team's loss, the mean :func:`huber` of its :func:`team_td_errors`."""
+    losses = huber(team_error).mean(-1)
+    if isinstance(losses, np.ndarray):
+        return np.repeat(losses, num_agents)
+    return losses.repeat_interleave(num_agents)
+
+
+def team_loss_grad(team_error: Array, live: Array, weights: Array) -> Array:
+    """d loss / d ``Q_k(s, a)`` ``[rows, B]`` for VDN's loss ``sum_teams weights[team] * mean_b
+    huber(team_error)``: every agent live in a sample gets its team's gradient there (d Q_tot / d Q_k = 1),
+    the others none. ``weights`` ``[rows]`` is the same for a team's rows (see ``BatchedDQN.loss_weights``)."""
+    teams, batch = team_error.shape
+    k = live.shape[0] // teams
+    grad = huber_grad(team_error)[:, None, :] * live.reshape(teams, k, batch) * (weights.reshape(teams, k, 1) / batch)
+    return grad.reshape(teams * k, batch)
+
+
+def live_mean(values: Array, live: Array) -> Array:
+    """Each row's mean of ``values`` ``[rows, B]`` over the samples where ``live`` ``[rows, B]`` is 1 (nan where
+    none is): an agent's mean ``Q(s, a)`` over the steps it acted in."""
+    count = live.sum(-1)
+    return _xp(values).where(count > 0, (values * live).sum(-1) / count.clip(1.0, None), float("nan"))
+
+
 def clip_coefficient(norms: Array, max_norm: float) -> Array:
     """What ``clip_grad_norm_`` multiplies the gradients by, given their norm(s): at most 1, so that a
     norm above ``max_norm`` (``agent.max_grad_norm``) becomes ``max_norm`` (``1e-6``: torch's guard)."""
@@ -176,3 +217,59 @@ def reference_update(
     torch.nn.utils.clip_grad_norm_(q_network.parameters(), max_grad_norm)
     optimizer.step()
     return agent_losses.detach(), q_taken.detach().mean(dim=-1)
+
+
+def reference_vdn_update(
+    q_networks: Sequence[torch.nn.Module],
+    target_networks: Sequence[torch.nn.Module],
+    optimizers: Sequence[torch.optim.Optimizer],
+    batch: tuple[torch.Tensor, ...],
+    live: torch.Tensor,
+    *,
+    gamma: float,
+    double: bool,
+    max_grad_norm: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """One gradient step of a team's VDN loss (``agent.mixer=vdn``, Sunehag et al. 2018), with autograd.
+
+    ``batch`` is ``(obs [K, B, D], actions [K, B], rewards [K, B], next_obs [K, B, D], terminated [K, B])``,
+    the same B joint steps for the team's K agents, and ``live`` ``[K, B]`` 1 where agent k acted in the
+    step. ``q_networks[k]`` / ``target_networks[k]`` are agent k's networks (the same module for every k
+    with ``share_parameters``); ``optimizers`` one ``torch.optim.Adam`` per distinct online network::
+
+        Q_tot     = sum_k live_k Q_k(s_k, a_k)
+        td_target = sum_k live_k r_k + gamma * sum_k live_k (1 - terminated_k) Q_k^target(s'_k, a*_k)
+        loss      = mean_batch Huber(Q_tot - td_target)
+
+    with ``a*_k`` the target network's best action (DQN) or the online network's (Double DQN). An agent
+    done before the step is not live: it adds neither a Q-value nor a reward. The team's episode ends
+    (no bootstrap at all) when every live agent terminates; a truncated agent still bootstraps (the
+    timeout rule). Each network's gradient norm is clipped at ``max_grad_norm``, then every optimizer
+    steps. Returns the team's loss and each agent's mean ``Q(s, a)`` over the steps it acted in ``[K]``.
+    """
+    import torch
+    import torch.nn.functional as F
+
+    obs, actions, rewards, next_obs, terminated = batch
+    agents = range(len(q_networks))
+    with torch.no_grad():
+        next_q_target = torch.stack([target_networks[k](next_obs[k]) for k in agents])
+        if double:
+            best = torch.stack([q_networks[k](next_obs[k]) for k in agents]).argmax(-1, keepdim=True)
+            next_value = next_q_target.gather(-1, best).squeeze(-1)
+        else:
+            next_value = next_q_target.amax(-1)
+        td_target = (live * rewards).sum(0) + gamma * (live * (1.0 - terminated) * next_value).sum(0)
+
+    q_taken = torch.stack([q_networks[k](obs[k]).gather(-1, actions[k].unsqueeze(-1)).squeeze(-1) for k in agents])
+    loss = F.smooth_l1_loss((live * q_taken).sum(0), td_target)
+
+    for optimizer in optimizers:
+        optimizer.zero_grad()
+    loss.backward()
+    for network in {id(network): network for network in q_networks}.values():
+        torch.nn.utils.clip_grad_norm_(network.parameters(), max_grad_norm)
+    for optimizer in optimizers:
+        optimizer.step()
+    q_taken = q_taken.detach()
+    return loss.detach(), (live * q_taken).sum(-1) / live.sum(-1)

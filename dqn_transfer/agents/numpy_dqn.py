@@ -19,7 +19,17 @@ import numpy as np
 
 from dqn_transfer.agents.base import ObsLayout, UpdateStats
 from dqn_transfer.agents.dqn_base import BatchedDQN
-from dqn_transfer.agents.dqn_update import clip_coefficient, double_dqn_targets, dqn_targets, td_loss_grad, td_losses
+from dqn_transfer.agents.dqn_update import (
+    clip_coefficient,
+    double_dqn_targets,
+    dqn_targets,
+    live_mean,
+    td_loss_grad,
+    td_losses,
+    team_loss_grad,
+    team_losses,
+    team_td_errors,
+)
 from dqn_transfer.agents.replay import ReplayBatch
 from dqn_transfer.agents.stacked import SMALLEST_NORMAL, AdamState, StackedLayout
 from dqn_transfer.config import AgentConfig
@@ -250,9 +260,12 @@ class NumpyDQNLearner(BatchedDQN):
     def _greedy_actions(self, inputs: np.ndarray, replica: int | None) -> np.ndarray:
         return self._online_q_values(inputs, replica).argmax(axis=-1)
 
-    def train_on(self, batch: ReplayBatch, sample_weights: np.ndarray | None = None) -> UpdateStats:
+    def train_on(
+        self, batch: ReplayBatch, sample_weights: np.ndarray | None = None, live: np.ndarray | None = None
+    ) -> UpdateStats:
         """One Adam step for all agents on ``batch`` (``[rows, B, ...]``): the torch engine's loss,
-        ``sum_rows weight[row] * td_losses(Q(s, a) - y, sample_weights)[row]``, and its gradient by the chain rule."""
+        ``sum_rows weight[row] * td_losses(Q(s, a) - y, sample_weights)[row]`` (with ``live``, VDN's team
+        loss), and its gradient by the chain rule."""
         obs, actions, rewards, next_obs, terminated = batch
         rows, cols = self._batch_grid(actions.shape)  # (row, sample) of each Q(s, a) picked below
         next_q_target = self._predict(self.target_network, next_obs)
@@ -267,11 +280,18 @@ class NumpyDQNLearner(BatchedDQN):
         q_values = self._predict(self.q_network, obs, inputs=inputs)
         q_taken = q_values[rows, cols, actions]  # Q(s, a) [rows, B]
         error = q_taken - targets
-        agent_losses = td_losses(error, sample_weights)
         valid = self.replay.size > 0
 
         # d loss / d Q(s, a), scattered onto the actions taken, then back through the network.
-        grad_taken = td_loss_grad(error, self.loss_weights(valid), sample_weights)
+        if live is None:
+            agent_losses = td_losses(error, sample_weights)
+            grad_taken = td_loss_grad(error, self.loss_weights(valid), sample_weights)
+            q_mean = q_taken.mean(axis=1)
+        else:
+            team_error = team_td_errors(error, live, self.num_agents)
+            agent_losses = team_losses(team_error, self.num_agents)
+            grad_taken = team_loss_grad(team_error, live, self.loss_weights(valid))
+            q_mean = live_mean(q_taken, live)
         grad_q = np.zeros_like(q_values)
         grad_q[rows, cols, actions] = grad_taken
         if self.share_parameters:
@@ -281,7 +301,7 @@ class NumpyDQNLearner(BatchedDQN):
         self.q_network.clip_grad_norm_(self.max_grad_norm, layers)
         self.optimizer.step([2 * l + kind for l in layers for kind in (0, 1)])
         self.num_gradient_steps += 1
-        return UpdateStats(np.where(valid, agent_losses, np.nan), np.where(valid, q_taken.mean(axis=1), np.nan))
+        return UpdateStats(np.where(valid, agent_losses, np.nan), np.where(valid, q_mean, np.nan))
 
     def _batch_grid(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
         """Index grids ``[rows, 1]`` and ``[1, B]`` that, with ``[rows, B]`` actions, pick one Q-value per sample."""

@@ -1,6 +1,6 @@
 """The second edition's step budgets per cell, with the first edition's runs as the pilot.
 
-    python -m dqn_transfer.cli.budget --pilot results/data/claim2.jsonl --threshold 0.01 \\
+    python -m dqn_transfer.cli.budget --pilot results/v1/data/claim2.jsonl --threshold 0.01 \\
         [--safety 1.5] [--cap 32000] [--round-to 1000] [--fraction 0.2]
 
 Prints a Markdown table (:func:`dqn_transfer.experiments.budgets.format_pilot_budgets`): for each cell of the
@@ -25,7 +25,7 @@ def main(argv: list[str] | None = None) -> int:
     bad parameter of the rule."""
     parser = OneLineErrors(description=__doc__.split("\n\n")[0])
     parser.add_argument(
-        "--pilot", required=True, type=Path, metavar="JSONL", help="raw data of one experiment (results/data/)"
+        "--pilot", required=True, type=Path, metavar="JSONL", help="raw data of one experiment (results/v1/data/)"
     )
     parser.add_argument(
         "--threshold", required=True, type=float, help="converged below this slope, in score per 1,000 steps"

@@ -1,7 +1,7 @@
 """Export runs for the field's tools.
 
     dqn-transfer-export marl-eval RUN_DIR... --out results.json
-    dqn-transfer-export marl-eval --data results/data/*.jsonl --out study.json
+    dqn-transfer-export marl-eval --data results/v1/data/*.jsonl --out study.json
 
 writes marl-eval's JSON (environment -> task -> algorithm -> seed_N -> step_k; docs/integrations.md). A
 directory that is not a usable run is skipped with a ``skipped DIR: REASON`` line; what marl-eval's
@@ -31,7 +31,7 @@ def parser() -> argparse.ArgumentParser:
     marl = formats.add_parser("marl-eval", help="marl-eval's JSON (InstaDeep's id-marl-eval)")
     marl.add_argument("runs", nargs="*", metavar="RUN_DIR", help="run directories (a sweep stands for its runs)")
     marl.add_argument(
-        "--data", nargs="+", default=[], metavar="FILE", help="the study's raw data (results/data/*.jsonl)"
+        "--data", nargs="+", default=[], metavar="FILE", help="the study's raw data (results/v1/data/*.jsonl)"
     )
     marl.add_argument("--out", required=True, type=Path, help="the JSON file to write (must not exist)")
     marl.add_argument(

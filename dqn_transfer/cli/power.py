@@ -1,6 +1,6 @@
 """The second edition's power analysis, with the first edition's runs as the pilot.
 
-    python -m dqn_transfer.cli.power --pilot results/data/hypothesis.jsonl [--metric final_score|score]
+    python -m dqn_transfer.cli.power --pilot results/v1/data/hypothesis.jsonl [--metric final_score|score]
 
 Prints a Markdown table (:func:`dqn_transfer.experiments.power.format_power_rows`): for each primary
 comparison, the pilot's paired difference with maps resampled, its map-level and run-level standard

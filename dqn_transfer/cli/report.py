@@ -1,11 +1,12 @@
-"""The study: run its experiments, keep their raw data, and write ``REPORT.md`` with its figures.
+"""The study's first edition: run its experiments, keep their raw data, and write ``REPORT.md`` with its
+figures (the second edition's registered rules: ``results/VERDICT_RULES.md``).
 
     python scripts/reproduce.py --profile quick --out /tmp/study      # smoke run: minutes, NOT evidence
-    python scripts/reproduce.py --profile full --out results          # the evidence: 9 min on 2 cores
-    dqn-transfer-report results --out /tmp/report                     # the report again from results/data/,
+    python scripts/reproduce.py --profile full --out results/v1       # the evidence: 9 min on 2 cores
+    dqn-transfer-report results/v1 --out /tmp/report                  # the report again from its data/,
                                                                       # no training, under a minute
-    python scripts/reproduce.py --out results --report-only           # re-export OUT/runs/ and report
-    python scripts/reproduce.py --profile full --out results --launcher submitit_slurm \\
+    python scripts/reproduce.py --out results/v1 --report-only          # re-export OUT/runs/ and report
+    python scripts/reproduce.py --profile full --out results/v1 --launcher submitit_slurm \\
         --extra hydra.launcher.partition=PART --extra hydra.launcher.timeout_min=60
 
 (``dqn-transfer-report`` and ``python -m dqn_transfer.cli.report`` are the same program.) Each
@@ -13,7 +14,7 @@ experiment is one Hydra multirun of ``python -m dqn_transfer.cli.train -m experi
 (``dqn_transfer/conf/experiment/``) into ``OUT/runs/<name>/``; ``--launcher joblib`` (the default, from the
 ``sweep`` extra) runs ``--n-jobs`` jobs at a time. The runs' evaluations are then exported to
 ``OUT/data/<name>.jsonl`` (one JSON line per run, with its config) and the report is computed from
-those files alone, by the rules of ``results/VERDICT_RULES.md``:
+those files alone, by the rules of ``results/v1/VERDICT_RULES.md``:
 
 - hypothesis, hypothesis_shared: a group that exchanges knowledge learns better than the same group without;
 - claim1: with one treasure, cooperation gives no advantage over competition;

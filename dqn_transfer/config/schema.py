@@ -31,7 +31,10 @@ from dqn_transfer.enums import (
     Exchange,
     Fill,
     Logger,
+    Mixer,
+    Mode,
     Objective,
+    RewardMode,
     SourceTask,
     values,
 )
@@ -77,6 +80,11 @@ class AgentConfig:
         "with share_parameters: append a one-hot of the agent's index to its observation (segment agent_id), "
         "so the shared network can tell the agents apart",
     )
+    mixer: Mixer = documented(
+        Mixer.none,
+        "none (each agent on its own TD error) | vdn (value decomposition, Sunehag et al. 2018: the team trained "
+        "jointly, Q_tot = sum of the live agents' Q-values on the sum of their rewards; cooperative games)",
+    )
 
 
 # Each AgentConfig key -> Stable-Baselines3 DQN's keyword for the same quantity ("hidden" becomes
@@ -117,8 +125,15 @@ class TransferConfig:
     source_task: SourceTask = documented(
         SourceTask.single,
         "what a pretrained source learns: single (TreasureHunt-v0, "
-        "agent 0 alone) | team (this run's own game; targets "
+        "agent 0 alone) | per_agent (TreasureHunt-v0 from each target agent's own start: target i "
+        "starts from a lone agent pretrained from agent i's start) | team (this run's own game; targets "
         "start from member source_agent)",
+    )
+    chest_aware: bool = documented(
+        False,
+        "tabular learners, a source pretrained on TreasureHunt-v0 (source_task single | per_agent): use the "
+        "source's values only while the chest nearest its start is full in the target's `treasures` "
+        "observation; once it reads taken, a state starts at 0 like an empty table's",
     )
     source_map_shift: int = documented(0, "pretrain on the generated map of env.map_seed + this; 0: this run's map")
     cache_dir: Optional[str] = documented(None, "pretrained-source cache; null: <launch dir>/outputs/pretrained")
@@ -359,7 +374,9 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
     )
     _check_source_agent("transfer.source_agent", transfer.source_agent)
     _check_team_inputs(cfg)
+    _check_mixer(cfg)
     _check_pretraining(cfg)
+    _check_chest_aware(cfg)
     _check_curriculum(cfg)
     if agent.share_parameters:
         _check(
@@ -386,6 +403,37 @@ def _check_team_inputs(cfg: DictConfig | TrainConfig) -> None:
     _check(
         lam == 1.0 or Exchange(transfer.exchange) is Exchange.experience,
         f"transfer.experience_lambda={lam} weighs shared experience: it needs transfer.exchange=experience",
+    )
+
+
+def _check_mixer(cfg: DictConfig | TrainConfig) -> None:
+    """``agent.mixer=vdn`` trains a DQN team on the sum of its rewards from aligned joint steps: not for
+    tables, not for agents each after their own return (competitive mode) or already given the team's
+    reward, and not with an exchange that moves transitions between the agents' replays."""
+    env, agent, transfer = cfg.env, cfg.agent, cfg.transfer
+    if Mixer(agent.mixer) is Mixer.none:
+        return
+    _check(
+        not Algorithm(agent.algorithm).is_tabular,
+        f"agent.mixer=vdn sums the agents' Q-networks: it needs agent=dqn or agent=double_dqn, "
+        f"not agent={Algorithm(agent.algorithm).value}",
+    )
+    if env.factory is None:  # the treasure hunt's own keys (another game has its own rewards)
+        _check(
+            Mode(env.mode) is not Mode.competitive,
+            "agent.mixer=vdn trains the team on the sum of its rewards, a cooperative objective: use "
+            "mode=cooperative or mode=deliberative, not mode=competitive (each agent after its own return)",
+        )
+        _check(
+            RewardMode(env.reward_mode) is RewardMode.individual,
+            "agent.mixer=vdn sums the agents' own rewards; env.reward_mode=team already gives each the sum, which "
+            "VDN would count once per agent: use env.reward_mode=individual",
+        )
+    exchange = Exchange(transfer.exchange)
+    _check(
+        exchange not in (Exchange.shared_replay, Exchange.experience),
+        f"transfer.exchange={exchange.value} moves transitions between the agents' replays; agent.mixer=vdn "
+        "trains on the team's aligned joint steps: use transfer.exchange=none or best",
     )
 
 
@@ -419,6 +467,29 @@ def _check_pretraining(cfg: DictConfig | TrainConfig) -> None:
             f"transfer.source_map_shift={shift}: the source's map seed "
             f"env.map_seed + shift = {env.map_seed + shift} must be >= 0",
         )
+
+
+def _check_chest_aware(cfg: DictConfig | TrainConfig) -> None:
+    """``transfer.chest_aware`` gates a table's start values from a lone source by the source's chest: it
+    needs transfer=on, a tabular learner, a source pretrained on TreasureHunt-v0, the treasure hunt's
+    chests and no curriculum."""
+    transfer = cfg.transfer
+    if not transfer.chest_aware:
+        return
+    what = "transfer.chest_aware=true uses a lone source's values only while its chest is full"
+    algorithm, task = Algorithm(cfg.agent.algorithm), SourceTask(transfer.source_task)
+    _check(transfer.enabled, f"{what}: it needs transfer=on")
+    _check(
+        algorithm.is_tabular,
+        f"{what}, in a table's start values: it needs agent=sarsa or agent=qlearning, not agent={algorithm.value}",
+    )
+    _check(
+        transfer.source is None and task is not SourceTask.team,
+        f"{what}: it needs a source pretrained on TreasureHunt-v0 (transfer.source unset, transfer.source_task="
+        f"single or per_agent), not transfer.source={transfer.source} with transfer.source_task={task.value}",
+    )
+    _check(cfg.env.factory is None, f"{what}: env.factory={cfg.env.factory} is another game, without chests")
+    _check(not cfg.curriculum.stages, f"{what}: a curriculum's run starts from its last stage (leave it unset)")
 
 
 def _check_logger(names: Any) -> None:

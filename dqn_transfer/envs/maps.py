@@ -121,6 +121,21 @@ class GridMap:
                     queue.append(nxt)
         return dist
 
+    def nearest_chest(self, cell: Cell) -> int:
+        """The chest nearest ``cell`` by a path avoiding obstacles and traps (the lower number on equal
+        distance): the one a lone agent starting there reaches soonest. ``-1``: none reachable."""
+        dist = self.distances_from(cell)
+        reachable = [(int(dist[chest]), j) for j, chest in enumerate(self.chests) if dist[chest] >= 0]
+        return min(reachable)[1] if reachable else -1
+
+    def with_start_of(self, agent: int) -> GridMap:
+        """This map with agent ``agent``'s start as agent 0's (the two start digits swapped), so that
+        its single-agent task (agent 0 alone) starts from ``agent``'s cell; agent 0: the map itself."""
+        if agent == 0:
+            return self
+        digits = {"0": str(agent), str(agent): "0"}
+        return parse_layout("\n".join("".join(digits.get(ch, ch) for ch in row) for row in self.rows))
+
     def start_distances(self) -> np.ndarray:
         """``[m, k]`` BFS path lengths from each agent's start to each chest around obstacles and traps
         (:meth:`distances_from`), ``-1`` where unreachable."""
@@ -128,16 +143,15 @@ class GridMap:
         return np.stack([self.distances_from(chest)[rows, cols] for chest in self.chests], axis=1)
 
     def nearest_chests(self) -> np.ndarray:
-        """``[m]`` each agent's nearest chest: the shortest trap-free path from its start, the lower chest
-        index on equal length (rule 3 makes every chest reachable on a valid map)."""
-        dist = self.start_distances()
-        return np.where(dist < 0, np.iinfo(dist.dtype).max, dist).argmin(axis=1)
+        """``[m]`` each agent's :meth:`nearest_chest` from its start (rule 3 makes every chest reachable on a
+        valid map; ``-1``: none)."""
+        return np.array([self.nearest_chest(start) for start in self.starts])
 
     def contention(self) -> float:
         """The fraction of agents whose nearest chest (:meth:`nearest_chests`) is also another agent's."""
         nearest = self.nearest_chests()
-        shared = np.bincount(nearest, minlength=self.num_treasures)[nearest] > 1
-        return float(shared.mean())
+        shared = [chest >= 0 and np.count_nonzero(nearest == chest) > 1 for chest in nearest]
+        return float(np.mean(shared))
 
 
 def parse_layout(text: str) -> GridMap:

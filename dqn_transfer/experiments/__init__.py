@@ -14,7 +14,8 @@ The study's questions, each answered by experiments (Hydra multiruns of ``dqn_tr
 - :mod:`~dqn_transfer.experiments.scoring`: a run's scores, and how runs are paired and compared;
 - :mod:`~dqn_transfer.experiments.settings`: what the runs were run with, from the configs stored with their data;
 - :mod:`~dqn_transfer.experiments.claims`: each question's typed result (:mod:`~dqn_transfer.experiments.results`)
-  computed from its raw data, with its primary comparison and verdict (the rules: ``results/VERDICT_RULES.md``);
+  computed from its raw data, with its primary comparison and verdict (the first edition's rules:
+  ``results/v1/VERDICT_RULES.md``);
 - :mod:`~dqn_transfer.experiments.render`: the renderer, a result to its Markdown and figures;
 - :mod:`~dqn_transfer.experiments.report`: ``REPORT.md`` and its figures from the raw data alone.
 

@@ -7,10 +7,10 @@
 - claim 3, starting from a trained agent speeds up learning (``transfer``), and a curriculum from a small
   map to a large one (``curriculum``, exploratory).
 
-Each question names ONE primary comparison, whose verdict follows the rules of ``results/VERDICT_RULES.md``;
-everything else is exploratory. Scores and pairing: :mod:`scoring`. The sections draw from one generator
-in a fixed order (each section's numbers, then its figures, drawn by :mod:`render`), so the same data
-always give the same digits.
+Each question names ONE primary comparison, whose verdict follows the first edition's rules
+(``results/v1/VERDICT_RULES.md``); everything else is exploratory. Scores and pairing: :mod:`scoring`. The
+sections draw from one generator in a fixed order (each section's numbers, then its figures, drawn by
+:mod:`render`), so the same data always give the same digits.
 """
 
 from __future__ import annotations

@@ -65,7 +65,7 @@ def run_dirs_tree(
 
 
 def data_tree(files: Sequence[Path], final_tail: float = FINAL_TAIL) -> dict[str, Any]:
-    """marl-eval's dictionary of the study's raw data files (``results/data/<experiment>.jsonl``): one
+    """marl-eval's dictionary of the study's raw data files (``results/v1/data/<experiment>.jsonl``): one
     environment per experiment, ``treasurehunt_<experiment>``, since marl-eval compares the algorithms of
     an environment over all its tasks and the experiments ask different questions."""
     tree: dict[str, Any] = {}

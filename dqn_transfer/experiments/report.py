@@ -32,7 +32,8 @@ from dqn_transfer.experiments.sweeps import EXPERIMENTS, PROFILES, RUNS_DIR, Rep
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 REPO_DIR = PACKAGE_DIR.parents[1]
-RULES_FILE = Path("results") / "VERDICT_RULES.md"  # in the repository: the rules, committed before the runs
+RESULTS_DIR = Path("results") / "v1"  # in the repository: the first edition's report, data and figures
+RULES_FILE = RESULTS_DIR / "VERDICT_RULES.md"  # its rules, committed before its runs
 SMOKE_MARK = "SMOKE RUN - not evidence"
 
 
@@ -150,8 +151,8 @@ def write_report(data_dir: Path, out: Path, seed: int = 0) -> Path:
         "## How to reproduce",
         "",
         "```bash",
-        "python scripts/reproduce.py --profile full --out results        # the runs, the data, this report",
-        "dqn-transfer-report results --out /tmp/report                  # this report again, from results/data/",
+        f"python scripts/reproduce.py --profile full --out {RESULTS_DIR}     # the runs, the data, this report",
+        f"dqn-transfer-report {RESULTS_DIR} --out /tmp/report               # this report again, from its data/",
         "```",
         "",
     ]

@@ -36,7 +36,7 @@ log = logging.getLogger("dqn_transfer.sources.curriculum")
 NOT_IN_STAGE_HASH = ("progress", "resume", "eval_pictures", "objective", "logger")
 # transfer.* keys a curriculum refuses (at their defaults in every stage), left out of a stage's hash so
 # that the stages cached before they existed stay valid.
-NOT_IN_STAGE_TRANSFER_HASH = ("source_task", "source_map_shift")
+NOT_IN_STAGE_TRANSFER_HASH = ("source_task", "source_map_shift", "chest_aware")
 # env.* keys of other games (a curriculum is refused there), and those that only choose the map (its
 # layout is in the hash), likewise left out.
 NOT_IN_STAGE_ENV_HASH = ("factory", "kwargs", *MAP_CHOICE_KEYS)

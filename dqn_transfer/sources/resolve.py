@@ -3,7 +3,8 @@
 - ``transfer.source`` is a checkpoint file, or a run directory (then ``transfer.source_agent``); a run
   of replicas gives each replica of a run of replicas the source replica of the same name (its seed);
 - unset, a source is pretrained for ``transfer.pretrain_steps`` on ``transfer.source_task``:
-  ``single``, ``TreasureHunt-v0`` (the single-agent MDP of the map), or ``team``, the run's own
+  ``single``, ``TreasureHunt-v0`` (the single-agent MDP of the map), ``per_agent``, ``TreasureHunt-v0``
+  from each target agent's own start (one source per target), or ``team``, the run's own
   multi-agent game, whose member ``transfer.source_agent`` each target starts from; on the run's map,
   or on the generated map ``transfer.source_map_shift`` map seeds further. It is cached under
   ``outputs/pretrained/<hash of the source config>/``, so the next run with the same source config
@@ -47,8 +48,9 @@ def source_hash(plain: dict[str, Any], layout: str, task: SourceTask | str = Sou
     """Hash of everything that shapes the pretrained source; the map enters by its actual layout.
 
     ``plain`` is the run's config on the source's map (:func:`source_map`), as JSON data. A ``single``
-    source's key is what it has always been, so existing cache entries stay valid; a ``team`` source's
-    key names its task and keeps the env keys a team depends on (mode, reward_mode)."""
+    source's key is what it has always been, so existing cache entries stay valid; a ``per_agent``
+    source's is a ``single`` source's on its map with its start first (the ``layout``); a ``team``
+    source's key names its task and keeps the env keys a team depends on (mode, reward_mode)."""
     team = SourceTask(task) is SourceTask.team
     left_out = NOT_IN_TEAM_TASK if team else NOT_IN_SOURCE_TASK
     env = {key: plain["env"][key] for key in ENV_KEYS if key not in left_out and key not in MAP_CHOICE_KEYS}
@@ -65,18 +67,21 @@ def source_hash(plain: dict[str, Any], layout: str, task: SourceTask | str = Sou
     return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def pretrained_sources(plan: RunPlan, launch_dir: Path) -> list[RunDir]:
-    """Pretrain the plan's source (its chain: one pretraining run, on ``transfer.source_task`` of each
-    replica's source map) once per source config; later runs reuse the cached runs. One source per
-    replica of ``plan`` (one for a lone run): the run directory of its cache entry, whose
-    ``agent_0.safetensors`` is the single-agent source and whose agent files are the team source.
+def pretrained_sources(plan: RunPlan, pretraining: RunPlan, launch_dir: Path) -> list[RunDir]:
+    """Pretrain ``pretraining`` (a run of ``plan``'s chain, on ``transfer.source_task`` of each replica's
+    source map) once per source config; later runs reuse the cached runs. One source per replica of
+    ``plan`` (one for a lone run): the run directory of its cache entry, whose ``agent_0.safetensors``
+    is the single-agent source and whose agent files are the team source.
+
+    A ``per_agent`` source's map has the start of its agent as agent 0's (the two start digits swapped),
+    so its layout, and with it its key, names the start: agent 0's source is the ``single`` source.
 
     The cache (:class:`~dqn_transfer.sources.run_cache.RunCache`) holds one entry ``<cache_root>/<hash>/`` per
     source config, whole or not at all, and makes parallel jobs pretrain each source once. When every
     replica's source is missing, they are pretrained together, as one run of replicas (each exactly
     the lone pretraining of its seed and map), and each replica's directory becomes its entry.
     """
-    config, [pretraining] = plan.config, plan.chain
+    config = plan.config
     # Relative to the launch dir, like transfer.source: the process cwd may be a run dir (chdir, SLURM).
     cache = RunCache(
         launch_dir / Path(config.transfer.cache_dir or "outputs/pretrained").expanduser(),
@@ -227,15 +232,16 @@ def transfer_sources(plan: RunPlan, launch_dir: Path) -> list[list[Path]] | None
     transfer (or when resuming, which has its agents already), ``transfer.source`` resolved against
     ``launch_dir`` for every replica (:func:`given_sources`), else a source pretrained with each
     replica's own seed on its own map (or on the map ``transfer.source_map_shift`` map seeds further):
-    the one single-agent source for every target, or the team source's member ``transfer.source_agent``
-    (one per target)."""
+    the one single-agent source for every target, one per target from that agent's own start
+    (``per_agent``), or the team source's member ``transfer.source_agent`` (one per target)."""
     config = plan.config
     if not config.transfer.enabled or config.resume:
         return None
     num_targets = len(plan.targets)
     if config.transfer.source is not None:
         return given_sources(plan, launch_dir)
-    if SourceTask(config.transfer.source_task) is SourceTask.team:
+    task = SourceTask(config.transfer.source_task)
+    if task is SourceTask.team:
         members = team_members(config.transfer, plan.num_agents, num_targets)
     elif not isinstance(config.transfer.source_agent, int):
         raise TransferError(
@@ -245,5 +251,12 @@ def transfer_sources(plan: RunPlan, launch_dir: Path) -> list[list[Path]] | None
         )
     else:
         members = [0] * num_targets
-    entries = pretrained_sources(plan, launch_dir)
-    return [[entry.agent_checkpoint(i) for i in members] for entry in entries]
+    if task is not SourceTask.per_agent:
+        [pretraining] = plan.chain
+        entries = pretrained_sources(plan, pretraining, launch_dir)
+        return [[entry.agent_checkpoint(i) for i in members] for entry in entries]
+    per_target = []  # the chain holds one pretraining per target, from that agent's start
+    for agent, pretraining in zip(plan.targets, plan.chain):
+        log.info("transfer: the source of agent %d learns TreasureHunt-v0 from agent %d's start", agent, agent)
+        per_target.append(pretrained_sources(plan, pretraining, launch_dir))
+    return [[entries[r].agent_checkpoint(0) for entries in per_target] for r in range(len(plan.replicas))]

@@ -53,6 +53,12 @@ class ReplicaPlan:
         game = game_on(self.grid_map, self.config.env)
         return game.single_agent_game() if self.source_task else game
 
+    def with_start_of(self, agent: int) -> ReplicaPlan:
+        """The replica on its map with agent ``agent``'s start as agent 0's (:meth:`GridMap.with_start_of`):
+        its single-agent source task starts from that agent's cell."""
+        assert self.grid_map is not None  # a source task is the treasure hunt's (_plan_other_game refuses it)
+        return dataclasses.replace(self, grid_map=self.grid_map.with_start_of(agent))
+
     @property
     def identity(self) -> str:
         """What names the replica's game in cache keys: its map's layout, or the other game's factory,
@@ -78,6 +84,10 @@ class RunPlan:
         replica = dataclasses.replace(self.replicas[index], name="")
         return dataclasses.replace(self, config=replica.config, replicas=(replica,), chain=())
 
+    def with_start_of(self, agent: int) -> RunPlan:
+        """The same run with each replica's agent 0 starting from agent ``agent``'s start."""
+        return dataclasses.replace(self, replicas=tuple(replica.with_start_of(agent) for replica in self.replicas))
+
     def resuming(self, resume: bool) -> RunPlan:
         """The same run, continued from its checkpoint (``resume``) or started afresh."""
         return dataclasses.replace(
@@ -92,8 +102,9 @@ class RunPlan:
 def plan_run(config: TrainConfig, *, source_task: bool = False) -> RunPlan:
     """Validate ``config`` and plan it, with the runs its transfer source comes from: none when
     resuming (the run has its agents already), without transfer or with ``transfer.source`` given; the
-    curriculum's stages; else the source's pretraining. ``source_task``: the run trains the
-    single-agent source task of its map."""
+    curriculum's stages; else the source's pretraining (``transfer.source_task=per_agent``: one per
+    target agent, in ``targets`` order, each from that agent's start). ``source_task``: the run trains
+    the single-agent source task of its map."""
     plan = _plan(config, source_task)
     if source_task or config.resume or not config.transfer.enabled:
         return plan
@@ -101,7 +112,9 @@ def plan_run(config: TrainConfig, *, source_task: bool = False) -> RunPlan:
         chain = tuple(_stage_plan(config, n) for n in range(len(config.curriculum.stages)))
     elif config.transfer.source is None:
         task = SourceTask(config.transfer.source_task)
-        chain = (_plan(source_config(config), source_task=task is SourceTask.single),)
+        pretraining = _plan(source_config(config), source_task=task is not SourceTask.team)
+        per_agent = task is SourceTask.per_agent
+        chain = tuple(pretraining.with_start_of(i) for i in plan.targets) if per_agent else (pretraining,)
     else:
         chain = ()
     return dataclasses.replace(plan, chain=chain)
@@ -137,8 +150,8 @@ def _plan_other_game(config: TrainConfig, source_task: bool) -> RunPlan:
     factory = config.env.factory
     if source_task:
         raise ConfigError(
-            f"env.factory={factory}: transfer.source_task=single pretrains on the treasure hunt's single-agent "
-            "task; give transfer.source=PATH or pretrain on this game with transfer.source_task=team"
+            f"env.factory={factory}: transfer.source_task=single and per_agent pretrain on the treasure hunt's "
+            "single-agent task; give transfer.source=PATH or pretrain on this game with transfer.source_task=team"
         )
     if config.curriculum.stages:
         raise ConfigError(

@@ -488,6 +488,7 @@ def transfer_tabular_tensors(
     *,
     num_actions: int | None = None,
     embedding: Embedding | None = None,
+    gate_column: int | None = None,
 ) -> dict[str, np.ndarray]:
     """An empty target table whose fallbacks are the source's tables, re-keyed on the target's columns.
 
@@ -497,6 +498,10 @@ def transfer_tabular_tensors(
     weights: on every embedded state the target starts with exactly the source's Q-values, whatever
     its target-only segments and new chests hold. A source that was itself transferred keeps its
     lookup order: its learned table first, then its own fallbacks, each re-keyed.
+
+    ``gate_column``: a target column every key also reads, as 1 (``transfer.chest_aware``: the
+    `treasures` entry of the source's chest, 1 while it is full), so the source's values apply only
+    while that column reads 1; otherwise no fallback knows the observation and it starts at 0.
     """
     plan = plan_segment_mapping(source_layout, target_layout, embedding)
     for name in ("keys", "values"):
@@ -518,12 +523,18 @@ def transfer_tabular_tensors(
     except ValueError as err:
         raise TransferError(f"source {err}") from None
     _warn_dropped(plan, embedding)
+    if gate_column is not None and not 0 <= gate_column < plan.target_dim:
+        raise TransferError(f"gate column {gate_column} is outside the target's {plan.target_dim} obs columns")
 
     learned = (keys, values, np.arange(plan.source_dim, dtype=np.int64))
     tables = fallbacks if fallbacks and keys.shape[0] == 0 else [learned, *fallbacks]
     out = {"keys": np.zeros((0, plan.target_dim), dtype=np.float32), "values": np.zeros((0, actions), dtype=np.float32)}
     for level, (table_keys, table_values, columns) in enumerate(tables):
         mapped = _rekey_table(table_keys, table_values, columns.astype(np.int64), plan, embedding, actions)
+        if gate_column is not None:
+            new_keys, new_values, projection = mapped
+            gate = np.ones((len(new_keys), 1), dtype=new_keys.dtype)
+            mapped = (np.concatenate([new_keys, gate], axis=1), new_values, np.append(projection, gate_column))
         for name, array, dtype in zip(fallback_names(level), mapped, (np.float32, np.float32, np.int64)):
             out[name] = np.ascontiguousarray(array, dtype=dtype)
     return out
@@ -536,12 +547,21 @@ def transfer_agent_tensors(
     target_hidden: Sequence[int],
     num_actions: int,
     embedding: Embedding | None = None,
+    gate_column: int | None = None,
 ) -> dict[str, np.ndarray]:
     """A source agent's tensors mapped onto the target's observation, by the checkpoint's own format: a
-    table's (``keys`` / ``values``: :func:`transfer_tabular_tensors`) or a network's (``q.*``:
-    :func:`transfer_dqn_tensors`, into ``target_hidden`` layers)."""
+    table's (``keys`` / ``values``: :func:`transfer_tabular_tensors`, with its ``gate_column``) or a
+    network's (``q.*``: :func:`transfer_dqn_tensors`, into ``target_hidden`` layers; a network has no
+    lookup to gate, so a ``gate_column`` is refused)."""
     if "keys" in source_tensors:
         return transfer_tabular_tensors(
-            source_tensors, source_layout, target_layout, num_actions=num_actions, embedding=embedding
+            source_tensors,
+            source_layout,
+            target_layout,
+            num_actions=num_actions,
+            embedding=embedding,
+            gate_column=gate_column,
         )
+    if gate_column is not None:
+        raise TransferError("transfer.chest_aware=true gates a table's lookup: this source is a network")
     return transfer_dqn_tensors(source_tensors, source_layout, target_layout, target_hidden, num_actions, embedding)

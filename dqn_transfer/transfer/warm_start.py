@@ -23,6 +23,7 @@ from dqn_transfer.config import TrainConfig, TransferConfig
 from dqn_transfer.enums import Algorithm, Fill
 from dqn_transfer.envs import Game, PettingZooGame, TreasureHuntGame
 from dqn_transfer.envs.game import make_game
+from dqn_transfer.envs.maps import Cell, GridMap
 from dqn_transfer.envs.settings import ENV_KEYS
 from dqn_transfer.storage.checkpoint import (
     CheckpointError,
@@ -39,6 +40,7 @@ from dqn_transfer.transfer.mapping import (
     TransferError,
     map_input_moments,
     plan_segment_mapping,
+    segment_slices,
     transfer_agent_tensors,
 )
 
@@ -75,24 +77,33 @@ def check_same_game(meta: Mapping[str, Any], game: Game) -> None:
         )
 
 
-def source_embedding(meta: Mapping[str, Any], game: Game, transfer: TransferConfig) -> Embedding | None:
-    """Where the source's map sits in ``game``'s (``transfer.offset``, ``transfer.fill``), from the map the
-    source recorded in its meta; None for a source that recorded none (then its map must be this one) and
-    for a game without a map (a PettingZoo env: its segments are mapped by name alone)."""
+def recorded_game(meta: Mapping[str, Any]) -> TreasureHuntGame | None:
+    """The treasure hunt a source recorded in its meta (its map rebuilt from the layout alone); None for
+    a source that recorded no map."""
+    env = meta.get("env")
+    if not isinstance(env, Mapping) or env.get("layout") is None:
+        return None
+    try:
+        return make_game(**{key: value for key, value in env.items() if key in ENV_KEYS})
+    except ValueError as err:
+        raise TransferError(f"the source's recorded map is invalid: {err}") from None
+
+
+def source_embedding(
+    source_game: TreasureHuntGame | None, meta: Mapping[str, Any], game: Game, transfer: TransferConfig
+) -> Embedding | None:
+    """Where the source's map (``source_game``'s, :func:`recorded_game`) sits in ``game``'s
+    (``transfer.offset``, ``transfer.fill``); None for a source that recorded none (then its map must be
+    this one) and for a game without a map (a PettingZoo env: its segments are mapped by name alone)."""
     if isinstance(game, PettingZooGame):
         if list(transfer.offset) != [0, 0] or Fill(transfer.fill) is not Fill.zero:
             raise TransferError(f"transfer.offset and transfer.fill place a treasure-hunt map; {game.factory} has none")
         return None
-    env = meta.get("env")
-    if not isinstance(env, Mapping) or env.get("layout") is None:
+    if source_game is None:
         if list(transfer.offset) != [0, 0] or Fill(transfer.fill) is not Fill.zero:
             raise TransferError("the source does not record its map, which transfer.offset and transfer.fill need")
         check_compatible(meta, {"size": game.size})
         return None
-    try:
-        source_game = make_game(**{key: value for key, value in env.items() if key in ENV_KEYS})
-    except ValueError as err:
-        raise TransferError(f"the source's recorded map is invalid: {err}") from None
     return Embedding(
         map_geometry(source_game),
         map_geometry(game),
@@ -101,15 +112,33 @@ def source_embedding(meta: Mapping[str, Any], game: Game, transfer: TransferConf
     )
 
 
+def source_chest_column(start: Cell, source_map: GridMap, embedding: Embedding, target_layout: Layout) -> int:
+    """``transfer.chest_aware``: the target observation column that says whether the source's chest is
+    full. The source's chest is the one nearest its ``start`` (:meth:`GridMap.nearest_chest`), the chest
+    a lone agent from there is trained to reach; its column is the `treasures` entry of the target chest
+    on its cell (refused if the target has none there)."""
+    chest = source_map.nearest_chest(start)
+    target_chest = int(embedding.chest_targets()[chest])
+    if target_chest < 0:
+        r, c = source_map.chests[chest]
+        raise TransferError(
+            f"transfer.chest_aware=true: the source's chest (row {r}, col {c}, the nearest to its start) has no "
+            f"chest on its cell in this run's map (transfer.offset={list(embedding.offset)})"
+        )
+    return segment_slices(target_layout)["treasures"].start + target_chest
+
+
 @dataclass
 class MappedSource:
-    """One source checkpoint mapped onto this run's agents."""
+    """One source checkpoint mapped onto this run's agents; ``start``: where the source agent started on
+    its recorded map (None for a source that recorded none)."""
 
     path: Path
     tensors: dict[str, np.ndarray]
     meta: dict[str, Any]
     plan: SegmentPlan
     embedding: Embedding | None
+    start: Cell | None
 
     def record(self) -> dict[str, Any]:
         """What the run records about this source: the file, and the mapping onto this run's map."""
@@ -142,16 +171,29 @@ def map_source(config: TrainConfig, game: Game, path: Path, target_layout: Layou
     try:
         check_compatible(meta, {"algorithm": algorithm.value, "num_actions": game.num_actions})
         check_same_game(meta, game)
-        embedding = source_embedding(meta, game, config.transfer)
+        source_game = None if isinstance(game, PettingZooGame) else recorded_game(meta)
+        embedding = source_embedding(source_game, meta, game, config.transfer)
+        start = source_game.map.starts[int(meta.get("agent_index") or 0)] if source_game is not None else None
         plan = plan_segment_mapping(meta["obs_layout"], target_layout, embedding)
+        gate = None
+        if config.transfer.chest_aware:
+            if start is None or source_game is None or embedding is None:
+                raise TransferError("transfer.chest_aware=true needs a source that records its map")
+            gate = source_chest_column(start, source_game.map, embedding, target_layout)
         mapped = transfer_agent_tensors(
-            tensors, meta["obs_layout"], target_layout, list(config.agent.hidden), game.num_actions, embedding
+            tensors,
+            meta["obs_layout"],
+            target_layout,
+            list(config.agent.hidden),
+            game.num_actions,
+            embedding,
+            gate_column=gate,
         )
     except (CheckpointError, ValueError) as err:  # TransferError is a ValueError
         raise TransferError(f"transfer source {path}: {err}") from None
     except (KeyError, IndexError, TypeError) as err:  # a meta or tensor this format never writes
         raise TransferError(f"transfer source {path}: malformed checkpoint ({type(err).__name__}: {err})") from None
-    return MappedSource(path, mapped, meta, plan, embedding)
+    return MappedSource(path, mapped, meta, plan, embedding, start)
 
 
 def apply_transfer(config: TrainConfig, learner: Team, game: Game, source: Path | Sequence[Path]) -> dict[str, Any]:
@@ -193,11 +235,17 @@ def apply_transfer(config: TrainConfig, learner: Team, game: Game, source: Path 
         **first.record(),
         "pretrained": bool(first.meta.get("source_task")),  # trained on the single-agent source task
         "targets": targets,
-        # With another source agent per target (another team size): which file each target took.
+        # With another source agent per target (another team size, per-agent sources): which file each
+        # target took, and where its source agent started.
         "per_target": None
         if len(mapped) == 1
         else [
-            {"source": str(s.path.resolve()), "digest": s.meta["digest"], "source_agent": s.meta.get("agent_index")}
+            {
+                "source": str(s.path.resolve()),
+                "digest": s.meta["digest"],
+                "source_agent": s.meta.get("agent_index"),
+                "source_start": None if s.start is None else list(s.start),
+            }
             for s in per_target
         ],
     }
