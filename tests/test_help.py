@@ -37,13 +37,14 @@ def key_line(page: str, key: str) -> str:
 def test_help_names_every_schema_key_with_its_own_description():
     page = help_text("python train.py")
     keys = schema_fields(TrainConfig)
-    assert len(keys) == 76 and {
+    assert len(keys) == 77 and {
         "agent.lr",
         "agent.engine",
         "agent.mixer",
         "env.size",
         "env.factory",
         "env.kwargs",
+        "env.fixed_start",
         "transfer.source",
         "transfer.source_task",
         "transfer.chest_aware",

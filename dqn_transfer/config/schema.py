@@ -359,6 +359,11 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
         cfg.replicas.maps == 1 or (env.layout is None and env.layout_file is None),
         f"replicas.maps={cfg.replicas.maps} needs a generated map; a layout fixes the map (use replicas.seeds)",
     )
+    _check(
+        env.factory is not None or not env.fixed_start,
+        "env.fixed_start=true fixes the episodes of another game (env.factory); the treasure hunt's map is "
+        "fixed by env.map_seed already",
+    )
     _check_logger(cfg.logger)
     _check_offset("transfer.offset", transfer.offset)
     _check(
