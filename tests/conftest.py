@@ -18,7 +18,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
 from safetensors import safe_open
+
+from dqn_transfer.config import CONFIG_DIR, TrainConfig, register_configs
 
 REPO = Path(__file__).resolve().parent.parent
 TRAIN_PY = REPO / "train.py"
@@ -35,6 +39,13 @@ def train_env() -> dict[str, str]:
     env.pop("HYDRA_FULL_ERROR", None)
     env.update(PYTHONHASHSEED="0", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
     return env
+
+
+def compose_config(*overrides: str) -> TrainConfig:
+    """The :class:`TrainConfig` ``python train.py OVERRIDES`` composes (Hydra's ``compose``, no run)."""
+    register_configs()
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        return OmegaConf.to_object(compose(config_name="config", overrides=list(overrides)))  # type: ignore[return-value]
 
 
 def train_command(run_dir: Path, overrides: Iterable[str]) -> list[str]:

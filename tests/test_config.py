@@ -4,32 +4,20 @@ import json
 
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_dir
+from conftest import compose_config
 from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
 from omegaconf.errors import ValidationError
 
 from dqn_transfer.agents import make_learner
 from dqn_transfer.config import (
-    CONFIG_DIR,
     AgentConfig,
     ConfigError,
-    TrainConfig,
     plain_yaml,
-    register_configs,
     to_plain,
     validate,
 )
 from dqn_transfer.enums import Algorithm, Fill, Mode
-
-CONF_DIR = str(CONFIG_DIR)
-register_configs()
-
-
-def compose_config(*overrides: str) -> TrainConfig:
-    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        cfg = compose(config_name="config", overrides=list(overrides))
-    return OmegaConf.to_object(cfg)
 
 
 @pytest.mark.parametrize("env", ["simple", "complex"])

@@ -10,14 +10,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import agent_meta, assert_named_paths_exist, read_metrics, run_train, start_train, without_timing
-from hydra import compose, initialize_config_dir
-from omegaconf import OmegaConf
+from conftest import (
+    agent_meta,
+    assert_named_paths_exist,
+    compose_config,
+    read_metrics,
+    run_train,
+    start_train,
+    without_timing,
+)
 from safetensors.numpy import load_file
 
 import dqn_transfer.sources.curriculum
 from dqn_transfer.config import (
-    CONFIG_DIR,
     AgentConfig,
     ConfigError,
     CurriculumConfig,
@@ -25,7 +30,6 @@ from dqn_transfer.config import (
     StageConfig,
     TrainConfig,
     TransferConfig,
-    register_configs,
     validate,
 )
 from dqn_transfer.enums import Algorithm, Engine
@@ -34,8 +38,6 @@ from dqn_transfer.sources.curriculum import curriculum_sources
 from dqn_transfer.training.plan import plan_run
 from dqn_transfer.transfer.warm_start import lineage
 
-CONF_DIR = str(CONFIG_DIR)
-register_configs()
 # The shipped example with short stages: 5x5 (300 steps) -> 8x8 (3000 steps) -> this run's 12x12.
 NESTED = (
     "curriculum=nested",
@@ -47,11 +49,6 @@ NESTED = (
     "agent.engine=numpy",
     "agent.learning_starts=50",
 )
-
-
-def compose_config(*overrides: str) -> TrainConfig:
-    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        return OmegaConf.to_object(compose(config_name="config", overrides=list(overrides)))
 
 
 @pytest.mark.parametrize("option", ["nested", "grow"])

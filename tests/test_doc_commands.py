@@ -180,7 +180,7 @@ def test_the_sweeps_table_counts_the_jobs_and_runs():
 
     text = (ROOT / "docs" / "sweeps.md").read_text(encoding="utf-8")
     rows = re.findall(r"^\| `(\w+)` \|.*\| (\d+) x (\d+) \|$", text, flags=re.M)
-    assert len(rows) == 5
+    assert len(rows) == 6
     for name, jobs, runs in rows:
         config = compose(f"experiment={name}")
         assert count_jobs(name, []) == int(jobs), name

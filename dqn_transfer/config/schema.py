@@ -365,6 +365,11 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
         f"env.contention={Contention(env.contention).value} chooses among generated maps; a layout fixes the map "
         "(leave env.contention at any, or drop the layout)",
     )
+    _check(
+        env.factory is not None or not env.fixed_start,
+        "env.fixed_start=true fixes the episodes of another game (env.factory); the treasure hunt's map is "
+        "fixed by env.map_seed already",
+    )
     _check_logger(cfg.logger)
     _check_offset("transfer.offset", transfer.offset)
     _check(

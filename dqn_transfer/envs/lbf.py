@@ -6,6 +6,9 @@ gives it PettingZoo's parallel API (agents ``player_0`` ..) and two changes of m
 
 * the episode's time limit is a **truncation** (lbforaging reports it as ``done``), so learners
   bootstrap past it;
+* a reset is a function of its seed alone: lbforaging's own places the new players away from the cells
+  the last episode's players ended on, so the same seed gave another start after another episode (and
+  a mid-episode checkpoint's replay could miss); the adapter clears those positions first;
 * every player's observation is declared as segments, in lbforaging's order: ``food_0`` ..
   ``food_{F-1}`` (row, col, level of each food seen, ``(-1, -1, 0)`` when not seen), ``self`` (row,
   col, level) and ``player_1`` .. ``player_{P-1}`` (the other players seen). Transfer maps segments by
@@ -97,6 +100,8 @@ class LevelBasedForaging(ParallelEnv):
         return self.game.action_space[self.possible_agents.index(agent)]
 
     def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        for player in self.game.players:
+            player.position = None  # lbforaging places players away from the last episode's: forget them
         observations, _ = self.game.reset(seed=seed, options=options)
         self.agents = list(self.possible_agents)
         return dict(zip(self.agents, observations)), {agent: {} for agent in self.agents}

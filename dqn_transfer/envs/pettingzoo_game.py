@@ -18,7 +18,9 @@ Choices made here:
   an agent that leaves keeps its last observation, gets reward 0 and is not part of later transitions.
   Agents that join mid-episode are not supported (PettingZoo envs rarely have them).
 * Rewards are per agent (``reward_mode`` individual); the team return is their sum over live agents.
-* Episodes are seeded: ``reset(rng)`` draws the env's seed from ``rng``. A checkpoint taken mid-episode
+* Episodes are seeded: ``reset(rng)`` draws the env's seed from ``rng``, or, for a game made with a
+  ``reset_seed`` (``env.fixed_start``), resets with that seed every episode: one fixed *instance* of
+  the env, the counterpart of the treasure hunt's map (a map seed, one instance). A checkpoint taken mid-episode
   records that seed and the joint actions played since, and :meth:`PettingZooGame.load_state_dict`
   replays them, so any env that is deterministic given its seed resumes bit-identically without
   serialising its state; the replayed observation is compared with the recorded one, so an env that is
@@ -142,14 +144,15 @@ class PettingZooGame:
 
     :param factory: ``PACKAGE.MODULE:CALLABLE`` returning the ParallelEnv.
     :param kwargs: keyword arguments of the factory.
+    :param reset_seed: every episode's reset seed (a fixed instance); None: drawn each episode.
     """
 
     reward_mode = RewardMode.individual
     num_treasures = 0  # no chests: evaluation's success_rate is 0 (docs/your_own_environment.md)
     treasures_collected = 0
 
-    def __init__(self, factory: str, kwargs: Mapping[str, Any]) -> None:
-        self.factory, self.kwargs = factory, dict(kwargs)
+    def __init__(self, factory: str, kwargs: Mapping[str, Any], reset_seed: int | None = None) -> None:
+        self.factory, self.kwargs, self.reset_seed = factory, dict(kwargs), reset_seed
         self.env = make_parallel_env(factory, self.kwargs)
         self.agents = list(self.env.possible_agents)
         self.num_agents = len(self.agents)
@@ -207,21 +210,23 @@ class PettingZooGame:
         return len(self._actions)
 
     def recorded_env(self) -> dict[str, Any]:
-        """What a checkpoint records of the game: the factory, its kwargs and every agent's spaces."""
-        return {
+        """What a checkpoint records of the game: the factory, its kwargs, every agent's spaces, and a fixed
+        instance's reset seed (only then: a game without one records what it did before the key existed)."""
+        recorded = {
             "factory": self.factory,
             "kwargs": self.kwargs,
             "observation_spaces": [repr(space) for space in self.observation_spaces],
             "action_spaces": [repr(space) for space in self.action_spaces],
         }
+        return recorded if self.reset_seed is None else {**recorded, "reset_seed": self.reset_seed}
 
     def identity(self) -> str:
         """The text a resumed run's game must match: :meth:`recorded_env` as JSON."""
         return json.dumps(self.recorded_env(), sort_keys=True)
 
     def replica(self) -> PettingZooGame:
-        """An independent game from the same factory and kwargs (e.g. for evaluation)."""
-        return PettingZooGame(self.factory, self.kwargs)
+        """An independent game from the same factory, kwargs and instance (e.g. for evaluation)."""
+        return PettingZooGame(self.factory, self.kwargs, self.reset_seed)
 
     # ------------------------------------------------------------------ pictures
     @property
@@ -238,7 +243,7 @@ class PettingZooGame:
                 f"env.factory={self.factory}: the env cannot draw an RGB frame (its metadata's render_modes "
                 f"are {modes}, without {RGB_ARRAY})"
             )
-        game = PettingZooGame(self.factory, {**self.kwargs, "render_mode": RGB_ARRAY})
+        game = PettingZooGame(self.factory, {**self.kwargs, "render_mode": RGB_ARRAY}, self.reset_seed)
         game.reset(np.random.default_rng(0))
         game.frame()
         return game
@@ -277,11 +282,12 @@ class PettingZooGame:
         return self._obs.copy()
 
     def reset(self, rng: np.random.Generator) -> np.ndarray:
-        """A new episode, the env seeded from ``rng``; returns every agent's observation ``[K, D]``.
+        """A new episode, the env seeded from ``rng`` (or with the instance's ``reset_seed``, ``rng`` untouched);
+        returns every agent's observation ``[K, D]``.
 
         :param rng: draws the env's seed.
         """
-        return self._reset_env(int(rng.integers(SEED_RANGE)))
+        return self._reset_env(int(rng.integers(SEED_RANGE)) if self.reset_seed is None else self.reset_seed)
 
     def step(self, actions: np.ndarray) -> StepOutcome:
         """Every live agent acts (action ``a`` is ``a mod n_i`` for an agent with ``n_i`` actions).

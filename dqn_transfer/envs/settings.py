@@ -23,7 +23,11 @@ class EnvConfig:
     num_traps: Optional[int] = documented(None, "traps; null: k")
     num_agents: Optional[int] = documented(None, "agents (at most 10); null: k")
     complexity: float = documented(0.1, "obstacle fraction Rc: round(Rc * n * n) obstacles")
-    map_seed: int = documented(0, "seeds the generated map, fixed for a run (episodes reset agents and chests only)")
+    map_seed: int = documented(
+        0,
+        "seeds the generated map, fixed for a run (episodes reset agents and chests only); with env.fixed_start, "
+        "another game's reset seed",
+    )
     contention: Contention = documented(
         Contention.any,
         "generated maps only: any map of the seed, or its first candidate where every agent shares its nearest "
@@ -54,10 +58,16 @@ class EnvConfig:
         "(docs/your_own_environment.md); the keys above then do not apply",
     )
     kwargs: Dict[str, Any] = documented(factory=dict, doc="keyword arguments of env.factory")
+    fixed_start: bool = documented(
+        False,
+        "env.factory's game: every episode resets the env with seed env.map_seed, one fixed instance per map "
+        "seed (replicas.maps=K: K instances); false: each episode a new reset seed",
+    )
 
 
-# The keys that name another game (a PettingZoo env) instead of the treasure hunt.
-FACTORY_KEYS = ("factory", "kwargs")
+# The keys of another game (a PettingZoo env) instead of the treasure hunt: they are not the treasure hunt's, so
+# they stay out of its games, its maps and its pretraining cache keys.
+FACTORY_KEYS = ("factory", "kwargs", "fixed_start")
 # The treasure hunt's own keys.
 ENV_KEYS = tuple(f.name for f in fields(EnvConfig) if f.name not in FACTORY_KEYS)
 # The keys that shape the map itself; the rest are rules, observations and rewards.

@@ -3,8 +3,9 @@
 ``OUT/data/<experiment>.jsonl`` holds one record per run (a replica of a sweep job is a run): its name
 in the sweep (``<job>/<replica>``), its composed config, every evaluation step with the metrics the
 report uses, the env steps spent before its step 0 on what it warm-started from, and its map's optimal
-team return (:func:`~dqn_transfer.envs.maps.optimal_team_return`). ``OUT/data/manifest.json`` says how
-the data were made (profile, code commit, the commit of the verdict rules, machine, wall times).
+team return (:func:`~dqn_transfer.envs.maps.optimal_team_return`; none for another game, ``env.factory``).
+``OUT/data/manifest.json`` says how the data were made (profile, code commit, the commit of the verdict rules,
+machine, wall times).
 
 The report (:mod:`dqn_transfer.experiments.report`) reads these files and nothing else, so the
 committed report can be regenerated, and every number in it recomputed, without the run directories
@@ -53,7 +54,7 @@ class RunData:
     steps: tuple[int, ...]
     metrics: dict[str, tuple[float, ...]]
     steps_before: int  # env steps spent on its transfer source(s) before its own step 0
-    optimal_return: float | None  # None: more agents than chests (no clean optimum)
+    optimal_return: float | None  # None: more agents than chests (no clean optimum), or another game
 
     @property
     def seed(self) -> int:
@@ -76,7 +77,8 @@ class RunData:
 
     def score_curve(self) -> Curve:
         """Team return as a fraction of the map's optimal return (1 = every agent took its own chest by
-        a shortest path); the raw team return where the map has no clean optimum."""
+        a shortest path); the raw team return where the map has no clean optimum, and for another game
+        (``env.factory``) its own team return (LBF's is normalised: 1 when all food is loaded)."""
         steps, values = self.curve()
         return (steps, values / self.optimal_return) if self.optimal_return else (steps, values)
 
@@ -97,8 +99,11 @@ def _rounded(value: float) -> float:
 
 
 def map_optimum(config: dict[str, Any]) -> float | None:
-    """The optimal team return of a run's map, from its config (the map rebuilt as the trainer did)."""
+    """The optimal team return of a run's map, from its config (the map rebuilt as the trainer did); None for
+    another game (``env.factory``), which has no treasure map: its runs are scored on its own team return."""
     env = config["env"]
+    if env.get("factory") is not None:
+        return None
     grid = _run_map(tuple(env.get(key) for key in MAP_KEYS))
     return optimal_team_return(
         grid, grid.num_agents, float(env.get("treasure_reward", 100.0)), float(env.get("step_reward", -1.0))

@@ -60,12 +60,12 @@ def team_files(path: Path) -> list[Path]:
 
 def trained_game(env: dict[str, Any]) -> Game:
     """The game an agent file's ``env`` meta describes: the PettingZoo env its ``factory`` makes with its
-    ``kwargs``, else the treasure hunt on the recorded map.
+    ``kwargs`` (the recorded instance, if it was fixed), else the treasure hunt on the recorded map.
 
     :param env: the meta's ``env`` entry.
     """
     if env.get("factory") is not None:
-        return PettingZooGame(env["factory"], env["kwargs"])
+        return PettingZooGame(env["factory"], env["kwargs"], env.get("reset_seed"))
     return make_game(**env)
 
 

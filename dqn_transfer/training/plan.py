@@ -49,7 +49,7 @@ class ReplicaPlan:
     def new_game(self) -> Game:
         """A fresh game on the replica's map (the map is never resolved again), or from ``env.factory``."""
         if self.grid_map is None:
-            return PettingZooGame(str(self.config.env.factory), self.config.env.kwargs)
+            return other_game(self.config.env)
         game = game_on(self.grid_map, self.config.env)
         return game.single_agent_game() if self.source_task else game
 
@@ -157,18 +157,23 @@ def _plan_other_game(config: TrainConfig, source_task: bool) -> RunPlan:
         raise ConfigError(
             f"curriculum: its stages change the treasure hunt's env; env.factory={factory} is another game"
         )
-    if config.replicas.maps > 1:
+    if config.replicas.maps > 1 and not config.env.fixed_start:
         raise ConfigError(
-            f"replicas.maps={config.replicas.maps} varies the treasure hunt's map; env.factory={factory} has "
-            "none (use replicas.seeds)"
+            f"replicas.maps={config.replicas.maps} varies the map seed, which env.factory={factory} reads only as "
+            "a fixed instance's reset seed: add env.fixed_start=true, or use replicas.seeds"
         )
     try:
-        num_agents = PettingZooGame(str(factory), config.env.kwargs).num_agents
+        num_agents = other_game(config.env).num_agents
     except UnsupportedEnv as err:
         raise ConfigError(str(err)) from None
     replicas = tuple(ReplicaPlan(replica, None, replica_name(replica, config)) for replica in replica_configs(config))
     targets = tuple(transfer_targets(config, num_agents)) if config.transfer.enabled else ()
     return RunPlan(config, replicas, num_agents, targets)
+
+
+def other_game(env: EnvConfig) -> PettingZooGame:
+    """The game ``env.factory`` makes; with ``env.fixed_start``, the instance of reset seed ``env.map_seed``."""
+    return PettingZooGame(str(env.factory), env.kwargs, env.map_seed if env.fixed_start else None)
 
 
 # The keys that generate a map, which a layout makes pointless.
