@@ -10,6 +10,7 @@ the seed.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -320,3 +321,38 @@ def profile_figure(
         ax.legend(fontsize="small")
     fig.suptitle(title)
     return _save(fig, path, dpi=110, watermark=watermark)
+
+
+@dataclass(frozen=True)
+class DosePanel:
+    """A dose-response panel: each series' (value, objective) points, its chosen point marked."""
+
+    title: str
+    xlabel: str
+    log: bool  # a log x axis
+    series: dict[str, tuple[list[float], list[float]]]  # label -> (values, objectives)
+    chosen: dict[str, tuple[float, float]]  # label -> its marked point
+
+
+def dose_response_figure(
+    path: Path, panels: Sequence[DosePanel], title: str, ylabel: str, color_of: ColorOf | None = None
+) -> Path:
+    """Panels of points (a search's trials: a searched value against the objective), one colour per series,
+    each series' chosen point a large star."""
+    fig, axes = _grid(len(panels), 4.6, 3.6)
+    for ax, panel in zip(axes, panels):
+        for label, (xs, ys) in panel.series.items():
+            color = color_of(label) if color_of else None
+            points = ax.scatter(xs, ys, s=18, alpha=0.7, label=label, color=color)
+            if label in panel.chosen:
+                x, y = panel.chosen[label]
+                ax.scatter([x], [y], s=160, marker="*", color=points.get_facecolor()[0], edgecolor="black", zorder=3)
+        if panel.log:
+            ax.set_xscale("log")
+        ax.set_title(panel.title, fontsize="medium")
+        ax.set_xlabel(panel.xlabel, fontsize="small")
+        ax.set_ylabel(ylabel, fontsize="small")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize="x-small")
+    fig.suptitle(title)
+    return _save(fig, path, dpi=110)
