@@ -1,4 +1,5 @@
-"""Learning-curve figures of run directories (matplotlib, written to files).
+"""Learning-curve figures of run directories, and the other figures of the analyses (matplotlib, written to
+files): estimates against an integer, performance profiles, and dose-response panels (a search's trials).
 
 A group of runs (one condition, several seeds) is drawn as its mean curve over seeds with a 95%
 percentile-bootstrap band (:func:`dqn_transfer.analysis.stats.curve_band`) and each run as a thin
@@ -330,6 +331,7 @@ class DosePanel:
     title: str
     xlabel: str
     log: bool  # a log x axis
+    xlim: tuple[float, float]  # the whole range searched
     series: dict[str, tuple[list[float], list[float]]]  # label -> (values, objectives)
     chosen: dict[str, tuple[float, float]]  # label -> its marked point
 
@@ -349,6 +351,7 @@ def dose_response_figure(
                 ax.scatter([x], [y], s=160, marker="*", color=points.get_facecolor()[0], edgecolor="black", zorder=3)
         if panel.log:
             ax.set_xscale("log")
+        ax.set_xlim(*panel.xlim)
         ax.set_title(panel.title, fontsize="medium")
         ax.set_xlabel(panel.xlabel, fontsize="small")
         ax.set_ylabel(ylabel, fontsize="small")

@@ -225,12 +225,15 @@ def tuning_table(trials: Sequence[Trial], best: dict[tuple[str, str], Trial]) ->
 def sensitivity_panels(trials: Sequence[Trial], best: dict[tuple[str, str], Trial]) -> list[DosePanel]:
     """One panel per learner and searched key: each method's trials (value, objective), its best marked;
     a log axis where the key was searched on a log scale."""
-    keys: dict[tuple[str, str], bool] = {}  # (learner, key) -> log scale, in order of appearance
+    ranges: dict[tuple[str, str], Interval] = {}  # (learner, key) -> its searches' ranges, in order of appearance
     for trial in trials:
         for key, bounds in trial.space.items():
-            keys[(trial.learner, key)] = keys.get((trial.learner, key), bounds.log) and bounds.log
+            seen = ranges.get((trial.learner, key), bounds)
+            ranges[(trial.learner, key)] = Interval(
+                min(seen.low, bounds.low), max(seen.high, bounds.high), seen.log and bounds.log
+            )
     panels = []
-    for (learner, key), log in keys.items():
+    for (learner, key), bounds in ranges.items():
         series: dict[str, tuple[list[float], list[float]]] = {}
         for trial in trials:
             if trial.learner == learner and key in trial.params:
@@ -238,5 +241,5 @@ def sensitivity_panels(trials: Sequence[Trial], best: dict[tuple[str, str], Tria
                 xs.append(trial.params[key])
                 ys.append(trial.objective)
         marks = {m: (t.params[key], t.objective) for (lrn, m), t in best.items() if lrn == learner and key in t.params}
-        panels.append(DosePanel(f"{learner}: {key}", key, log, series, marks))
+        panels.append(DosePanel(f"{learner}: {key}", key, bounds.log, (bounds.low, bounds.high), series, marks))
     return panels

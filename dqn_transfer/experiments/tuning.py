@@ -33,6 +33,7 @@ from dqn_transfer.analysis.tuning import (
     check_searches,
     read_trials,
     sensitivity_panels,
+    trial_from_record,
     tuned_yaml,
     tuning_table,
     write_trials,
@@ -137,7 +138,13 @@ def read_trial(search: Search, job_dir: Path) -> Trial:
     hydra_config = yaml.safe_load((files.hydra_dir / "hydra.yaml").read_text())
     space = _space(dict(hydra_config["hydra"]["sweeper"]["params"]), job_dir)
     overrides = OverridesParser.create().parse_overrides(yaml.safe_load(files.overrides.read_text()))
-    params = {o.get_key_element(): o.value() for o in overrides if o.get_key_element() in space}
+    params: dict[str, float] = {}
+    for override in overrides:
+        key, value = override.get_key_element(), override.value()
+        if key in space:
+            if not isinstance(value, (int, float)) or isinstance(value, bool):
+                raise TuningError(f"{job_dir}: {key}={value!r} is not a number")
+            params[key] = value
     kind = str((load_config(job_dir) or {}).get("objective"))
     by_map: dict[int, list[float]] = {}
     for replica in files.replica_dirs() or [job_dir]:
@@ -145,7 +152,8 @@ def read_trial(search: Search, job_dir: Path) -> Trial:
         by_map.setdefault(seed, []).append(run_objective(replica, kind))
     per_map = {seed: sum(values) / len(values) for seed, values in sorted(by_map.items())}
     objective = run_objective(job_dir, kind)
-    return Trial(search.learner, search.method, int(job_dir.name), params, objective, kind, per_map, space)  # type: ignore[arg-type]
+    trial = Trial(search.learner, search.method, int(job_dir.name), params, objective, kind, per_map, space)
+    return trial_from_record(trial.record(), str(job_dir))  # the checks a trial read from tuning.jsonl passes
 
 
 def collect_trials(searches: Sequence[Search], out: Path) -> list[Trial]:
