@@ -1,7 +1,7 @@
 """The fair tuning protocol: one Optuna search per learner x knowledge-exchange method, on tuning maps.
 
     python -m dqn_transfer.cli.tune --out tuning                        # all ten searches: ~26 min on 2 cores
-    python -m dqn_transfer.cli.tune --out /tmp/t --profile quick        # smoke run: under a minute, NOT evidence
+    python -m dqn_transfer.cli.tune --out /tmp/t --profile quick        # smoke run: 46 s of CPU, NOT evidence
     python -m dqn_transfer.cli.tune --out tuning --only sarsa_best double_dqn_best
     python -m dqn_transfer.cli.tune --out tuning --report-only          # tuned.yaml, table, figure from tuning.jsonl
 
