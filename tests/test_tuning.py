@@ -23,7 +23,7 @@ STRENGTH_KEYS = {
     "sarsa_none": set(),
     "sarsa_best": {"transfer.exchange_tau", "transfer.exchange_every"},
     "sarsa_shared_replay": {"transfer.exchange_every"},
-    "sarsa_confidence": {"transfer.confidence_weight"},
+    "sarsa_confidence": {"transfer.confidence_weight", "transfer.exchange_every"},
     "sarsa_advice": {"transfer.advice_ask_below", "transfer.advice_answer_from", "transfer.advice_budget"},
     "double_dqn_none": set(),
     "double_dqn_best": {"transfer.exchange_tau", "transfer.exchange_every"},
