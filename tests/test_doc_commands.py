@@ -175,16 +175,28 @@ def test_the_map_seeds_the_docs_state_are_the_replicas(doc, pattern, overrides):
 
 
 def test_the_sweeps_table_counts_the_jobs_and_runs():
-    """docs/sweeps.md's experiment table: ``jobs x runs`` is each experiment's sweep and replicas."""
+    """docs/sweeps.md's first-edition table: ``jobs x runs`` is each experiment's sweep and replicas."""
     from dqn_transfer.experiments.sweeps import count_jobs
 
     text = (ROOT / "docs" / "sweeps.md").read_text(encoding="utf-8")
     rows = re.findall(r"^\| `(\w+)` \|.*\| (\d+) x (\d+) \|$", text, flags=re.M)
-    assert len(rows) == 6
+    assert len(rows) == 5
     for name, jobs, runs in rows:
         config = compose(f"experiment={name}")
         assert count_jobs(name, []) == int(jobs), name
         assert config.replicas.seeds * config.replicas.maps == int(runs), name
+
+
+def test_the_second_editions_table_counts_the_jobs():
+    """docs/sweeps.md's second-edition table: ``jobs`` is each v2 experiment's sweep."""
+    from dqn_transfer.config.help import group_options
+    from dqn_transfer.experiments.sweeps import count_jobs
+
+    text = (ROOT / "docs" / "sweeps.md").read_text(encoding="utf-8")
+    rows = dict(re.findall(r"^\| `(v2/\w+)` \|.*\| (\d+) \|$", text, flags=re.M))
+    assert sorted(rows) == [name for name in group_options("experiment") if name.startswith("v2/")]
+    for name, jobs in rows.items():
+        assert count_jobs(name, []) == int(jobs), name
 
 
 def test_the_help_line_the_readme_quotes_is_printed():

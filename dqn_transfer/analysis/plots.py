@@ -1,4 +1,5 @@
-"""Learning-curve figures of run directories (matplotlib, written to files).
+"""Learning-curve figures of run directories, and the other figures of the analyses (matplotlib, written to
+files): estimates against an integer, performance profiles, and dose-response panels (a search's trials).
 
 A group of runs (one condition, several seeds) is drawn as its mean curve over seeds with a 95%
 percentile-bootstrap band (:func:`dqn_transfer.analysis.stats.curve_band`) and each run as a thin
@@ -10,6 +11,7 @@ the seed.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -320,3 +322,40 @@ def profile_figure(
         ax.legend(fontsize="small")
     fig.suptitle(title)
     return _save(fig, path, dpi=110, watermark=watermark)
+
+
+@dataclass(frozen=True)
+class DosePanel:
+    """A dose-response panel: each series' (value, objective) points, its chosen point marked."""
+
+    title: str
+    xlabel: str
+    log: bool  # a log x axis
+    xlim: tuple[float, float]  # the whole range searched
+    series: dict[str, tuple[list[float], list[float]]]  # label -> (values, objectives)
+    chosen: dict[str, tuple[float, float]]  # label -> its marked point
+
+
+def dose_response_figure(
+    path: Path, panels: Sequence[DosePanel], title: str, ylabel: str, color_of: ColorOf | None = None
+) -> Path:
+    """Panels of points (a search's trials: a searched value against the objective), one colour per series,
+    each series' chosen point a large star."""
+    fig, axes = _grid(len(panels), 4.6, 3.6)
+    for ax, panel in zip(axes, panels):
+        for label, (xs, ys) in panel.series.items():
+            color = color_of(label) if color_of else None
+            points = ax.scatter(xs, ys, s=18, alpha=0.7, label=label, color=color)
+            if label in panel.chosen:
+                x, y = panel.chosen[label]
+                ax.scatter([x], [y], s=160, marker="*", color=points.get_facecolor()[0], edgecolor="black", zorder=3)
+        if panel.log:
+            ax.set_xscale("log")
+        ax.set_xlim(*panel.xlim)
+        ax.set_title(panel.title, fontsize="medium")
+        ax.set_xlabel(panel.xlabel, fontsize="small")
+        ax.set_ylabel(ylabel, fontsize="small")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize="x-small")
+    fig.suptitle(title)
+    return _save(fig, path, dpi=110)

@@ -37,6 +37,10 @@ COLORS = {
     "best": "tab:purple",
     "shared_replay": "tab:orange",
     "shared network": "tab:brown",
+    "shared_id": "tab:brown",  # the tuning's name of the shared network with agent ids
+    "experience": "tab:olive",
+    "confidence": "tab:cyan",
+    "advice": "tab:pink",
     "scratch": "tab:gray",
     "scratch_matched": "black",
     "same_map": "tab:purple",

@@ -212,15 +212,41 @@ def read_stamp(sweep_dir: Path) -> dict | None:
         return None
 
 
+@dataclass(frozen=True)
+class Multirun:
+    """One Hydra multirun of an experiment config (``python -m dqn_transfer.cli.train -m experiment=...``)."""
+
+    label: str  # names it in the progress lines and its log, OUT/logs/<label>.log
+    experiment: str  # the option of dqn_transfer/conf/experiment/
+    overrides: tuple[str, ...]
+    sweep_dir: Path
+    jobs: int  # the job directories a finished multirun holds
+    stamp: dict  # the settings it runs with: a directory finished with the same ones is reused
+
+
 def run_experiment(
     name: str, profile: str, out: Path, launcher: str, n_jobs: int, extra: Sequence[str] = (), poll_seconds: float = 2.0
 ) -> float:
     """One Hydra multirun into ``OUT/runs/<name>``; returns its wall time (0 when reused)."""
-    sweep_dir = out / RUNS_DIR / name
     overrides = sweep_overrides(name, profile, out)
     expected = count_jobs(name, overrides)
-    stamp_path = sweep_dir / STAMP_FILE
     stamp = {"experiment": name, "profile": profile, "overrides": overrides, "jobs": expected}
+    multirun = Multirun(name, name, tuple(overrides), out / RUNS_DIR / name, expected, stamp)
+    return run_multirun(multirun, out, launcher, n_jobs, extra, poll_seconds)
+
+
+def run_multirun(
+    multirun: Multirun,
+    out: Path,
+    launcher: str,
+    n_jobs: int,
+    extra: Sequence[str] = (),
+    poll_seconds: float = 2.0,
+) -> float:
+    """Run ``multirun`` in a subprocess (its log in ``OUT/logs/``), a progress line per change; returns its
+    wall time, 0 when its directory already holds it, finished with the same settings."""
+    name, sweep_dir, expected, stamp = multirun.label, multirun.sweep_dir, multirun.jobs, dict(multirun.stamp)
+    stamp_path = sweep_dir / STAMP_FILE
     if sweep_dir.exists() and any(sweep_dir.iterdir()):
         previous = read_stamp(sweep_dir)
         same = previous is not None and {k: previous.get(k) for k in stamp} == stamp
@@ -237,8 +263,8 @@ def run_experiment(
         "-m",
         "dqn_transfer.cli.train",
         "-m",
-        f"experiment={name}",
-        *overrides,
+        f"experiment={multirun.experiment}",
+        *multirun.overrides,
         f"hydra.sweep.dir={_quote(sweep_dir)}",
         "progress=false",
         *launcher_overrides(launcher, n_jobs),
