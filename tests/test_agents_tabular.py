@@ -272,7 +272,7 @@ def test_exchange_replay_updates_each_table_on_its_team_mates_transitions(algori
         np.array([False, False]),
         np.array([True, False]),
     )
-    exchange_replay(learner, [step])
+    exchange_replay(learner, [step], [np.array([False, False])])
     # agent 1: Q(s1, 2) = 0 + 0.5 * (1 + 0.9 * Q(s2, a') - 0); Q-learning a' = argmax (5), SARSA a' is
     # epsilon-greedy with epsilon 0 (no act yet): a greedy one, also 5
     np.testing.assert_allclose(learner.agent_q_values(1, s1), [0, 0, 2.75, 0])

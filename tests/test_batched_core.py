@@ -74,7 +74,7 @@ def play_both(grid_maps: list[GridMap], steps: int, seed: int, auto_reset: bool 
         for r, game in enumerate(games):
             expected = game.step(actions[r])
             assert_bits(out.final_obs[r], expected.obs)
-            for name in ("rewards", "terminated", "truncated", "trap", "live"):
+            for name in ("rewards", "terminated", "truncated", "trap", "bounced", "live"):
                 assert_bits(getattr(out, name)[r], getattr(expected, name))
             assert out.treasures_collected[r] == expected.treasures_collected
             sums[r] += expected.rewards

@@ -100,7 +100,7 @@ def test_shared_replay_gives_only_the_team_mates_their_transitions(hp):
             np.array([True, False]),  # only agent 0 acted
         )
     ]
-    exchange_replay(team, steps)
+    exchange_replay(team, steps, [np.zeros(2, bool)])
     if hp is DQN:  # into agent 1's replay, not agent 0's
         assert team.replay.size.tolist() == [0, 1]
     else:  # a table learns at once: agent 1's Q(s0, 1) = 0.5 * 1

@@ -61,9 +61,11 @@ def test_obstacle_sends_home_and_off_grid_stays():
     positions = [int(np.flatnonzero(s[0][0, :25])[0]) for s in steps]
     assert positions == [0, 0, 5, 0]
     assert [float(s.rewards[0]) for s in steps] == [-1.0] * 4
+    assert [bool(s.bounced[0]) for s in steps] == [False, False, False, True]  # off-grid is no bounce
     # (0,0) -right-> (0,1) -down-> (1,1) '#': home again
     steps = play(game, [RIGHT], [DOWN])
     assert [int(np.flatnonzero(s[0][0, :25])[0]) for s in steps] == [1, 0]
+    assert [s.info["bounced"].tolist() for s in steps] == [[False], [True]]
     assert game.positions.tolist() == [[0, 0]]
 
 

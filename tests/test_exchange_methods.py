@@ -76,6 +76,7 @@ def test_confidence_weight_scales_the_move_and_visits_are_the_agents_own_updates
     exchange_replay(
         learner.replica(0),
         [Transition(np.stack([S1, S1]), np.array([0, 0]), np.ones(2), np.stack([S2, S2]), live, ~live, live)],
+        [np.zeros(2, bool)],
     )
     assert learner.agent_tensors(1)["keys"].tolist() == [S0.tolist(), S1.tolist()]  # agent 1 learned S1 ...
     assert learner.visits[:, state(learner, S1)].tolist() == [1, 0]  # ... without visiting it

@@ -588,10 +588,11 @@ def test_shared_replay_gives_each_agent_its_teammates_transitions(work, dqn_sour
     real = replica_module.exchange_replay
     calls = []
 
-    def spy(team, transitions):
+    def spy(team, transitions, bounced):
         replay = trainer.learner.replay  # the team's rows (one replica: all of them)
         size_before = replay.size.copy()
-        real(team, transitions)
+        assert not np.any(bounced)  # TEAM_MAP has no obstacle: every transition is shared
+        real(team, transitions, bounced)
         calls.append(
             (
                 size_before,

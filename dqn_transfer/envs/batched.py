@@ -55,8 +55,9 @@ class BatchedMaps:
 
     ``maps``: the R :class:`GridMap` s. ``obstacle [R, cells] bool``. ``kind [R, cells] int8``: 0 free,
     1 chest, 2 trap. ``chest_of [R, cells] int64``: chest number of a cell, ``k`` where there is none.
-    ``starts [R, K] int64``: start cell of each agent. ``next_cell [R, K, cells, 4] int64``: where an
-    agent lands from a cell with an action (off-grid: stays; obstacle: its own start).
+    ``starts [R, K] int64``: start cell of each agent. ``bounce [R, cells, 4] bool``: the action from
+    the cell runs into an obstacle. ``next_cell [R, K, cells, 4] int64``: where an agent lands from a
+    cell with an action (off-grid: stays; obstacle: its own start).
     ``chest_dist [R, k, cells] int64``: BFS path length from each chest avoiding obstacles and traps
     (``K * cells`` where unreachable; deliberative mode only, else shape ``[R, k, 0]``).
     ``view_static [R, cells, 2 * W * W] float32``: the view's obstacle-or-outside and trap planes;
@@ -87,6 +88,7 @@ class BatchedMaps:
     kind: np.ndarray
     chest_of: np.ndarray
     starts: np.ndarray
+    bounce: np.ndarray
     next_cell: np.ndarray
     chest_dist: np.ndarray
     view_static: np.ndarray
@@ -144,6 +146,7 @@ class BatchedOutcome(NamedTuple):
     float32``: the observations right after the step, before any reset (the same array as ``obs``
     when no replica was reset). ``rewards [R, K] float32``. ``terminated [R, K] bool``: ended in a
     chest or a trap. ``truncated [R, K] bool``: still live at ``max_steps``. ``trap [R, K] bool``.
+    ``bounced [R, K] bool``: moved into an obstacle, and so back to its own start.
     ``live [R, K] bool``: live after the step (before any reset). ``treasures_collected [R] int64``:
     chests emptied by this step. ``episode_end [R] bool``: no agent is live any more (these replicas
     were reset if ``auto_reset``). ``episode_return [R, K] float32``: the episode's sums up to and
@@ -156,6 +159,7 @@ class BatchedOutcome(NamedTuple):
     terminated: np.ndarray
     truncated: np.ndarray
     trap: np.ndarray
+    bounced: np.ndarray
     live: np.ndarray
     treasures_collected: np.ndarray
     episode_end: np.ndarray
@@ -219,8 +223,8 @@ def batch_maps(
         rr, cc = rows + dr, cols + dc
         inside = (rr >= 0) & (rr < n) & (cc >= 0) & (cc < n)
         moves[:, a] = np.where(inside, rr * n + cc, np.arange(cells))
-    bounced = obstacle[:, moves]  # [R, cells, 4]
-    next_cell = np.where(bounced[:, None], starts[:, :, None, None], moves[None, None])
+    bounce = obstacle[:, moves]  # [R, cells, 4]
+    next_cell = np.where(bounce[:, None], starts[:, :, None, None], moves[None, None])
 
     if mode is Mode.deliberative:
         dist = np.stack([np.stack([m.distances_from(c).reshape(-1) for c in m.chests]) for m in grid_maps])
@@ -276,6 +280,7 @@ def batch_maps(
         kind=kind,
         chest_of=chest_of,
         starts=starts,
+        bounce=bounce,
         next_cell=next_cell,
         chest_dist=chest_dist,
         view_static=view_static,
@@ -290,7 +295,7 @@ def batch_maps(
     obs = _observe(maps, fresh.pos, fresh.belief, fresh.assigned)
     object.__setattr__(maps, "reset_assigned", fresh.assigned)
     object.__setattr__(maps, "reset_obs", obs)
-    for name in ("obstacle", "kind", "chest_of", "starts", "next_cell", "chest_dist", "view_static"):
+    for name in ("obstacle", "kind", "chest_of", "starts", "bounce", "next_cell", "chest_dist", "view_static"):
         getattr(maps, name).flags.writeable = False
     for array in (maps.view_chest, maps.position_code, maps.reset_assigned, maps.reset_obs):
         array.flags.writeable = False
@@ -370,8 +375,10 @@ def step(
 
     r_idx = np.arange(replicas)[:, None]
     a_idx = np.arange(agents)[None, :]
-    moved = maps.next_cell[r_idx, a_idx, state.pos, np.where(live, acts, 0)]
+    chosen = np.where(live, acts, 0)
+    moved = maps.next_cell[r_idx, a_idx, state.pos, chosen]
     pos = np.where(live, moved, state.pos)
+    bounced = live & maps.bounce[r_idx, state.pos, chosen]
     kinds = np.where(live, maps.kind[r_idx, pos], _FREE)
     rewards = np.where(live, np.float32(maps.step_reward), np.float32(0.0)).astype(np.float32)
     trap = kinds == _TRAP
@@ -437,6 +444,7 @@ def step(
         terminated=terminated,
         truncated=truncated,
         trap=trap,
+        bounced=bounced,
         live=now_live,
         treasures_collected=collected,
         episode_end=ended,

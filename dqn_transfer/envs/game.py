@@ -173,11 +173,17 @@ class StepOutcome(NamedTuple):
     trap: np.ndarray  # [K] bool: entered a trap
     treasures_collected: int  # chests emptied by this step
     live: np.ndarray  # [K] bool: who acts next
+    bounced: np.ndarray  # [K] bool: moved into an obstacle, and so back to its own start
 
     @property
     def info(self) -> dict[str, Any]:
         """The Gymnasium-style info dict of the step."""
-        return {"treasures_collected": self.treasures_collected, "trap": self.trap, "live": self.live}
+        return {
+            "treasures_collected": self.treasures_collected,
+            "trap": self.trap,
+            "live": self.live,
+            "bounced": self.bounced,
+        }
 
 
 class TreasureHuntGame:
@@ -257,7 +263,8 @@ class TreasureHuntGame:
             inside = (rr >= 0) & (rr < n) & (cc >= 0) & (cc < n)
             moves[:, a] = np.where(inside, rr * n + cc, np.arange(cells))  # off-grid: stay
         # Per agent, because bumping into an obstacle sends an agent to its own start.
-        self._next = np.where(obstacle[moves][None], self._starts[:, None, None], moves[None])
+        self._bounce = obstacle[moves]  # [cells, 4]: the move runs into an obstacle
+        self._next = np.where(self._bounce[None], self._starts[:, None, None], moves[None])
 
         if self.mode is Mode.deliberative:
             unreachable = self.num_agents * cells  # worse than any assignment of reachable pairs
@@ -466,6 +473,8 @@ class TreasureHuntGame:
         self._pos[idx] = new
         self._t += 1
         agents = self.num_agents
+        bounced = np.zeros(agents, dtype=bool)
+        bounced[idx] = self._bounce[old, acts]
         rewards = np.zeros(agents, dtype=np.float32)
         rewards[idx] = self.step_reward
         terminated = np.zeros(agents, dtype=bool)
@@ -487,7 +496,9 @@ class TreasureHuntGame:
         self._write_obs(idx, new, old, env_changed=events)
         if self.reward_mode is RewardMode.team:
             rewards[idx] = rewards[idx].sum()
-        return StepOutcome(self._obs.copy(), rewards, terminated, truncated, trap, collected, self._live.copy())
+        return StepOutcome(
+            self._obs.copy(), rewards, terminated, truncated, trap, collected, self._live.copy(), bounced
+        )
 
     def _resolve_events(
         self,

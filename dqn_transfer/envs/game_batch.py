@@ -28,7 +28,8 @@ class BatchStep(NamedTuple):
     """What one joint step of R games did (``K`` agents each; a non-live agent's row is zero / False).
 
     ``next_obs [R, K, obs_dim] float32``: the observations right after the step (before any reset).
-    ``rewards [R, K] float32``; ``terminated``, ``truncated``, ``trap`` ``[R, K] bool``;
+    ``rewards [R, K] float32``; ``terminated``, ``truncated``, ``trap`` ``[R, K] bool``; ``bounced [R, K]
+    bool``: moved into an obstacle, and so back to its own start (never, in a game without obstacles);
     ``treasures_collected [R] int64``: chests emptied by this step; ``episode_treasures [R] int64``:
     chests emptied so far in the episode, this step included; ``episode_end [R] bool``: no agent of the
     replica is live any more (reset it before the next step).
@@ -39,6 +40,7 @@ class BatchStep(NamedTuple):
     terminated: np.ndarray
     truncated: np.ndarray
     trap: np.ndarray
+    bounced: np.ndarray
     treasures_collected: np.ndarray
     episode_treasures: np.ndarray
     episode_end: np.ndarray
@@ -113,6 +115,7 @@ class LoopedGames(GameBatch):
             terminated=np.stack([o.terminated for o in outcomes]),
             truncated=np.stack([o.truncated for o in outcomes]),
             trap=np.stack([o.trap for o in outcomes]),
+            bounced=np.stack([o.bounced for o in outcomes]),
             treasures_collected=np.array([o.treasures_collected for o in outcomes], dtype=np.int64),
             episode_treasures=np.array([game.treasures_collected for game in self.games], dtype=np.int64),
             episode_end=np.asarray(~self._live.any(axis=1)),
@@ -170,6 +173,7 @@ class BatchedTreasureHunts(GameBatch):
             terminated=outcome.terminated,
             truncated=outcome.truncated,
             trap=outcome.trap,
+            bounced=outcome.bounced,
             treasures_collected=outcome.treasures_collected,
             episode_treasures=self.state.treasures_collected,
             episode_end=outcome.episode_end,

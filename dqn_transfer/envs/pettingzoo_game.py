@@ -315,9 +315,8 @@ class PettingZooGame:
             if agent not in present and not (terminated[i] or truncated[i]):
                 terminated[i] = True  # left without saying why: the env removed it, as a termination does
         self._live[idx] = ~(terminated[idx] | truncated[idx])
-        return StepOutcome(
-            self._obs.copy(), reward, terminated, truncated, np.zeros(k, dtype=bool), 0, self._live.copy()
-        )
+        trap, bounced = np.zeros(k, dtype=bool), np.zeros(k, dtype=bool)  # the treasure hunt's own events
+        return StepOutcome(self._obs.copy(), reward, terminated, truncated, trap, 0, self._live.copy(), bounced)
 
     # ------------------------------------------------------------------ checkpointing
     def state_dict(self) -> dict[str, Any]:

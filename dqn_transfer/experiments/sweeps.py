@@ -76,7 +76,7 @@ PROFILES = {
 }
 
 
-def _quote(value: str | Path) -> str:
+def quoted_path(value: str | Path) -> str:
     """A path as a Hydra override value (quoted: spaces, '=' and ',' are grammar)."""
     text = str(value)
     if "'" in text:
@@ -90,8 +90,8 @@ def sweep_overrides(name: str, profile: str, out: Path) -> list[str]:
         raise ReproduceError(f"unknown experiment {name!r} (choose from {', '.join(EXPERIMENTS)})")
     # Sources and stages cached once for every job of the sweep, inside OUT.
     shared = {
-        "transfer": [f"transfer.cache_dir={_quote(out / 'pretrained')}"],
-        "curriculum": [f"curriculum.cache_dir={_quote(out / 'curriculum_stages')}"],
+        "transfer": [f"transfer.cache_dir={quoted_path(out / 'pretrained')}"],
+        "curriculum": [f"curriculum.cache_dir={quoted_path(out / 'curriculum_stages')}"],
     }.get(name, [])
     return shared + PROFILES[profile].overrides.get(name, [])
 
@@ -265,7 +265,7 @@ def run_multirun(
         "-m",
         f"experiment={multirun.experiment}",
         *multirun.overrides,
-        f"hydra.sweep.dir={_quote(sweep_dir)}",
+        f"hydra.sweep.dir={quoted_path(sweep_dir)}",
         "progress=false",
         *launcher_overrides(launcher, n_jobs),
         *extra,

@@ -180,6 +180,7 @@ class Replica:
         # Team knowledge exchange window (saved with checkpoints, so a resumed run exchanges the same):
         self.window_returns: list[np.ndarray] = []  # per-agent episodic returns since the last exchange
         self.shared_transitions: list[Transition] = []  # shared_replay: the window's transitions
+        self.shared_bounced: list[np.ndarray] = []  # and who bounced off an obstacle in each (bool [K])
         self.episode = EpisodeStats(episodes, index)
         self.env_rng = np.random.default_rng([config.seed, 17])  # the chest ties of its training games
         self.episode_state: dict[str, Any] | None = None  # a mid-episode checkpoint's game, until the loop starts
@@ -275,8 +276,9 @@ class Replica:
         elif transfer.exchange is Exchange.confidence:
             exchange_confidence(self.learner, transfer.confidence_weight)
         elif transfer.exchange is Exchange.shared_replay:
-            exchange_replay(self.learner, self.shared_transitions)
+            exchange_replay(self.learner, self.shared_transitions, self.shared_bounced)
             self.shared_transitions.clear()
+            self.shared_bounced.clear()
         self.window_returns.clear()
 
     def log_training(self, sps: float, window_means: UpdateStats | None) -> None:

@@ -71,6 +71,8 @@ def encode_checkpoint(
     arrays["exchange/returns"] = np.asarray(rep.window_returns, dtype=np.float64).reshape(-1, rep.game.num_agents)
     for name, column in zip(Transition._fields, zip(*rep.shared_transitions)):
         arrays[f"exchange/{name}"] = np.stack(column)
+    if rep.shared_bounced:
+        arrays["exchange/bounced"] = np.stack(rep.shared_bounced)
     meta = {
         "counters": rep.counters.__dict__,
         "learner": learner_meta,
@@ -112,6 +114,9 @@ def load_checkpoint(rep: Replica, algorithm: Algorithm) -> None:
         rep.shared_transitions = [
             Transition(*fields) for fields in zip(*(arrays[f"exchange/{name}"] for name in Transition._fields))
         ]
+        # A checkpoint written before bounces were recorded: its window is shared whole, as it was then.
+        unrecorded = np.zeros((len(rep.shared_transitions), rep.game.num_agents), dtype=bool)
+        rep.shared_bounced = list(arrays.get("exchange/bounced", unrecorded))
     rep.last_eval = meta["last_eval"]
     rep.transfer_info = meta["transfer"]
     rep.episode_state = meta.get("episode")  # None at an episode end (and in older checkpoints)

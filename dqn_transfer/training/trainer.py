@@ -270,6 +270,7 @@ class Trainer:
             if shared_replay:
                 for rep in replicas:
                     rep.shared_transitions.append(Transition(*(column[rep.rows] for column in transition)))
+                    rep.shared_bounced.append(outcome.bounced[rep.index])
             for r in np.flatnonzero(outcome.episode_end).tolist():
                 replicas[r].end_episode(int(outcome.episode_treasures[r]))
             games.reset(outcome.episode_end)

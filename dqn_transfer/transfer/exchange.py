@@ -3,9 +3,12 @@
 - ``best``: every other agent moves its values ``exchange_tau`` of the way to the agent with the
   highest mean episodic return over the window (a soft copy). A network's weights move (layers kept
   fixed stay as they are); a table's entries move, over every state either table holds;
-- ``shared_replay``: each agent learns from its team-mates' transitions of the window. A DQN agent
-  receives them into its replay; a table, which has no replay, is updated on each of them once,
-  by its own rule (SARSA draws the next action from its own epsilon-greedy policy).
+- ``shared_replay``: each agent learns from its team-mates' transitions of the window, except their
+  obstacle bounces. A DQN agent receives them into its replay; a table, which has no replay, is updated
+  on each of them once, by its own rule (SARSA draws the next action from its own epsilon-greedy policy).
+  A move into an obstacle sends the mover back to its own start, and no two agents of a map share a
+  start cell, so a team-mate's bounce would teach an agent that the move leads to somebody else's start
+  (SEQL's experience sharing likewise leaves out the agent-specific transition).
 
 Both go through the learner's :class:`~dqn_transfer.agents.KnowledgeExchange` capability
 (``soft_copy_best``, ``learn_from``): each learner family implements its own semantics.
@@ -30,14 +33,16 @@ def exchange_best(team: Team, window_returns: np.ndarray, tau: float) -> int:
     return best
 
 
-def exchange_replay(team: Team, transitions: Sequence[Transition]) -> None:
-    """Each agent learns from its team-mates' transitions of the window (see the module docstring)."""
+def exchange_replay(team: Team, transitions: Sequence[Transition], bounced: Sequence[np.ndarray]) -> None:
+    """Each agent learns from its team-mates' transitions of the window but their obstacle bounces (see
+    the module docstring); ``bounced[t]``, ``bool [K]``: who moved into an obstacle on step ``t``."""
     exchange = require(team, KnowledgeExchange, "transfer.exchange=shared_replay")
     if not transitions:
         return
     window = Transition(*(np.stack(column) for column in zip(*transitions)))  # fields [T, K, ...]
+    bounces = np.stack(bounced)  # [T, K]
     for giver in range(team.num_agents):
-        taken = window.live[:, giver]  # only the steps where the giver was acting
+        taken = window.live[:, giver] & ~bounces[:, giver]  # the giver's moves, but its bounces
         experience = Experience(
             *(
                 column[taken, giver]

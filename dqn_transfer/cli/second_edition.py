@@ -1,0 +1,100 @@
+"""The study's second edition after tuning (results/VERDICT_RULES.md): the budget pilots, then the full runs.
+
+    python -m dqn_transfer.cli.tune --out results/tuning --profile full           # stage 2: tuning
+    python -m dqn_transfer.cli.second_edition pilot --out results                 # stage 3: pilots, budgets
+    python -m dqn_transfer.cli.second_edition full --out results                  # stage 4: the evidence
+    python -m dqn_transfer.cli.second_edition pilot --out /tmp/s --profile quick  # smoke run: NOT evidence
+
+``pilot`` runs every experiment (``experiment=v2/<name>``) on the pilot maps (map seeds 2000..) for the
+budget rule's cap, keeps the raw data in ``OUT/pilot/data/``, and writes each comparison group's budget to
+``OUT/budgets.json`` and ``OUT/budgets.md`` (``--report-only``: from the pilot's data, nothing run).
+``full`` runs each comparison group as one Hydra multirun at its budget from ``OUT/budgets.json`` (or
+``--budgets FILE``) and writes ``OUT/data/<name>.jsonl``. A sweep directory already complete for the same
+settings is reused; one holding other or unfinished runs is an error, never overwritten.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from dqn_transfer.analysis.runs import skipped_runs_on_stderr
+from dqn_transfer.cli.console import OneLineErrors, exit_with
+from dqn_transfer.experiments.raw_data import DATA_DIR, DataError
+from dqn_transfer.experiments.second_edition import (
+    BUDGETS_FILE,
+    BUDGETS_TABLE,
+    EXPERIMENTS,
+    PILOT_DIR,
+    PROFILES,
+    pilot_budgets,
+    run_full,
+    run_pilots,
+    write_budgets,
+)
+from dqn_transfer.experiments.sweeps import ReproduceError, choose_launcher
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = OneLineErrors(
+        prog="python -m dqn_transfer.cli.second_edition",
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=__doc__.split("\n\n", 1)[1],
+    )
+    parser.add_argument("stage", choices=["pilot", "full"])
+    parser.add_argument("--out", type=Path, required=True, help="the study's directory (results/ for the evidence)")
+    parser.add_argument("--profile", choices=sorted(PROFILES), default="full")
+    parser.add_argument("--only", default=",".join(EXPERIMENTS), help=f"a subset of {','.join(EXPERIMENTS)}")
+    parser.add_argument("--launcher", default=None, help="Hydra launcher: joblib (default), basic, submitit_slurm")
+    parser.add_argument("--n-jobs", type=int, default=2, help="parallel jobs with --launcher joblib (default 2)")
+    parser.add_argument("--budgets", type=Path, help=f"full: the budgets file (default OUT/{BUDGETS_FILE})")
+    parser.add_argument("--report-only", action="store_true", help="pilot: budgets from OUT/pilot/data/, run nothing")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run one stage; exit 1 with one ``error:`` line on a failure."""
+    parser = _parser()
+    args = parser.parse_args(argv)
+    start = time.perf_counter()
+    try:
+        names = [name.strip() for name in args.only.split(",") if name.strip()]
+        unknown = [name for name in names if name not in EXPERIMENTS]
+        if unknown:
+            raise ReproduceError(
+                f"--only: unknown experiment(s) {', '.join(unknown)} (choose from {', '.join(EXPERIMENTS)})"
+            )
+        if args.n_jobs < 1:
+            raise ReproduceError(f"--n-jobs must be >= 1, got {args.n_jobs}")
+        out = args.out.expanduser().resolve()
+        launcher = None if args.report_only else choose_launcher(args.launcher)
+        print(f"profile {args.profile}: {PROFILES[args.profile].description}", flush=True)
+        if args.stage == "pilot":
+            data = out / PILOT_DIR / DATA_DIR
+            if launcher is not None:
+                with skipped_runs_on_stderr():
+                    data = run_pilots(names, args.profile, out, launcher, args.n_jobs)
+            rule = PROFILES[args.profile].rule
+            write_budgets(out, pilot_budgets(data, names, rule), rule)
+            print((out / BUDGETS_TABLE).read_text())
+            written = out / BUDGETS_FILE
+        else:
+            if launcher is None:
+                raise ReproduceError("--report-only applies to the pilot stage")
+            with skipped_runs_on_stderr():
+                written = run_full(names, args.profile, out, args.budgets or out / BUDGETS_FILE, launcher, args.n_jobs)
+    except (ReproduceError, DataError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    print(f"wrote {written} ({time.perf_counter() - start:.0f} s in total)")
+    return 0
+
+
+if __name__ == "__main__":
+    exit_with(main)

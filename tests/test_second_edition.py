@@ -1,0 +1,98 @@
+"""The second edition's stages after tuning: comparison groups from the sweeps, the registered budget rule on
+pilot runs (budgets worked out by hand), and the pilot and full stages end to end on the quick profile."""
+
+import json
+
+import pytest
+
+from dqn_transfer.cli import second_edition as cli
+from dqn_transfer.experiments.raw_data import DataError, RunData, read_data, write_data
+from dqn_transfer.experiments.second_edition import (
+    RULE,
+    group_overrides,
+    pilot_budgets,
+    read_budgets,
+    sweep_groups,
+    sweep_jobs,
+    write_budgets,
+)
+from dqn_transfer.experiments.sweeps import ReproduceError
+
+SARSA = "sarsa_none,sarsa_best,sarsa_shared_replay,sarsa_confidence,sarsa_advice"
+DQN = (
+    "double_dqn_none,double_dqn_best,double_dqn_shared_replay,double_dqn_experience,double_dqn_shared_id,double_dqn_vdn"
+)
+
+
+def test_the_hypothesis_runs_one_multirun_per_learner_and_mode():
+    groups = {key: group_overrides(jobs) for key, jobs in sweep_groups("hypothesis").items()}
+    assert groups == {
+        ("sarsa", "cooperative"): [f"method={SARSA}", "mode=cooperative"],
+        ("sarsa", "deliberative"): [f"method={SARSA}", "mode=deliberative"],
+        ("double_dqn", "cooperative"): [f"method={DQN}", "mode=cooperative"],
+        ("double_dqn", "deliberative"): [f"method={DQN}", "mode=deliberative"],
+    }
+
+
+def _pilot_run(job_config: dict, job: int, map_seed: int, values: list[float]) -> RunData:
+    config = json.loads(json.dumps(job_config))
+    config["env"]["map_seed"] = map_seed
+    steps = tuple(range(0, 32_001, 500))
+    return RunData("claim1", f"{job}/seed_0-map_{map_seed}", config, steps, {"team_return": tuple(values)}, 0, None)
+
+
+def test_the_budget_rule_on_claim1s_pilot(tmp_path):
+    # Claim 1's maps have no optimum: the rule reads team return in chests (/100). Competitive runs gain
+    # 0.05 return per step up to step 4,000, then stay flat: cut at T, the last half of the evaluations is flat
+    # from T = 7,500 (8 points, 4,000..7,500) and holds a lower point before it, so S = 7,500 and the budget
+    # 1.5 x 7,500 = 11,250, rounded up to 12,000. Cooperative runs are flat from the start: S is the first step
+    # with 4 evaluations, 1,500, and the budget 2,250 -> 3,000. The group runs at the larger, 12,000.
+    jobs = sweep_jobs("claim1")
+    assert [job.values for job in jobs] == [{"mode": "competitive"}, {"mode": "cooperative"}]
+    rising = [0.05 * min(step, 4000) for step in range(0, 32_001, 500)]
+    runs = [_pilot_run(jobs[0].config, 0, 2000 + m, rising) for m in range(3)]
+    runs += [_pilot_run(jobs[1].config, 1, 2000 + m, [20.0] * len(rising)) for m in range(3)]
+    write_data(tmp_path / "pilot" / "claim1.jsonl", runs[::-1])  # any order: runs find their job by config
+    (group,) = pilot_budgets(tmp_path / "pilot", ["claim1"], RULE)
+    assert [(c.values["mode"], c.runs, c.budget.converged_step, c.budget.budget) for c in group.cells] == [
+        ("competitive", 3, 7_500, 12_000),
+        ("cooperative", 3, 1_500, 3_000),
+    ]
+    assert (group.comparison, group.key, group.budget) == ("claim1", (), 12_000)
+    write_budgets(tmp_path, [group], RULE)
+    assert read_budgets(tmp_path / "budgets.json") == {("claim1", ()): 12_000}
+    assert "| claim1 | all | mode=competitive | 3 | 7,500 | 12,000 | 12,000 |" in (tmp_path / "budgets.md").read_text()
+
+
+def test_a_pilot_run_of_no_job_of_the_sweep_is_refused(tmp_path):
+    jobs = sweep_jobs("claim1")
+    stray = json.loads(json.dumps(jobs[0].config))
+    stray["env"]["mode"] = "deliberative"
+    write_data(tmp_path / "claim1.jsonl", [_pilot_run(stray, 0, 2000, [0.0] * 65)])
+    with pytest.raises(DataError, match="matches 0 jobs"):
+        pilot_budgets(tmp_path, ["claim1"], RULE)
+
+
+def test_the_full_stage_refuses_a_group_without_a_budget(tmp_path, capsys):
+    (tmp_path / "budgets.json").write_text(json.dumps({"groups": []}))
+    assert cli.main(["full", "--out", str(tmp_path), "--only", "claim1", "--launcher", "basic"]) == 1
+    assert "has no budget for claim1 all" in capsys.readouterr().err
+    assert cli.main(["pilot", "--out", str(tmp_path), "--only", "claim9"]) == 1
+    assert "unknown experiment(s) claim9" in capsys.readouterr().err
+    with pytest.raises(ReproduceError, match="not a budgets file"):
+        (tmp_path / "bad.json").write_text("[]")
+        read_budgets(tmp_path / "bad.json")
+
+
+def test_the_quick_pilot_and_full_stages_run_end_to_end(tmp_path):
+    # Real Hydra multiruns (basic launcher): the pilot on the pilot maps, budgets, then the full runs at them.
+    common = ["--out", str(tmp_path), "--profile", "quick", "--only", "claim1", "--launcher", "basic"]
+    assert cli.main(["pilot", *common]) == 0
+    pilot = read_data(tmp_path / "pilot" / "data" / "claim1.jsonl")
+    assert sorted(r.unit for r in pilot) == [(2000, 0), (2000, 0), (2001, 0), (2001, 0)]  # 2 modes x 2 pilot maps
+    budget = read_budgets(tmp_path / "budgets.json")[("claim1", ())]
+    assert 1_000 <= budget <= 2_000  # the quick profile's cap
+    assert cli.main(["full", *common]) == 0
+    runs = read_data(tmp_path / "data" / "claim1.jsonl")
+    assert sorted(r.unit for r in runs) == [(0, 0), (0, 0), (1, 0), (1, 0)]  # evaluation maps 0, 1
+    assert {r.steps[-1] for r in runs} == {budget} and {r.name.split("/")[0] for r in runs} == {"all"}
