@@ -87,3 +87,19 @@ def test_the_chest_aware_condition_is_swept_for_sarsa_alone():
     validate(config)
     assert config.agent.algorithm.value == "sarsa" and config.transfer.chest_aware
     assert config.transfer.source_task.value == "per_agent" and (config.replicas.maps, config.replicas.seeds) == (30, 3)
+
+
+def test_claim2_grows_the_team_on_one_map_size_at_two_contentions():
+    assert _sweep("v2/claim2") == {
+        "env": ["study_fixed/m2", "study_fixed/m3", "study_fixed/m4", "study_fixed/m6"],
+        "env.contention": ["high", "low"],
+        "mode": ["competitive", "cooperative", "deliberative"],
+    }
+    for m in (2, 3, 4, 6):
+        config: TrainConfig = OmegaConf.to_object(
+            _compose("experiment=v2/claim2", f"env=study_fixed/m{m}", "env.contention=low", "mode=deliberative")
+        )
+        validate(config)
+        assert (config.env.size, config.env.num_agents, config.env.num_treasures, config.env.num_traps) == (10, m, m, m)
+        assert config.agent.algorithm.value == "sarsa" and config.env.contention.value == "low"
+        assert (config.replicas.maps, config.replicas.seeds, config.env.map_seed) == (30, 3, 0)
