@@ -86,8 +86,9 @@ def test_sb3_kwargs_give_sb3_our_values_under_its_names():
         "device": "cpu",
     }
     # Every hyperparameter the DQN learner and the trainer read is matched (a new key must be added).
-    # hidden: net_arch; the others fixed (engine: what computes ours, not a hyperparameter; agent_id_input off)
-    matched = {*SB3_NAMES, "hidden", "algorithm", "share_parameters", "agent_id_input", "engine"}
+    # hidden: net_arch; the others fixed (engine: what computes ours, not a hyperparameter; agent_id_input and
+    # the team's mixer off: the benchmark's task has one agent)
+    matched = {*SB3_NAMES, "hidden", "algorithm", "share_parameters", "agent_id_input", "mixer", "engine"}
     assert matched == {field.name for field in dataclasses.fields(AgentConfig)}
     model = sb3_dqn(TINY, TINY_MAP, seed=0)  # and SB3 keeps them as given
     assert (model.batch_size, model.buffer_size, model.learning_starts) == (8, 200, 20)
@@ -369,7 +370,12 @@ def test_lone_section_runs_four_whole_processes_that_train(process_document):
         assert runs[0]["cpu_seconds"] > 0 and runs[0]["max_rss_mb"] > 0
     assert contenders["ours"]["ours_over_this"] == 1.0
     assert contenders["sb3"]["figures"]["gradient_steps"] == expected
-    assert lone["hyperparameters"] == {**dataclasses.asdict(LONE_AGENT), "algorithm": "dqn", "engine": "auto"}
+    assert lone["hyperparameters"] == {
+        **dataclasses.asdict(LONE_AGENT),
+        "algorithm": "dqn",
+        "engine": "auto",
+        "mixer": "none",
+    }
     assert len(lone["load"]["start"]) == len(lone["load"]["end"]) == 3
 
 
@@ -453,6 +459,7 @@ def test_document_holds_every_section_and_is_json(document):
         **dataclasses.asdict(TINY),
         "algorithm": "dqn",
         "engine": "auto",
+        "mixer": "none",
     }
     assert document["machine"]["torch_threads_used"] == [1]
     assert json.loads(json.dumps(document)) == document  # plain JSON types throughout
