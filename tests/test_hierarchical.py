@@ -21,6 +21,7 @@ from dqn_transfer.analysis.hierarchical import (
     mean_difference,
     mean_of_runs,
     paired_mean_difference,
+    paired_slope,
     power,
     probability_of_improvement,
     two_stage_variance,
@@ -231,3 +232,22 @@ def test_a_pilot_that_cannot_be_read_is_one_error_line(tmp_path, capsys):
     (tmp_path / "empty.jsonl").write_text("")
     assert power_main(["--pilot", str(tmp_path / "empty.jsonl")]) == 2
     assert capsys.readouterr().err.startswith("error: the pilot has no sarsa cooperative runs")
+
+
+def test_the_slope_over_team_size_of_paired_differences():
+    # Constant differences 0.1, 0.3, 0.5 at m = 2, 4, 6: they rise 0.2 per 2 agents, slope 0.1 exactly, in every
+    # resample.
+    exact = {m: [np.full(3, d)] * 4 for m, d in ((2, 0.1), (4, 0.3), (6, 0.5))}
+    result = paired_slope(exact, np.random.default_rng(0), n_resamples=200)
+    assert (result.estimate.mean, result.estimate.low, result.estimate.high) == pytest.approx((0.1, 0.1, 0.1))
+    assert result.p_value == pytest.approx(2 / 201) and result.estimate.n == 12
+    # Unequal maps: the per-m means of the pooled runs are 0.2 (m = 2) and 0.0 (m = 3), so the slope is -0.2;
+    # the maps differ, so the interval has width and holds the point.
+    noisy = {2: [np.array([0.0, 0.2]), np.array([0.4])], 3: [np.array([-0.3, 0.3]), np.array([0.1, -0.1])]}
+    result = paired_slope(noisy, np.random.default_rng(0))
+    assert result.estimate.mean == pytest.approx((0.0 - (0.0 + 0.2 + 0.4) / 3) / (3 - 2))
+    assert result.estimate.low < result.estimate.mean < result.estimate.high
+    # One map at a size: no population to resample there, so no interval.
+    assert math.isnan(paired_slope({2: [np.ones(2)], 3: [np.ones(2), np.ones(2)]}, np.random.default_rng(0)).p_value)
+    with pytest.raises(ValueError, match="two sizes"):
+        paired_slope({2: [np.ones(2)]}, np.random.default_rng(0))

@@ -105,9 +105,11 @@ def objective_of(trial_dir: Path) -> tuple[float, dict[int, float]]:
 
 
 @pytest.mark.slow  # one search of two tiny trials through Hydra's Optuna sweeper: ~10 s
-def test_a_quick_tuning_writes_its_trials_the_best_values_and_the_figure(optuna_sweeper, tmp_path, capsys):
+def test_a_quick_tuning_writes_its_trials_the_best_values_and_the_figure(optuna_sweeper, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # a relative --out: the runs land under it, not under a copy of it inside it
     out = tmp_path / "tuning"
-    assert tune.main(["--out", str(out), "--profile", "quick", "--only", "sarsa_best"]) == 0
+    assert tune.main(["--out", "tuning", "--profile", "quick", "--only", "sarsa_best"]) == 0
+    assert not (out / "tuning").exists()
     trial_dirs = sorted((out / "runs" / "sarsa_best").glob("[0-9]*"))
     assert [d.name for d in trial_dirs] == ["0", "1"]
     records = [json.loads(line) for line in (out / "tuning.jsonl").read_text().splitlines()]

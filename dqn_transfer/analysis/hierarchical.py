@@ -250,13 +250,54 @@ def paired_mean_difference(
     :param n_resamples: bootstrap resamples.
     :param confidence: the interval's coverage, in (0, 1).
     """
-    values, counts = _padded(differences_by_map)
+    point, resampled = _resampled_means(differences_by_map, rng, n_resamples)
+    if resampled is None:
+        return MeanDifference(_no_interval(point, len(differences_by_map)), math.nan)
+    return MeanDifference(
+        _interval(point, resampled, confidence, len(differences_by_map)), bootstrap_p_value(resampled)
+    )
+
+
+def _resampled_means(
+    values_by_map: ValuesByMap, rng: np.random.Generator, n_resamples: int
+) -> tuple[float, np.ndarray | None]:
+    """The pooled runs' mean and its two-stage resamples ``[resamples]`` (None with one map)."""
+    values, counts = _padded(values_by_map)
     point = float(np.nanmean(values))
     if len(counts) < 2:
-        return MeanDifference(_no_interval(point, len(counts)), math.nan)
+        return point, None
     maps = _draw_maps(len(counts), rng, n_resamples)
-    resampled = mean_of_runs(_pooled(_take(values, maps, _draw_runs(counts, maps, rng))))
-    return MeanDifference(_interval(point, resampled, confidence, len(counts)), bootstrap_p_value(resampled))
+    return point, mean_of_runs(_pooled(_take(values, maps, _draw_runs(counts, maps, rng))))
+
+
+def paired_slope(
+    differences_by_size: dict[int, ValuesByMap],
+    rng: np.random.Generator,
+    n_resamples: int = N_RESAMPLES,
+    confidence: float = 0.95,
+) -> MeanDifference:
+    """The least-squares slope over a size ``m`` (e.g. team size) of the mean paired difference at each ``m``,
+    with its hierarchical interval and p-value of "no trend": within each ``m`` its own maps are drawn with
+    replacement, then the paired differences within each drawn map (:func:`paired_mean_difference`'s two
+    stages, independently for each ``m``, whose maps differ). ``n`` counts the maps over all sizes.
+
+    :param differences_by_size: for each size, one 1-D array of paired differences per map.
+    :param rng: the resampling stream.
+    :param n_resamples: bootstrap resamples.
+    :param confidence: the interval's coverage, in (0, 1).
+    """
+    sizes = np.array(sorted(differences_by_size), dtype=np.float64)
+    if sizes.size < 2:
+        raise ValueError(f"a slope needs two sizes or more, got {sizes.size}")
+    centred = sizes - sizes.mean()
+    drawn = [_resampled_means(differences_by_size[int(m)], rng, n_resamples) for m in sizes]
+    point = float(centred @ np.array([mean for mean, _ in drawn]) / (centred @ centred))
+    n_maps = sum(len(differences_by_size[int(m)]) for m in sizes)
+    if any(resampled is None for _, resampled in drawn):
+        return MeanDifference(_no_interval(point, n_maps), math.nan)
+    means = np.stack([resampled for _, resampled in drawn if resampled is not None], axis=1)  # [resamples, m]
+    resampled_slopes = (means - means.mean(axis=1, keepdims=True)) @ centred / (centred @ centred)
+    return MeanDifference(_interval(point, resampled_slopes, confidence, n_maps), bootstrap_p_value(resampled_slopes))
 
 
 def mean_difference(

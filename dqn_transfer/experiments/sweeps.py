@@ -245,7 +245,9 @@ def run_multirun(
 ) -> float:
     """Run ``multirun`` in a subprocess (its log in ``OUT/logs/``), a progress line per change; returns its
     wall time, 0 when its directory already holds it, finished with the same settings."""
-    name, sweep_dir, expected, stamp = multirun.label, multirun.sweep_dir, multirun.jobs, dict(multirun.stamp)
+    name, expected, stamp = multirun.label, multirun.jobs, dict(multirun.stamp)
+    # Absolute: the subprocess runs in OUT, where a relative sweep directory would land one level deeper.
+    out, sweep_dir = out.resolve(), multirun.sweep_dir.resolve()
     stamp_path = sweep_dir / STAMP_FILE
     if sweep_dir.exists() and any(sweep_dir.iterdir()):
         previous = read_stamp(sweep_dir)
