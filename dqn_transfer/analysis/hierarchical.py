@@ -270,6 +270,30 @@ def _resampled_means(
     return point, mean_of_runs(_pooled(_take(values, maps, _draw_runs(counts, maps, rng))))
 
 
+def independent_mean_difference(
+    x_by_map: ValuesByMap,
+    y_by_map: ValuesByMap,
+    rng: np.random.Generator,
+    n_resamples: int = N_RESAMPLES,
+    confidence: float = 0.95,
+) -> MeanDifference:
+    """mean(X) - mean(Y) for two conditions on different maps (two populations, e.g. high- and low-contention
+    maps): each condition's maps and runs are resampled on their own. ``n`` counts the maps of both.
+
+    :param x_by_map: condition X's run values, one 1-D array per map.
+    :param y_by_map: condition Y's, on other maps.
+    :param rng: the resampling stream.
+    :param n_resamples: bootstrap resamples.
+    :param confidence: the interval's coverage, in (0, 1).
+    """
+    (x, x_resampled), (y, y_resampled) = (_resampled_means(v, rng, n_resamples) for v in (x_by_map, y_by_map))
+    n_maps = len(x_by_map) + len(y_by_map)
+    if x_resampled is None or y_resampled is None:
+        return MeanDifference(_no_interval(x - y, n_maps), math.nan)
+    resampled = x_resampled - y_resampled
+    return MeanDifference(_interval(x - y, resampled, confidence, n_maps), bootstrap_p_value(resampled))
+
+
 def paired_slope(
     differences_by_size: dict[int, ValuesByMap],
     rng: np.random.Generator,

@@ -289,6 +289,51 @@ def errorbar_figure(
     return _save(fig, path, dpi=110, watermark=watermark)
 
 
+def dot_whisker_figure(
+    path: Path,
+    panels: list[tuple[str, dict[str, dict[str, Estimate]]]],
+    xlabel: str,
+    title: str,
+    color_of: ColorOf | None = None,
+    watermark: str | None = None,
+    reference: float | None = None,
+) -> Path:
+    """Panels side by side of estimates of named categories (one row each, e.g. methods), one per
+    ``(panel title, {series: {category: estimate}})``: each series a dot with its 95% CI as a whisker, shifted
+    up or down by its position so the rows' series stay apart; a vertical ``reference`` line (e.g. the
+    optimum) where given.
+    """
+    fig, axes = _grid(len(panels), 17 / 3, 4.5)
+    for ax, (panel_title, series) in zip(axes, panels):
+        categories = list(dict.fromkeys(c for points in series.values() for c in points))
+        if reference is not None:
+            ax.axvline(reference, color="grey", lw=1)
+        for index, (label, points) in enumerate(series.items()):
+            offset = 0.15 * (index - (len(series) - 1) / 2)
+            rows = [categories.index(c) + offset for c in points]
+            est = list(points.values())
+            means = np.array([e.mean for e in est])
+            lows = np.array([e.low if e.has_ci else e.mean for e in est])
+            highs = np.array([e.high if e.has_ci else e.mean for e in est])
+            ax.errorbar(
+                means,
+                rows,
+                xerr=[means - lows, highs - means],
+                fmt="o",
+                capsize=3,
+                label=label,
+                color=color_of(label) if color_of else None,
+            )
+        ax.set_yticks(range(len(categories)), categories)
+        ax.invert_yaxis()
+        ax.set_xlabel(xlabel)
+        ax.set_title(panel_title, fontsize="medium")
+        ax.grid(alpha=0.3, axis="x")
+        ax.legend(fontsize="small")
+    fig.suptitle(title)
+    return _save(fig, path, dpi=110, watermark=watermark)
+
+
 def profile_figure(
     path: Path,
     panels: list[tuple[str, dict[str, np.ndarray]]],

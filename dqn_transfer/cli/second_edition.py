@@ -1,16 +1,19 @@
-"""The study's second edition after tuning (results/VERDICT_RULES.md): the budget pilots, then the full runs.
+"""The study's second edition after tuning (results/VERDICT_RULES.md): the budget pilots, the full runs, the report.
 
     python -m dqn_transfer.cli.tune --out results/tuning --profile full           # stage 2: tuning
     python -m dqn_transfer.cli.second_edition pilot --out results                 # stage 3: pilots, budgets
-    python -m dqn_transfer.cli.second_edition full --out results                  # stage 4: the evidence
+    python -m dqn_transfer.cli.second_edition full --out results                  # stage 4: the evidence, report
+    python -m dqn_transfer.cli.second_edition report --out results                # stage 5: REPORT.md again
     python -m dqn_transfer.cli.second_edition pilot --out /tmp/s --profile quick  # smoke run: NOT evidence
 
 ``pilot`` runs every experiment (``experiment=v2/<name>``) on the pilot maps (map seeds 2000..) for the
 budget rule's cap, keeps the raw data in ``OUT/pilot/data/``, and writes each comparison group's budget to
 ``OUT/budgets.json`` and ``OUT/budgets.md`` (``--report-only``: from the pilot's data, nothing run).
 ``full`` runs each comparison group as one Hydra multirun at its budget from ``OUT/budgets.json`` (or
-``--budgets FILE``) and writes ``OUT/data/<name>.jsonl``. A sweep directory already complete for the same
-settings is reused; one holding other or unfinished runs is an error, never overwritten.
+``--budgets FILE``), writes ``OUT/data/<name>.jsonl``, then the report. ``report`` writes ``OUT/REPORT.md``
+and its figures from ``OUT/data/``, ``OUT/budgets.md`` and ``OUT/tuning/`` alone (seconds; nothing is run).
+A sweep directory already complete for the same settings is reused; one holding other or unfinished runs
+is an error, never overwritten.
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ from dqn_transfer.experiments.second_edition import (
     run_pilots,
     write_budgets,
 )
+from dqn_transfer.experiments.second_edition_report import write_report
 from dqn_transfer.experiments.sweeps import ReproduceError, choose_launcher
 
 
@@ -44,7 +48,7 @@ def _parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog=__doc__.split("\n\n", 1)[1],
     )
-    parser.add_argument("stage", choices=["pilot", "full"])
+    parser.add_argument("stage", choices=["pilot", "full", "report"])
     parser.add_argument("--out", type=Path, required=True, help="the study's directory (results/ for the evidence)")
     parser.add_argument("--profile", choices=sorted(PROFILES), default="full")
     parser.add_argument("--only", default=",".join(EXPERIMENTS), help=f"a subset of {','.join(EXPERIMENTS)}")
@@ -70,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.n_jobs < 1:
             raise ReproduceError(f"--n-jobs must be >= 1, got {args.n_jobs}")
         out = args.out.expanduser().resolve()
-        launcher = None if args.report_only else choose_launcher(args.launcher)
+        launcher = None if args.report_only or args.stage == "report" else choose_launcher(args.launcher)
         print(f"profile {args.profile}: {PROFILES[args.profile].description}", flush=True)
         if args.stage == "pilot":
             data = out / PILOT_DIR / DATA_DIR
@@ -82,10 +86,12 @@ def main(argv: list[str] | None = None) -> int:
             print((out / BUDGETS_TABLE).read_text())
             written = out / BUDGETS_FILE
         else:
-            if launcher is None:
-                raise ReproduceError("--report-only applies to the pilot stage")
-            with skipped_runs_on_stderr():
-                written = run_full(names, args.profile, out, args.budgets or out / BUDGETS_FILE, launcher, args.n_jobs)
+            if args.stage == "full":
+                if launcher is None:
+                    raise ReproduceError("--report-only applies to the pilot stage")
+                with skipped_runs_on_stderr():
+                    run_full(names, args.profile, out, args.budgets or out / BUDGETS_FILE, launcher, args.n_jobs)
+            written = write_report(out)
     except (ReproduceError, DataError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 1

@@ -18,6 +18,7 @@ import functools
 import json
 import math
 import platform
+import subprocess
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -34,6 +35,7 @@ from dqn_transfer.storage.run_dir import natural_key
 from dqn_transfer.timing import cpu_model, cpus_available
 
 DATA_DIR = "data"
+REPO_DIR = Path(__file__).resolve().parents[2]  # the checkout the package runs from
 MANIFEST = "manifest.json"
 # The evaluation metrics kept per step (metrics.jsonl has more: episode lengths, wall times, epsilon).
 METRICS = ("team_return", "success_rate", "trap_rate", "after_clear_rate", "return_after_clear")
@@ -196,6 +198,23 @@ def read_data(path: Path) -> list[RunData]:
 def machine() -> str:
     """This machine, for the report: CPU model and cores, Python."""
     return f"{cpu_model()}, {cpus_available()} cores, Python {platform.python_version()}"
+
+
+def git_output(*args: str) -> str:
+    """``git ARGS`` in the package's checkout, its output stripped; "" outside a checkout or on an error."""
+    try:
+        run = subprocess.run(["git", *args], cwd=REPO_DIR, capture_output=True, text=True, check=True)
+    except (OSError, subprocess.CalledProcessError):
+        return ""
+    return run.stdout.strip()
+
+
+def code_commit() -> str:
+    """The commit the runs are made with, marked when the package (which holds its conf/) has uncommitted
+    changes."""
+    commit = git_output("rev-parse", "--short", "HEAD") or "unknown"
+    dirty = bool(git_output("status", "--porcelain", "--", "dqn_transfer"))
+    return commit + (" (with uncommitted changes)" if dirty else "")
 
 
 def read_manifest(data_dir: Path) -> dict[str, Any]:

@@ -10,7 +10,6 @@ no checkout state), so regenerating it from committed data gives the committed f
 from __future__ import annotations
 
 import datetime as _dt
-import subprocess
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +19,9 @@ from dqn_transfer.experiments.claims import SECTIONS
 from dqn_transfer.experiments.raw_data import (
     DATA_DIR,
     DataError,
+    code_commit,
     export_sweep,
+    git_output,
     machine,
     read_data,
     read_manifest,
@@ -30,26 +31,15 @@ from dqn_transfer.experiments.raw_data import (
 from dqn_transfer.experiments.render import Context, Section, render
 from dqn_transfer.experiments.sweeps import EXPERIMENTS, PROFILES, RUNS_DIR, ReproduceError, read_stamp
 
-PACKAGE_DIR = Path(__file__).resolve().parent
-REPO_DIR = PACKAGE_DIR.parents[1]
 RESULTS_DIR = Path("results") / "v1"  # in the repository: the first edition's report, data and figures
 RULES_FILE = RESULTS_DIR / "VERDICT_RULES.md"  # its rules, committed before its runs
 SMOKE_MARK = "SMOKE RUN - not evidence"
 
 
-def _git(*args: str) -> str:
-    try:
-        return subprocess.run(["git", *args], cwd=REPO_DIR, capture_output=True, text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return ""
-
-
 def code_state() -> dict[str, str]:
     """The commit the runs are made with, and the last commit of the verdict rules before them."""
-    commit = _git("rev-parse", "--short", "HEAD") or "unknown"
-    dirty = bool(_git("status", "--porcelain", "--", "dqn_transfer"))  # the package holds its conf/
-    rules = _git("log", "-1", "--format=%h %cs", "--", str(RULES_FILE)) or "not committed"
-    return {"commit": commit + (" (with uncommitted changes)" if dirty else ""), "rules_commit": rules}
+    rules = git_output("log", "-1", "--format=%h %cs", "--", str(RULES_FILE)) or "not committed"
+    return {"commit": code_commit(), "rules_commit": rules}
 
 
 def export_data(out: Path) -> Path:

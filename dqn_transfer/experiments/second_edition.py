@@ -21,6 +21,7 @@ checks.
 from __future__ import annotations
 
 import dataclasses
+import datetime as _dt
 import itertools
 import json
 from collections.abc import Callable, Sequence
@@ -35,12 +36,25 @@ from dqn_transfer.analysis.budget import Budget, BudgetRule, budgets_per_cell
 from dqn_transfer.analysis.plots import flatten
 from dqn_transfer.analysis.transfer_metrics import Curve
 from dqn_transfer.config import CONFIG_DIR, register_configs, to_plain
-from dqn_transfer.experiments.raw_data import DATA_DIR, DataError, RunData, export_sweep, read_data, write_data
+from dqn_transfer.experiments.raw_data import (
+    DATA_DIR,
+    DataError,
+    RunData,
+    code_commit,
+    export_sweep,
+    git_output,
+    machine,
+    read_data,
+    read_manifest,
+    write_data,
+    write_manifest,
+)
 from dqn_transfer.experiments.sweeps import RUNS_DIR, Multirun, ReproduceError, quoted_path, run_multirun
 
 GROUP = "v2"  # dqn_transfer/conf/experiment/v2/
 EXPERIMENTS = ("hypothesis", "lbf_hypothesis", "claim1", "claim2", "transfer", "transfer_aware")
 PILOT_DIR, BUDGETS_FILE, BUDGETS_TABLE = "pilot", "budgets.json", "budgets.md"
+RULES_TAG = "study-v2-rules"  # results/VERDICT_RULES.md as registered before the runs
 
 # The registered budget rule: the median run's slope over its last half of evaluations below 1% of the
 # optimal return per 1,000 steps, 1.5 x that step, at most 32,000 steps.
@@ -334,32 +348,43 @@ def read_budgets(path: Path) -> dict[tuple[str, tuple[Any, ...]], int]:
 
 
 def run_full(names: Sequence[str], profile: str, out: Path, budgets_file: Path, launcher: str, n_jobs: int) -> Path:
-    """Stage 4: each comparison group as one multirun at its budget, then each experiment's raw data;
-    returns ``OUT/data``."""
+    """Stage 4: each comparison group as one multirun at its budget, then each experiment's raw data and the
+    manifest (profile, code commit, the rules' tag commit, machine, wall times); returns ``OUT/data``."""
     budgets = read_budgets(budgets_file)
     settings = PROFILES[profile]
     data_dir = out / DATA_DIR
+    walls: dict[str, float] = {}
     for name in names:
         runs: list[RunData] = []
+        walls[name] = 0.0
         for key, jobs in sweep_groups(name).items():
             comparison = COMPARISONS[name].name
             if (comparison, key) not in budgets:
                 raise ReproduceError(f"{budgets_file} has no budget for {comparison} {group_label(key)}")
-            budget = budgets[(comparison, key)]
             overrides = (
                 *group_overrides(jobs),
-                f"total_steps={budget}",
+                f"total_steps={budgets[(comparison, key)]}",
                 *_cache_overrides(name, out),
                 *settings.full,
             )
             sweep_dir = out / RUNS_DIR / name / group_label(key)
             stamp = {"experiment": f"{GROUP}/{name}", "stage": "full", "profile": profile, "overrides": list(overrides)}
-            label = f"{name}-{group_label(key)}"
-            run_multirun(
-                Multirun(label, f"{GROUP}/{name}", overrides, sweep_dir, len(jobs), stamp), out, launcher, n_jobs
-            )
+            multirun = Multirun(f"{name}-{group_label(key)}", f"{GROUP}/{name}", overrides, sweep_dir, len(jobs), stamp)
+            walls[name] += run_multirun(multirun, out, launcher, n_jobs)
             runs += [
                 dataclasses.replace(run, name=f"{group_label(key)}/{run.name}") for run in export_sweep(sweep_dir, name)
             ]
         write_data(data_dir / f"{name}.jsonl", runs)
+    previous = read_manifest(data_dir)  # experiments run before (--only) keep their record
+    write_manifest(
+        data_dir,
+        {
+            "profile": profile,
+            "commit": code_commit(),
+            "rules_commit": git_output("log", "-1", "--format=%h %cs", RULES_TAG) or "not tagged",
+            "machine": machine(),
+            "date": _dt.date.today().isoformat(),
+            "wall_seconds": {**previous.get("wall_seconds", {}), **{k: round(v, 1) for k, v in walls.items()}},
+        },
+    )
     return data_dir

@@ -1,0 +1,328 @@
+"""The second edition's ``REPORT.md`` and figures, from its committed data alone (``results/``).
+
+It reads ``data/<experiment>.jsonl`` and ``data/manifest.json`` (the full runs), ``budgets.md`` (the pilot's
+budgets) and ``tuning/tuning.md`` (the tuning's chosen values), answers each question by
+:mod:`dqn_transfer.experiments.second_edition_analysis` with one random stream seeded 0, and writes the report
+beside them; nothing else is read (no clock, no checkout), so the same data give the same bytes.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from dqn_transfer.analysis.hierarchical import MeanDifference
+from dqn_transfer.analysis.plots import dot_whisker_figure, errorbar_figure
+from dqn_transfer.analysis.stats import Estimate
+from dqn_transfer.experiments.raw_data import DATA_DIR, DataError, RunData, read_data, read_manifest
+from dqn_transfer.experiments.render import COLORS
+from dqn_transfer.experiments.second_edition import BUDGETS_TABLE, EXPERIMENTS
+from dqn_transfer.experiments.second_edition_analysis import (
+    ALPHA,
+    CLAIM1_MARGIN,
+    FAILURE_BELOW,
+    MODE_PAIRS,
+    SMALLEST_EFFECT,
+    Claim1Result,
+    Claim2Result,
+    Claim3Result,
+    Difference,
+    HypothesisResult,
+    Summary,
+    claim1,
+    claim2,
+    claim3,
+    hypothesis,
+    mode,
+    replicated,
+)
+
+RULES = "results/VERDICT_RULES.md"
+TAG = "study-v2-rules"
+TUNING_TABLE = Path("tuning") / "tuning.md"
+TUNING_FIGURE = Path("tuning") / "tuning_sensitivity.png"
+SMOKE = "SMOKE RUN - not evidence"
+
+
+def fmt(e: Estimate, digits: int = 3) -> str:
+    if not math.isfinite(e.mean):
+        return "n/a"
+    if not e.has_ci:
+        return f"{e.mean:.{digits}g} [no interval]"
+    return f"{e.mean:.{digits}g} [{e.low:.{digits}g}, {e.high:.{digits}g}]"
+
+
+def signed(e: Estimate, digits: int = 3) -> str:
+    if not e.has_ci:
+        return f"{e.mean:+.{digits}g} [no interval]"
+    return f"{e.mean:+.{digits}g} [{e.low:+.{digits}g}, {e.high:+.{digits}g}]"
+
+
+def p_text(p: float) -> str:
+    return "n/a" if not math.isfinite(p) else f"{p:.3g}"
+
+
+def difference_text(d: Difference) -> str:
+    holm = "" if d.holm_p is None else f", Holm {p_text(d.holm_p)}"
+    small = (
+        " (below the smallest effect of interest)"
+        if d.significant and abs(d.difference.estimate.mean) < SMALLEST_EFFECT
+        else ""
+    )
+    return f"{signed(d.difference.estimate)}, p {p_text(d.difference.p_value)}{holm}{small}"
+
+
+def slope_text(s: MeanDifference) -> str:
+    return f"{signed(s.estimate)}, p {p_text(s.p_value)}"
+
+
+def summary_cells(s: Summary) -> str:
+    failure = "—" if s.failure is None else fmt(s.failure, 2)
+    return f"{fmt(s.mean)} | {fmt(s.iqm)} | {failure}"
+
+
+def _family_table(members: Sequence[Difference], against: str, metric: str) -> list[str]:
+    lines = [
+        f"| method | {metric}: X − {against} [95% CI], p (Holm) | P(X > {against}) [95% CI] "
+        f"| power at d = {SMALLEST_EFFECT:g} |",
+        "|---|---:|---:|---:|",
+    ]
+    for d in members:
+        lines.append(f"| {d.label} | {difference_text(d)} | {fmt(d.improvement)} | {d.power:.2f} |")
+    return lines
+
+
+# ------------------------------------------------------------------------------------------- sections
+
+
+def hypothesis_section(result: HypothesisResult, title: str, figure: str) -> list[str]:
+    lines = [
+        f"## {title}",
+        "",
+        "Budgets (each learner x mode, from the pilot): "
+        + ", ".join(f"{learner} {m} {b:,}" for (learner, m), b in result.budgets.items())
+        + " env steps.",
+        "",
+        f"![{figure}]({figure})",
+        "",
+        "| learner | mode | method | runs | final score, mean [95% CI] | IQM | failure rate (final score < "
+        f"{FAILURE_BELOW:g}) | final score at B/2 | AUC score | X − none, final score (p) | X − none at B/2 | "
+        "P(X > none) |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for row in result.rows:
+        vs = "—" if row.against_none is None else difference_text(row.against_none)
+        vs_half = "—" if row.against_none_half is None else difference_text(row.against_none_half)
+        poi = "—" if row.against_none is None else fmt(row.against_none.improvement)
+        lines.append(
+            f"| {row.learner} | {row.mode} | {row.method} | {row.final.runs} | {summary_cells(row.final)} | "
+            f"{fmt(row.half.mean)} | {fmt(row.auc.mean)} | {vs} | {vs_half} | {poi} |"
+        )
+    lines += [
+        "",
+        "**Primary family** (SARSA, cooperative, final score at B, Holm over the three):",
+        "",
+        *_family_table(result.primary, "none", "final score"),
+        "",
+        f"Verdict: **{result.verdict}**.",
+        "",
+        "**Secondary family** (Double DQN, cooperative, Holm over the three):",
+        "",
+        *_family_table(result.secondary, "none", "final score"),
+        "",
+        f"Secondary verdict: **{result.secondary_verdict}**. Everything else in the table is exploratory; `best` "
+        "is the negative control.",
+        "",
+    ]
+    return lines
+
+
+def hypothesis_figure(result: HypothesisResult, path: Path, watermark: str | None) -> None:
+    panels = []
+    for learner in dict.fromkeys(row.learner for row in result.rows):
+        series: dict[str, dict[str, Estimate]] = {}
+        for row in result.rows:
+            if row.learner == learner:
+                series.setdefault(row.mode, {})[row.method] = row.final.mean
+        panels.append((learner, series))
+    dot_whisker_figure(
+        path,
+        panels,
+        "final score (fraction of the optimal team return), mean and 95% CI over maps",
+        "Knowledge exchange, teams of 4",
+        COLORS.get,
+        watermark,
+        reference=1.0,
+    )
+
+
+def claim1_section(result: Claim1Result) -> list[str]:
+    d = result.difference
+    return [
+        "## Claim 1: with one treasure, cooperation gives no advantage over competition",
+        "",
+        "The exact part is value iteration on the joint game (`docs/claim1_exact.md`): on every map tested, each "
+        "mode's own-observation team reaches the full-information optimum, so the optimal values of the modes "
+        "are equal. The learning part:",
+        "",
+        "| mode | runs | final team return, mean [95% CI] | IQM |",
+        "|---|---:|---:|---:|",
+        f"| competitive | {result.competitive.runs} | {fmt(result.competitive.mean)} | {fmt(result.competitive.iqm)} |",
+        f"| cooperative | {result.cooperative.runs} | {fmt(result.cooperative.mean)} | {fmt(result.cooperative.iqm)} |",
+        "",
+        f"Primary: cooperative − competitive in final team return, {difference_text(d)}; P(coop > comp) "
+        f"{fmt(d.improvement)}; against the margin +{CLAIM1_MARGIN:g}. Verdict: **{result.verdict}**.",
+        "",
+    ]
+
+
+def claim2_section(result: Claim2Result, figure: str) -> list[str]:
+    lines = [
+        "## Claim 2: as the team grows, deliberative > cooperative > competitive",
+        "",
+        f"![{figure}]({figure})",
+        "",
+        "| contention | m | competitive | cooperative | deliberative | delib − coop | coop − comp |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    for cell in result.cells:
+        modes = " | ".join(fmt(cell.modes[name].mean) for name in ("competitive", "cooperative", "deliberative"))
+        diffs = " | ".join(slope_text(cell.differences[pair]) for pair in MODE_PAIRS)
+        lines.append(f"| {cell.contention} | {cell.m} | {modes} | {diffs} |")
+    lines += ["", "| contention | slope over m of | per agent [95% CI], p |", "|---|---|---:|"]
+    for (level, pair), slope in result.slopes.items():
+        lines.append(f"| {level} | {pair[0]} − {pair[1]} | {slope_text(slope)} |")
+    if result.contention_effects:
+        lines += ["", "| m | high − low contention, of | [95% CI], p |", "|---:|---|---:|"]
+        for (m, pair), effect in result.contention_effects.items():
+            lines.append(f"| {m} | {pair[0]} − {pair[1]} | {slope_text(effect)} |")
+    lines += ["", f"Primary (high contention, both slopes above 0): **{result.verdict}**.", ""]
+    return lines
+
+
+def claim2_figure(result: Claim2Result, path: Path, watermark: str | None) -> None:
+    panels = []
+    for level in dict.fromkeys(cell.contention for cell in result.cells):
+        series: dict[str, dict[int, Estimate]] = {}
+        for cell in result.cells:
+            if cell.contention == level:
+                for name, summary in cell.modes.items():
+                    series.setdefault(name, {})[cell.m] = summary.mean
+        panels.append((f"final score, {level} contention", series))
+    errorbar_figure(path, panels, "agents = chests = traps (10x10 maps)", "Growing the team", COLORS.get, watermark)
+
+
+def claim3_section(result: Claim3Result) -> list[str]:
+    lines = [
+        "## Claim 3: starting from trained agents speeds up learning",
+        "",
+        "| learner | condition | runs | AUC score | final score | X − scratch_matched, AUC (p) | "
+        "at equal total steps, final score (p) |",
+        "|---|---|---:|---:|---:|---:|---:|",
+    ]
+    for row in result.rows:
+        vs = "—" if row.against_control is None else difference_text(row.against_control)
+        total = "—" if row.at_total_steps is None else difference_text(row.at_total_steps)
+        lines.append(
+            f"| {row.learner} | {row.condition} | {row.auc.runs} | {fmt(row.auc.mean)} | {fmt(row.final.mean)} | "
+            f"{vs} | {total} |"
+        )
+    lines += [
+        "",
+        "**Primary family** (SARSA, AUC score over the target's own steps, Holm over the two):",
+        "",
+        *_family_table(result.primary, "scratch_matched", "AUC score"),
+        "",
+        f"Verdict: **{result.verdict}**.",
+        "",
+    ]
+    return lines
+
+
+# ------------------------------------------------------------------------------------------- the report
+
+
+def _read(data: Path, name: str) -> list[RunData]:
+    path = data / f"{name}.jsonl"
+    return read_data(path) if path.exists() else []
+
+
+def _include(path: Path) -> list[str]:
+    return path.read_text().rstrip("\n").splitlines() + [""] if path.exists() else [f"({path.name} is missing)", ""]
+
+
+def write_report(results: Path) -> Path:
+    """``results/REPORT.md`` and its figures from ``results/data/`` (and the budgets and tuning beside it)."""
+    data = results / DATA_DIR
+    runs = {name: _read(data, name) for name in EXPERIMENTS}
+    if not any(runs.values()):
+        raise DataError(f"{data} holds no data of {', '.join(EXPERIMENTS)}")
+    manifest = read_manifest(data)
+    smoke = manifest.get("profile") != "full"
+    watermark = SMOKE if smoke else None
+    rng = np.random.default_rng(0)
+    summary: list[tuple[str, str]] = []
+    body: list[str] = []
+    treasure = None
+    if runs["hypothesis"]:
+        treasure = hypothesis(runs["hypothesis"], rng)
+        hypothesis_figure(treasure, results / "hypothesis.png", watermark)
+        body += hypothesis_section(
+            treasure, "Main hypothesis: a group that exchanges knowledge learns better", "hypothesis.png"
+        )
+        summary.append(("Main hypothesis (SARSA, cooperative)", treasure.verdict))
+        summary.append(("Main hypothesis, secondary (Double DQN, cooperative)", treasure.secondary_verdict))
+    if runs["lbf_hypothesis"]:
+        lbf = hypothesis(runs["lbf_hypothesis"], rng, primary_mode=mode(runs["lbf_hypothesis"][0]))
+        hypothesis_figure(lbf, results / "lbf_hypothesis.png", watermark)
+        body += hypothesis_section(lbf, "Replication on Level-Based Foraging", "lbf_hypothesis.png")
+        summary.append(("Main hypothesis on Level-Based Foraging", lbf.verdict))
+        if treasure is not None:
+            summary.append(("Replication", replicated(treasure, lbf)))
+    if runs["claim1"]:
+        result1 = claim1(runs["claim1"], rng)
+        body += claim1_section(result1)
+        summary.append(("Claim 1", result1.verdict))
+    if runs["claim2"]:
+        result2 = claim2(runs["claim2"], rng)
+        claim2_figure(result2, results / "claim2.png", watermark)
+        body += claim2_section(result2, "claim2.png")
+        summary.append(("Claim 2", result2.verdict))
+    if runs["transfer"] or runs["transfer_aware"]:
+        result3 = claim3(runs["transfer"] + runs["transfer_aware"], rng)
+        body += claim3_section(result3)
+        summary.append(("Claim 3", result3.verdict))
+    header = [
+        "# The study, second edition: knowledge exchange, cooperation and transfer",
+        "",
+        *(
+            [f"> **{SMOKE}**: the quick profile checks the pipeline; its numbers are not evidence.", ""]
+            if smoke
+            else []
+        ),
+        f"Data: `{DATA_DIR}/` beside this report, made on {manifest.get('date', '?')} with the "
+        f"`{manifest.get('profile', '?')}` profile by code {manifest.get('commit', '?')} on "
+        f"{manifest.get('machine', '?')}. Verdict rules: `{RULES}`, tagged `{TAG}` at "
+        f"{manifest.get('rules_commit', '?')}, before any of these runs. Intervals are 95% hierarchical-bootstrap "
+        f"intervals over maps (maps, then runs within maps); p-values are two-sided bootstrap p; a family's are "
+        f"Holm-adjusted at {ALPHA:g}.",
+        "",
+        "| question | verdict |",
+        "|---|---|",
+        *[f"| {question} | **{verdict}** |" for question, verdict in summary],
+        "",
+        "## Tuning (stage 2)",
+        "",
+        *_include(results / TUNING_TABLE),
+        f"![tuning]({TUNING_FIGURE.as_posix()})",
+        "",
+        "## Budgets (stage 3)",
+        "",
+        *_include(results / BUDGETS_TABLE),
+    ]
+    report = results / "REPORT.md"
+    report.write_text("\n".join(header + body))
+    return report
