@@ -9,6 +9,7 @@ from dqn_transfer.analysis.stats import Estimate
 from dqn_transfer.experiments.raw_data import RunData, write_data, write_manifest
 from dqn_transfer.experiments.second_edition import sweep_jobs
 from dqn_transfer.experiments.second_edition_analysis import (
+    MODES,
     Difference,
     claim1,
     claim2,
@@ -135,6 +136,7 @@ def test_claim2_slopes_over_team_size():
     slopes = {pair: s.estimate.mean for (level, pair), s in result.slopes.items()}
     assert slopes == pytest.approx({("deliberative", "cooperative"): 0.05, ("cooperative", "competitive"): 0.0})
     assert result.verdict == "NOT SUPPORTED"
+    assert sorted(result.floors) == sorted(("high", m, name) for m in (2, 4, 6) for name in MODES)  # greedy floors
     assert [(c.m, round(c.differences[("deliberative", "cooperative")].estimate.mean, 9)) for c in result.cells] == [
         (2, 0.1),
         (4, 0.2),

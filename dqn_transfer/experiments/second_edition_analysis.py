@@ -33,6 +33,10 @@ from dqn_transfer.analysis.hierarchical import (
 )
 from dqn_transfer.analysis.stats import Estimate
 from dqn_transfer.analysis.transfer_metrics import asymptotic_performance, mean_over_training
+from dqn_transfer.enums import Bound
+from dqn_transfer.envs.game import make_game
+from dqn_transfer.envs.settings import ENV_KEYS
+from dqn_transfer.evaluation.bounds import evaluate_bound
 from dqn_transfer.experiments.raw_data import RunData
 
 FINAL_TAIL = 0.2  # final performance: the mean of a run's last 20% of evaluations
@@ -43,6 +47,7 @@ CLAIM1_MARGIN = 5.0  # return units
 PRIMARY_METHODS = ("shared_replay", "confidence", "advice")  # SARSA's primary family, each against none
 SECONDARY_METHODS = ("shared_replay", "experience", "shared_id")  # Double DQN's
 CLAIM3_METHODS = ("same_map_own", "same_map_own_aware")  # against scratch_matched
+BOUND_EPISODES = 5  # the greedy floor's evaluation, as a learner's (eval_episodes)
 
 RunValue = Callable[[RunData], float]
 
@@ -339,6 +344,7 @@ class Claim2Cell:
 @dataclass(frozen=True)
 class Claim2Result:
     cells: list[Claim2Cell]
+    floors: dict[tuple[str, int, str], Estimate]  # (contention, m, mode) -> the greedy team's score over maps
     slopes: dict[tuple[str, tuple[str, str]], MeanDifference]  # (contention, pair) -> slope over m
     contention_effects: dict[tuple[int, tuple[str, str]], MeanDifference]  # (m, pair) -> high - low
     verdict: str
@@ -349,8 +355,22 @@ def _pair_differences(runs: Sequence[RunData], pair: tuple[str, str]) -> list[np
     return [a - b for a, b in zip(xs, ys)]
 
 
+def greedy_floor(run: RunData) -> float:
+    """The score of the greedy nearest-chest team (``docs/bounds.md``) on a run's map and mode: one map's
+    floor, the same for every seed."""
+    env = run.config["env"]
+    game = make_game(**{key: env[key] for key in ENV_KEYS if env.get(key) is not None})
+    record = evaluate_bound(game, Bound.greedy, BOUND_EPISODES, seed=0)
+    return float(record["team_return"]) / float(run.optimal_return or 1.0)
+
+
+def _floor(runs: Sequence[RunData], rng: np.random.Generator) -> Estimate:
+    one_per_map = {run.map_seed: run for run in runs}
+    return hierarchical_bootstrap([np.array([greedy_floor(r)]) for r in one_per_map.values()], mean_of_runs, rng)
+
+
 def claim2(runs: Sequence[RunData], rng: np.random.Generator) -> Claim2Result:
-    cells, slopes, effects = [], {}, {}
+    cells, slopes, effects, floors = [], {}, {}, {}
     levels = sorted({contention(r) for r in runs})
     sizes = sorted({team_size(r) for r in runs})
     by_cell = {(c, m): [r for r in runs if contention(r) == c and team_size(r) == m] for c in levels for m in sizes}
@@ -365,6 +385,8 @@ def claim2(runs: Sequence[RunData], rng: np.random.Generator) -> Claim2Result:
                     {pair: paired_mean_difference(_pair_differences(cell, pair), rng) for pair in MODE_PAIRS},
                 )
             )
+            for name in MODES:
+                floors[(c, m, name)] = _floor(select(cell, mode=name), rng)
         for pair in MODE_PAIRS:
             slopes[(c, pair)] = paired_slope({m: _pair_differences(by_cell[(c, m)], pair) for m in sizes}, rng)
     if {"high", "low"} <= set(levels):
@@ -382,7 +404,7 @@ def claim2(runs: Sequence[RunData], rng: np.random.Generator) -> Claim2Result:
         verdict = "CONTRADICTED"
     else:
         verdict = "NOT SUPPORTED"
-    return Claim2Result(cells, slopes, effects, verdict)
+    return Claim2Result(cells, floors, slopes, effects, verdict)
 
 
 # ------------------------------------------------------------------------------------------- claim 3

@@ -25,6 +25,7 @@ from dqn_transfer.experiments.second_edition_analysis import (
     CLAIM1_MARGIN,
     FAILURE_BELOW,
     MODE_PAIRS,
+    MODES,
     SMALLEST_EFFECT,
     Claim1Result,
     Claim2Result,
@@ -189,9 +190,20 @@ def claim2_section(result: Claim2Result, figure: str) -> list[str]:
         "|---|---:|---:|---:|---:|---:|---:|",
     ]
     for cell in result.cells:
-        modes = " | ".join(fmt(cell.modes[name].mean) for name in ("competitive", "cooperative", "deliberative"))
+        modes = " | ".join(fmt(cell.modes[name].mean) for name in MODES)
         diffs = " | ".join(slope_text(cell.differences[pair]) for pair in MODE_PAIRS)
         lines.append(f"| {cell.contention} | {cell.m} | {modes} | {diffs} |")
+    lines += [
+        "",
+        "Beside them, the greedy nearest-chest team's score on the same maps (`docs/bounds.md`; the oracle "
+        "scores 1 by definition):",
+        "",
+        "| contention | m | greedy, competitive | cooperative | deliberative |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for cell in result.cells:
+        floors = " | ".join(fmt(result.floors[(cell.contention, cell.m, name)]) for name in MODES)
+        lines.append(f"| {cell.contention} | {cell.m} | {floors} |")
     lines += ["", "| contention | slope over m of | per agent [95% CI], p |", "|---|---|---:|"]
     for (level, pair), slope in result.slopes.items():
         lines.append(f"| {level} | {pair[0]} − {pair[1]} | {slope_text(slope)} |")
@@ -211,6 +223,7 @@ def claim2_figure(result: Claim2Result, path: Path, watermark: str | None) -> No
             if cell.contention == level:
                 for name, summary in cell.modes.items():
                     series.setdefault(name, {})[cell.m] = summary.mean
+                    series.setdefault(f"greedy, {name}", {})[cell.m] = result.floors[(level, cell.m, name)]
         panels.append((f"final score, {level} contention", series))
     errorbar_figure(path, panels, "agents = chests = traps (10x10 maps)", "Growing the team", COLORS.get, watermark)
 
