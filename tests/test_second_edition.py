@@ -8,6 +8,7 @@ import pytest
 from dqn_transfer.cli import second_edition as cli
 from dqn_transfer.experiments.raw_data import DataError, RunData, read_data, write_data
 from dqn_transfer.experiments.second_edition import (
+    PROFILES,
     RULE,
     group_overrides,
     pilot_budgets,
@@ -53,7 +54,7 @@ def test_the_budget_rule_on_claim1s_pilot(tmp_path):
     runs = [_pilot_run(jobs[0].config, 0, 2000 + m, rising) for m in range(3)]
     runs += [_pilot_run(jobs[1].config, 1, 2000 + m, [20.0] * len(rising)) for m in range(3)]
     write_data(tmp_path / "pilot" / "claim1.jsonl", runs[::-1])  # any order: runs find their job by config
-    (group,) = pilot_budgets(tmp_path / "pilot", ["claim1"], RULE)
+    (group,) = pilot_budgets(tmp_path / "pilot", ["claim1"], PROFILES["full"])
     assert [(c.values["mode"], c.runs, c.budget.converged_step, c.budget.budget) for c in group.cells] == [
         ("competitive", 3, 7_500, 12_000),
         ("cooperative", 3, 1_500, 3_000),
@@ -70,7 +71,7 @@ def test_a_pilot_run_of_no_job_of_the_sweep_is_refused(tmp_path):
     stray["env"]["mode"] = "deliberative"
     write_data(tmp_path / "claim1.jsonl", [_pilot_run(stray, 0, 2000, [0.0] * 65)])
     with pytest.raises(DataError, match="matches 0 jobs"):
-        pilot_budgets(tmp_path, ["claim1"], RULE)
+        pilot_budgets(tmp_path, ["claim1"], PROFILES["full"])
 
 
 def test_the_full_stage_refuses_a_group_without_a_budget(tmp_path, capsys):

@@ -81,8 +81,8 @@ def main(argv: list[str] | None = None) -> int:
             if launcher is not None:
                 with skipped_runs_on_stderr():
                     data = run_pilots(names, args.profile, out, launcher, args.n_jobs)
-            rule = PROFILES[args.profile].rule
-            write_budgets(out, pilot_budgets(data, names, rule), rule)
+            profile = PROFILES[args.profile]
+            write_budgets(out, pilot_budgets(data, names, profile), profile.rule)
             print((out / BUDGETS_TABLE).read_text())
             written = out / BUDGETS_FILE
         else:

@@ -260,11 +260,12 @@ def _rule_curve(run: RunData) -> Curve:
     return (steps, values / CHEST_REWARD) if no_optimum else (steps, values)
 
 
-def _job_of(run: RunData, jobs: Sequence[Job]) -> Job:
+def _job_of(run: RunData, jobs: Sequence[Job], overridden: set[str]) -> Job:
     """The sweep job a pilot run belongs to: the one whose config it matches on every key in which the
-    sweep's jobs differ (the pilot's own overrides, the same for every job, play no part)."""
+    sweep's jobs differ, but the keys the pilot sets for every job (``overridden``, e.g. ``replicas.seeds``,
+    which the methods set apart)."""
     flat = [flatten(job.config) for job in jobs]
-    differing = {key for key in set().union(*flat) if len({f.get(key) for f in flat}) > 1}
+    differing = {key for key in set().union(*flat) if len({f.get(key) for f in flat}) > 1} - overridden
     mine = flatten(run.config)
     matches = [job for job, f in zip(jobs, flat) if all(f.get(key) == mine.get(key) for key in differing)]
     if len(matches) != 1:
@@ -272,18 +273,20 @@ def _job_of(run: RunData, jobs: Sequence[Job]) -> Job:
     return matches[0]
 
 
-def pilot_budgets(pilot_data: Path, names: Sequence[str], rule: BudgetRule) -> list[GroupBudget]:
-    """Stage 3 from the pilot's raw data alone: each job's budget by ``rule``, grouped by comparison."""
+def pilot_budgets(pilot_data: Path, names: Sequence[str], profile: Profile) -> list[GroupBudget]:
+    """Stage 3 from the pilot's raw data alone: each job's budget by the profile's rule, grouped by
+    comparison."""
+    overridden = {override.split("=", 1)[0] for override in profile.pilot}
     groups: dict[tuple[str, tuple[Any, ...]], list[CellBudget]] = {}
     for name in names:
         jobs = sweep_jobs(name)
         by_job: dict[int, list[RunData]] = {}
         for run in read_data(pilot_data / f"{name}.jsonl"):
-            by_job.setdefault(_job_of(run, jobs).number, []).append(run)
+            by_job.setdefault(_job_of(run, jobs, overridden).number, []).append(run)
         missing = [job.values for job in jobs if job.number not in by_job]
         if missing:
             raise DataError(f"the pilot of v2/{name} has no runs of {missing}")
-        budgets = budgets_per_cell({n: [_rule_curve(r) for r in runs] for n, runs in by_job.items()}, rule)
+        budgets = budgets_per_cell({n: [_rule_curve(r) for r in runs] for n, runs in by_job.items()}, profile.rule)
         comparison = COMPARISONS[name]
         for job in jobs:
             cell = CellBudget(name, job.values, len(by_job[job.number]), budgets[job.number])

@@ -177,15 +177,27 @@ def difference(
     """X − Y by the registered analysis; the power is at ``alpha`` (the strictest Holm step of its family)."""
     xs, ys = paired_by_map(x, y, value)
     diffs = [a - b for a, b in zip(xs, ys)]
-    components = variance_components(diffs)
-    seeds = max(1, round(components.n_runs / components.n_maps))
-    achieved = power(SMALLEST_EFFECT, components.sigma_map, components.sigma_run, components.n_maps, seeds, rng, alpha)
     return Difference(
         label,
         paired_mean_difference(diffs, rng),
         probability_of_improvement(xs, ys, rng, paired_seeds=True),
-        achieved,
+        achieved_power(diffs, rng, alpha),
     )
+
+
+def achieved_power(diffs: Sequence[np.ndarray], rng: np.random.Generator, alpha: float) -> float:
+    """The power the design had for the smallest effect of interest, at the variance components of its own
+    paired differences (one run a map, as Double DQN's: map and run variance cannot be told apart, and all
+    of it counts as the maps'); nan with fewer than two maps."""
+    if len(diffs) < 2:
+        return math.nan
+    if all(d.size == 1 for d in diffs):
+        sigma_map, sigma_run, seeds = float(np.std([d[0] for d in diffs], ddof=1)), 0.0, 1
+    else:
+        components = variance_components(diffs)
+        sigma_map, sigma_run = components.sigma_map, components.sigma_run
+        seeds = max(1, round(components.n_runs / components.n_maps))
+    return power(SMALLEST_EFFECT, sigma_map, sigma_run, len(diffs), seeds, rng, alpha)
 
 
 def family(differences: Sequence[Difference]) -> list[Difference]:
