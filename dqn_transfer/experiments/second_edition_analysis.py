@@ -239,6 +239,7 @@ class HypothesisResult:
     secondary: list[Difference]  # Double DQN, cooperative, Holm over SECONDARY_METHODS
     verdict: str
     secondary_verdict: str
+    primary_mode: str  # the families' mode (cooperative; another game's runs carry their own)
     budgets: dict[tuple[str, str], int] = field(default_factory=dict)
 
 
@@ -289,7 +290,9 @@ def hypothesis(
                     and row.against_none is not None
                 ]
                 (primary if algorithm == "sarsa" else secondary).extend(family(members))
-    return HypothesisResult(rows, primary, secondary, family_verdict(primary), family_verdict(secondary), budgets)
+    return HypothesisResult(
+        rows, primary, secondary, family_verdict(primary), family_verdict(secondary), primary_mode, budgets
+    )
 
 
 def replicated(treasure: HypothesisResult, other: HypothesisResult) -> str:
