@@ -207,3 +207,23 @@ def test_bad_input_is_one_error_line_and_nothing_written(tmp_path, capsys, case)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: "), err
     assert (out.read_text() == "keep") if case == "existing out" else not out.exists()
+
+
+def test_the_second_editions_conditions_have_names_of_their_own():
+    from dqn_transfer.analysis.marl_eval import algorithm_name, task_name
+    from dqn_transfer.experiments.second_edition import sweep_jobs
+
+    hypothesis = {job.values["method"]: job.config for job in sweep_jobs("hypothesis")}
+    assert algorithm_name(hypothesis["double_dqn_shared_id"]) == "double_dqn+shared+id"
+    assert algorithm_name(hypothesis["double_dqn_vdn"]) == "double_dqn+vdn"
+    assert algorithm_name(hypothesis["sarsa_advice"]) == "sarsa+exchange_advice"
+    transfer = {
+        job.values["condition"]: job.config
+        for job in sweep_jobs("transfer") + sweep_jobs("transfer_aware")
+        if job.values["method"] == "sarsa_none"
+    }
+    assert algorithm_name(transfer["same_map"]) == "sarsa+transfer"
+    assert algorithm_name(transfer["same_map_own"]) == "sarsa+transfer_own"
+    assert algorithm_name(transfer["same_map_own_aware"]) == "sarsa+transfer_own+chest_aware"
+    (lbf, *_) = [job.config for job in sweep_jobs("lbf_hypothesis")]
+    assert task_name(lbf) == "lbf-map0"  # another game: its module and instance, not the treasure map's keys

@@ -82,8 +82,12 @@ def _flat(config: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
 
 def task_name(config: Mapping[str, Any]) -> str:
     """``<mode>-<K>agents-<size>x<size>-map<map_seed>[-contention_<c>]`` (``layout<hash8>`` for a fixed
-    layout; ``env.contention`` named unless ``any``, whose maps are another of the seed's)."""
+    layout; ``env.contention`` named unless ``any``, whose maps are another of the seed's); for another game
+    (``env.factory``), ``<its module>-map<map_seed>``."""
     env = config["env"]
+    if env.get("factory"):  # another game: its module's name and the instance (docs/your_own_environment.md)
+        game = str(env["factory"]).split(":")[0].rsplit(".", 1)[-1]
+        return f"{game}-map{env.get('map_seed') or 0}".lower()
     layout = env.get("layout") or env.get("layout_file")
     contention = Contention(env.get("contention") or Contention.any.value)
     where = (
@@ -95,17 +99,21 @@ def task_name(config: Mapping[str, Any]) -> str:
 
 
 def algorithm_name(config: Mapping[str, Any]) -> str:
-    """``<agent.algorithm>[+transfer][+curriculum][+exchange_<x>][+shared]``."""
+    """``<agent.algorithm>[+transfer[_own][+chest_aware]][+curriculum][+exchange_<x>][+shared[+id]][+vdn]``."""
     agent, transfer = config["agent"], config.get("transfer") or {}
     name = str(agent["algorithm"])
     if transfer.get("enabled"):
-        name += "+transfer"
+        name += "+transfer_own" if transfer.get("source_task") == "per_agent" else "+transfer"
+        if transfer.get("chest_aware"):
+            name += "+chest_aware"
     if (config.get("curriculum") or {}).get("stages"):
         name += "+curriculum"
     if transfer.get("exchange", "none") != "none":
         name += f"+exchange_{transfer['exchange']}"
     if agent.get("share_parameters"):
-        name += "+shared"
+        name += "+shared+id" if agent.get("agent_id_input") else "+shared"
+    if agent.get("mixer", "none") != "none":
+        name += f"+{agent['mixer']}"
     return name.lower()
 
 
