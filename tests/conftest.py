@@ -22,7 +22,9 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 from safetensors import safe_open
 
-from dqn_transfer.config import CONFIG_DIR, TrainConfig, register_configs
+from dqn_transfer.config import CONFIG_DIR, AgentConfig, TrainConfig, TransferConfig, register_configs
+from dqn_transfer.enums import Algorithm, Engine
+from dqn_transfer.envs.settings import EnvConfig
 
 REPO = Path(__file__).resolve().parent.parent
 TRAIN_PY = REPO / "train.py"
@@ -228,3 +230,30 @@ def assert_one_error_line(main: Callable[[list[str]], int], argv: list[str], mes
     assert exit_info.value.code == 2
     err = capsys.readouterr().err
     assert err.startswith(message) and err.count("\n") == 1
+
+
+# Warm-start tests on a hand-drawn 5x5 map with 2 agents and 2 chests: a tabular and a small numpy DQN learner.
+WARM_START_QLEARNING = AgentConfig(algorithm=Algorithm.qlearning, lr=0.5)
+WARM_START_NUMPY_DQN = AgentConfig(
+    algorithm=Algorithm.dqn, engine=Engine.numpy, hidden=[16], batch_size=16, buffer_size=500, learning_starts=20
+)
+WARM_START_PRETRAIN_STEPS = 200
+
+
+def warm_start_config(
+    cache: Path, layout: str, num_traps: int, agent: AgentConfig, env: EnvConfig | None, **transfer
+) -> TrainConfig:
+    """A run of no steps of its own that warm-starts from sources pretrained into ``cache``, on the 5x5
+    ``layout`` (or ``env``)."""
+    env = env or EnvConfig(layout=layout, size=5, num_treasures=2, num_traps=num_traps, num_agents=2, complexity=0.0)
+    return TrainConfig(
+        env=env,
+        agent=agent,
+        seed=0,
+        total_steps=0,
+        eval_episodes=1,
+        progress=False,
+        transfer=TransferConfig(
+            enabled=True, cache_dir=str(cache), pretrain_steps=WARM_START_PRETRAIN_STEPS, **transfer
+        ),
+    )

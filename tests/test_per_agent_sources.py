@@ -23,7 +23,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import agent_meta
+from conftest import (
+    WARM_START_NUMPY_DQN,
+    WARM_START_PRETRAIN_STEPS,
+    WARM_START_QLEARNING,
+    agent_meta,
+    warm_start_config,
+)
 from safetensors.numpy import load_file
 
 import dqn_transfer.sources.resolve
@@ -35,10 +41,9 @@ from dqn_transfer.config import (
     ReplicasConfig,
     StageConfig,
     TrainConfig,
-    TransferConfig,
     validate,
 )
-from dqn_transfer.enums import Algorithm, Engine, Mode, SourceTask
+from dqn_transfer.enums import Algorithm, Mode, SourceTask
 from dqn_transfer.envs.maps import generate_layout, parse_layout
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.sources.resolve import transfer_sources
@@ -52,24 +57,12 @@ MAP = "0.T..\n.....\n.....\n.....\n..T.1"
 MAP_FROM_1 = "1.T..\n.....\n.....\n.....\n..T.0"
 START = {0: 0, 1: 24}  # each agent's start cell, r * 5 + c
 CELLS, CHESTS = 25, 2
-PRETRAIN_STEPS = 200
-QLEARNING = AgentConfig(algorithm=Algorithm.qlearning, lr=0.5)
-NUMPY_DQN = AgentConfig(
-    algorithm=Algorithm.dqn, engine=Engine.numpy, hidden=[16], batch_size=16, buffer_size=500, learning_starts=20
-)
+PRETRAIN_STEPS = WARM_START_PRETRAIN_STEPS
+QLEARNING, NUMPY_DQN = WARM_START_QLEARNING, WARM_START_NUMPY_DQN
 
 
 def config(cache: Path, *, agent: AgentConfig = QLEARNING, env: EnvConfig | None = None, **transfer) -> TrainConfig:
-    env = env or EnvConfig(layout=MAP, size=5, num_treasures=2, num_traps=0, num_agents=2, complexity=0.0)
-    return TrainConfig(
-        env=env,
-        agent=agent,
-        seed=0,
-        total_steps=0,
-        eval_episodes=1,
-        progress=False,
-        transfer=TransferConfig(enabled=True, cache_dir=str(cache), pretrain_steps=PRETRAIN_STEPS, **transfer),
-    )
+    return warm_start_config(cache, MAP, 0, agent, env, **transfer)
 
 
 def entries(cache: Path) -> list[str]:

@@ -20,7 +20,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import agent_meta, read_metrics, run_many
+from conftest import (
+    WARM_START_NUMPY_DQN,
+    WARM_START_PRETRAIN_STEPS,
+    WARM_START_QLEARNING,
+    agent_meta,
+    read_metrics,
+    run_many,
+    warm_start_config,
+)
 from safetensors.numpy import load_file
 
 import dqn_transfer.sources.resolve
@@ -31,11 +39,10 @@ from dqn_transfer.config import (
     ReplicasConfig,
     StageConfig,
     TrainConfig,
-    TransferConfig,
     to_plain,
     validate,
 )
-from dqn_transfer.enums import Algorithm, Engine, Mode, RewardMode, SourceTask
+from dqn_transfer.enums import Mode, RewardMode, SourceTask
 from dqn_transfer.envs.maps import generate_layout
 from dqn_transfer.envs.settings import ENV_KEYS, EnvConfig
 from dqn_transfer.sources.resolve import source_hash, transfer_sources
@@ -46,29 +53,17 @@ from dqn_transfer.transfer.mapping import TransferError
 # Two agents, two chests (row 0 col 4, row 4 col 4), one trap (row 2 col 2), no obstacles.
 MAP = "0...T\n.....\n..X..\n.....\n1...T\n"
 PLAYED = MAP.rstrip("\n")  # the map as a run records it (no final newline)
-PRETRAIN_STEPS = 200
+PRETRAIN_STEPS = WARM_START_PRETRAIN_STEPS
 SHIFT = 1000
 # A generated map: 5x5, 2 chests, 1 trap, 2 agents, no obstacles, map seed 3 (the shifted source: 1003).
 GENERATED = dict(size=5, num_treasures=2, num_traps=1, num_agents=2, complexity=0.0)
 MAP_SEED = 3
 PRETRAINING = "transfer: pretraining"
-QLEARNING = AgentConfig(algorithm=Algorithm.qlearning, lr=0.5)
-NUMPY_DQN = AgentConfig(
-    algorithm=Algorithm.dqn, engine=Engine.numpy, hidden=[16], batch_size=16, buffer_size=500, learning_starts=20
-)
+QLEARNING, NUMPY_DQN = WARM_START_QLEARNING, WARM_START_NUMPY_DQN
 
 
 def config(cache: Path, *, agent: AgentConfig = QLEARNING, env: EnvConfig | None = None, **transfer) -> TrainConfig:
-    env = env or EnvConfig(layout=MAP, size=5, num_treasures=2, num_traps=1, num_agents=2, complexity=0.0)
-    return TrainConfig(
-        env=env,
-        agent=agent,
-        seed=0,
-        total_steps=0,
-        eval_episodes=1,
-        progress=False,
-        transfer=TransferConfig(enabled=True, cache_dir=str(cache), pretrain_steps=PRETRAIN_STEPS, **transfer),
-    )
+    return warm_start_config(cache, MAP, 1, agent, env, **transfer)
 
 
 def generated(map_seed: int = MAP_SEED, **env) -> EnvConfig:

@@ -4,6 +4,7 @@
     python -m dqn_transfer.cli.tune --out /tmp/t --profile quick        # smoke run: 46 s of CPU, NOT evidence
     python -m dqn_transfer.cli.tune --out tuning --only sarsa_best double_dqn_best
     python -m dqn_transfer.cli.tune --out tuning --report-only          # tuned.yaml, table, figure from tuning.jsonl
+    python -m dqn_transfer.cli.tune --out tuning --apply                # tuned.yaml into conf/tuned/ (the methods')
 
 Each search is ``python -m dqn_transfer.cli.train -m experiment=tune/<learner>_<method>`` into
 ``OUT/runs/<learner>_<method>/`` (its log in ``OUT/logs/``); ``--parallel`` searches run at once, each
@@ -22,7 +23,7 @@ from pathlib import Path
 from dqn_transfer.analysis.tuning import TuningError
 from dqn_transfer.cli.console import OneLineErrors, exit_with
 from dqn_transfer.experiments.sweeps import ReproduceError
-from dqn_transfer.experiments.tuning import PROFILES, SEARCHES, TRIALS_FILE, analyse, search_named, tune
+from dqn_transfer.experiments.tuning import PROFILES, SEARCHES, TRIALS_FILE, analyse, apply_tuned, search_named, tune
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -43,12 +44,22 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--parallel", type=int, default=2, help="searches at once (default 2, one per core)")
     parser.add_argument("--report-only", action="store_true", help=f"no training: analyse OUT/{TRIALS_FILE} as it is")
+    parser.add_argument(
+        "--apply",
+        action="store_true",
+        help="no training: write OUT/tuned.yaml's values into dqn_transfer/conf/tuned/, which the methods compose",
+    )
     args = parser.parse_args(argv)
     if args.parallel < 1:
         parser.error(f"--parallel must be >= 1, got {args.parallel}")
     try:
         searches = [search_named(name) for name in dict.fromkeys(args.only)]
-        written = analyse(args.out) if args.report_only else tune(searches, args.profile, args.out, args.parallel)
+        if args.apply:
+            written = apply_tuned(args.out)
+        elif args.report_only:
+            written = analyse(args.out)
+        else:
+            written = tune(searches, args.profile, args.out, args.parallel)
     except (TuningError, ReproduceError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 1

@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import yaml
 from hydra import compose, initialize_config_dir
@@ -45,6 +46,7 @@ from dqn_transfer.storage.run_dir import RunDir
 
 TRIALS_FILE, TUNED_FILE, TABLE_FILE, FIGURE_FILE = "tuning.jsonl", "tuned.yaml", "tuning.md", "tuning_sensitivity.png"
 TUNE_GROUP = "tune"  # dqn_transfer/conf/experiment/tune/
+TUNED_GROUP = "tuned"  # dqn_transfer/conf/tuned/<learner>_<method>.yaml: the chosen values, which conf/method/ composes
 # The quick profile: two trials of tiny runs on two tuning maps per search, to check the pipeline (not
 # evidence: 300 steps teach a team next to nothing).
 PROFILES: dict[str, tuple[str, ...]] = {
@@ -201,3 +203,44 @@ def tune(searches: Sequence[Search], profile: str, out: Path, parallel: int) -> 
     run_searches(searches, profile, out, parallel)
     write_trials(out / TRIALS_FILE, collect_trials(searches, out))
     return analyse(out)
+
+
+def tuned_options(tuned: dict[str, dict[str, dict[str, Any]]]) -> dict[str, str]:
+    """The text of each ``conf/tuned/<learner>_<method>.yaml`` from ``tuned.yaml``'s tree (learner -> method
+    -> dotted key -> value): the values as a config's nested keys."""
+    options = {}
+    for learner, methods in tuned.items():
+        for method, params in methods.items():
+            tree: dict[str, Any] = {}
+            for key, value in params.items():
+                *groups, leaf = key.split(".")
+                node = tree
+                for group in groups:
+                    node = node.setdefault(group, {})
+                node[leaf] = value
+            options[f"{learner}_{method}"] = (
+                "# @package _global_\n"
+                f"# {learner} x {method}: the values the tuning chose (the study's second edition, stage 2:\n"
+                "# results/tuning/tuned.yaml, written here by python -m dqn_transfer.cli.tune --apply).\n"
+                + yaml.safe_dump(tree, sort_keys=True)
+            )
+    return options
+
+
+def apply_tuned(out: Path, conf_dir: Path = CONFIG_DIR) -> list[Path]:
+    """Write ``OUT/tuned.yaml``'s values as ``conf_dir/tuned/<learner>_<method>.yaml``, each file whole; the
+    methods (``conf/method/<learner>_<method>.yaml``) compose them."""
+    path = out / TUNED_FILE
+    try:
+        tuned = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as err:
+        raise TuningError(f"{path}: cannot read the tuned values ({err})") from None
+    if not isinstance(tuned, dict):
+        raise TuningError(f"{path}: not a tuned.yaml (learner -> method -> values)")
+    written = []
+    for name, text in tuned_options(tuned).items():
+        target = conf_dir / TUNED_GROUP / f"{name}.yaml"
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_text(text)
+        written.append(target)
+    return written
