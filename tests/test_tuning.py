@@ -11,12 +11,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from conftest import compose_config
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
+from dqn_transfer.analysis.tuning import TuningError
 from dqn_transfer.cli import tune
 from dqn_transfer.config import CONFIG_DIR, register_configs
+from dqn_transfer.experiments.tuning import apply_tuned
 
+ROOT = Path(__file__).resolve().parents[1]
 EVALUATION_MAPS = range(100)  # the study evaluates on map seeds 0 .. N-1, N up to ~100
 # The protocol's search spaces, written out from the brief: each learner's step size plus its method's own keys.
 STRENGTH_KEYS = {
@@ -258,3 +262,28 @@ def test_a_missing_jsonl_and_an_unknown_search_are_one_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("error: unknown search 'sarsa_experience' (choose from sarsa_none,") and err.count("\n") == 1
     assert list(tmp_path.iterdir()) == []
+
+
+def test_apply_writes_each_searchs_chosen_values_as_the_methods_tuned_option(tmp_path, capsys):
+    (tmp_path / "tuned.yaml").write_text(
+        "sarsa:\n  best: {agent.lr: 0.25, transfer.exchange_tau: 0.5, transfer.exchange_every: 7}\n"
+        "double_dqn:\n  shared_id: {agent.lr: 0.0003}\n"
+    )
+    written = apply_tuned(tmp_path, tmp_path / "conf")
+    assert sorted(p.name for p in written) == ["double_dqn_shared_id.yaml", "sarsa_best.yaml"]
+    sarsa = yaml.safe_load((tmp_path / "conf" / "tuned" / "sarsa_best.yaml").read_text())
+    assert sarsa == {"agent": {"lr": 0.25}, "transfer": {"exchange_every": 7, "exchange_tau": 0.5}}
+    (tmp_path / "tuned.yaml").write_text("[1, 2]")
+    with pytest.raises(TuningError, match="not a tuned.yaml"):
+        apply_tuned(tmp_path, tmp_path / "conf")
+
+
+def test_the_studys_methods_compose_the_committed_tuned_values():
+    """results/tuning/tuned.yaml (stage 2, committed) is what every method of the second edition runs with."""
+    tuned = yaml.safe_load((ROOT / "results" / "tuning" / "tuned.yaml").read_text())
+    for learner, methods in tuned.items():
+        for method, params in methods.items():
+            config = compose_config("experiment=v2/hypothesis", f"method={learner}_{method}")
+            for key, value in params.items():
+                group, leaf = key.split(".")
+                assert getattr(getattr(config, group), leaf) == pytest.approx(value), (learner, method, key)
