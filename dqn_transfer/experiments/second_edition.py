@@ -26,6 +26,7 @@ import itertools
 import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -149,9 +150,11 @@ def _composed(experiment: str, overrides: Sequence[str] = (), hydra_config: bool
         )
 
 
-def sweep_jobs(name: str) -> list[Job]:
+@cache
+def sweep_jobs(name: str) -> tuple[Job, ...]:
     """The jobs of ``experiment=v2/<name>``'s sweep, numbered as Hydra's basic sweeper numbers them (the
-    product of the swept values, the last key varying fastest)."""
+    product of the swept values, the last key varying fastest); composed once per process (a config is
+    composed in about 0.2 s)."""
     experiment = f"{GROUP}/{name}"
     sweeper = _composed(experiment, hydra_config=True).hydra.sweeper
     params = {key: str(value) for key, value in (sweeper.params or {}).items()}
@@ -168,7 +171,7 @@ def sweep_jobs(name: str) -> list[Job]:
     for number, combination in enumerate(itertools.product(*swept.values())):
         values = dict(zip(swept, combination))
         jobs.append(Job(number, values, to_plain(_composed(experiment, [f"{k}={v}" for k, v in values.items()]))))
-    return jobs
+    return tuple(jobs)
 
 
 def sweep_groups(name: str) -> dict[tuple[Any, ...], list[Job]]:
