@@ -161,10 +161,12 @@ def test_the_report_is_regenerated_byte_for_byte(tmp_path):
     runs = _runs(lambda m, s: 0.5 + 0.02 * m - 0.01 * s, exchange="none")
     runs += _runs(lambda m, s: 0.55 + 0.02 * m, exchange="shared_replay")
     write_data(tmp_path / "data" / "hypothesis.jsonl", runs)
-    write_manifest(tmp_path / "data", {"profile": "full", "commit": "abc1234", "rules_commit": "def5678 2026-12-03"})
+    made = {"profile": "full", "commit": "abc1234", "date": "2026-12-03", "runs": 36, "wall_seconds": 90.0}
+    write_manifest(tmp_path / "data", {"rules_commit": "def5678 2026-12-03", "experiments": {"hypothesis": made}})
     report = write_report(tmp_path)
     first, figure = report.read_bytes(), (tmp_path / "hypothesis.png").read_bytes()
     text = first.decode()
     assert "| Main hypothesis (SARSA, cooperative) | **SUPPORTED** |" in text
     assert "tagged `study-v2-rules` at def5678 2026-12-03" in text and "SMOKE RUN" not in text
+    assert "| hypothesis | 36 | 2026-12-03 | full | abc1234 | ? | 1.5 min |" in text
     assert write_report(tmp_path).read_bytes() == first and (tmp_path / "hypothesis.png").read_bytes() == figure

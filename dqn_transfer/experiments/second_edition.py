@@ -354,15 +354,16 @@ def read_budgets(path: Path) -> dict[tuple[str, tuple[Any, ...]], int]:
 
 
 def run_full(names: Sequence[str], profile: str, out: Path, budgets_file: Path, launcher: str, n_jobs: int) -> Path:
-    """Stage 4: each comparison group as one multirun at its budget, then each experiment's raw data and the
-    manifest (profile, code commit, the rules' tag commit, machine, wall times); returns ``OUT/data``."""
+    """Stage 4: each comparison group as one multirun at its budget, then each experiment's raw data and its
+    record in the manifest (profile, code commit, machine, date, wall time, runs; beside the rules' tag commit);
+    returns ``OUT/data``."""
     budgets = read_budgets(budgets_file)
     settings = PROFILES[profile]
     data_dir = out / DATA_DIR
-    walls: dict[str, float] = {}
+    made: dict[str, dict[str, Any]] = {}
     for name in names:
         runs: list[RunData] = []
-        walls[name] = 0.0
+        wall = 0.0
         for key, jobs in sweep_groups(name).items():
             comparison = COMPARISONS[name].name
             if (comparison, key) not in budgets:
@@ -376,21 +377,25 @@ def run_full(names: Sequence[str], profile: str, out: Path, budgets_file: Path, 
             sweep_dir = out / RUNS_DIR / name / group_label(key)
             stamp = {"experiment": f"{GROUP}/{name}", "stage": "full", "profile": profile, "overrides": list(overrides)}
             multirun = Multirun(f"{name}-{group_label(key)}", f"{GROUP}/{name}", overrides, sweep_dir, len(jobs), stamp)
-            walls[name] += run_multirun(multirun, out, launcher, n_jobs)
+            wall += run_multirun(multirun, out, launcher, n_jobs)
             runs += [
                 dataclasses.replace(run, name=f"{group_label(key)}/{run.name}") for run in export_sweep(sweep_dir, name)
             ]
         write_data(data_dir / f"{name}.jsonl", runs)
-    previous = read_manifest(data_dir)  # experiments run before (--only) keep their record
+        made[name] = {
+            "profile": profile,
+            "commit": code_commit(),
+            "machine": machine(),
+            "date": _dt.date.today().isoformat(),
+            "wall_seconds": round(wall, 1),
+            "runs": len(runs),
+        }
+    previous = read_manifest(data_dir)  # experiments run before (--only, another session) keep their record
     write_manifest(
         data_dir,
         {
-            "profile": profile,
-            "commit": code_commit(),
             "rules_commit": git_output("log", "-1", "--format=%h %cs", RULES_TAG) or "not tagged",
-            "machine": machine(),
-            "date": _dt.date.today().isoformat(),
-            "wall_seconds": {**previous.get("wall_seconds", {}), **{k: round(v, 1) for k, v in walls.items()}},
+            "experiments": {**previous.get("experiments", {}), **made},
         },
     )
     return data_dir

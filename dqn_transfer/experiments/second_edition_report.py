@@ -274,7 +274,8 @@ def write_report(results: Path) -> Path:
     if not any(runs.values()):
         raise DataError(f"{data} holds no data of {', '.join(EXPERIMENTS)}")
     manifest = read_manifest(data)
-    smoke = manifest.get("profile") != "full"
+    made = manifest.get("experiments", {})
+    smoke = any(record.get("profile") != "full" for record in made.values()) or not made
     watermark = SMOKE if smoke else None
     rng = np.random.default_rng(0)
     summary: list[tuple[str, str]] = []
@@ -316,12 +317,18 @@ def write_report(results: Path) -> Path:
             if smoke
             else []
         ),
-        f"Data: `{DATA_DIR}/` beside this report, made on {manifest.get('date', '?')} with the "
-        f"`{manifest.get('profile', '?')}` profile by code {manifest.get('commit', '?')} on "
-        f"{manifest.get('machine', '?')}. Verdict rules: `{RULES}`, tagged `{TAG}` at "
+        f"Data: `{DATA_DIR}/` beside this report. Verdict rules: `{RULES}`, tagged `{TAG}` at "
         f"{manifest.get('rules_commit', '?')}, before any of these runs. Intervals are 95% hierarchical-bootstrap "
         f"intervals over maps (maps, then runs within maps); p-values are two-sided bootstrap p; a family's are "
         f"Holm-adjusted at {ALPHA:g}.",
+        "",
+        "| experiment | runs | made on | profile | by code | on | wall time |",
+        "|---|---:|---|---|---|---|---:|",
+        *[
+            f"| {name} | {r.get('runs', '?')} | {r.get('date', '?')} | {r.get('profile', '?')} "
+            f"| {r.get('commit', '?')} | {r.get('machine', '?')} | {float(r.get('wall_seconds', 0)) / 60:.1f} min |"
+            for name, r in made.items()
+        ],
         "",
         "| question | verdict |",
         "|---|---|",
