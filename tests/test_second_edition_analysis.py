@@ -169,4 +169,5 @@ def test_the_report_is_regenerated_byte_for_byte(tmp_path):
     assert "| Main hypothesis (SARSA, cooperative) | **SUPPORTED** |" in text
     assert "tagged `study-v2-rules` at def5678 2026-12-03" in text and "SMOKE RUN" not in text
     assert "| hypothesis | 36 | 2026-12-03 | full | abc1234 | ? | 1.5 min |" in text
+    assert "**Not yet run**: lbf_hypothesis, claim1, claim2, transfer, transfer_aware;" in text
     assert write_report(tmp_path).read_bytes() == first and (tmp_path / "hypothesis.png").read_bytes() == figure

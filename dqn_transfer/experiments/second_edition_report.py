@@ -309,6 +309,7 @@ def write_report(results: Path) -> Path:
         result3 = claim3(runs["transfer"] + runs["transfer_aware"], rng)
         body += claim3_section(result3)
         summary.append(("Claim 3", result3.verdict))
+    missing = [name for name in EXPERIMENTS if not runs[name]]
     header = [
         "# The study, second edition: knowledge exchange, cooperation and transfer",
         "",
@@ -317,6 +318,7 @@ def write_report(results: Path) -> Path:
             if smoke
             else []
         ),
+        *([f"> **Not yet run**: {', '.join(missing)}; their questions have no verdict yet.", ""] if missing else []),
         f"Data: `{DATA_DIR}/` beside this report. Verdict rules: `{RULES}`, tagged `{TAG}` at "
         f"{manifest.get('rules_commit', '?')}, before any of these runs. Intervals are 95% hierarchical-bootstrap "
         f"intervals over maps (maps, then runs within maps); p-values are two-sided bootstrap p; a family's are "
