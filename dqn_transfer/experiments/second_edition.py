@@ -110,8 +110,7 @@ class Comparison:
     """Which of an experiment's jobs share a budget: those with the same :attr:`key` of their config."""
 
     name: str  # the comparison (transfer and transfer_aware are one: their conditions are compared)
-    columns: tuple[str, ...]
-    key: Callable[[dict[str, Any]], tuple[Any, ...]]
+    key: Callable[[dict[str, Any]], tuple[Any, ...]]  # e.g. (learner, mode) for the hypothesis
 
 
 def _learner(config: dict[str, Any]) -> tuple[Any, ...]:
@@ -119,12 +118,12 @@ def _learner(config: dict[str, Any]) -> tuple[Any, ...]:
 
 
 COMPARISONS = {
-    "hypothesis": Comparison("hypothesis", ("learner", "mode"), lambda c: (*_learner(c), c["env"]["mode"])),
-    "lbf_hypothesis": Comparison("lbf_hypothesis", ("learner",), _learner),
-    "claim1": Comparison("claim1", (), lambda c: ()),
-    "claim2": Comparison("claim2", ("m", "contention"), lambda c: (c["env"]["num_agents"], c["env"]["contention"])),
-    "transfer": Comparison("transfer", ("learner",), _learner),
-    "transfer_aware": Comparison("transfer", ("learner",), _learner),
+    "hypothesis": Comparison("hypothesis", lambda c: (*_learner(c), c["env"]["mode"])),
+    "lbf_hypothesis": Comparison("lbf_hypothesis", _learner),
+    "claim1": Comparison("claim1", lambda c: ()),
+    "claim2": Comparison("claim2", lambda c: (c["env"]["num_agents"], c["env"]["contention"])),  # m, contention
+    "transfer": Comparison("transfer", _learner),
+    "transfer_aware": Comparison("transfer", _learner),
 }
 
 

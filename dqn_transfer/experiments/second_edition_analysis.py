@@ -38,8 +38,8 @@ from dqn_transfer.envs.game import make_game
 from dqn_transfer.envs.settings import ENV_KEYS
 from dqn_transfer.evaluation.bounds import evaluate_bound
 from dqn_transfer.experiments.raw_data import RunData
+from dqn_transfer.experiments.scoring import FINAL_TAIL, learner, mode, team_size
 
-FINAL_TAIL = 0.2  # final performance: the mean of a run's last 20% of evaluations
 FAILURE_BELOW = 0.5  # a run fails when its final score is under half the optimal return
 SMALLEST_EFFECT = 0.10  # in final score: the registered smallest effect of interest
 ALPHA = 0.05  # family-wise, Holm
@@ -53,14 +53,6 @@ RunValue = Callable[[RunData], float]
 
 
 # ------------------------------------------------------------------------------------------- conditions
-
-
-def learner(run: RunData) -> str:
-    return str(run.config["agent"]["algorithm"])
-
-
-def mode(run: RunData) -> str:
-    return str(run.config["env"]["mode"])
 
 
 def method(run: RunData) -> str:
@@ -342,10 +334,6 @@ MODE_PAIRS = (("deliberative", "cooperative"), ("cooperative", "competitive"))
 
 def contention(run: RunData) -> str:
     return str(run.config["env"].get("contention", "any"))
-
-
-def team_size(run: RunData) -> int:
-    return int(run.config["env"]["num_agents"])
 
 
 @dataclass(frozen=True)
