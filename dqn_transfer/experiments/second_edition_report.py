@@ -2,8 +2,8 @@
 
 It reads ``data/<experiment>.jsonl`` and ``data/manifest.json`` (the full runs), ``budgets.md`` (the pilot's
 budgets) and ``tuning/tuning.md`` (the tuning's chosen values), answers each question by
-:mod:`dqn_transfer.experiments.second_edition_analysis` with one random stream seeded 0, and writes the report
-beside them; nothing else is read (no clock, no checkout), so the same data give the same bytes.
+:mod:`dqn_transfer.experiments.second_edition_analysis` with its own seeded random stream (:func:`stream`), and
+writes the report beside them; nothing else is read (no clock, no checkout), so the same data give the same bytes.
 """
 
 from __future__ import annotations
@@ -267,6 +267,12 @@ def _include(path: Path) -> list[str]:
     return path.read_text().rstrip("\n").splitlines() + [""] if path.exists() else [f"({path.name} is missing)", ""]
 
 
+def stream(question: str) -> np.random.Generator:
+    """A question's own random stream, seeded by its experiment's place in :data:`EXPERIMENTS`: its digits do
+    not change when another question's data arrive."""
+    return np.random.default_rng([0, EXPERIMENTS.index(question)])
+
+
 def write_report(results: Path) -> Path:
     """``results/REPORT.md`` and its figures from ``results/data/`` (and the budgets and tuning beside it)."""
     data = results / DATA_DIR
@@ -277,12 +283,11 @@ def write_report(results: Path) -> Path:
     made = manifest.get("experiments", {})
     smoke = any(record.get("profile") != "full" for record in made.values()) or not made
     watermark = SMOKE if smoke else None
-    rng = np.random.default_rng(0)
     summary: list[tuple[str, str]] = []
     body: list[str] = []
     treasure = None
     if runs["hypothesis"]:
-        treasure = hypothesis(runs["hypothesis"], rng)
+        treasure = hypothesis(runs["hypothesis"], stream("hypothesis"))
         hypothesis_figure(treasure, results / "hypothesis.png", watermark)
         body += hypothesis_section(
             treasure, "Main hypothesis: a group that exchanges knowledge learns better", "hypothesis.png"
@@ -290,23 +295,23 @@ def write_report(results: Path) -> Path:
         summary.append(("Main hypothesis (SARSA, cooperative)", treasure.verdict))
         summary.append(("Main hypothesis, secondary (Double DQN, cooperative)", treasure.secondary_verdict))
     if runs["lbf_hypothesis"]:
-        lbf = hypothesis(runs["lbf_hypothesis"], rng, primary_mode=mode(runs["lbf_hypothesis"][0]))
+        lbf = hypothesis(runs["lbf_hypothesis"], stream("lbf_hypothesis"), primary_mode=mode(runs["lbf_hypothesis"][0]))
         hypothesis_figure(lbf, results / "lbf_hypothesis.png", watermark)
         body += hypothesis_section(lbf, "Replication on Level-Based Foraging", "lbf_hypothesis.png")
         summary.append(("Main hypothesis on Level-Based Foraging", lbf.verdict))
         if treasure is not None:
             summary.append(("Replication", replicated(treasure, lbf)))
     if runs["claim1"]:
-        result1 = claim1(runs["claim1"], rng)
+        result1 = claim1(runs["claim1"], stream("claim1"))
         body += claim1_section(result1)
         summary.append(("Claim 1", result1.verdict))
     if runs["claim2"]:
-        result2 = claim2(runs["claim2"], rng)
+        result2 = claim2(runs["claim2"], stream("claim2"))
         claim2_figure(result2, results / "claim2.png", watermark)
         body += claim2_section(result2, "claim2.png")
         summary.append(("Claim 2", result2.verdict))
     if runs["transfer"] or runs["transfer_aware"]:
-        result3 = claim3(runs["transfer"] + runs["transfer_aware"], rng)
+        result3 = claim3(runs["transfer"] + runs["transfer_aware"], stream("transfer"))
         body += claim3_section(result3)
         summary.append(("Claim 3", result3.verdict))
     missing = [name for name in EXPERIMENTS if not runs[name]]
