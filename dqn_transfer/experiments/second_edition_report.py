@@ -46,6 +46,7 @@ TAG = "study-v2-rules"
 TUNING_TABLE = Path("tuning") / "tuning.md"
 TUNING_FIGURE = Path("tuning") / "tuning_sensitivity.png"
 SMOKE = "SMOKE RUN - not evidence"
+GREEDY = "greedy, "  # the label prefix of a mode's greedy team in claim 2's figure
 
 
 def fmt(e: Estimate, digits: int = 3) -> str:
@@ -223,9 +224,13 @@ def claim2_figure(result: Claim2Result, path: Path, watermark: str | None) -> No
             if cell.contention == level:
                 for name, summary in cell.modes.items():
                     series.setdefault(name, {})[cell.m] = summary.mean
-                    series.setdefault(f"greedy, {name}", {})[cell.m] = result.floors[(level, cell.m, name)]
+                    series.setdefault(f"{GREEDY}{name}", {})[cell.m] = result.floors[(level, cell.m, name)]
         panels.append((f"final score, {level} contention", series))
-    errorbar_figure(path, panels, "agents = chests = traps (10x10 maps)", "Growing the team", COLORS.get, watermark)
+
+    def color(label: str) -> str | None:  # a mode's greedy team in the mode's colour
+        return COLORS.get(label.removeprefix(GREEDY))
+
+    errorbar_figure(path, panels, "agents = chests = traps (10x10 maps)", "Growing the team", color, watermark)
 
 
 def claim3_section(result: Claim3Result) -> list[str]:
