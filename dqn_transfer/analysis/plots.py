@@ -243,6 +243,14 @@ def curves_figure(
     return _save(fig, path, dpi=110, watermark=watermark)
 
 
+def _whiskers(estimates: Sequence[Estimate]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(means, lows, highs)`` of estimates; an estimate without an interval is a bare point."""
+    means = np.array([e.mean for e in estimates])
+    lows = np.array([e.low if e.has_ci else e.mean for e in estimates])
+    highs = np.array([e.high if e.has_ci else e.mean for e in estimates])
+    return means, lows, highs
+
+
 def errorbar_figure(
     path: Path,
     panels: list[tuple[str, dict[str, dict[int, Estimate]]]],
@@ -265,9 +273,7 @@ def errorbar_figure(
             if not points:
                 continue
             xs, est = list(points), list(points.values())
-            means = np.array([e.mean for e in est])
-            lows = np.array([e.low if e.has_ci else e.mean for e in est])
-            highs = np.array([e.high if e.has_ci else e.mean for e in est])
+            means, lows, highs = _whiskers(est)
             n = "/".join(sorted({str(e.n) for e in est}))
             offset = 0.08 * (index - (len(series) - 1) / 2)
             ax.errorbar(
@@ -311,10 +317,7 @@ def dot_whisker_figure(
         for index, (label, points) in enumerate(series.items()):
             offset = 0.15 * (index - (len(series) - 1) / 2)
             rows = [categories.index(c) + offset for c in points]
-            est = list(points.values())
-            means = np.array([e.mean for e in est])
-            lows = np.array([e.low if e.has_ci else e.mean for e in est])
-            highs = np.array([e.high if e.has_ci else e.mean for e in est])
+            means, lows, highs = _whiskers(list(points.values()))
             ax.errorbar(
                 means,
                 rows,
