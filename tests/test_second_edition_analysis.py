@@ -9,6 +9,7 @@ import pytest
 
 from dqn_transfer.analysis.hierarchical import MeanDifference
 from dqn_transfer.analysis.stats import Estimate
+from dqn_transfer.cli import report as report_cli
 from dqn_transfer.experiments.raw_data import RunData, write_data, write_manifest
 from dqn_transfer.experiments.second_edition import sweep_jobs
 from dqn_transfer.experiments.second_edition_analysis import (
@@ -176,15 +177,23 @@ def test_the_report_is_regenerated_byte_for_byte(tmp_path):
     assert write_report(tmp_path).read_bytes() == first and (tmp_path / "hypothesis.png").read_bytes() == figure
 
 
-def test_the_committed_second_edition_report_is_regenerated_from_the_committed_data(tmp_path):
-    # results/REPORT.md is what `python -m dqn_transfer.cli.second_edition report` writes from results/data/,
-    # results/budgets.md and results/tuning/ alone, byte for byte.
+def test_the_committed_second_edition_report_is_regenerated_from_the_committed_data(tmp_path, capsys):
+    # results/REPORT.md is what `dqn-transfer-report results` writes from results/data/, results/budgets.md and
+    # results/tuning/ alone, byte for byte.
     results = Path(__file__).resolve().parents[1] / "results"
+    study = tmp_path / "study"
     for part in ("data", "tuning"):
-        shutil.copytree(results / part, tmp_path / part, ignore=shutil.ignore_patterns("runs", "logs"))
-    shutil.copy(results / "budgets.md", tmp_path / "budgets.md")
-    report = write_report(tmp_path)
-    assert report.read_text() == (results / "REPORT.md").read_text()
-    for figure in tmp_path.glob("*.png"):
+        shutil.copytree(results / part, study / part, ignore=shutil.ignore_patterns("runs", "logs"))
+    shutil.copy(results / "budgets.md", study / "budgets.md")
+    assert report_cli.main([str(study)]) == 0
+    assert f"wrote {study / 'REPORT.md'}" in capsys.readouterr().out
+    assert (study / "REPORT.md").read_text() == (results / "REPORT.md").read_text()
+    figures = sorted(study.glob("*.png"))
+    for figure in figures:
         assert figure.read_bytes() == (results / figure.name).read_bytes(), figure.name
+    # Elsewhere (--out): the same report, its link to the tuning figure pointing back into the study.
+    assert report_cli.main([str(study), "--out", str(tmp_path / "elsewhere")]) == 0
+    text = (tmp_path / "elsewhere" / "REPORT.md").read_text()
+    assert text == (results / "REPORT.md").read_text().replace("](tuning/", "](../study/tuning/")
+    assert sorted(p.name for p in (tmp_path / "elsewhere").glob("*.png")) == [p.name for p in figures]
     assert sum(p.stat().st_size for p in (results / "data").iterdir()) < 50 * 2**20  # the limit, all data

@@ -1,15 +1,17 @@
-"""The study's first edition: run its experiments, keep their raw data, and write ``REPORT.md`` with its
-figures (the second edition's registered rules: ``results/VERDICT_RULES.md``).
+"""The study's report again from its data, for either edition; and the first edition's runs.
 
     python scripts/reproduce.py --profile quick --out /tmp/study      # smoke run: minutes, NOT evidence
     python scripts/reproduce.py --profile full --out results/v1       # the evidence: 9 min on 2 cores
     dqn-transfer-report results/v1 --out /tmp/report                  # the report again from its data/,
                                                                       # no training, under a minute
+    dqn-transfer-report results                                       # the second edition's, in place
     python scripts/reproduce.py --out results/v1 --report-only          # re-export OUT/runs/ and report
     python scripts/reproduce.py --profile full --out results/v1 --launcher submitit_slurm \\
         --extra hydra.launcher.partition=PART --extra hydra.launcher.timeout_min=60
 
-(``dqn-transfer-report`` and ``python -m dqn_transfer.cli.report`` are the same program.) Each
+(``dqn-transfer-report`` and ``python -m dqn_transfer.cli.report`` are the same program.) A results directory
+holding ``budgets.md`` is the second edition's (``results/``, rules in ``results/VERDICT_RULES.md``; its runs:
+``python -m dqn_transfer.cli.second_edition``), any other the first edition's. The first edition: each
 experiment is one Hydra multirun of ``python -m dqn_transfer.cli.train -m experiment=<name>``
 (``dqn_transfer/conf/experiment/``) into ``OUT/runs/<name>/``; ``--launcher joblib`` (the default, from the
 ``sweep`` extra) runs ``--n-jobs`` jobs at a time. The runs' evaluations are then exported to
@@ -30,13 +32,22 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 from dqn_transfer.analysis.runs import skipped_runs_on_stderr
-from dqn_transfer.experiments.raw_data import DATA_DIR, DataError
+from dqn_transfer.cli.console import run_study_command
+from dqn_transfer.experiments.raw_data import DATA_DIR
 from dqn_transfer.experiments.report import export_data, write_report
-from dqn_transfer.experiments.sweeps import EXPERIMENTS, PROFILES, ReproduceError, choose_launcher, run_experiment
+from dqn_transfer.experiments.second_edition import BUDGETS_TABLE
+from dqn_transfer.experiments.second_edition_report import write_report as second_edition_report
+from dqn_transfer.experiments.sweeps import (
+    EXPERIMENTS,
+    PROFILES,
+    ReproduceError,
+    choose_launcher,
+    chosen_experiments,
+    run_experiment,
+)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -79,45 +90,39 @@ def main(argv: list[str] | None = None) -> int:
         help="run nothing: export the runs already in OUT/runs/ and write the report",
     )
     args = parser.parse_args(argv)
-    start = time.perf_counter()
-    try:
-        if args.results is not None:
-            data = args.results.expanduser() / DATA_DIR
-            if not data.is_dir():
-                raise ReproduceError(f"{args.results} has no {DATA_DIR}/ directory of run data")
-            report = write_report(data, (args.out or args.results).expanduser())
+    if args.results is None and args.out is None:
+        parser.error("give a results directory to report on, or --out to run the study into")
+    return run_study_command(lambda: _report(args))
+
+
+def _report(args: argparse.Namespace) -> Path:
+    """The report of ``args.results`` (either edition), or the first edition's runs into ``args.out`` and
+    their report; prints the report's verdict lines."""
+    if args.results is not None:
+        results = args.results.expanduser()
+        if not (results / DATA_DIR).is_dir():
+            raise ReproduceError(f"{args.results} has no {DATA_DIR}/ directory of run data")
+        out = (args.out or args.results).expanduser()
+        if (results / BUDGETS_TABLE).is_file():
+            report = second_edition_report(results, out)
         else:
-            if args.out is None:
-                parser.error("give a results directory to report on, or --out to run the study into")
-            only = [name.strip() for name in args.only.split(",") if name.strip()]
-            unknown = [name for name in only if name not in EXPERIMENTS]
-            if unknown:
-                raise ReproduceError(
-                    f"--only: unknown experiment(s) {', '.join(unknown)} (choose from {', '.join(EXPERIMENTS)})"
-                )
-            if args.n_jobs < 1:
-                raise ReproduceError(f"--n-jobs must be >= 1, got {args.n_jobs}")
-            launcher = None if args.report_only else choose_launcher(args.launcher)  # refused before anything runs
-            out = args.out.expanduser().resolve()
-            out.mkdir(parents=True, exist_ok=True)
-            if launcher is not None:  # None with --report-only
-                print(f"profile {args.profile}: {PROFILES[args.profile].description}", flush=True)
-                for name in only:
-                    run_experiment(name, args.profile, out, launcher, args.n_jobs, args.extra)
-            with skipped_runs_on_stderr():
-                data = export_data(out)
-            report = write_report(data, out)
-    except (ReproduceError, DataError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
-    print(f"wrote {report} ({time.perf_counter() - start:.0f} s in total)")
+            report = write_report(results / DATA_DIR, out)
+    else:
+        only = chosen_experiments(args.only, EXPERIMENTS, args.n_jobs)
+        launcher = None if args.report_only else choose_launcher(args.launcher)  # refused before anything runs
+        out = args.out.expanduser().resolve()
+        out.mkdir(parents=True, exist_ok=True)
+        if launcher is not None:  # None with --report-only
+            print(f"profile {args.profile}: {PROFILES[args.profile].description}", flush=True)
+            for name in only:
+                run_experiment(name, args.profile, out, launcher, args.n_jobs, args.extra)
+        with skipped_runs_on_stderr():
+            data = export_data(out)
+        report = write_report(data, out)
     for line in report.read_text().splitlines():
         if line.startswith("| ") and "**" in line:
             print("  " + line)
-    return 0
+    return report
 
 
 if __name__ == "__main__":

@@ -3,7 +3,7 @@
     python -m dqn_transfer.cli.tune --out results/tuning --profile full           # stage 2: tuning
     python -m dqn_transfer.cli.second_edition pilot --out results                 # stage 3: pilots, budgets
     python -m dqn_transfer.cli.second_edition full --out results                  # stage 4: the evidence, report
-    python -m dqn_transfer.cli.second_edition report --out results                # stage 5: REPORT.md again
+    dqn-transfer-report results                                                   # stage 5: REPORT.md again
     python -m dqn_transfer.cli.second_edition pilot --out /tmp/s --profile quick  # smoke run: NOT evidence
 
 ``pilot`` runs every experiment (``experiment=v2/<name>``) on the pilot maps (map seeds 2000..) for the
@@ -19,13 +19,11 @@ is an error, never overwritten.
 from __future__ import annotations
 
 import argparse
-import sys
-import time
 from pathlib import Path
 
 from dqn_transfer.analysis.runs import skipped_runs_on_stderr
-from dqn_transfer.cli.console import OneLineErrors, exit_with
-from dqn_transfer.experiments.raw_data import DATA_DIR, DataError
+from dqn_transfer.cli.console import OneLineErrors, exit_with, run_study_command
+from dqn_transfer.experiments.raw_data import DATA_DIR
 from dqn_transfer.experiments.second_edition import (
     BUDGETS_FILE,
     BUDGETS_TABLE,
@@ -38,7 +36,7 @@ from dqn_transfer.experiments.second_edition import (
     write_budgets,
 )
 from dqn_transfer.experiments.second_edition_report import write_report
-from dqn_transfer.experiments.sweeps import ReproduceError, choose_launcher
+from dqn_transfer.experiments.sweeps import ReproduceError, choose_launcher, chosen_experiments
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -61,45 +59,31 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Run one stage; exit 1 with one ``error:`` line on a failure."""
-    parser = _parser()
-    args = parser.parse_args(argv)
-    start = time.perf_counter()
-    try:
-        names = [name.strip() for name in args.only.split(",") if name.strip()]
-        unknown = [name for name in names if name not in EXPERIMENTS]
-        if unknown:
-            raise ReproduceError(
-                f"--only: unknown experiment(s) {', '.join(unknown)} (choose from {', '.join(EXPERIMENTS)})"
-            )
-        if args.n_jobs < 1:
-            raise ReproduceError(f"--n-jobs must be >= 1, got {args.n_jobs}")
-        out = args.out.expanduser().resolve()
-        launcher = None if args.report_only or args.stage == "report" else choose_launcher(args.launcher)
-        print(f"profile {args.profile}: {PROFILES[args.profile].description}", flush=True)
-        if args.stage == "pilot":
-            data = out / PILOT_DIR / DATA_DIR
-            if launcher is not None:
-                with skipped_runs_on_stderr():
-                    data = run_pilots(names, args.profile, out, launcher, args.n_jobs)
-            profile = PROFILES[args.profile]
-            write_budgets(out, pilot_budgets(data, names, profile), profile.rule)
-            print((out / BUDGETS_TABLE).read_text())
-            written = out / BUDGETS_FILE
-        else:
-            if args.stage == "full":
-                if launcher is None:
-                    raise ReproduceError("--report-only applies to the pilot stage")
-                with skipped_runs_on_stderr():
-                    run_full(names, args.profile, out, args.budgets or out / BUDGETS_FILE, launcher, args.n_jobs)
-            written = write_report(out)
-    except (ReproduceError, DataError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
-    print(f"wrote {written} ({time.perf_counter() - start:.0f} s in total)")
-    return 0
+    args = _parser().parse_args(argv)
+    return run_study_command(lambda: _run_stage(args))
+
+
+def _run_stage(args: argparse.Namespace) -> Path:
+    """The stage ``args.stage``; returns the file it wrote last (``budgets.json`` or ``REPORT.md``)."""
+    names = chosen_experiments(args.only, EXPERIMENTS, args.n_jobs)
+    out = args.out.expanduser().resolve()
+    launcher = None if args.report_only or args.stage == "report" else choose_launcher(args.launcher)
+    print(f"profile {args.profile}: {PROFILES[args.profile].description}", flush=True)
+    if args.stage == "pilot":
+        data = out / PILOT_DIR / DATA_DIR
+        if launcher is not None:
+            with skipped_runs_on_stderr():
+                data = run_pilots(names, args.profile, out, launcher, args.n_jobs)
+        profile = PROFILES[args.profile]
+        write_budgets(out, pilot_budgets(data, names, profile), profile.rule)
+        print((out / BUDGETS_TABLE).read_text())
+        return out / BUDGETS_FILE
+    if args.stage == "full":
+        if launcher is None:
+            raise ReproduceError("--report-only applies to the pilot stage")
+        with skipped_runs_on_stderr():
+            run_full(names, args.profile, out, args.budgets or out / BUDGETS_FILE, launcher, args.n_jobs)
+    return write_report(out)
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ writes the report beside them; nothing else is read (no clock, no checkout), so 
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -278,8 +279,11 @@ def stream(question: str) -> np.random.Generator:
     return np.random.default_rng([0, EXPERIMENTS.index(question)])
 
 
-def write_report(results: Path) -> Path:
-    """``results/REPORT.md`` and its figures from ``results/data/`` (and the budgets and tuning beside it)."""
+def write_report(results: Path, out: Path | None = None) -> Path:
+    """``OUT/REPORT.md`` and its figures (``OUT`` = ``results`` by default) from ``results/data/`` and the
+    budgets and tuning beside it."""
+    out = results if out is None else out
+    out.mkdir(parents=True, exist_ok=True)
     data = results / DATA_DIR
     runs = {name: _read(data, name) for name in EXPERIMENTS}
     if not any(runs.values()):
@@ -293,7 +297,7 @@ def write_report(results: Path) -> Path:
     treasure = None
     if runs["hypothesis"]:
         treasure = hypothesis(runs["hypothesis"], stream("hypothesis"))
-        hypothesis_figure(treasure, results / "hypothesis.png", watermark)
+        hypothesis_figure(treasure, out / "hypothesis.png", watermark)
         body += hypothesis_section(
             treasure, "Main hypothesis: a group that exchanges knowledge learns better", "hypothesis.png"
         )
@@ -301,7 +305,7 @@ def write_report(results: Path) -> Path:
         summary.append(("Main hypothesis, secondary (Double DQN, cooperative)", treasure.secondary_verdict))
     if runs["lbf_hypothesis"]:
         lbf = hypothesis(runs["lbf_hypothesis"], stream("lbf_hypothesis"), primary_mode=mode(runs["lbf_hypothesis"][0]))
-        hypothesis_figure(lbf, results / "lbf_hypothesis.png", watermark)
+        hypothesis_figure(lbf, out / "lbf_hypothesis.png", watermark)
         body += hypothesis_section(lbf, "Replication on Level-Based Foraging", "lbf_hypothesis.png")
         summary.append(("Main hypothesis on Level-Based Foraging", lbf.verdict))
         if treasure is not None:
@@ -312,7 +316,7 @@ def write_report(results: Path) -> Path:
         summary.append(("Claim 1", result1.verdict))
     if runs["claim2"]:
         result2 = claim2(runs["claim2"], stream("claim2"))
-        claim2_figure(result2, results / "claim2.png", watermark)
+        claim2_figure(result2, out / "claim2.png", watermark)
         body += claim2_section(result2, "claim2.png")
         summary.append(("Claim 2", result2.verdict))
     if runs["transfer"] or runs["transfer_aware"]:
@@ -349,11 +353,15 @@ def write_report(results: Path) -> Path:
         "## Tuning (stage 2)",
         "",
         *_include(results / TUNING_TABLE),
-        *([f"![tuning]({TUNING_FIGURE.as_posix()})", ""] if (results / TUNING_FIGURE).exists() else []),
+        *(
+            [f"![tuning]({Path(os.path.relpath(results / TUNING_FIGURE, out)).as_posix()})", ""]
+            if (results / TUNING_FIGURE).exists()
+            else []
+        ),
         "## Budgets (stage 3)",
         "",
         *_include(results / BUDGETS_TABLE),
     ]
-    report = results / "REPORT.md"
+    report = out / "REPORT.md"
     report.write_text("\n".join(header + body))
     return report

@@ -119,6 +119,18 @@ def installed_launchers() -> list[str]:
         return GlobalHydra.instance().config_loader().get_group_options("hydra/launcher")
 
 
+def chosen_experiments(only: str, known: Sequence[str], n_jobs: int) -> list[str]:
+    """The experiments of ``--only`` (comma-separated, each one of ``known``), after checking ``--n-jobs``,
+    so that bad input is refused before anything runs."""
+    names = [name.strip() for name in only.split(",") if name.strip()]
+    unknown = [name for name in names if name not in known]
+    if unknown:
+        raise ReproduceError(f"--only: unknown experiment(s) {', '.join(unknown)} (choose from {', '.join(known)})")
+    if n_jobs < 1:
+        raise ReproduceError(f"--n-jobs must be >= 1, got {n_jobs}")
+    return names
+
+
 def choose_launcher(requested: str | None) -> str:
     """The launcher the sweeps run with: ``requested``, refused if it is not installed; by default
     joblib, or Hydra's basic launcher (one job at a time) with one line saying so when joblib's plugin
