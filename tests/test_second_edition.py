@@ -2,6 +2,8 @@
 pilot runs (budgets worked out by hand), and the pilot and full stages end to end on the quick profile."""
 
 import json
+import shutil
+from pathlib import Path
 
 import pytest
 
@@ -97,3 +99,13 @@ def test_the_quick_pilot_and_full_stages_run_end_to_end(tmp_path):
     runs = read_data(tmp_path / "data" / "claim1.jsonl")
     assert sorted(r.unit for r in runs) == [(0, 0), (0, 0), (1, 0), (1, 0)]  # evaluation maps 0, 1
     assert {r.steps[-1] for r in runs} == {budget} and {r.name.split("/")[0] for r in runs} == {"all"}
+
+
+def test_the_committed_budgets_come_from_the_committed_pilot_data_and_one_experiments_pilot_keeps_the_rest(tmp_path):
+    # `pilot --report-only --only claim1` recomputes the budgets from every experiment's pilot data in OUT, not
+    # from claim 1's alone: the other experiments' budgets stay, and all equal the committed ones.
+    results = Path(__file__).resolve().parents[1] / "results"
+    shutil.copytree(results / "pilot" / "data", tmp_path / "pilot" / "data")
+    assert cli.main(["pilot", "--out", str(tmp_path), "--report-only", "--only", "claim1"]) == 0
+    assert (tmp_path / "budgets.md").read_text() == (results / "budgets.md").read_text()
+    assert json.loads((tmp_path / "budgets.json").read_text()) == json.loads((results / "budgets.json").read_text())

@@ -75,7 +75,8 @@ def _run_stage(args: argparse.Namespace) -> Path:
             with skipped_runs_on_stderr():
                 data = run_pilots(names, args.profile, out, launcher, args.n_jobs)
         profile = PROFILES[args.profile]
-        write_budgets(out, pilot_budgets(data, names, profile), profile.rule)
+        piloted = [name for name in EXPERIMENTS if (data / f"{name}.jsonl").is_file()]  # --only X keeps the rest
+        write_budgets(out, pilot_budgets(data, piloted, profile), profile.rule)
         print((out / BUDGETS_TABLE).read_text())
         return out / BUDGETS_FILE
     if args.stage == "full":
