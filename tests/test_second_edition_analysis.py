@@ -197,3 +197,18 @@ def test_the_committed_second_edition_report_is_regenerated_from_the_committed_d
     assert text == (results / "REPORT.md").read_text().replace("](tuning/", "](../study/tuning/")
     assert sorted(p.name for p in (tmp_path / "elsewhere").glob("*.png")) == [p.name for p in figures]
     assert sum(p.stat().st_size for p in (results / "data").iterdir()) < 50 * 2**20  # the limit, all data
+
+
+def test_the_report_says_when_the_negative_control_is_not_as_expected(tmp_path):
+    # Without exchange every run ends at 0.95 of the optimum (0.05 below it, under the smallest effect of
+    # interest, 0.10); copying the best agent ends at 0.98: +0.03 on every map, significantly positive where
+    # the registration expected it to be <= 0.
+    runs = _runs(lambda m, s: 0.95, exchange="none") + _runs(lambda m, s: 0.98, exchange="best")
+    write_data(tmp_path / "data" / "hypothesis.jsonl", runs)
+    text = write_report(tmp_path).read_text()
+    (line,) = [line for line in text.splitlines() if line.startswith("- **Negative control**")]
+    assert line.startswith("- **Negative control** (sarsa): `best` − none +0.03 [+0.03, +0.03], p ")
+    assert "Expected ≤ 0; **not as expected**: copying helps too." in line
+    assert line.endswith(
+        "`none` ends at 0.95 [0.95, 0.95], 0.050 below the optimum: less than the smallest effect of interest (0.1)."
+    )

@@ -136,11 +136,30 @@ def hypothesis_section(result: HypothesisResult, title: str, figure: str) -> lis
         "",
         *_family_table(result.secondary, "none", "final score"),
         "",
-        f"Secondary verdict: **{result.secondary_verdict}**. Everything else in the table is exploratory; `best` "
-        "is the negative control.",
+        f"Secondary verdict: **{result.secondary_verdict}**. Everything else in the table is exploratory.",
         "",
+        *_negative_control(result),
     ]
     return lines
+
+
+def _negative_control(result: HypothesisResult) -> list[str]:
+    """The negative control's line: ``best`` − none in the families' mode, expected not to be positive; and the
+    room ``none`` leaves below the optimum, beside the smallest effect of interest."""
+    rows = {(r.learner, r.method): r for r in result.rows if r.mode == result.primary_mode}
+    lines = []
+    for learner in dict.fromkeys(r.learner for r in result.rows):
+        control, none = rows.get((learner, "best")), rows.get((learner, "none"))
+        if control is None or control.against_none is None or none is None:
+            continue
+        expected = "as expected" if control.against_none.sign <= 0 else "**not as expected**: copying helps too"
+        room = 1.0 - none.final.mean.mean
+        lines.append(
+            f"- **Negative control** ({learner}): `best` − none {difference_text(control.against_none)}. Expected "
+            f"≤ 0; {expected}. `none` ends at {fmt(none.final.mean)}, {room:.3f} below the optimum"
+            + (f": less than the smallest effect of interest ({SMALLEST_EFFECT:g})." if room < SMALLEST_EFFECT else ".")
+        )
+    return [*lines, ""] if lines else []
 
 
 def hypothesis_figure(result: HypothesisResult, path: Path, watermark: str | None) -> None:
