@@ -12,7 +12,14 @@ import pytest
 import yaml
 from rliable import metrics as rliable_metrics
 
-from dqn_transfer.analysis.marl_eval import ABSOLUTE, EvaluatedRun, layout_problems, marl_eval_tree
+from dqn_transfer.analysis.marl_eval import (
+    ABSOLUTE,
+    EvaluatedRun,
+    algorithm_name,
+    layout_problems,
+    marl_eval_tree,
+    task_name,
+)
 from dqn_transfer.analysis.stats import iqm
 from dqn_transfer.analysis.transfer_metrics import asymptotic_performance
 from dqn_transfer.cli.export import main
@@ -23,6 +30,7 @@ from dqn_transfer.experiments.claims import exchange_condition
 from dqn_transfer.experiments.export import agent_returns
 from dqn_transfer.experiments.raw_data import RunData, read_data
 from dqn_transfer.experiments.scoring import FINAL_TAIL, by_map, final_score, learner, mode
+from dqn_transfer.experiments.second_edition import sweep_jobs
 from dqn_transfer.training.plan import plan_run
 from dqn_transfer.training.trainer import train
 
@@ -210,9 +218,6 @@ def test_bad_input_is_one_error_line_and_nothing_written(tmp_path, capsys, case)
 
 
 def test_the_second_editions_conditions_have_names_of_their_own():
-    from dqn_transfer.analysis.marl_eval import algorithm_name, task_name
-    from dqn_transfer.experiments.second_edition import sweep_jobs
-
     hypothesis = {job.values["method"]: job.config for job in sweep_jobs("hypothesis")}
     assert algorithm_name(hypothesis["double_dqn_shared_id"]) == "double_dqn+shared+id"
     assert algorithm_name(hypothesis["double_dqn_vdn"]) == "double_dqn+vdn"
@@ -227,3 +232,15 @@ def test_the_second_editions_conditions_have_names_of_their_own():
     assert algorithm_name(transfer["same_map_own_aware"]) == "sarsa+transfer_own+chest_aware"
     (lbf, *_) = [job.config for job in sweep_jobs("lbf_hypothesis")]
     assert task_name(lbf) == "lbf-map0"  # another game: its module and instance, not the treasure map's keys
+
+
+def test_each_experiment_of_the_second_edition_is_an_environment_named_after_its_game(tmp_path):
+    # The replication on Level-Based Foraging is not a treasure hunt: its environment says so.
+    v2 = ROOT / "results" / "data"
+    out = tmp_path / "v2.json"
+    data = [str(v2 / "claim1.jsonl"), str(v2 / "lbf_hypothesis.jsonl")]
+    assert main(["marl-eval", "--data", *data, "--out", str(out)]) == 0
+    tree = json.loads(out.read_text())
+    assert sorted(tree) == ["lbf_lbf_hypothesis", "treasurehunt_claim1"]
+    assert sorted(tree["lbf_lbf_hypothesis"]) == sorted(f"lbf-map{m}" for m in range(30))
+    assert sorted(tree["lbf_lbf_hypothesis"]["lbf-map0"]["sarsa"]) == ["seed_0", "seed_1", "seed_2"]

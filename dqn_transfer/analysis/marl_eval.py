@@ -80,14 +80,20 @@ def _flat(config: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
     return out
 
 
+def game_name(config: Mapping[str, Any]) -> str:
+    """The game a run played: ``treasurehunt``, or another game's module name (``env.factory``,
+    docs/your_own_environment.md), lower-case."""
+    factory = config["env"].get("factory")
+    return str(factory).split(":")[0].rsplit(".", 1)[-1].lower() if factory else ENVIRONMENT
+
+
 def task_name(config: Mapping[str, Any]) -> str:
     """``<mode>-<K>agents-<size>x<size>-map<map_seed>[-contention_<c>]`` (``layout<hash8>`` for a fixed
     layout; ``env.contention`` named unless ``any``, whose maps are another of the seed's); for another game
     (``env.factory``), ``<its module>-map<map_seed>``."""
     env = config["env"]
-    if env.get("factory"):  # another game: its module's name and the instance (docs/your_own_environment.md)
-        game = str(env["factory"]).split(":")[0].rsplit(".", 1)[-1]
-        return f"{game}-map{env.get('map_seed') or 0}".lower()
+    if env.get("factory"):  # another game: the instance is its map seed
+        return f"{game_name(config)}-map{env.get('map_seed') or 0}"
     layout = env.get("layout") or env.get("layout_file")
     contention = Contention(env.get("contention") or Contention.any.value)
     where = (

@@ -17,7 +17,13 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from dqn_transfer.analysis.marl_eval import ENVIRONMENT, EvaluatedRun, agent_return_metric, marl_eval_tree
+from dqn_transfer.analysis.marl_eval import (
+    ENVIRONMENT,
+    EvaluatedRun,
+    agent_return_metric,
+    game_name,
+    marl_eval_tree,
+)
 from dqn_transfer.analysis.runs import EvaluationError, find_run_dirs, load_config
 from dqn_transfer.experiments.raw_data import RunData, latest_by_step, read_data, read_evaluations, run_data
 from dqn_transfer.experiments.scoring import FINAL_TAIL
@@ -65,15 +71,16 @@ def run_dirs_tree(
 
 
 def data_tree(files: Sequence[Path], final_tail: float = FINAL_TAIL) -> dict[str, Any]:
-    """marl-eval's dictionary of the study's raw data files (``results/v1/data/<experiment>.jsonl``): one
-    environment per experiment, ``treasurehunt_<experiment>``, since marl-eval compares the algorithms of
-    an environment over all its tasks and the experiments ask different questions."""
+    """marl-eval's dictionary of the study's raw data files (``results/data/<experiment>.jsonl``): one
+    environment per experiment, ``<game>_<experiment>`` (``treasurehunt_hypothesis``, ``lbf_lbf_hypothesis``),
+    since marl-eval compares the algorithms of an environment over all its tasks and the experiments ask
+    different questions."""
     tree: dict[str, Any] = {}
     for path in files:
         runs = read_data(path)
         if not runs:
             raise EvaluationError(f"{path}: no runs")
-        environment = f"{ENVIRONMENT}_{runs[0].experiment}"
+        environment = f"{game_name(runs[0].config)}_{runs[0].experiment}"
         if environment.lower() in tree:
             raise EvaluationError(f"{path}: experiment {runs[0].experiment!r} given twice")
         tree.update(marl_eval_tree([evaluated(r) for r in runs], final_tail, environment))
