@@ -3,7 +3,8 @@
 It reads ``data/<experiment>.jsonl`` and ``data/manifest.json`` (the full runs), ``budgets.md`` (the pilot's
 budgets) and ``tuning/tuning.md`` (the tuning's chosen values), answers each question by
 :mod:`dqn_transfer.experiments.second_edition_analysis` with its own seeded random stream (:func:`stream`), and
-writes the report beside them; nothing else is read (no clock, no checkout), so the same data give the same bytes.
+writes the report beside them (or into another directory); nothing else is read (no clock, no checkout), so the
+same data give the same bytes.
 """
 
 from __future__ import annotations
