@@ -102,10 +102,11 @@ def _family_table(members: Sequence[Difference], against: str, metric: str) -> l
 # ------------------------------------------------------------------------------------------- sections
 
 
-def hypothesis_section(result: HypothesisResult, title: str, figure: str) -> list[str]:
+def hypothesis_section(result: HypothesisResult, title: str, figure: str, note: str | None = None) -> list[str]:
     lines = [
         f"## {title}",
         "",
+        *([note, ""] if note else []),
         "Budgets (each learner x mode, from the pilot): "
         + ", ".join(f"{learner} {m} {b:,}" for (learner, m), b in result.budgets.items())
         + " env steps.",
@@ -326,7 +327,13 @@ def write_report(results: Path, out: Path | None = None) -> Path:
     if runs["lbf_hypothesis"]:
         lbf = hypothesis(runs["lbf_hypothesis"], stream("lbf_hypothesis"), primary_mode=mode(runs["lbf_hypothesis"][0]))
         hypothesis_figure(lbf, out / "lbf_hypothesis.png", watermark)
-        body += hypothesis_section(lbf, "Replication on Level-Based Foraging", "lbf_hypothesis.png")
+        body += hypothesis_section(
+            lbf,
+            "Replication on Level-Based Foraging",
+            "lbf_hypothesis.png",
+            f"Level-Based Foraging has no team modes: its runs carry the default `mode={lbf.primary_mode}`, which "
+            "the game ignores. Its score is the game's own normalised team return (1 = all food loaded).",
+        )
         summary.append(("Main hypothesis on Level-Based Foraging", lbf.verdict))
         if treasure is not None:
             summary.append(("Replication", replicated(treasure, lbf)))
