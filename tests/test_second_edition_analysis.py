@@ -212,3 +212,10 @@ def test_the_report_says_when_the_negative_control_is_not_as_expected(tmp_path):
     assert line.endswith(
         "`none` ends at 0.95 [0.95, 0.95], 0.050 below the optimum: less than the smallest effect of interest (0.1)."
     )
+
+
+def test_a_study_without_data_is_one_error_line_and_leaves_no_out_directory(tmp_path, capsys):
+    (tmp_path / "study" / "data").mkdir(parents=True)
+    (tmp_path / "study" / "budgets.md").write_text("budgets\n")
+    assert report_cli.main([str(tmp_path / "study"), "--out", str(tmp_path / "elsewhere")]) == 1
+    assert capsys.readouterr().err.startswith("error: ") and not (tmp_path / "elsewhere").exists()

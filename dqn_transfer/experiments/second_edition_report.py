@@ -304,11 +304,11 @@ def write_report(results: Path, out: Path | None = None) -> Path:
     """``OUT/REPORT.md`` and its figures (``OUT`` = ``results`` by default) from ``results/data/`` and the
     budgets and tuning beside it."""
     out = results if out is None else out
-    out.mkdir(parents=True, exist_ok=True)
     data = results / DATA_DIR
     runs = {name: _read(data, name) for name in EXPERIMENTS}
     if not any(runs.values()):
         raise DataError(f"{data} holds no data of {', '.join(EXPERIMENTS)}")
+    out.mkdir(parents=True, exist_ok=True)  # after the data are read: bad input leaves no directory behind
     manifest = read_manifest(data)
     made = manifest.get("experiments", {})
     smoke = any(record.get("profile") != "full" for record in made.values()) or not made
