@@ -22,6 +22,7 @@ from dqn_transfer.envs.settings import EnvConfig
 LAYOUT = [("position", 5), ("treasures", 3)]
 D, A, K, SEEDS, B = 8, 4, 2, [3, 4], 16
 RTOL, ATOL = 1e-5, 1e-6
+TINY_GRADIENT = 1e-6  # within a hundred times Adam's eps: rounding may change the step
 
 
 def vdn_learner(engine: str, replicas: int = 1, **hp) -> Learner:
@@ -127,7 +128,14 @@ def test_each_engines_vdn_step_is_autograd_of_the_summed_loss(
     online = [sequential(sizes, learner.q_network.member_state(m)) for m in range(learner.num_members)]
     target = [sequential(sizes, learner.target_network.member_state(m)) for m in range(learner.num_members)]
     optimizers = [torch.optim.Adam(network.parameters(), lr=learner.lr) for network in online]
+    # What the engines promise: the same gradients to float rounding, hence the same Adam steps, except for
+    # an element whose gradient is so small that Adam's eps (1e-8) is not negligible beside it: there,
+    # lr * m / (sqrt(v) + eps) turns rounding into another step of at most lr (the CPU's BLAS kernel decides
+    # which). So each step starts the references from the engine's weights, and such an element is held to lr.
     for step in range(3):
+        with torch.no_grad():
+            for m, network in enumerate(online):
+                network.load_state_dict(sequential(sizes, learner.q_network.member_state(m)).state_dict())
         batch, live = random_team_batch(learner.num_rows, seed=step)
         stats = learner.train_on(batch, live=live)
         for r in range(2):
@@ -153,12 +161,11 @@ def test_each_engines_vdn_step_is_autograd_of_the_summed_loss(
                 grad_w, grad_b = learner.q_network.grads[2 * l][m], learner.q_network.grads[2 * l + 1][m]
                 np.testing.assert_allclose(np.asarray(grad_w).T, layer.weight.grad.numpy(), rtol=RTOL, atol=ATOL)
                 np.testing.assert_allclose(np.asarray(grad_b), layer.bias.grad.numpy(), rtol=RTOL, atol=ATOL)
-                np.testing.assert_allclose(
-                    weights[f"layers.{l}.weight"], layer.weight.detach().numpy(), rtol=RTOL, atol=ATOL
-                )
-                np.testing.assert_allclose(
-                    weights[f"layers.{l}.bias"], layer.bias.detach().numpy(), rtol=RTOL, atol=ATOL
-                )
+                for name, parameter in (("weight", layer.weight), ("bias", layer.bias)):
+                    reference = parameter.detach().numpy()
+                    tiny = np.abs(parameter.grad.numpy()) < TINY_GRADIENT
+                    allowed = np.where(tiny, learner.lr, ATOL + RTOL * np.abs(reference))
+                    assert np.all(np.abs(weights[f"layers.{l}.{name}"] - reference) <= allowed), (m, l, name)
 
 
 def test_the_reference_is_the_gradient_of_the_summed_loss_written_out():

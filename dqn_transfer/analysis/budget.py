@@ -66,10 +66,15 @@ def plateau_slope(curve: Curve, fraction: float = FRACTION, min_points: int = MI
     """
     steps, values = check_curve(curve)
     count = _window(steps.size, fraction, min_points)
-    x = steps[-count:] / PER_STEPS
-    centred = x - x.mean()
-    tail = values[-count:]
-    return float(centred @ (tail - tail.mean()) / (centred @ centred))  # a flat tail: exactly 0
+    x = [float(step) / PER_STEPS for step in steps[-count:]]
+    tail = [float(value) for value in values[-count:]]
+    # Exactly rounded sums (math.fsum) of single products, not numpy's mean or `@`: BLAS kernels sum in
+    # an order of their own (and fuse multiply-adds) that differs between CPUs, and a slope that moves in
+    # its last bits moves a budget whose slope sits at the threshold. These are the same bits on any CPU.
+    x_mean, tail_mean = math.fsum(x) / count, math.fsum(tail) / count
+    centred = [value - x_mean for value in x]
+    covariance = math.fsum(c * (value - tail_mean) for c, value in zip(centred, tail, strict=True))
+    return covariance / math.fsum(c * c for c in centred)  # a flat tail: exactly 0
 
 
 def median_plateau_slope(curves: Sequence[Curve], fraction: float = FRACTION, min_points: int = MIN_POINTS) -> float:
