@@ -221,7 +221,7 @@ def test_untrained_agents_evaluate_alike_whatever_their_observation_encodes(seed
             1, game.obs_layout(), game.num_actions, AgentConfig(algorithm=Algorithm.sarsa), seed=seed
         )
         counters = {stream: count.copy() for stream, count in learner.counters.items()}
-        results.append(evaluate(learner, game, episodes=5, seed=seed, evaluation=0))
+        results.append(evaluate(learner, game, episodes=5, seed=seed, step=0))
         assert learner.counters == counters  # evaluation draws none of the learner's numbers
     assert results[0] == results[1] == results[2]
     assert len({game.obs_dim for game in [make_game(layout=layout, mode=m) for m in Mode]}) == 2

@@ -53,15 +53,15 @@ def test_one_batch_of_all_replicas_evaluations_equals_evaluating_them_one_by_one
     learner = trained(algorithm, games, steps=400)
     teams = [learner.replica(r) for r in range(3)]
     eval_games = [game.replica() for game in games]
-    evaluations = [0, 3, 5]
+    steps = [0, 300, 500]  # each replica's evaluation step
     # Replica 1's episode 0 already played by the caller (as for an evaluation picture).
-    rng = evaluation_rng(SEEDS[1], evaluations[1], 0)
+    rng = evaluation_rng(SEEDS[1], steps[1], 0)
     first = play_episode(eval_games[1], greedy_policy(teams[1], rng), rng)
     firsts = [None, first, None]
-    batched = evaluate_replicas(learner, teams, eval_games, 6, SEEDS, evaluations, firsts)
+    batched = evaluate_replicas(learner, teams, eval_games, 6, SEEDS, steps, firsts)
     one_by_one = [
-        evaluate(team, game, 6, seed, evaluation, first=f)
-        for team, game, seed, evaluation, f in zip(teams, eval_games, SEEDS, evaluations, firsts)
+        evaluate(team, game, 6, seed, step, first=f)
+        for team, game, seed, step, f in zip(teams, eval_games, SEEDS, steps, firsts)
     ]
     assert batched == one_by_one  # every float bit for bit
     assert len({record["team_return"] for record in batched}) > 1  # not vacuous: the replicas differ
@@ -71,5 +71,5 @@ def test_without_the_batched_learner_each_replica_is_evaluated_through_its_team(
     games = [TreasureHuntGame(parse_layout(generate_layout(6, 2, 2, 2, 0.1, seed))) for seed in (1, 2, 3)]
     learner = trained(Algorithm.qlearning, games, steps=200)
     teams = [learner.replica(r) for r in range(3)]
-    got = evaluate_replicas(None, teams, games, 3, SEEDS, [1, 1, 1], [None] * 3)
-    assert got == [evaluate(team, game, 3, seed, 1) for team, game, seed in zip(teams, games, SEEDS)]
+    got = evaluate_replicas(None, teams, games, 3, SEEDS, [100, 100, 100], [None] * 3)
+    assert got == [evaluate(team, game, 3, seed, 100) for team, game, seed in zip(teams, games, SEEDS)]

@@ -163,7 +163,7 @@ def test_on_generated_maps_the_oracle_reaches_the_optimum_and_beats_greedy(map_s
 def test_a_bound_s_record_has_a_learner_s_keys():
     game = make_game(**STUDY_M4, map_seed=0, mode="deliberative")
     learner = make_learner(AgentConfig(algorithm=Algorithm.sarsa), 4, game.obs_layout(), game.num_actions, seed=0)
-    learned = evaluate(learner, game, episodes=1, seed=0, evaluation=0)
+    learned = evaluate(learner, game, episodes=1, seed=0, step=0)
     assert list(learned) == RECORD_KEYS
     for kind in BOUNDS:
         assert list(evaluate_bound(game, kind, episodes=1, seed=0)) == RECORD_KEYS

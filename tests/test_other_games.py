@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import agent_meta, read_metrics, run_train, without_timing
+from conftest import agent_meta, compose_config, read_metrics, run_train, without_timing
 from PIL import Image
 
 from dqn_transfer.analysis.runs import load_config
@@ -224,8 +224,9 @@ def test_an_env_named_only_on_the_command_line_trains_checkpoints_and_resumes_bi
         "checkpoint_every=70",
     )
     whole = run_train(tmp_path, *run, "total_steps=400", run_dir=tmp_path / "whole")
-    # Stopped at a step that evaluates anyway (an extra final evaluation would shift later evaluations'
-    # seeds), in the middle of an episode: its checkpoint holds the episode's seed and actions.
+    # Stopped at a step that evaluates anyway (a run ending elsewhere adds a final evaluation there, a
+    # record the uninterrupted run has not), in the middle of an episode: its checkpoint holds the
+    # episode's seed and actions.
     stopped = run_train(tmp_path, *run, "total_steps=250", run_dir=tmp_path / "stopped")
     _, state = load_training_state(stopped.run_dir / "checkpoints" / "training_state.safetensors")
     assert state["episode"] is not None and len(state["episode"]["game"]["actions"]) > 0
@@ -239,6 +240,47 @@ def test_an_env_named_only_on_the_command_line_trains_checkpoints_and_resumes_bi
         "Discrete(6)",
         "Box(0.0, 1.0, (2,), float32)",
     ]
+
+
+# Learners whose evaluations differ with their episodes' seeds: SARSA meets LBF states it has not visited
+# (every action tied), and every MPE start is another continuous position.
+QUICK_LEARNERS = pytest.mark.parametrize(
+    "learning",
+    [("env=lbf", "agent=sarsa"), ("env=mpe_spread", "agent.hidden=[8]", "agent.learning_starts=20")],
+    ids=["lbf", "mpe_spread"],
+)
+
+
+@QUICK_LEARNERS
+def test_an_evaluation_of_another_game_depends_on_neither_eval_every_nor_the_replicas_beside_it(tmp_path, learning):
+    """The evaluation at step N resets its episodes from (seed, N, episode) alone (issue #31): a run of 2
+    replicas evaluated every 50 steps records at steps 0, 100, 200 what the lone run of each seed,
+    evaluated every 100 steps, records there. Before, episodes were keyed by the evaluation's index, so
+    step 100 was the third evaluation of one and the second of the other."""
+    common = (*learning, "total_steps=200", "eval_episodes=3", "progress=false")
+    train(plan_run(compose_config(*common, "eval_every=50", "replicas.seeds=2")), tmp_path / "replicas")
+    for seed in (0, 1):
+        train(plan_run(compose_config(*common, "eval_every=100", f"seed={seed}")), tmp_path / f"lone_{seed}")
+        lone = without_timing(read_metrics(tmp_path / f"lone_{seed}"))
+        replica = without_timing(read_metrics(tmp_path / "replicas" / f"seed_{seed}"))
+        assert [record["step"] for record in lone] == [0, 100, 200]
+        assert [record for record in replica if record["step"] % 100 == 0] == lone
+        assert len({record["team_return"] for record in replica}) > 1  # the episodes' numbers vary: not vacuous
+
+
+@QUICK_LEARNERS
+def test_a_finished_run_extended_evaluates_as_the_longer_run(tmp_path, learning):
+    """A run of 150 steps ends with an evaluation off its eval_every grid (step 150); resumed to 200
+    steps, it records at every step of the uninterrupted 200-step run that run's evaluation (issue #31:
+    the extra evaluation shifted every later one's episodes)."""
+    # Epsilon's horizon is fixed when a run starts: without exploration both runs train alike.
+    common = (*learning, "agent.exploration_fraction=0", "eval_every=100", "eval_episodes=3", "progress=false")
+    train(plan_run(compose_config(*common, "total_steps=200")), tmp_path / "whole")
+    train(plan_run(compose_config(*common, "total_steps=150")), tmp_path / "extended")
+    train(plan_run(compose_config(*common, "total_steps=200", "resume=true")), tmp_path / "extended")
+    whole, extended = (without_timing(read_metrics(tmp_path / name)) for name in ("whole", "extended"))
+    assert [record["step"] for record in extended] == [0, 100, 150, 200]
+    assert [record for record in extended if record["step"] != 150] == whole
 
 
 @pytest.mark.slow
@@ -276,7 +318,7 @@ def greedy_and_random(run_dir: Path, episodes: int, random_episodes: int) -> tup
     their mean team returns."""
     team = load_team(run_dir)
     assert isinstance(team.game, PettingZooGame)
-    trained = evaluate(team.learner, team.game, episodes=episodes, seed=0, evaluation=0)["team_return"]
+    trained = evaluate(team.learner, team.game, episodes=episodes, seed=0, step=0)["team_return"]
     return trained, random_team_return(team.game.factory, team.game.kwargs, random_episodes, seed=1)
 
 

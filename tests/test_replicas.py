@@ -34,6 +34,7 @@ DQN = AgentConfig(
     target_update=30,
     train_freq=2,
 )
+SARSA = AgentConfig(algorithm=Algorithm.sarsa, lr=0.1)
 
 
 def config(
@@ -68,7 +69,7 @@ def assert_same_run(a: Path, b: Path) -> None:
 
 @pytest.mark.parametrize(
     "agent",
-    [dataclasses.replace(DQN, learning_starts=10_000), DQN, AgentConfig(algorithm=Algorithm.sarsa, lr=0.1)],
+    [dataclasses.replace(DQN, learning_starts=10_000), DQN, SARSA],
     ids=["dqn_nothing_learned", "dqn_learning", "sarsa"],
 )
 def test_each_replica_is_the_lone_run_of_its_seed_and_map(tmp_path, agent):
@@ -137,6 +138,21 @@ def test_replicas_resume_exactly_from_a_mid_episode_checkpoint(tmp_path, monkeyp
     Trainer(plan_run(config(seeds=2, resume=True)), tmp_path / "killed").run()
     for name in ("seed_4", "seed_5"):
         assert_same_run(tmp_path / "killed" / name, tmp_path / "reference" / name)
+
+
+def test_an_evaluation_depends_on_neither_eval_every_nor_the_replicas_beside_it(tmp_path):
+    """The evaluation at step N plays episodes seeded from (seed, N, episode) alone (issue #31): 2
+    replicas evaluated every 40 steps in one batch of the batched evaluation record at steps 0, 80, 160,
+    240 what the lone run of each seed, evaluated every 80 steps, records there. SARSA's ties between
+    equal values are drawn from the evaluation's generators, so other generators give other numbers."""
+    Trainer(plan_run(config(SARSA, seeds=2, eval_every=40)), tmp_path / "batch").run()
+    for seed in (4, 5):
+        Trainer(plan_run(config(SARSA, seed=seed)), tmp_path / f"lone_{seed}").run()
+        lone = without_timing(read_metrics(tmp_path / f"lone_{seed}"))
+        replica = without_timing(read_metrics(tmp_path / "batch" / f"seed_{seed}"))
+        assert [record["step"] for record in lone] == [0, 80, 160, 240]
+        assert [record for record in replica if record["step"] % 80 == 0] == lone
+        assert len({record["team_return"] for record in replica}) > 1  # the episodes' numbers vary: not vacuous
 
 
 def test_a_replica_directory_reads_like_a_lone_run(tmp_path):

@@ -128,7 +128,7 @@ class StubLearner:
 
 def test_evaluate_appends_the_after_clear_keys():
     game = game_of(ONE_CHEST)
-    result = evaluate(StubLearner(), game, episodes=3, seed=0, evaluation=0)
+    result = evaluate(StubLearner(), game, episodes=3, seed=0, step=0)
     assert list(result) == [
         "team_return",
         "success_rate",
@@ -149,7 +149,7 @@ def test_evaluate_appends_the_after_clear_keys():
     }
     # with a first episode that ended with the chest: means over 1 + 3 = 4 episodes, 0 for it
     first = EpisodeResult(99.0, 2, 1, 1.0, 0.0, 0, 0.0, (100.0, -1.0))
-    result = evaluate(StubLearner(), game, episodes=4, seed=0, evaluation=0, first=first)
+    result = evaluate(StubLearner(), game, episodes=4, seed=0, step=0, first=first)
     assert result["after_clear_rate"] == 0.75
     assert result["return_after_clear"] == -7.0 * 3 / 4
     assert result["team_return"] == (99.0 + 3 * 90.0) / 4

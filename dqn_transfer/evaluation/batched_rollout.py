@@ -2,7 +2,7 @@
 side through the batched core, with the numbers of :func:`~dqn_transfer.evaluation.rollout.evaluate`.
 
 An evaluation of replica r plays ``episodes`` greedy episodes, episode e reset with
-:func:`~dqn_transfer.evaluation.rollout.evaluation_rng` ``(seed_r, evaluation_r, e)`` (which draws the
+:func:`~dqn_transfer.evaluation.rollout.evaluation_rng` ``(seed_r, step_r, e)`` (which draws the
 chest ties) and breaking the ties between equal values with a child of it. Here the ``R x E`` games
 are one batch (game ``e * R + r``, so that the learner's ``R * K`` rows answer every episode slot in
 one call, ``best_actions_stacked``), stepped until every episode has ended; each game draws from its own
@@ -32,7 +32,7 @@ def evaluate_replicas(
     games: Sequence[Game],
     episodes: int,
     seeds: Sequence[int],
-    evaluations: Sequence[int],
+    steps: Sequence[int],
     firsts: Sequence[EpisodeResult | None],
 ) -> list[dict[str, Any]]:
     """Each replica's evaluation record, as :func:`~dqn_transfer.evaluation.rollout.evaluate` gives it.
@@ -42,16 +42,16 @@ def evaluate_replicas(
     :param teams: replica r's team (``learner.replica(r)``), for games played one by one
     :param games: replica r's evaluation game (its map and rules; reset here)
     :param episodes: E, the greedy episodes of an evaluation
-    :param seeds: replica r's seed, and ``evaluations``: its evaluation's index (together they seed the
-        episodes)
+    :param seeds: replica r's seed, and ``steps``: the training step its evaluation is made at (together
+        they seed the episodes)
     :param firsts: replica r's episode 0 as the caller already played it (for a picture), or None
     """
     if learner is None or not fits_one_batch(games):
         return [
-            evaluate(team, game, episodes, seed, evaluation, first)
-            for team, game, seed, evaluation, first in zip(teams, games, seeds, evaluations, firsts)
+            evaluate(team, game, episodes, seed, step, first)
+            for team, game, seed, step, first in zip(teams, games, seeds, steps, firsts)
         ]
-    played = play_greedy_batch(learner, games, episodes, seeds, evaluations, skip_first=[f is not None for f in firsts])
+    played = play_greedy_batch(learner, games, episodes, seeds, steps, skip_first=[f is not None for f in firsts])
     return [summarize(own if first is None else [first, *own[1:]]) for own, first in zip(played, firsts)]
 
 
@@ -60,7 +60,7 @@ def play_greedy_batch(
     games: Sequence[TreasureHuntGame],
     episodes: int,
     seeds: Sequence[int],
-    evaluations: Sequence[int],
+    steps: Sequence[int],
     skip_first: Sequence[bool],
 ) -> list[list[EpisodeResult]]:
     """Replica r's greedy episodes ``0..episodes-1`` (episode 0 a placeholder where ``skip_first[r]``),
@@ -69,7 +69,7 @@ def play_greedy_batch(
     chests, reward_mode = games[0].num_treasures, RewardMode(games[0].reward_mode)
     slots = [(e, r) for e in range(episodes) for r in range(replicas)]  # game g = e * R + r
     maps = batched.batch_maps([games[r].map for _, r in slots], **games[0].settings())
-    rngs = [evaluation_rng(seeds[r], evaluations[r], e) for e, r in slots]
+    rngs = [evaluation_rng(seeds[r], steps[r], e) for e, r in slots]
     ties = [rng.spawn(1)[0] for rng in rngs]  # a child: the parent's stream stays the chest ties'
     state, _ = batched.reset(maps)
     skipped = np.array([e == 0 and skip_first[r] for e, r in slots])

@@ -170,8 +170,9 @@ POLICIES = {Bound.oracle: oracle_policy, Bound.greedy: greedy_policy}
 def evaluate_bound(game: TreasureHuntGame, kind: Bound | str, episodes: int, seed: int) -> dict[str, Any]:
     """``episodes`` episodes of the ``kind`` team, as :func:`summarize` records a learner's evaluation.
 
-    Episode ``e`` resets with ``evaluation_rng(seed, 0, e)``: the generator of a run of ``seed``'s first
-    evaluation, which draws only the winners of chest ties (the bounds draw nothing else).
+    Episode ``e`` resets with ``evaluation_rng(seed, 0, e)``: the generator of episode ``e`` of a run of
+    ``seed``'s evaluation at step 0, which draws only the winners of chest ties (the bounds draw nothing
+    else).
     """
     policy = POLICIES[Bound(kind)](game)  # it keeps nothing between steps, so one serves every episode
     rngs = (evaluation_rng(seed, 0, episode) for episode in range(episodes))

@@ -113,10 +113,11 @@ def play_episode(
     )
 
 
-def evaluation_rng(seed: int, evaluation: int, episode: int) -> np.random.Generator:
-    """The generator of one evaluation episode: from (seed, evaluation, episode) alone, so independent
-    of training history."""
-    return np.random.default_rng([seed, EVALUATION_STREAM, evaluation, episode])
+def evaluation_rng(seed: int, step: int, episode: int) -> np.random.Generator:
+    """The generator of one evaluation episode: from (run seed, training step of the evaluation,
+    episode) alone, so independent of training history, of how many evaluations came before (the
+    evaluation at step N is the same for every ``eval_every`` that reaches N) and of a resume."""
+    return np.random.default_rng([seed, EVALUATION_STREAM, step, episode])
 
 
 def evaluate(
@@ -124,7 +125,7 @@ def evaluate(
     game: Game,
     episodes: int,
     seed: int,
-    evaluation: int,
+    step: int,
     first: EpisodeResult | None = None,
 ) -> dict[str, Any]:
     """Greedy episodes, each seeded by :func:`evaluation_rng`, as :func:`summarize` records them.
@@ -132,14 +133,14 @@ def evaluate(
     :param learner: the team, played greedily.
     :param game: the game the episodes are played in (reset by each).
     :param episodes: how many episodes.
-    :param seed: the run's seed; with ``evaluation`` and the episode's number it seeds each episode.
-    :param evaluation: the evaluation's number (0 for the run's first).
+    :param seed: the run's seed; with ``step`` and the episode's number it seeds each episode.
+    :param step: the training step the evaluation is made at (0 for the run's start).
     :param first: episode 0 as the caller already played it (e.g. recorded for a picture), not played
         again.
     """
     results = [] if first is None else [first]
     for episode in range(len(results), episodes):
-        rng = evaluation_rng(seed, evaluation, episode)
+        rng = evaluation_rng(seed, step, episode)
         results.append(play_episode(game, greedy_policy(learner, rng), rng))
     return summarize(results)
 

@@ -288,12 +288,12 @@ def replay_in_terminal(episodes: Sequence[RecordedEpisode], stream: TextIO | Non
 EvaluationViews = tuple[np.ndarray, list[np.ndarray], EpisodeResult]
 
 
-def evaluation_views(learner: Team, game: TreasureHuntGame, seed: int, evaluation: int) -> EvaluationViews:
-    """What TensorBoard shows of an evaluation: its first episode, played here from the evaluation's
-    own generator, as its last frame with every trail, ``[H, W, 3]`` uint8, and per agent the Q-values
-    of every observation it acted on in that episode; and the episode's result, for
+def evaluation_views(learner: Team, game: TreasureHuntGame, seed: int, step: int) -> EvaluationViews:
+    """What TensorBoard shows of the evaluation at training step ``step``: its first episode, played here
+    from the evaluation's own generator, as its last frame with every trail, ``[H, W, 3]`` uint8, and per
+    agent the Q-values of every observation it acted on in that episode; and the episode's result, for
     :func:`~dqn_transfer.evaluation.rollout.evaluate` (which then does not play it again)."""
-    rng = evaluation_rng(seed, evaluation, 0)
+    rng = evaluation_rng(seed, step, 0)
     episode = record_episode(game, greedy_policy(learner, rng), rng)
     picture = frame_picture(episode, len(episode.frames) - 1, cell_px=TENSORBOARD_CELL_PX)
     q_values: list[list[np.ndarray]] = [[] for _ in range(game.num_agents)]

@@ -298,7 +298,7 @@ class Replica:
         it (a picture and the agents' Q-values there) and its result (the evaluation's episode 0)."""
         if not self.pictures or not isinstance(self.eval_game, TreasureHuntGame):  # other games draw none
             return None
-        return evaluation_views(self.learner, self.eval_game, self.config.seed, self.counters.evaluations)
+        return evaluation_views(self.learner, self.eval_game, self.config.seed, self.counters.step)
 
     def record_evaluation(self, result: dict[str, Any], views: EvaluationViews | None, named: bool) -> None:
         """Write a greedy evaluation's record (:func:`~dqn_transfer.evaluation.rollout.summarize` of its

@@ -8,8 +8,8 @@ its own run directory). :meth:`Trainer.run` reads top to bottom:
 1. act epsilon-greedily for every live agent (one batched forward for all agents of all replicas);
 2. step the games, hand the joint transition to the learner (which stores it and trains);
 3. at a replica's episode end: log per-agent and team statistics, exchange knowledge if due, reset;
-4. every ``eval_every`` steps: greedy evaluation on separately seeded episodes -> ``metrics.jsonl``,
-   and to TensorBoard with a picture of its first episode and the agents' Q-values there;
+4. every ``eval_every`` steps: greedy evaluation on episodes seeded by (seed, step, episode) alone ->
+   ``metrics.jsonl``, and to TensorBoard with a picture of its first episode and the agents' Q-values there;
 5. every ``LOG_EVERY`` steps: losses, Q means, epsilon and speed to TensorBoard and the progress bar;
 6. every ``checkpoint_every`` steps, and when a signal asks to stop: a checkpoint of every replica
    (:mod:`dqn_transfer.training.run_state`).
@@ -353,7 +353,7 @@ class Trainer:
                 [rep.eval_game for rep in replicas],
                 self.config.eval_episodes,
                 [rep.config.seed for rep in replicas],
-                [rep.counters.evaluations for rep in replicas],
+                [rep.counters.step for rep in replicas],
                 [None if view is None else view[2] for view in views],
             )
             for rep, result, view in zip(replicas, results, views):
