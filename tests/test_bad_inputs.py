@@ -117,6 +117,22 @@ CASES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     # bad hydra.run.dir
     "run_dir_under_a_file": (("hydra.run.dir=map.txt/run",), ("is a file",)),
     "run_dir_unwritable": (("hydra.run.dir=/proc/no_such_run",), ("/proc/no_such_run",)),
+    "resume_another_games_state": (
+        ("resume=true", "hydra.run.dir=mixed"),
+        ("another run's", "env.factory=dqn_transfer.envs.lbf:parallel_env", "env.factory=null"),
+    ),
+    # settings that would be silently ignored, or meaningless
+    "pettingzoo_without_a_factory": (("env=pettingzoo",), ("env=pettingzoo needs env.factory",)),
+    "source_without_transfer": (("transfer.source=done",), ("transfer.source=done", "transfer=on")),
+    "lbf_with_a_map_size": (("env=lbf", "env.size=10"), ("env.size=10", "treasure hunt", "lbf")),
+    "lbf_with_a_mode": (("env=lbf", "mode=deliberative"), ("env.mode=deliberative", "lbf")),
+    "buffer_below_a_batch": (
+        ("agent.buffer_size=10", "agent.batch_size=64"),
+        ("agent.buffer_size=10", "agent.batch_size=64"),
+    ),
+    "run_dir_empty": (("hydra.run.dir=",), ("hydra.run.dir is empty",)),
+    "sweep_dir_empty": (("-m", "seed=0,1", "hydra.sweep.dir="), ("hydra.sweep.dir is empty",)),
+    "sweep_dir_a_file": (("-m", "seed=0,1", "hydra.sweep.dir=map.txt"), ("map.txt is a file", "hydra.sweep.dir")),
     # unicode junk and malformed words
     "lr_emoji": (("agent.lr=⚡",), ("cannot read 'agent.lr=⚡'", "key=value")),
     "unicode_key": (("ñame=1",), ("ñame",)),
@@ -137,13 +153,18 @@ def tree(path: Path) -> dict[str, str]:
 
 @pytest.fixture(scope="module")
 def template(tmp_path_factory) -> Path:
-    """The launch directory every case starts from: map files and two finished runs."""
+    """The launch directory every case starts from: map files, three finished runs (two of the treasure hunt, one
+    of LBF) and a treasure-hunt run holding the LBF run's resume state."""
     root = tmp_path_factory.mktemp("template")
     for name, text in FILES.items():
         (root / name).write_text(text)
-    for name, steps in (("done", 0), ("done200", 200)):
+    for name, steps, game in (
+        ("done", 0, "env.layout_file=map.txt"),
+        ("done200", 200, "env.layout_file=map.txt"),
+        ("lbf", 0, "env=lbf"),
+    ):
         subprocess.run(
-            [sys.executable, str(TRAIN_PY), "env.layout_file=map.txt", "agent=sarsa", f"total_steps={steps}"]
+            [sys.executable, str(TRAIN_PY), game, "agent=sarsa", f"total_steps={steps}"]
             + ["eval_every=100", "eval_episodes=1", "progress=false", f"hydra.run.dir={name}"],
             cwd=root,
             env=train_env(),
@@ -151,6 +172,9 @@ def template(tmp_path_factory) -> Path:
             check=True,
             timeout=TRAIN_TIMEOUT,
         )
+    # a treasure-hunt run whose resume state was copied from the LBF run
+    shutil.copytree(root / "done", root / "mixed")
+    shutil.copy(root / "lbf/checkpoints/training_state.safetensors", root / "mixed/checkpoints")
     return root
 
 
