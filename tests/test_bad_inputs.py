@@ -133,6 +133,15 @@ CASES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "run_dir_empty": (("hydra.run.dir=",), ("hydra.run.dir is empty",)),
     "sweep_dir_empty": (("-m", "seed=0,1", "hydra.sweep.dir="), ("hydra.sweep.dir is empty",)),
     "sweep_dir_a_file": (("-m", "seed=0,1", "hydra.sweep.dir=map.txt"), ("map.txt is a file", "hydra.sweep.dir")),
+    # an optional dependency not installed (MISSING below): the one line names the extra to install
+    "joblib_launcher_missing": (("-m", "seed=0,1", "hydra/launcher=joblib"), ('pip install "dqn_transfer[sweep]"',)),
+    "optuna_sweeper_missing": (("-m", "hydra/sweeper=optuna"), ('pip install "dqn_transfer[optuna]"',)),
+    "submitit_launcher_missing": (
+        ("-m", "seed=0,1", "hydra/launcher=submitit_slurm"),
+        ('pip install "dqn_transfer[slurm]"',),
+    ),
+    "lbforaging_missing": (("env=lbf",), ("lbforaging", 'pip install "dqn_transfer[envs]"')),
+    "mpe2_missing": (("env=mpe_spread",), ("mpe2", 'pip install "dqn_transfer[envs]"')),
     # unicode junk and malformed words
     "lr_emoji": (("agent.lr=⚡",), ("cannot read 'agent.lr=⚡'", "key=value")),
     "unicode_key": (("ñame=1",), ("ñame",)),
@@ -141,6 +150,27 @@ CASES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "value_without_key": (("=5",), ("=5",)),
     "unclosed_list": (("agent.hidden=[64",), ("agent.hidden=[64",)),
 }
+
+# case -> the module its train.py process cannot import (the extras are installed where the tests run)
+MISSING = {
+    "joblib_launcher_missing": "hydra_plugins.hydra_joblib_launcher",
+    "optuna_sweeper_missing": "hydra_plugins.hydra_optuna_sweeper",
+    "submitit_launcher_missing": "hydra_plugins.hydra_submitit_launcher",
+    "lbforaging_missing": "lbforaging",
+    "mpe2_missing": "mpe2",
+}
+WITHOUT_MODULE = (
+    "import sys; sys.modules[sys.argv.pop(1)] = None; sys.argv[0] = {train!r}; "
+    "from dqn_transfer.cli.train import main; main()"
+)
+
+
+def train_words(name: str) -> list[str]:
+    """The command of case ``name``: ``python train.py OVERRIDES``, without its module if one is MISSING."""
+    overrides = [*CASES[name][0], "progress=false"]
+    if name in MISSING:
+        return [sys.executable, "-c", WITHOUT_MODULE.format(train=str(TRAIN_PY)), MISSING[name], *overrides]
+    return [sys.executable, str(TRAIN_PY), *overrides]
 
 
 def tree(path: Path) -> dict[str, str]:
@@ -187,7 +217,7 @@ def results(template, tmp_path_factory) -> dict:
         shutil.copytree(template, cwd)
         before = tree(cwd)
         proc = subprocess.run(
-            [sys.executable, str(TRAIN_PY), *CASES[name][0], "progress=false"],
+            train_words(name),
             cwd=cwd,
             env=train_env(),
             capture_output=True,

@@ -29,6 +29,7 @@ from dqn_transfer.enums import (
     Device,
     Engine,
     Exchange,
+    Extra,
     Fill,
     Logger,
     Mixer,
@@ -523,7 +524,7 @@ def _check_logger(names: Any) -> None:
             import wandb  # noqa: F401
         except ImportError:
             raise ConfigError(
-                "logger=[...,wandb] needs the wandb package: pip install 'dqn-transfer[wandb]' (or pip install wandb)"
+                f"logger=[...,wandb] needs the wandb package: {Extra.wandb.install} (or pip install wandb)"
             ) from None
 
 

@@ -42,7 +42,7 @@ from gymnasium import spaces
 from pettingzoo import AECEnv
 from pettingzoo.utils.conversions import aec_to_parallel
 
-from dqn_transfer.enums import RewardMode
+from dqn_transfer.enums import EXTRA_MODULES, RewardMode
 from dqn_transfer.envs.game import StepOutcome
 
 # The widest flattened observation an MLP learner is given (a 64x64 RGB image is 12288 wide).
@@ -67,7 +67,9 @@ def load_factory(spec: str) -> Any:
     try:
         module = importlib.import_module(module_name)
     except ImportError as err:
-        raise UnsupportedEnv(f"env.factory={spec}: cannot import {module_name} ({err})") from None
+        extra = EXTRA_MODULES.get(str(err.name).split(".")[0])
+        hint = f"; {extra.install}" if extra is not None else ""
+        raise UnsupportedEnv(f"env.factory={spec}: cannot import {module_name} ({err}){hint}") from None
     factory = getattr(module, attribute, None)
     if not callable(factory):
         raise UnsupportedEnv(f"env.factory={spec}: {module_name} has no callable {attribute}")
