@@ -164,3 +164,37 @@ def check_enum(name: str, value: object, enum: type[E]) -> E:
     if isinstance(value, enum):
         return value
     return enum(check_choice(name, value, values(enum)))
+
+
+class Extra(Enum):
+    """The optional dependencies of pyproject.toml a feature needs (``pip install "dqn_transfer[EXTRA]"``)."""
+
+    envs = "envs"
+    sweep = "sweep"
+    slurm = "slurm"
+    optuna = "optuna"
+    wandb = "wandb"
+
+    @property
+    def install(self) -> str:
+        """The command that installs it."""
+        return f'pip install "dqn_transfer[{self.value}]"'
+
+
+# The module each extra brings, as an ImportError names it (``err.name``): a missing one says what to install.
+EXTRA_MODULES = {
+    "lbforaging": Extra.envs,
+    "mpe2": Extra.envs,
+    "hydra_plugins.hydra_joblib_launcher": Extra.sweep,
+    "hydra_plugins.hydra_submitit_launcher": Extra.slurm,
+    "submitit": Extra.slurm,
+    "hydra_plugins.hydra_optuna_sweeper": Extra.optuna,
+    "optuna": Extra.optuna,
+    "wandb": Extra.wandb,
+}
+# A Hydra plugin chosen on the command line (group, option prefix) -> the module it lives in.
+HYDRA_PLUGINS = {
+    ("hydra/launcher", "joblib"): "hydra_plugins.hydra_joblib_launcher",
+    ("hydra/launcher", "submitit"): "hydra_plugins.hydra_submitit_launcher",
+    ("hydra/sweeper", "optuna"): "hydra_plugins.hydra_optuna_sweeper",
+}

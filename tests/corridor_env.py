@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 from gymnasium import spaces
-from pettingzoo import ParallelEnv
+from pettingzoo import AECEnv, ParallelEnv
+from pettingzoo.utils.conversions import parallel_to_aec
 
 
 class Corridor(ParallelEnv):
@@ -107,3 +108,14 @@ class _Unseeded(Corridor):
 
 def unseeded() -> Corridor:
     return _Unseeded()
+
+
+class _TurnBased(Corridor):
+    metadata = {"name": "corridor_turns_v0"}
+
+
+def turn_based() -> AECEnv:
+    """An AEC env whose agents take turns, each seeing the move before (not declared parallelizable)."""
+    env = parallel_to_aec(_TurnBased())
+    env.metadata["is_parallelizable"] = False
+    return env

@@ -117,6 +117,31 @@ CASES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     # bad hydra.run.dir
     "run_dir_under_a_file": (("hydra.run.dir=map.txt/run",), ("is a file",)),
     "run_dir_unwritable": (("hydra.run.dir=/proc/no_such_run",), ("/proc/no_such_run",)),
+    "resume_another_games_state": (
+        ("resume=true", "hydra.run.dir=mixed"),
+        ("another run's", "env.factory=dqn_transfer.envs.lbf:parallel_env", "env.factory=null"),
+    ),
+    # settings that would be silently ignored, or meaningless
+    "pettingzoo_without_a_factory": (("env=pettingzoo",), ("env=pettingzoo needs env.factory",)),
+    "source_without_transfer": (("transfer.source=done",), ("transfer.source=done", "transfer=on")),
+    "lbf_with_a_map_size": (("env=lbf", "env.size=10"), ("env.size=10", "treasure hunt", "lbf")),
+    "lbf_with_a_mode": (("env=lbf", "mode=deliberative"), ("env.mode=deliberative", "lbf")),
+    "buffer_below_a_batch": (
+        ("agent.buffer_size=10", "agent.batch_size=64"),
+        ("agent.buffer_size=10", "agent.batch_size=64"),
+    ),
+    "run_dir_empty": (("hydra.run.dir=",), ("hydra.run.dir is empty",)),
+    "sweep_dir_empty": (("-m", "seed=0,1", "hydra.sweep.dir="), ("hydra.sweep.dir is empty",)),
+    "sweep_dir_a_file": (("-m", "seed=0,1", "hydra.sweep.dir=map.txt"), ("map.txt is a file", "hydra.sweep.dir")),
+    # an optional dependency not installed (MISSING below): the one line names the extra to install
+    "joblib_launcher_missing": (("-m", "seed=0,1", "hydra/launcher=joblib"), ('pip install "dqn_transfer[sweep]"',)),
+    "optuna_sweeper_missing": (("-m", "hydra/sweeper=optuna"), ('pip install "dqn_transfer[optuna]"',)),
+    "submitit_launcher_missing": (
+        ("-m", "seed=0,1", "hydra/launcher=submitit_slurm"),
+        ('pip install "dqn_transfer[slurm]"',),
+    ),
+    "lbforaging_missing": (("env=lbf",), ("lbforaging", 'pip install "dqn_transfer[envs]"')),
+    "mpe2_missing": (("env=mpe_spread",), ("mpe2", 'pip install "dqn_transfer[envs]"')),
     # unicode junk and malformed words
     "lr_emoji": (("agent.lr=⚡",), ("cannot read 'agent.lr=⚡'", "key=value")),
     "unicode_key": (("ñame=1",), ("ñame",)),
@@ -125,6 +150,27 @@ CASES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "value_without_key": (("=5",), ("=5",)),
     "unclosed_list": (("agent.hidden=[64",), ("agent.hidden=[64",)),
 }
+
+# case -> the module its train.py process cannot import (the extras are installed where the tests run)
+MISSING = {
+    "joblib_launcher_missing": "hydra_plugins.hydra_joblib_launcher",
+    "optuna_sweeper_missing": "hydra_plugins.hydra_optuna_sweeper",
+    "submitit_launcher_missing": "hydra_plugins.hydra_submitit_launcher",
+    "lbforaging_missing": "lbforaging",
+    "mpe2_missing": "mpe2",
+}
+WITHOUT_MODULE = (
+    "import sys; sys.modules[sys.argv.pop(1)] = None; sys.argv[0] = {train!r}; "
+    "from dqn_transfer.cli.train import main; main()"
+)
+
+
+def train_words(name: str) -> list[str]:
+    """The command of case ``name``: ``python train.py OVERRIDES``, without its module if one is MISSING."""
+    overrides = [*CASES[name][0], "progress=false"]
+    if name in MISSING:
+        return [sys.executable, "-c", WITHOUT_MODULE.format(train=str(TRAIN_PY)), MISSING[name], *overrides]
+    return [sys.executable, str(TRAIN_PY), *overrides]
 
 
 def tree(path: Path) -> dict[str, str]:
@@ -137,13 +183,18 @@ def tree(path: Path) -> dict[str, str]:
 
 @pytest.fixture(scope="module")
 def template(tmp_path_factory) -> Path:
-    """The launch directory every case starts from: map files and two finished runs."""
+    """The launch directory every case starts from: map files, three finished runs (two of the treasure hunt, one
+    of LBF) and a treasure-hunt run holding the LBF run's resume state."""
     root = tmp_path_factory.mktemp("template")
     for name, text in FILES.items():
         (root / name).write_text(text)
-    for name, steps in (("done", 0), ("done200", 200)):
+    for name, steps, game in (
+        ("done", 0, "env.layout_file=map.txt"),
+        ("done200", 200, "env.layout_file=map.txt"),
+        ("lbf", 0, "env=lbf"),
+    ):
         subprocess.run(
-            [sys.executable, str(TRAIN_PY), "env.layout_file=map.txt", "agent=sarsa", f"total_steps={steps}"]
+            [sys.executable, str(TRAIN_PY), game, "agent=sarsa", f"total_steps={steps}"]
             + ["eval_every=100", "eval_episodes=1", "progress=false", f"hydra.run.dir={name}"],
             cwd=root,
             env=train_env(),
@@ -151,6 +202,9 @@ def template(tmp_path_factory) -> Path:
             check=True,
             timeout=TRAIN_TIMEOUT,
         )
+    # a treasure-hunt run whose resume state was copied from the LBF run
+    shutil.copytree(root / "done", root / "mixed")
+    shutil.copy(root / "lbf/checkpoints/training_state.safetensors", root / "mixed/checkpoints")
     return root
 
 
@@ -163,7 +217,7 @@ def results(template, tmp_path_factory) -> dict:
         shutil.copytree(template, cwd)
         before = tree(cwd)
         proc = subprocess.run(
-            [sys.executable, str(TRAIN_PY), *CASES[name][0], "progress=false"],
+            train_words(name),
             cwd=cwd,
             env=train_env(),
             capture_output=True,

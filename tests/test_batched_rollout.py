@@ -12,8 +12,9 @@ from dqn_transfer.enums import Algorithm, Engine
 from dqn_transfer.envs.game import TreasureHuntGame
 from dqn_transfer.envs.game_batch import LoopedGames
 from dqn_transfer.envs.maps import generate_layout, parse_layout
-from dqn_transfer.evaluation.batched_rollout import evaluate_replicas
-from dqn_transfer.evaluation.rollout import evaluate, evaluation_rng, greedy_policy, play_episode
+from dqn_transfer.evaluation import batched_rollout
+from dqn_transfer.evaluation.batched_rollout import GAMES_PER_BATCH, evaluate_replicas
+from dqn_transfer.evaluation.rollout import EvaluationStopped, evaluate, evaluation_rng, greedy_policy, play_episode
 
 SEEDS = [4, 7, 9]
 
@@ -47,7 +48,11 @@ def trained(algorithm: Algorithm, games: list[TreasureHuntGame], steps: int):
         (Algorithm.dqn, dict(mode="cooperative")),
     ],
 )
-def test_one_batch_of_all_replicas_evaluations_equals_evaluating_them_one_by_one(algorithm, rules):
+@pytest.mark.parametrize("games_per_batch", [GAMES_PER_BATCH, 7, 2])  # 1 batch; 3 of 2 episodes; 6 of 1
+def test_one_batch_of_all_replicas_evaluations_equals_evaluating_them_one_by_one(
+    algorithm, rules, games_per_batch, monkeypatch
+):
+    monkeypatch.setattr(batched_rollout, "GAMES_PER_BATCH", games_per_batch)
     layouts = [generate_layout(6, 3, 2, 3, 0.1, seed) for seed in (1, 2, 3)]
     games = [TreasureHuntGame(parse_layout(layout), **rules) for layout in layouts]
     learner = trained(algorithm, games, steps=400)
@@ -73,3 +78,22 @@ def test_without_the_batched_learner_each_replica_is_evaluated_through_its_team(
     teams = [learner.replica(r) for r in range(3)]
     got = evaluate_replicas(None, teams, games, 3, SEEDS, [100, 100, 100], [None] * 3)
     assert got == [evaluate(team, game, 3, seed, 100) for team, game, seed in zip(teams, games, SEEDS)]
+
+
+@pytest.mark.parametrize("batched", [True, False])
+def test_a_stop_asked_for_ends_an_evaluation_unfinished(batched):
+    """Asked after the third call (a joint step of the batch, or an episode replica by replica), the
+    evaluation raises instead of playing on to its end; without a stop, it ends with its records."""
+    games = [TreasureHuntGame(parse_layout(generate_layout(6, 2, 2, 2, 0.1, seed))) for seed in (1, 2, 3)]
+    learner = trained(Algorithm.qlearning, games, steps=200)
+    teams = [learner.replica(r) for r in range(3)]
+    calls = []
+
+    def stopped() -> bool:
+        calls.append(None)
+        return len(calls) > 3
+
+    with pytest.raises(EvaluationStopped):
+        evaluate_replicas(learner if batched else None, teams, games, 1000, SEEDS, [0] * 3, [None] * 3, stopped)
+    assert len(calls) == 4
+    assert len(evaluate_replicas(learner if batched else None, teams, games, 2, SEEDS, [0] * 3, [None] * 3)) == 3

@@ -26,7 +26,7 @@ from dqn_transfer.sharing.model_card import ExportError, export_team
 from dqn_transfer.sharing.team import load_team
 from dqn_transfer.sources.resolve import transfer_sources
 from dqn_transfer.storage.checkpoint import CheckpointError, load_agent_checkpoint, load_training_state
-from dqn_transfer.training.plan import plan_run
+from dqn_transfer.training.plan import plan_run, treasure_hunt_settings
 from dqn_transfer.training.trainer import train
 from dqn_transfer.transfer.mapping import TransferError, segment_slices
 from dqn_transfer.transfer.warm_start import check_same_game
@@ -290,6 +290,7 @@ def test_a_finished_run_extended_evaluates_as_the_longer_run(tmp_path, learning)
         (("env=pettingzoo", "env.factory=corridor_env:dict_observations"), ("error:", "Dict(")),
         (("env=pettingzoo", "env.factory=no_such_package:make"), ("error:", "cannot import no_such_package")),
         (("env=lbf", "transfer=on"), ("error:", "transfer.source_task=single")),
+        (("env=pettingzoo", "env.factory=corridor_env:turn_based"), ("error:", "is_parallelizable", "ParallelEnv")),
     ],
 )
 def test_bad_games_are_refused_in_one_line(tmp_path, monkeypatch, overrides, words):
@@ -299,6 +300,40 @@ def test_bad_games_are_refused_in_one_line(tmp_path, monkeypatch, overrides, wor
     assert result.returncode == 1 and len(lines) == 1, result.output
     for word in words:
         assert word in lines[0]
+
+
+def test_a_parallelizable_aec_env_is_played_as_its_parallel_env():
+    """mpe2's ``env`` (AEC, declared parallelizable) plays step for step as its ``parallel_env``."""
+    aec, parallel = (PettingZooGame(f"mpe2.simple_adversary_v3:{name}", {}) for name in ("env", "parallel_env"))
+    assert (aec.num_agents, aec.obs_dim, aec.num_actions) == (
+        parallel.num_agents,
+        parallel.obs_dim,
+        parallel.num_actions,
+    )
+    assert np.array_equal(aec.reset(np.random.default_rng(3)), parallel.reset(np.random.default_rng(3)))
+    actions = np.random.default_rng(4)
+    while not parallel.done:
+        joint = actions.integers(parallel.num_actions, size=parallel.num_agents)
+        a, b = aec.step(joint), parallel.step(joint)
+        assert np.array_equal(a.obs, b.obs) and np.array_equal(a.rewards, b.rewards)
+    assert aec.done and parallel.steps == 25  # max_cycles
+
+
+@pytest.mark.parametrize(
+    ("overrides", "ignored"),
+    [
+        (("env=lbf",), []),
+        (("env=simple", "env.factory=corridor_env:parallel_env"), []),  # env=simple's own map keys are not the user's
+        (("env=lbf", "mode=competitive", "env.size=6"), []),  # the defaults, set again
+        (
+            ("env=lbf", "env.size=10", "mode=cooperative", "env.map_seed=3"),
+            ["size", "mode"],
+        ),  # map_seed: its reset seed
+        (("env=simple", "env.factory=corridor_env:parallel_env", "env.num_traps=5"), ["num_traps"]),
+    ],
+)
+def test_treasure_hunt_keys_on_another_game_are_the_ones_the_user_set(overrides, ignored):
+    assert treasure_hunt_settings(compose_config(*overrides).env) == ignored
 
 
 def random_team_return(factory: str, kwargs: dict, episodes: int, seed: int) -> float:

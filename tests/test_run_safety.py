@@ -124,6 +124,26 @@ def test_resuming_after_a_signal_gives_the_uninterrupted_run(signalled, signum):
     assert agent_digests(run_dir) == agent_digests(reference)
 
 
+def test_a_signal_stops_a_long_evaluation_within_seconds_and_records_none_of_it(launch):
+    """SIGTERM in the step-0 evaluation of a million episodes (SLURM's grace period is seconds): the run stops
+    at once with its checkpoint, and the unfinished evaluation is not written as if complete."""
+    run_dir = launch / "long_evaluation"
+    proc = start_train(launch, *BASE, "agent=sarsa", "eval_episodes=1000000", run_dir=run_dir)
+    deadline = time.monotonic() + 60
+    while "run directory:" not in run_dir.with_suffix(".out").read_text():  # the evaluation starts right after
+        assert proc.poll() is None and time.monotonic() < deadline, run_dir.with_suffix(".out").read_text()
+        time.sleep(0.05)
+    time.sleep(1)
+    sent = time.monotonic()
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=60) == 143
+    assert time.monotonic() - sent < 10
+    output = run_dir.with_suffix(".out").read_text()
+    assert "Traceback" not in output and "the evaluation at step 0 was stopped unfinished" in output, output
+    assert metrics(run_dir) == []
+    assert load_training_state(run_dir / "checkpoints" / "training_state.safetensors")[1]["counters"]["step"] == 0
+
+
 def test_two_runs_started_in_the_same_second_get_their_own_directories(tmp_path):
     (tmp_path / "map.txt").write_text(MAP)
     command = [sys.executable, str(TRAIN_PY), *BASE, "agent=sarsa", "total_steps=50", "eval_every=25", "progress=false"]

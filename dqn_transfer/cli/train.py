@@ -38,7 +38,7 @@ from dqn_transfer.config.overrides import check_overrides, open_mapping_override
 from dqn_transfer.sources.curriculum import curriculum_sources
 from dqn_transfer.sources.resolve import transfer_sources
 from dqn_transfer.storage.checkpoint import CheckpointError, load_training_state
-from dqn_transfer.storage.run_dir import RunClaim, RunDir, RunDirError
+from dqn_transfer.storage.run_dir import RunClaim, RunDir, RunDirError, file_in_the_way
 from dqn_transfer.training.plan import plan_run
 from dqn_transfer.training.stop import Interrupted
 from dqn_transfer.training.trainer import Trainer
@@ -74,10 +74,16 @@ class ClaimRunDir(Callback):
     requeued = False  # this multirun job's directory holds its own earlier attempt's checkpoint
 
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
-        self._take(RunDir(config.hydra.run.dir), resume=config.resume, fresh=False)
+        self._take(RunDir(named_dir(config, "run")), resume=config.resume, fresh=False)
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
-        sweep = Path(config.hydra.sweep.dir)
+        sweep = Path(named_dir(config, "sweep"))
+        if (file := file_in_the_way(sweep)) is not None:
+            _exit_with(
+                RunDirError(
+                    f"cannot use {sweep} as a sweep directory: {file} is a file (choose another hydra.sweep.dir)"
+                )
+            )
         used = sorted(d.name for d in sweep.iterdir() if d.is_dir() and RunDir(d).holds_run()) if sweep.is_dir() else []
         if used:
             _exit_with(
@@ -116,16 +122,31 @@ class ClaimRunDir(Callback):
         cls.claim = claim
 
 
+def named_dir(config: DictConfig, mode: str) -> str:
+    """``hydra.run.dir`` (``mode`` run) or ``hydra.sweep.dir`` (sweep); an empty one is refused: Hydra would write
+    the run into the launch directory (a repository's root, say) among its files."""
+    path = str(config.hydra[mode].dir)
+    if not path.strip():
+        _exit_with(
+            RunDirError(
+                f"hydra.{mode}.dir is empty, which would write the {mode} into the launch directory: name a "
+                f"directory, or leave hydra.{mode}.dir out for one under outputs/"
+            )
+        )
+    return path
+
+
 def _exit_with(err: Exception, code: int = 1) -> None:
     print(f"error: {err}", file=sys.stderr)
     sys.exit(code)
 
 
-def resume_config(run: RunDir, cfg: DictConfig, overrides: list[str]) -> TrainConfig:
+def resume_config(run: RunDir, cfg: DictConfig, overrides: list[str], recorded: bytes | None = None) -> TrainConfig:
     """The saved config of the run being resumed, with the command line's resumable overrides.
 
     ``resume=true hydra.run.dir=DIR`` alone continues the run as it was configured; an override that
-    would change what is being learned (``agent.lr=...``, ``agent=sarsa``) is refused by name.
+    would change what is being learned (``agent.lr=...``, ``agent=sarsa``) is refused by name, and so is a
+    resume state that is another run's than the directory's own ``recorded`` config (a file copied in).
     """
     # A run of replicas keeps the batch's config in its index; a lone run in its resume state.
     replicas = run.replicas_index.exists()
@@ -135,6 +156,8 @@ def resume_config(run: RunDir, cfg: DictConfig, overrides: list[str]) -> TrainCo
         saved = OmegaConf.merge(OmegaConf.structured(TrainConfig), meta["config"])
     except (OSError, ValueError, KeyError, TypeError, OmegaConfBaseException) as err:
         raise ConfigError(f"{source}: its saved config does not fit this version of dqn_transfer ({err})") from None
+    if recorded is not None:
+        check_same_run(source, saved, run.config, recorded)
     for override in overrides:
         key = override.split("=", 1)[0].lstrip("+~")
         if key == "resume" or key.startswith("hydra"):
@@ -157,6 +180,41 @@ def resume_config(run: RunDir, cfg: DictConfig, overrides: list[str]) -> TrainCo
     # Hydra has just written the resume command's composition there; record the run's own instead.
     OmegaConf.save(saved, run.config)
     return OmegaConf.to_object(saved)  # type: ignore[return-value]
+
+
+# What a run is: its game, its team and its learner. A resume state that differs from its directory's own config
+# in one of these belongs to another run, whatever else agrees.
+RUN_IDENTITY = ("env.factory", "env.kwargs", "env.size", "env.num_treasures", "env.num_agents", "agent.algorithm")
+
+
+def check_same_run(source: Path, saved: Any, config_file: Path, recorded: bytes) -> None:
+    """Refuse the resume state ``source`` (its config ``saved``) when the run directory's own config, ``recorded``
+    in ``config_file`` before this resume, is of another game, team or learner (:data:`RUN_IDENTITY`).
+
+    :param source: the resume state (or a batch's index) read.
+    :param saved: its config.
+    :param config_file: the run directory's config record.
+    :param recorded: that record's text as the run left it.
+    """
+    try:
+        own = plain_config(OmegaConf.create(recorded.decode()))
+    except (ValueError, OmegaConfBaseException):
+        return  # a record this version cannot read says nothing against the state
+    theirs = plain_config(saved)
+    for key in RUN_IDENTITY:
+        section, name = key.split(".")
+        if (state := theirs[section][name]) != (record := own[section][name]):
+            shown = lambda value: "null" if value is None else value  # noqa: E731
+            raise ConfigError(
+                f"resume=true: {source} is another run's ({key}={shown(state)}) than this directory's "
+                f"({key}={shown(record)} in {config_file}); resume the run it came from, or put back this run's own"
+            )
+
+
+def plain_config(data: Any) -> dict[str, Any]:
+    """A run's config (a mapping, or the config itself) on the schema, as plain data (enums by name)."""
+    merged = OmegaConf.merge(OmegaConf.structured(TrainConfig), data)
+    return OmegaConf.to_container(merged, resolve=True, enum_to_str=True)  # type: ignore[return-value]
 
 
 # ------------------------------------------------------------------------------------ logging
@@ -229,7 +287,8 @@ def app(cfg: DictConfig) -> float:
         if (cfg.resume or ClaimRunDir.requeued) and run.has_run():
             if ClaimRunDir.requeued:
                 log.info("this job ran before and was stopped (requeued): resuming it from its last checkpoint")
-            config = resume_config(run, cfg, hydra_config.overrides.task)
+            recorded = claim.recorded_config() if claim is not None else None
+            config = resume_config(run, cfg, hydra_config.overrides.task, recorded)
         else:
             config = OmegaConf.to_object(cfg)  # type: ignore[assignment]
         with warnings.catch_warnings(record=True) as caught:  # said once the plan holds, never before a refusal

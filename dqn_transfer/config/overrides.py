@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import enum
+import importlib.util
 import re
 import sys
 import typing
@@ -25,6 +26,7 @@ from omegaconf.errors import OmegaConfBaseException
 from dqn_transfer.config.help import config_groups, group_options
 from dqn_transfer.config.schema import SB3_NAMES, ConfigError, StageConfig, TrainConfig
 from dqn_transfer.documented import describe
+from dqn_transfer.enums import EXTRA_MODULES, HYDRA_PLUGINS
 
 # An override of one curriculum stage's key, e.g. curriculum.stages.0.steps (group 1: the stage's key).
 STAGE_ELEMENT = re.compile(r"curriculum\.stages\.\d+\.([^.]+)(\..*)?")
@@ -54,6 +56,7 @@ def check_overrides(argv: list[str]) -> None:
                 f"cannot read '{word}': an override is key=value (value: a number, true/false, null, a word "
                 "or 'quoted text', a [list] or {mapping}; see --help)"
             ) from None
+    check_plugins(overrides)
     groups = config_groups()
     keys = [k.key for k in describe(TrainConfig)]
     types = schema_types(TrainConfig)
@@ -78,6 +81,16 @@ def check_overrides(argv: list[str]) -> None:
                 else f"; the keys are listed by `{Path(sys.argv[0]).name} --cfg job`"
             )
             raise ConfigError(f"unknown config key '{key}' in '{override.input_line}'{hint}")
+
+
+def check_plugins(overrides: list) -> None:
+    """Refuse a Hydra launcher or sweeper whose plugin is not installed (``hydra/launcher=joblib`` without
+    the sweep extra) in one line naming the extra, where Hydra would say only that the option is missing."""
+    for override in overrides:
+        for (group, prefix), module in HYDRA_PLUGINS.items():
+            option = str(override.value()) if override.key_or_group == group else ""
+            if option.startswith(prefix) and importlib.util.find_spec(module) is None:
+                raise ConfigError(f"{group}={option} needs its Hydra plugin: {EXTRA_MODULES[module].install}")
 
 
 # Keys of a mapping whose entries the user names freely (``env.kwargs.NAME=VALUE``): Hydra adds or

@@ -29,6 +29,7 @@ from dqn_transfer.enums import (
     Device,
     Engine,
     Exchange,
+    Extra,
     Fill,
     Logger,
     Mixer,
@@ -38,7 +39,7 @@ from dqn_transfer.enums import (
     SourceTask,
     values,
 )
-from dqn_transfer.envs.settings import ENV_KEYS, EnvConfig
+from dqn_transfer.envs.settings import ENV_KEYS, FACTORY_PLACEHOLDER, EnvConfig
 
 # The config groups: dqn_transfer/conf/, inside the package (found from any directory, installed or not).
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "conf"
@@ -347,6 +348,13 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
             "transfer.exchange=experience samples the team-mates' replay: it applies to the DQN learners only",
         )
     else:
+        # Every batch is drawn from the replay: one smaller than a batch repeats its few transitions in each
+        # (SB3 and CleanRL presume buffer_size >= batch_size).
+        _check(
+            agent.buffer_size >= agent.batch_size,
+            f"agent.buffer_size={agent.buffer_size} is smaller than agent.batch_size={agent.batch_size}: a "
+            "replay must hold at least one batch (raise agent.buffer_size or lower agent.batch_size)",
+        )
         layers = len(agent.hidden) + 1
         _check(
             all(-layers <= i < layers for i in transfer.freeze),
@@ -366,6 +374,11 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
         "(leave env.contention at any, or drop the layout)",
     )
     _check(
+        env.factory != FACTORY_PLACEHOLDER,
+        f"env=pettingzoo needs env.factory={FACTORY_PLACEHOLDER}, the function returning your PettingZoo ParallelEnv "
+        "(e.g. env.factory=mpe2.simple_spread_v3:parallel_env)",
+    )
+    _check(
         env.factory is not None or not env.fixed_start,
         "env.fixed_start=true fixes the episodes of another game (env.factory); the treasure hunt's map is "
         "fixed by env.map_seed already",
@@ -376,6 +389,10 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
         transfer.enabled or (list(transfer.offset) == [0, 0] and Fill(transfer.fill) is Fill.zero),
         f"transfer.offset={list(transfer.offset)} / transfer.fill={Fill(transfer.fill).value} place a source's "
         "map in this run's: they need transfer=on",
+    )
+    _check(
+        transfer.enabled or transfer.source is None,
+        f"transfer.source={transfer.source} is the agent this run starts from: it needs transfer=on",
     )
     _check_source_agent("transfer.source_agent", transfer.source_agent)
     _check_team_inputs(cfg)
@@ -507,7 +524,7 @@ def _check_logger(names: Any) -> None:
             import wandb  # noqa: F401
         except ImportError:
             raise ConfigError(
-                "logger=[...,wandb] needs the wandb package: pip install 'dqn-transfer[wandb]' (or pip install wandb)"
+                f"logger=[...,wandb] needs the wandb package: {Extra.wandb.install} (or pip install wandb)"
             ) from None
 
 

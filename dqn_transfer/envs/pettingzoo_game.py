@@ -39,8 +39,10 @@ from typing import Any
 
 import numpy as np
 from gymnasium import spaces
+from pettingzoo import AECEnv
+from pettingzoo.utils.conversions import aec_to_parallel
 
-from dqn_transfer.enums import RewardMode
+from dqn_transfer.enums import EXTRA_MODULES, RewardMode
 from dqn_transfer.envs.game import StepOutcome
 
 # The widest flattened observation an MLP learner is given (a 64x64 RGB image is 12288 wide).
@@ -65,7 +67,9 @@ def load_factory(spec: str) -> Any:
     try:
         module = importlib.import_module(module_name)
     except ImportError as err:
-        raise UnsupportedEnv(f"env.factory={spec}: cannot import {module_name} ({err})") from None
+        extra = EXTRA_MODULES.get(str(err.name).split(".")[0])
+        hint = f"; {extra.install}" if extra is not None else ""
+        raise UnsupportedEnv(f"env.factory={spec}: cannot import {module_name} ({err}){hint}") from None
     factory = getattr(module, attribute, None)
     if not callable(factory):
         raise UnsupportedEnv(f"env.factory={spec}: {module_name} has no callable {attribute}")
@@ -73,7 +77,8 @@ def load_factory(spec: str) -> Any:
 
 
 def make_parallel_env(spec: str, kwargs: Mapping[str, Any]) -> Any:
-    """The env ``spec``'s factory returns for ``kwargs``, checked to be a ParallelEnv.
+    """The env ``spec``'s factory returns for ``kwargs``, checked to be a ParallelEnv; a parallelizable AEC env
+    is converted to one.
 
     :param spec: ``PACKAGE.MODULE:CALLABLE``.
     :param kwargs: keyword arguments of the factory.
@@ -85,6 +90,16 @@ def make_parallel_env(spec: str, kwargs: Mapping[str, Any]) -> Any:
         raise UnsupportedEnv(
             f"env.factory={spec} refused env.kwargs={dict(kwargs)}: {type(err).__name__}: {err}"
         ) from None
+    if isinstance(env, AECEnv):
+        # An AEC env whose agents all act before it updates, as its author declares with
+        # is_parallelizable, is the same game in parallel (mpe2's parallel_env is exactly this wrapper of
+        # its env); of any other, agents' turns see each other's moves, which no joint step can express.
+        if not env.metadata.get("is_parallelizable", False):
+            raise UnsupportedEnv(
+                f"env.factory={spec} returned an AEC env whose metadata does not declare is_parallelizable: "
+                "give the factory of a PettingZoo ParallelEnv (e.g. the package's parallel_env)"
+            )
+        return aec_to_parallel(env)
     missing = [
         name
         for name in ("possible_agents", "reset", "step", "observation_space", "action_space")

@@ -68,6 +68,9 @@ class EnvConfig:
 # The keys of another game (a PettingZoo env) instead of the treasure hunt: they are not the treasure hunt's, so
 # they stay out of its games, its maps and its pretraining cache keys.
 FACTORY_KEYS = ("factory", "kwargs", "fixed_start")
+# env=pettingzoo's env.factory until its user names one (Hydra's ??? would not override the schema's null: the
+# run would silently be the treasure hunt's).
+FACTORY_PLACEHOLDER = "PACKAGE.MODULE:CALLABLE"
 # The treasure hunt's own keys.
 ENV_KEYS = tuple(f.name for f in fields(EnvConfig) if f.name not in FACTORY_KEYS)
 # The keys that shape the map itself; the rest are rules, observations and rewards.

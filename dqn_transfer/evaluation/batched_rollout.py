@@ -13,7 +13,7 @@ the batched core cannot step together (another game) are evaluated replica by re
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -23,7 +23,15 @@ from dqn_transfer.enums import RewardMode
 from dqn_transfer.envs import Game, batched
 from dqn_transfer.envs.game import TreasureHuntGame
 from dqn_transfer.envs.game_batch import fits_one_batch
-from dqn_transfer.evaluation.rollout import EpisodeResult, evaluate, evaluation_rng, summarize, team_returns_of
+from dqn_transfer.evaluation.rollout import (
+    EpisodeResult,
+    EvaluationStopped,
+    evaluate,
+    evaluation_rng,
+    never,
+    summarize,
+    team_returns_of,
+)
 
 
 def evaluate_replicas(
@@ -34,6 +42,7 @@ def evaluate_replicas(
     seeds: Sequence[int],
     steps: Sequence[int],
     firsts: Sequence[EpisodeResult | None],
+    stopped: Callable[[], bool] = never,
 ) -> list[dict[str, Any]]:
     """Each replica's evaluation record, as :func:`~dqn_transfer.evaluation.rollout.evaluate` gives it.
 
@@ -45,14 +54,22 @@ def evaluate_replicas(
     :param seeds: replica r's seed, and ``steps``: the training step its evaluation is made at (together
         they seed the episodes)
     :param firsts: replica r's episode 0 as the caller already played it (for a picture), or None
+    :param stopped: whether a stop was asked for: then :class:`~dqn_transfer.evaluation.rollout.EvaluationStopped`
+        is raised within a joint step (or an episode, replica by replica)
     """
     if learner is None or not fits_one_batch(games):
         return [
-            evaluate(team, game, episodes, seed, step, first)
+            evaluate(team, game, episodes, seed, step, first, stopped)
             for team, game, seed, step, first in zip(teams, games, seeds, steps, firsts)
         ]
-    played = play_greedy_batch(learner, games, episodes, seeds, steps, skip_first=[f is not None for f in firsts])
+    skip_first = [f is not None for f in firsts]
+    played = play_greedy_batch(learner, games, episodes, seeds, steps, skip_first, stopped)
     return [summarize(own if first is None else [first, *own[1:]]) for own, first in zip(played, firsts)]
+
+
+# The most games one batch of an evaluation plays: its setup (maps, generators) is then a fraction of a second,
+# so a stop asked for during an evaluation of many episodes ends it within seconds, and its memory is bounded.
+GAMES_PER_BATCH = 4096
 
 
 def play_greedy_batch(
@@ -62,12 +79,36 @@ def play_greedy_batch(
     seeds: Sequence[int],
     steps: Sequence[int],
     skip_first: Sequence[bool],
+    stopped: Callable[[], bool] = never,
 ) -> list[list[EpisodeResult]]:
     """Replica r's greedy episodes ``0..episodes-1`` (episode 0 a placeholder where ``skip_first[r]``),
-    all played in one batch of the batched core."""
-    replicas, agents = len(games), games[0].num_agents
+    played in batches of the batched core of at most :data:`GAMES_PER_BATCH` games (every replica's episodes
+    ``e0..e1-1``); :class:`~dqn_transfer.evaluation.rollout.EvaluationStopped` between two joint steps once
+    ``stopped()``."""
+    per_batch = max(1, GAMES_PER_BATCH // len(games))
+    results: list[list[EpisodeResult]] = [[] for _ in games]
+    for first in range(0, episodes, per_batch):
+        played = _play_episodes(
+            learner, games, range(first, min(first + per_batch, episodes)), seeds, steps, skip_first, stopped
+        )
+        for own, new in zip(results, played):
+            own.extend(new)
+    return results
+
+
+def _play_episodes(
+    learner: Learner,
+    games: Sequence[TreasureHuntGame],
+    numbers: range,
+    seeds: Sequence[int],
+    steps: Sequence[int],
+    skip_first: Sequence[bool],
+    stopped: Callable[[], bool],
+) -> list[list[EpisodeResult]]:
+    """Replica r's greedy episodes ``numbers``, all played in one batch (:func:`play_greedy_batch`)."""
+    replicas, agents, episodes = len(games), games[0].num_agents, len(numbers)
     chests, reward_mode = games[0].num_treasures, RewardMode(games[0].reward_mode)
-    slots = [(e, r) for e in range(episodes) for r in range(replicas)]  # game g = e * R + r
+    slots = [(e, r) for e in numbers for r in range(replicas)]  # game g = (e - numbers.start) * R + r
     maps = batched.batch_maps([games[r].map for _, r in slots], **games[0].settings())
     rngs = [evaluation_rng(seeds[r], steps[r], e) for e, r in slots]
     ties = [rng.spawn(1)[0] for rng in rngs]  # a child: the parent's stream stays the chest ties'
@@ -80,6 +121,8 @@ def play_greedy_batch(
     agent_returns = np.zeros((count, agents))
     cleared_at = np.full(count, -1, dtype=np.int64)  # the joint step that emptied the last full chest
     while state.live.any():
+        if stopped():
+            raise EvaluationStopped
         live = state.live
         obs = state.obs.reshape(episodes, replicas * agents, -1)
         best = learner.best_actions_stacked(obs).reshape(count * agents, -1)  # [G * K, A]

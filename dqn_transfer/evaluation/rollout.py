@@ -23,6 +23,15 @@ StepCallback = Callable[[Transition, dict], None]
 EVALUATION_STREAM = 1_000_003  # keeps evaluation episodes' generators apart from every other stream of a seed
 
 
+class EvaluationStopped(Exception):
+    """A stop was asked for (SIGINT / SIGTERM) while an evaluation was played: it ends unfinished, unrecorded."""
+
+
+def never() -> bool:
+    """The ``stopped`` of an evaluation nothing stops."""
+    return False
+
+
 class EpisodeResult(NamedTuple):
     team_return: float
     length: int  # joint steps
@@ -127,8 +136,10 @@ def evaluate(
     seed: int,
     step: int,
     first: EpisodeResult | None = None,
+    stopped: Callable[[], bool] = never,
 ) -> dict[str, Any]:
-    """Greedy episodes, each seeded by :func:`evaluation_rng`, as :func:`summarize` records them.
+    """Greedy episodes, each seeded by :func:`evaluation_rng`, as :func:`summarize` records them; raises
+    :class:`EvaluationStopped` when ``stopped()`` says so before an episode.
 
     :param learner: the team, played greedily.
     :param game: the game the episodes are played in (reset by each).
@@ -137,9 +148,12 @@ def evaluate(
     :param step: the training step the evaluation is made at (0 for the run's start).
     :param first: episode 0 as the caller already played it (e.g. recorded for a picture), not played
         again.
+    :param stopped: whether a stop was asked for (a long evaluation must not outlast SLURM's grace period).
     """
     results = [] if first is None else [first]
     for episode in range(len(results), episodes):
+        if stopped():
+            raise EvaluationStopped
         rng = evaluation_rng(seed, step, episode)
         results.append(play_episode(game, greedy_policy(learner, rng), rng))
     return summarize(results)

@@ -180,11 +180,8 @@ class RunClaim:
         """Lock the directory, creating it if needed; ``fresh``: it was just created for this run
         (a multirun job's directory), so ``undo`` removes it whole."""
         path = self.run.path.absolute()
-        for ancestor in (path, *path.parents):
-            if ancestor.exists() and not ancestor.is_dir():
-                raise RunDirError(
-                    f"cannot use {path} as a run directory: {ancestor} is a file (choose another hydra.run.dir)"
-                )
+        if (file := file_in_the_way(path)) is not None:
+            raise RunDirError(f"cannot use {path} as a run directory: {file} is a file (choose another hydra.run.dir)")
         missing = [p for p in (path, *path.parents) if not p.exists()]
         self._created = path if fresh else (missing[-1] if missing else None)
         self._entries_before = set() if fresh or not path.exists() else set(os.listdir(path))
@@ -206,6 +203,11 @@ class RunClaim:
         if resume:  # Hydra is about to rewrite .hydra/ and append to the log: undo puts them back
             records = [*self.run.hydra_dir.glob("*"), self.run.log] if self.run.hydra_dir.is_dir() else [self.run.log]
             self._records_before = {p: p.read_bytes() for p in records if p.is_file()}
+
+    def recorded_config(self) -> bytes | None:
+        """A resumed run's config record (``.hydra/config.yaml``) as it was before this process claimed the
+        directory (Hydra rewrites it then); None without one."""
+        return self._records_before.get(self.run.config)
 
     def release(self) -> None:
         if self._fd is not None:
@@ -229,6 +231,16 @@ class RunClaim:
         hydra_files = self.run.hydra_dir.glob("*") if self.run.hydra_dir.is_dir() else ()
         for added in [p for p in hydra_files if self._records_before and p not in self._records_before]:
             added.unlink(missing_ok=True)
+
+
+def file_in_the_way(path: Path) -> Path | None:
+    """``path`` itself or the nearest of its parents that exists and is not a directory (so no directory can be
+    made at ``path``); None if there is none.
+
+    :param path: where a directory is to be.
+    """
+    path = path.absolute()
+    return next((p for p in (path, *path.parents) if p.exists() and not p.is_dir()), None)
 
 
 def existing_run_message(run: RunDir) -> str:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 from dataclasses import dataclass
+from enum import Enum
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +32,7 @@ from dqn_transfer.config import (
 from dqn_transfer.enums import SourceTask
 from dqn_transfer.envs import Game, GridMap, PettingZooGame, UnsupportedEnv, make_game
 from dqn_transfer.envs.game import game_on
-from dqn_transfer.envs.settings import DEFAULTS, MAP_KEYS, EnvConfig
+from dqn_transfer.envs.settings import DEFAULTS, ENV_KEYS, MAP_KEYS, EnvConfig
 from dqn_transfer.training.resources import MAX_SIZE, check_memory, check_size
 from dqn_transfer.transfer.warm_start import transfer_targets
 
@@ -157,6 +158,12 @@ def _plan_other_game(config: TrainConfig, source_task: bool) -> RunPlan:
         raise ConfigError(
             f"curriculum: its stages change the treasure hunt's env; env.factory={factory} is another game"
         )
+    if foreign := treasure_hunt_settings(config.env):
+        settings = ", ".join(f"env.{key}={plain(getattr(config.env, key))}" for key in foreign)
+        raise ConfigError(
+            f"{settings}: the treasure hunt's, but env.factory={factory} is another game, which does not read "
+            f"{'it' if len(foreign) == 1 else 'them'} (leave {'it' if len(foreign) == 1 else 'them'} unset)"
+        )
     if config.replicas.maps > 1 and not config.env.fixed_start:
         raise ConfigError(
             f"replicas.maps={config.replicas.maps} varies the map seed, which env.factory={factory} reads only as "
@@ -178,17 +185,40 @@ def other_game(env: EnvConfig) -> PettingZooGame:
 
 # The keys that generate a map, which a layout makes pointless.
 GENERATION_KEYS = tuple(key for key in MAP_KEYS if key not in ("layout", "layout_file"))
+# The treasure hunt's keys another game (env.factory) does not read: all but env.map_seed, its reset
+# seed with env.fixed_start (and its instances' with replicas.maps).
+UNREAD_BY_OTHER_GAMES = tuple(key for key in ENV_KEYS if key != "map_seed")
+
+
+def plain(value: Any) -> Any:
+    """A setting as the config files and the command line spell it (an enum by its value)."""
+    return value.value if isinstance(value, Enum) else value
 
 
 @functools.cache
 def env_option_values() -> tuple[dict[str, Any], ...]:
-    """The generation keys each ``env`` option (``dqn_transfer/conf/env/**.yaml``) gives a run, and the
-    schema's defaults: the values a run has when its user set none of these keys."""
-    options = [{key: getattr(DEFAULTS, key) for key in GENERATION_KEYS}]
+    """The treasure hunt's keys as each ``env`` option (``dqn_transfer/conf/env/**.yaml``) gives them to a run,
+    and the schema's defaults: the values a run has when its user set none of these keys."""
+    options = [{key: plain(getattr(DEFAULTS, key)) for key in ENV_KEYS}]
     for path in sorted((CONFIG_DIR / "env").rglob("*.yaml")):
         values = yaml.safe_load(path.read_text()) or {}
-        options.append({**options[0], **{key: values[key] for key in GENERATION_KEYS if key in values}})
+        options.append({**options[0], **{key: values[key] for key in ENV_KEYS if key in values}})
     return tuple(options)
+
+
+def set_by_user(env: EnvConfig, keys: tuple[str, ...]) -> list[str]:
+    """The ``keys`` of ``env`` its user set: those whose values differ from the env option nearest to ``env``
+    over ``keys`` (or from the schema's defaults). Which option composed the run is not in the config; the
+    nearest stands for it, so that a group's own values (env=simple's ``map_seed`` 6) are never the user's."""
+    settings = {key: plain(value) for key, value in dataclasses.asdict(env).items()}
+    differing = lambda option: [key for key in keys if settings[key] != option[key]]  # noqa: E731
+    return min((differing(option) for option in env_option_values()), key=len)
+
+
+def treasure_hunt_settings(env: EnvConfig) -> list[str]:
+    """The treasure hunt's keys (``env.size``, ``mode``, chests, traps, ...) set on a run of another game
+    (``env.factory``), which would ignore them."""
+    return set_by_user(env, UNREAD_BY_OTHER_GAMES)
 
 
 def given_env(env: EnvConfig) -> dict[str, Any]:
@@ -200,9 +230,8 @@ def given_env(env: EnvConfig) -> dict[str, Any]:
     settings = dataclasses.asdict(env)
     if env.layout is None and env.layout_file is None:
         return settings
-    differing = lambda option: sum(settings[key] != option[key] for key in GENERATION_KEYS)  # noqa: E731
-    nearest = min(env_option_values(), key=differing)
-    return {**settings, **{key: None for key in GENERATION_KEYS if settings[key] == nearest[key]}}
+    given = set_by_user(env, GENERATION_KEYS)
+    return {**settings, **{key: None for key in GENERATION_KEYS if key not in given}}
 
 
 def _resolve_map(env: EnvConfig) -> GridMap:

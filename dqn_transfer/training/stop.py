@@ -46,6 +46,10 @@ class StopRequest:
         for signum, handler in self._previous.items():
             signal.signal(signum, handler)
 
+    def asked(self) -> bool:
+        """Whether a signal asked the run to stop."""
+        return self.signum is not None
+
     def _handle(self, signum: int, frame: object) -> None:
         if self.signum is not None and signum == signal.SIGINT:
             raise KeyboardInterrupt

@@ -29,7 +29,7 @@ import time
 import warnings
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Any, cast
+from typing import Any, NoReturn, cast
 
 import numpy as np
 from hydra.core.hydra_config import HydraConfig
@@ -42,6 +42,7 @@ from dqn_transfer.config import ConfigError, plain_yaml, to_plain
 from dqn_transfer.enums import Algorithm, Exchange, Logger
 from dqn_transfer.envs.game_batch import GameBatch, game_batch
 from dqn_transfer.evaluation.batched_rollout import evaluate_replicas
+from dqn_transfer.evaluation.rollout import EvaluationStopped
 from dqn_transfer.storage.checkpoint import CheckpointError, atomic_write, atomic_write_all
 from dqn_transfer.storage.run_dir import RunDir, existing_run_message
 from dqn_transfer.timing import Stopwatch
@@ -223,8 +224,8 @@ class Trainer:
             for rep in replicas
             if rep.counters.step % config.eval_every == 0 and rep.last_eval_step != rep.counters.step
         ]
-        if due:
-            self.run_evaluation(due)
+        if due and not self.run_evaluation(due, stop):
+            self._stop_here(stop)
         for rep in replicas:
             rep.start_episodes()
         self.games = games = game_batch([rep.game for rep in replicas], [rep.env_rng for rep in replicas])
@@ -276,7 +277,7 @@ class Trainer:
             games.reset(outcome.episode_end)
             # 4. evaluation
             if step % config.eval_every == 0:
-                self.run_evaluation(replicas)
+                self.run_evaluation(replicas, stop)  # stopped unfinished: the checkpoint below, then out
             # 5. training curves and the progress bar
             if step % LOG_EVERY == 0 or step == config.total_steps:
                 now = time.perf_counter()
@@ -308,8 +309,8 @@ class Trainer:
                     raise Interrupted(stop.signum, step, self.run_dir.path)
         bar.close()
         due = [rep for rep in replicas if rep.last_eval_step != self.step]  # not twice when resuming a finished run
-        if due:
-            self.run_evaluation(due)
+        if due and not self.run_evaluation(due, stop):
+            self._stop_here(stop)
         self.save_checkpoint()
         rep = replicas[0]
         checkpoints, logdir = self._where()
@@ -343,21 +344,35 @@ class Trainer:
         parent = self.final_dirs[0].path.parent
         return ", ".join(str(run.checkpoints) for run in self.final_dirs), str(parent)
 
-    def run_evaluation(self, replicas: Sequence[Replica]) -> None:
-        """Greedy evaluation of ``replicas`` at their current step, all played as one batch."""
+    def run_evaluation(self, replicas: Sequence[Replica], stop: StopRequest) -> bool:
+        """Greedy evaluation of ``replicas`` at their current step, all played as one batch; False when a stop
+        was asked for before it finished (then nothing is recorded: a resumed run plays it again, whole)."""
         with self.evaluation_time:
             views = [rep.evaluation_views() for rep in replicas]
-            results = evaluate_replicas(
-                self.learner if len(replicas) == len(self.replicas) else None,  # its rows are all replicas'
-                [rep.learner for rep in replicas],
-                [rep.eval_game for rep in replicas],
-                self.config.eval_episodes,
-                [rep.config.seed for rep in replicas],
-                [rep.counters.step for rep in replicas],
-                [None if view is None else view[2] for view in views],
-            )
+            try:
+                results = evaluate_replicas(
+                    self.learner if len(replicas) == len(self.replicas) else None,  # its rows are all replicas'
+                    [rep.learner for rep in replicas],
+                    [rep.eval_game for rep in replicas],
+                    self.config.eval_episodes,
+                    [rep.config.seed for rep in replicas],
+                    [rep.counters.step for rep in replicas],
+                    [None if view is None else view[2] for view in views],
+                    stop.asked,
+                )
+            except EvaluationStopped:
+                log.warning("the evaluation at step %d was stopped unfinished; a resumed run plays it again", self.step)
+                return False
             for rep, result, view in zip(replicas, results, views):
                 rep.record_evaluation(result, view, named=len(self.replicas) > 1)
+        return True
+
+    def _stop_here(self, stop: StopRequest) -> NoReturn:
+        """A checkpoint at the current step, then :class:`~dqn_transfer.training.stop.Interrupted` (a stop asked
+        for during an evaluation before or after the loop)."""
+        assert stop.signum is not None  # only a signal stops an evaluation
+        self.save_checkpoint()
+        raise Interrupted(stop.signum, self.step, self.run_dir.path)
 
     def save_checkpoint(self) -> None:
         """Every replica's agent files (for sharing) and resume state, which alone is read on resume.
