@@ -3,6 +3,7 @@ run warm-starts with the same Q-values."""
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import re
 import shlex
@@ -95,20 +96,37 @@ def test_the_card_metrics_are_what_play_measures_with_the_stated_seeds(exported,
     assert evaluation["team_return_std"] == pytest.approx(np.std(returns), abs=1e-3)
 
 
-def test_a_new_run_warm_starts_from_the_folder_with_the_same_q_values(exported, tmp_path):
+def warm_start(exported: Path, run_dir: Path, env: EnvConfig = ENV, **transfer) -> Path:
+    """A run of no steps of its own warm-started from ``exported``; returns its checkpoints."""
     config = TrainConfig(
-        env=ENV,
+        env=env,
         agent=AgentConfig(algorithm="dqn", hidden=[16]),
         total_steps=0,
         progress=False,
-        transfer=TransferConfig(enabled=True, source=str(exported)),
+        transfer=TransferConfig(enabled=True, source=str(exported), **transfer),
     )
-    train(plan_run(config), tmp_path / "warm", sources=transfer_sources(plan_run(config), tmp_path))
+    train(plan_run(config), run_dir, sources=transfer_sources(plan_run(config), run_dir.parent))
+    return run_dir / "checkpoints"
+
+
+def test_a_new_team_of_the_same_size_starts_agent_for_agent_from_the_folder(exported, tmp_path):
+    warm = warm_start(exported, tmp_path / "warm")
+    for i in (0, 1):
+        assert torch.equal(q_values(warm / f"agent_{i}.safetensors"), q_values(exported / f"agent_{i}.safetensors"))
+    assert not torch.equal(q_values(exported / "agent_1.safetensors"), q_values(exported / "agent_0.safetensors"))
+    # transfer.targets: the targets still start from the source agent of their own index.
+    only = warm_start(exported, tmp_path / "only_1", targets=[1])
+    assert torch.equal(q_values(only / "agent_1.safetensors"), q_values(exported / "agent_1.safetensors"))
+
+
+def test_source_agent_or_another_team_size_starts_every_agent_from_one(exported, tmp_path):
+    pinned = warm_start(exported, tmp_path / "pinned", source_agent=0)
+    lone = warm_start(exported, tmp_path / "lone", env=dataclasses.replace(ENV, num_agents=1))
     source = q_values(exported / "agent_0.safetensors")
-    fresh = q_values(tmp_path / "warm" / "checkpoints" / "agent_0.safetensors")
-    assert torch.equal(fresh, source)
-    assert torch.equal(q_values(tmp_path / "warm" / "checkpoints" / "agent_1.safetensors"), source)
-    assert not torch.equal(q_values(exported / "agent_1.safetensors"), source)  # the two agents learned apart
+    assert torch.equal(q_values(pinned / "agent_0.safetensors"), source)
+    assert torch.equal(q_values(pinned / "agent_1.safetensors"), source)
+    assert [file.name for file in lone.glob("agent_*")] == ["agent_0.safetensors"]
+    assert torch.equal(q_values(lone / "agent_0.safetensors"), source)
 
 
 def test_an_empty_existing_folder_is_fine(run, tmp_path):

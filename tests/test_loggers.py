@@ -171,7 +171,7 @@ def wandb_offline(tmp_path, monkeypatch):
     wandb = pytest.importorskip("wandb")
     monkeypatch.setenv("WANDB_MODE", "offline")
     monkeypatch.setenv("WANDB_DIR", str(tmp_path / "wandb_dir"))
-    monkeypatch.setenv("WANDB_SILENT", "true")
+    monkeypatch.delenv("WANDB_SILENT", raising=False)  # quiet by the run's own setting, not the environment's
     monkeypatch.delenv("WANDB_PROJECT", raising=False)
     yield
     wandb.teardown()  # the W&B service process this test started
@@ -246,6 +246,21 @@ def test_a_resumed_run_is_a_new_wandb_run_whose_history_is_the_csv_after_the_che
     assert resumed_points == [p for p in rows if p[0] > 200]
     assert [p for p in killed_points if p[0] <= 200] + resumed_points == rows
     assert resumed_pictures == [300, 400, 500, 600]
+
+
+@pytest.mark.slow
+def test_wandb_adds_no_console_line_and_keeps_its_files(tmp_path, wandb_offline):
+    """W&B's banners, history and summary (68 of a 2-replica run's 73 lines before) stay off the console."""
+    (tmp_path / "map.txt").write_text(MAP)
+    run = ("env.layout_file=map.txt", "replicas.seeds=2", "total_steps=200", "eval_every=100", "eval_episodes=1")
+    without = run_train(tmp_path, *run, "logger=[csv]", run_dir=tmp_path / "csv")
+    with_wandb = run_train(tmp_path, *run, "logger=[csv,wandb]", run_dir=tmp_path / "wandb")
+    lines = with_wandb.output.splitlines()
+    assert len(lines) == len(without.output.splitlines()) == 5  # run directory, 3 evaluations, done
+    assert not [line for line in lines if "wandb:" in line]
+    for seed in (0, 1):
+        ((_, points, _),) = wandb_runs(RunDir(tmp_path / "wandb" / f"seed_{seed}"))
+        assert points == sorted(csv_points(RunDir(tmp_path / "wandb" / f"seed_{seed}")))
 
 
 LONG_RUN = (*SIGNALLED_RUN, "logger=[csv,wandb]")  # long enough to be signalled while it learns

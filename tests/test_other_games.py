@@ -465,7 +465,8 @@ def test_a_run_of_replicas_as_the_source_transfers_seed_for_seed(tmp_path):
         )
         return transfer_sources(plan_run(config), tmp_path)
 
-    assert sources(1, 2) == [[source / f"seed_{s}" / "checkpoints" / "agent_0.safetensors"] * 2 for s in (1, 2)]
+    checkpoints = [source / f"seed_{s}" / "checkpoints" for s in (1, 2)]  # a team of this run's size: i from i
+    assert sources(1, 2) == [[run / "agent_0.safetensors", run / "agent_1.safetensors"] for run in checkpoints]
     with pytest.raises(CheckpointError, match="has no seed_3: each replica of this run starts from the source"):
         sources(2, 2)
     with pytest.raises(CheckpointError, match="is a run of 3 replicas: pass one replica's directory"):

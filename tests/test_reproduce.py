@@ -375,9 +375,15 @@ def test_exported_runs_keep_their_config_evaluations_and_map_optimum(tmp_path):
         _write_run(sweep / str(job), STEPS * 0.1, seed=seed)
         config = yaml.safe_load(RunDir(sweep / str(job)).config.read_text())
         config["env"].update(layout=layout, num_treasures=2, num_traps=0, num_agents=2, size=3, map_seed=0)
+        config["transfer"] = {"cache_dir": str(tmp_path / "study" / "pretrained")}  # where the sweep put it
+        config["curriculum"] = {"cache_dir": "stages"}  # a relative one names no machine
         RunDir(sweep / str(job)).config.write_text(yaml.safe_dump(config))
     runs = export_sweep(sweep, "claim2")
     assert [r.name for r in runs] == ["0", "1"] and [r.seed for r in runs] == [3, 4]
+    assert [(r.config["transfer"]["cache_dir"], r.config["curriculum"]["cache_dir"]) for r in runs] == [
+        ("pretrained", "stages")
+    ] * 2
+    assert str(tmp_path) not in json.dumps([r.to_json() for r in runs])
     assert runs[0].optimal_return == 200.0
     assert runs[0].curve()[1][-1] == pytest.approx(100.0) and runs[0].score_curve()[1][-1] == pytest.approx(0.5)
     write_data(tmp_path / "claim2.jsonl", runs)

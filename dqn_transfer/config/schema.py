@@ -118,9 +118,10 @@ class TransferConfig:
         "null: pretrain one (transfer.source_task)",
     )
     source_agent: Any = documented(
-        0,
+        None,
         "which agent_{i}.safetensors of a directory (or member of a team source): one "
-        "index for every target, or a list with one per target (another team size)",
+        "index for every target, or a list with one per target (another team size); null: agent i from "
+        "agent i of a directory holding a team of this run's size, else agent 0",
     )
     pretrain_steps: int = documented(20_000, "env steps of source-task pretraining when no source is given")
     source_task: SourceTask = documented(
@@ -394,7 +395,8 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
         transfer.enabled or transfer.source is None,
         f"transfer.source={transfer.source} is the agent this run starts from: it needs transfer=on",
     )
-    _check_source_agent("transfer.source_agent", transfer.source_agent)
+    if transfer.source_agent is not None:  # null: chosen by the source (dqn_transfer.sources.resolve)
+        _check_source_agent("transfer.source_agent", transfer.source_agent)
     _check_team_inputs(cfg)
     _check_mixer(cfg)
     _check_pretraining(cfg)

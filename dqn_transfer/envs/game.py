@@ -189,6 +189,18 @@ class StepOutcome(NamedTuple):
 class TreasureHuntGame:
     """K agents hunting the chests of one map; see the module docstring for the rules' details."""
 
+    # The keys of an evaluation's record (rollout.summarize) this game measures, and those each
+    # evaluation's console line and the loggers' eval/ tags show.
+    evaluation_metrics = (
+        "team_return",
+        "success_rate",
+        "trap_rate",
+        "episode_length",
+        "after_clear_rate",
+        "return_after_clear",
+    )
+    headline_metrics = ("team_return", "success_rate", "trap_rate")
+
     def __init__(
         self,
         grid_map: GridMap,

@@ -164,6 +164,9 @@ class PettingZooGame:
 
     reward_mode = RewardMode.individual
     num_treasures = 0  # no chests: evaluation's success_rate is 0 (docs/your_own_environment.md)
+    # What the game measures (TreasureHuntGame's): its record's chest and trap keys stay, at 0, but
+    # the console and the loggers show only these.
+    evaluation_metrics = headline_metrics = ("team_return", "episode_length")
     treasures_collected = 0
 
     def __init__(self, factory: str, kwargs: Mapping[str, Any], reset_seed: int | None = None) -> None:

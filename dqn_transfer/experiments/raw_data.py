@@ -39,6 +39,7 @@ REPO_DIR = Path(__file__).resolve().parents[2]  # the checkout the package runs 
 MANIFEST = "manifest.json"
 # The evaluation metrics kept per step (metrics.jsonl has more: episode lengths, wall times, epsilon).
 METRICS = ("team_return", "success_rate", "trap_rate", "after_clear_rate", "return_after_clear")
+CACHE_DIRS = ("transfer", "curriculum")  # the config sections whose cache_dir a record names, not locates
 DIGITS = 6  # significant digits kept: evaluations are means of a few episodes' integer returns
 
 
@@ -121,11 +122,27 @@ def _run_map(settings: tuple[Any, ...]) -> GridMap:
         return resolve_map(**dict(zip(MAP_KEYS, settings)))
 
 
+def without_machine_paths(config: dict[str, Any]) -> dict[str, Any]:
+    """``config`` with each absolute cache directory (``CACHE_DIRS``) as its name: the study keeps its
+    caches in its output directory (``OUT/pretrained``, ``OUT/curriculum_stages``; the pilot's in
+    ``OUT/pilot``), so a record says which one without the path of the machine that made it.
+
+    :param config: a run's composed config, as plain data (not changed).
+    """
+    plain = {**config}
+    for section in CACHE_DIRS:
+        where = plain.get(section, {}).get("cache_dir")
+        if where is not None and Path(where).is_absolute():
+            plain[section] = {**plain[section], "cache_dir": Path(where).name}
+    return plain
+
+
 def export_sweep(sweep_dir: Path, experiment: str) -> list[RunData]:
-    """Every usable run below ``sweep_dir`` as :class:`RunData` (unusable ones are skipped with a
-    warning); a step evaluated twice (a resumed run) keeps its later record."""
+    """Every usable run below ``sweep_dir`` as :class:`RunData`, its config without machine paths
+    (:func:`without_machine_paths`); unusable ones are skipped with a warning, and a step evaluated
+    twice (a resumed run) keeps its later record."""
     runs = [
-        run_data(run.dir, run.config, experiment, run.dir.relative_to(sweep_dir).as_posix())
+        run_data(run.dir, without_machine_paths(run.config), experiment, run.dir.relative_to(sweep_dir).as_posix())
         for run in load_runs(sweep_dir)
     ]
     return sorted(runs, key=lambda r: natural_key(Path(r.name)))

@@ -3,14 +3,15 @@
 It reads ``data/<experiment>.jsonl`` and ``data/manifest.json`` (the full runs), ``budgets.md`` (the pilot's
 budgets) and ``tuning/tuning.md`` (the tuning's chosen values), answers each question by
 :mod:`dqn_transfer.experiments.second_edition_analysis` with its own seeded random stream (:func:`stream`), and
-writes the report beside them (or into another directory); nothing else is read (no clock, no checkout), so the
-same data give the same bytes.
+writes the report beside them (or into another directory, with copies of the figures it links to); nothing else
+is read (no clock, no checkout), so the same data give the same bytes.
 """
 
 from __future__ import annotations
 
 import math
 import os
+import shutil
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -300,6 +301,18 @@ def stream(question: str) -> np.random.Generator:
     return np.random.default_rng([0, EXPERIMENTS.index(question)])
 
 
+def _carry_tuning_figure(results: Path, out: Path) -> bool:
+    """Whether ``results`` has the tuning figure; copied into ``out`` at the same relative path if that is
+    elsewhere, so that a report written anywhere holds its figures (and is the same bytes)."""
+    figure, beside = results / TUNING_FIGURE, out / TUNING_FIGURE
+    if not figure.is_file():
+        return False
+    if not beside.is_file() or not os.path.samefile(figure, beside):
+        beside.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(figure, beside)
+    return True
+
+
 def write_report(results: Path, out: Path | None = None) -> Path:
     """``OUT/REPORT.md`` and its figures (``OUT`` = ``results`` by default) from ``results/data/`` and the
     budgets and tuning beside it."""
@@ -346,7 +359,7 @@ def write_report(results: Path, out: Path | None = None) -> Path:
         claim2_figure(result2, out / "claim2.png", watermark)
         body += claim2_section(result2, "claim2.png")
         summary.append(("Claim 2", result2.verdict))
-    if runs["transfer"] or runs["transfer_aware"]:
+    if runs["transfer"]:  # claim 3's control (scratch_matched) is among them: transfer_aware's wait for it
         result3 = claim3(runs["transfer"] + runs["transfer_aware"], stream("transfer"))
         body += claim3_section(result3)
         summary.append(("Claim 3", result3.verdict))
@@ -360,6 +373,11 @@ def write_report(results: Path, out: Path | None = None) -> Path:
             else []
         ),
         *([f"> **Not yet run**: {', '.join(missing)}; their questions have no verdict yet.", ""] if missing else []),
+        *(
+            ["> Claim 3 compares `transfer_aware`'s runs with the control among `transfer`'s: it waits for them.", ""]
+            if runs["transfer_aware"] and not runs["transfer"]
+            else []
+        ),
         f"Data: `{DATA_DIR}/` beside this report. Verdict rules: `{RULES}`, tagged `{TAG}` at "
         f"{manifest.get('rules_commit', '?')}, before any of these runs. Intervals are 95% hierarchical-bootstrap "
         f"intervals over maps (maps, then runs within maps); p-values are two-sided bootstrap p; a family's are "
@@ -380,11 +398,7 @@ def write_report(results: Path, out: Path | None = None) -> Path:
         "## Tuning (stage 2)",
         "",
         *_include(results / TUNING_TABLE),
-        *(
-            [f"![tuning]({Path(os.path.relpath(results / TUNING_FIGURE, out)).as_posix()})", ""]
-            if (results / TUNING_FIGURE).exists()
-            else []
-        ),
+        *([f"![tuning]({TUNING_FIGURE.as_posix()})", ""] if _carry_tuning_figure(results, out) else []),
         "## Budgets (stage 3)",
         "",
         *_include(results / BUDGETS_TABLE),

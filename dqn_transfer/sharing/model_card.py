@@ -272,16 +272,17 @@ A team of {game.num_agents} {algorithm.value} agents trained with dqn_transfer o
 
 ## Warm-start from it
 
-With dqn_transfer installed, a new run of the same game starts its agents from agent 0 of this folder
-(at step 0 they compute exactly its Q-values):
+With dqn_transfer installed, a new run of the same game starts each agent from the agent of its own
+index in this folder (at step 0 they compute exactly their Q-values):
 
 ```bash
 FOLDER=path/to/this/folder
 {warm_start_command(team)}
 ```
 
-`transfer.source_agent=1` starts them from agent 1 instead (a list gives each new agent its own, for
-another team size), `transfer.targets=[0]` warm-starts agent 0 only. Another mode works too, and so
+`transfer.source_agent=1` starts every agent from agent 1 instead (a list gives each new agent its own);
+a team of another size starts every agent from agent 0 unless a list says otherwise;
+`transfer.targets=[0]` warm-starts agent 0 only. Another mode works too, and so
 does a larger map holding this one at `transfer.offset=[row, col]`: inputs only the new run has start
 at zero weight. Watch the team: `dqn-transfer-play $FOLDER`; check the files: `dqn-transfer-ckpt verify $FOLDER`.
 

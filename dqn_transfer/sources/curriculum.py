@@ -51,6 +51,10 @@ def stage_hash(config: TrainConfig, layout: str, previous: str | None) -> str:
     plain["transfer"] = {
         key: value for key, value in plain["transfer"].items() if key not in NOT_IN_STAGE_TRANSFER_HASH
     }
+    if plain["transfer"].get("source_agent") is None:
+        # Only the first stage's (it starts from nothing): hashed as the 0 it was before the default became
+        # null, so that the stages cached before stay valid.
+        plain["transfer"]["source_agent"] = 0
     key = {"config": plain, "previous": previous}
     return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
 

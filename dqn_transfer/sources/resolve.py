@@ -20,6 +20,7 @@ import dataclasses
 import hashlib
 import json
 import logging
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +41,8 @@ log = logging.getLogger("dqn_transfer.transfer")
 NOT_IN_SOURCE_TASK = ("mode", "reward_mode", "render_mode")
 # A team source plays the run's own game (``transfer.source_task=team``): only rendering is left out.
 NOT_IN_TEAM_TASK = ("render_mode",)
+# The source agent of every target when transfer.source_agent is unset and the source is no team of the run's size.
+DEFAULT_SOURCE_AGENT = 0
 # Before every line the source's pretraining logs (its evaluations look like the run's own otherwise).
 PRETRAINING_TAG = "[pretraining source]"
 
@@ -135,8 +138,8 @@ def _reuse(entry: RunDir, steps: int) -> bool:
 
 def source_agents(transfer: TransferConfig, num_targets: int) -> list[int]:
     """``transfer.source_agent`` as one source agent index per target agent: one index for every target,
-    or a list with one per target (refused if its length is not ``num_targets``)."""
-    wanted = transfer.source_agent
+    or a list with one per target (refused if its length is not ``num_targets``); unset, agent 0."""
+    wanted = DEFAULT_SOURCE_AGENT if transfer.source_agent is None else transfer.source_agent
     per_target = [wanted] * num_targets if isinstance(wanted, int) else list(wanted)
     if len(per_target) != num_targets:
         raise TransferError(
@@ -149,7 +152,7 @@ def source_agents(transfer: TransferConfig, num_targets: int) -> list[int]:
 def team_members(transfer: TransferConfig, num_agents: int, num_targets: int) -> list[int]:
     """The member of a pretrained source team each target agent starts from (``transfer.source_agent``:
     one index for every target, or one per target), checked against the team's ``num_agents``."""
-    wanted = transfer.source_agent
+    wanted = DEFAULT_SOURCE_AGENT if transfer.source_agent is None else transfer.source_agent
     per_target = source_agents(transfer, num_targets)
     bad = sorted({index for index in per_target if index >= num_agents})
     if bad:
@@ -176,7 +179,7 @@ def resolve_source(transfer: TransferConfig, launch_dir: Path, num_targets: int)
     is a file, else agent ``transfer.source_agent`` (one index, or one per target) of a run directory."""
     path = source_path(transfer, launch_dir)
     files = find_checkpoints(path)
-    wanted = transfer.source_agent
+    wanted = DEFAULT_SOURCE_AGENT if transfer.source_agent is None else transfer.source_agent
     if path.is_file():
         if not isinstance(wanted, int):
             raise TransferError(
@@ -201,11 +204,30 @@ def resolve_source(transfer: TransferConfig, launch_dir: Path, num_targets: int)
     return [by_name[agent_file_name(index)] for index in per_target]
 
 
+def team_to_team(transfer: TransferConfig, source: Path, targets: Sequence[int], num_agents: int) -> TransferConfig:
+    """``transfer`` for the source ``source``: with ``source_agent`` unset and a directory holding a team
+    of this run's size (its agent files exactly ``agent_0`` .. ``agent_{K-1}``), each target agent
+    starts from the source agent of its own index; else as it is (unset: agent 0 for every target).
+
+    :param transfer: the run's transfer config.
+    :param source: the source's path (a file, a run directory, an exported folder).
+    :param targets: the run's target agents.
+    :param num_agents: the run's team size, K.
+    """
+    if transfer.source_agent is not None or source.is_file():
+        return transfer
+    team = {file.name for file in find_checkpoints(source)}
+    if team != {agent_file_name(i) for i in range(num_agents)}:
+        return transfer  # another team size: every target from agent 0
+    return dataclasses.replace(transfer, source_agent=list(targets))
+
+
 def given_sources(plan: RunPlan, launch_dir: Path) -> list[list[Path]]:
     """``transfer.source`` resolved for each replica of ``plan``: the same checkpoints for every replica,
     except that a run of replicas as the source gives each replica of a run of replicas the source
     replica of its own name (``seed_<s>``), so a batch of seeds transfers seed for seed; a replica the
-    source lacks is refused in one line.
+    source lacks is refused in one line. A source team of the run's size gives agent i to agent i
+    unless ``transfer.source_agent`` says otherwise (:func:`team_to_team`).
 
     :param plan: the run (its ``transfer.source`` set).
     :param launch_dir: relative sources are taken from here.
@@ -214,7 +236,8 @@ def given_sources(plan: RunPlan, launch_dir: Path) -> list[list[Path]]:
     path = source_path(transfer, launch_dir)
     by_name = {directory.name: directory for directory in RunDir(path).replica_dirs()}
     if not by_name or len(plan.replicas) == 1:
-        return [resolve_source(transfer, launch_dir, num_targets)] * len(plan.replicas)
+        team = team_to_team(transfer, path, plan.targets, plan.num_agents)
+        return [resolve_source(team, launch_dir, num_targets)] * len(plan.replicas)
     missing = [replica.name for replica in plan.replicas if replica.name not in by_name]
     if missing:
         raise CheckpointError(
@@ -222,7 +245,16 @@ def given_sources(plan: RunPlan, launch_dir: Path) -> list[list[Path]]:
             f"{', '.join(missing)}: each replica of this run starts from the source replica of its own name"
         )
     return [
-        resolve_source(dataclasses.replace(transfer, source=str(by_name[replica.name])), launch_dir, num_targets)
+        resolve_source(
+            team_to_team(
+                dataclasses.replace(transfer, source=str(by_name[replica.name])),
+                by_name[replica.name],
+                plan.targets,
+                plan.num_agents,
+            ),
+            launch_dir,
+            num_targets,
+        )
         for replica in plan.replicas
     ]
 
@@ -243,7 +275,7 @@ def transfer_sources(plan: RunPlan, launch_dir: Path) -> list[list[Path]] | None
     task = SourceTask(config.transfer.source_task)
     if task is SourceTask.team:
         members = team_members(config.transfer, plan.num_agents, num_targets)
-    elif not isinstance(config.transfer.source_agent, int):
+    elif config.transfer.source_agent is not None and not isinstance(config.transfer.source_agent, int):
         raise TransferError(
             f"transfer.source_agent={list(config.transfer.source_agent)} picks agents of "
             "transfer.source or of a team source; the pretrained source is one agent (set "

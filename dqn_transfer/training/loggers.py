@@ -9,7 +9,7 @@ update yet) once and hands the rest to each backend of the run's ``logger`` list
   when named): the config, the scalars, the evaluation pictures and Q-value histograms; the replicas of
   a run are runs of one group (the run directory's name), and each resume of a replica is a new run of
   that group. ``WANDB_MODE=offline`` writes only the local run directory (``wandb/`` in the run
-  directory; ``wandb sync`` uploads it later).
+  directory; ``wandb sync`` uploads it later). W&B prints nothing on the console.
 
 A backend's interface (:class:`Backend`) is four calls: several scalars of one step, an evaluation's
 views, a text, and close; the config is given when it is made.
@@ -154,6 +154,9 @@ class WandbLogger:
             dir=str(run_dir.path),
             id=run_id,
             reinit="create_new",  # the replicas of a batch are runs of one process
+            # W&B's own console lines (a banner per replica's run, its history and summary at the end: 68
+            # of a 2-replica run's 73 lines) bury the run's; its files are written all the same.
+            settings=wandb.Settings(silent=True),
         )
 
     def scalars(self, points: Sequence[tuple[str, float]], step: int) -> None:

@@ -38,6 +38,7 @@ log = logging.getLogger("dqn_transfer.train")
 
 # The exchanges made every ``exchange_every`` episodes (advice acts at every step, inside the learner).
 EXCHANGES_AT_EPISODE_ENDS = (Exchange.best, Exchange.shared_replay, Exchange.confidence)
+WHOLE_METRICS = ("team_return", "episode_length", "return_after_clear")  # shown to 0.1 on the console, not 0.01
 
 
 def exploration_steps(config: TrainConfig) -> int:
@@ -257,16 +258,14 @@ class Replica:
 
     def _log_episode(self, treasures: int) -> None:
         logger, episode, step, game = self.logger, self.episode, self.counters.step, self.game
-        logger.scalars(  # one event for the episode's points
-            [
-                *logger.agent_values("episodic_return", episode.returns),
-                *logger.agent_values("episodic_length", episode.lengths),
-                ("team/return", episode.team_return),
-                ("team/treasures_collected", treasures),
-                ("team/trap_rate", episode.traps / game.num_agents),
-            ],
-            step,
-        )
+        points = [
+            *logger.agent_values("episodic_return", episode.returns),
+            *logger.agent_values("episodic_length", episode.lengths),
+            ("team/return", episode.team_return),
+        ]
+        if isinstance(game, TreasureHuntGame):  # another game has neither chests nor traps
+            points += [("team/treasures_collected", treasures), ("team/trap_rate", episode.traps / game.num_agents)]
+        logger.scalars(points, step)  # one event for the episode's points
 
     def _exchange(self) -> None:
         transfer = self.config.transfer
@@ -300,10 +299,11 @@ class Replica:
             return None
         return evaluation_views(self.learner, self.eval_game, self.config.seed, self.counters.step)
 
-    def record_evaluation(self, result: dict[str, Any], views: EvaluationViews | None, named: bool) -> None:
+    def record_evaluation(self, result: dict[str, Any], views: EvaluationViews | None) -> None:
         """Write a greedy evaluation's record (:func:`~dqn_transfer.evaluation.rollout.summarize` of its
-        episodes) to ``metrics.jsonl`` and the logs, with :meth:`evaluation_views`' picture and Q-values
-        if any (``named``: the log line names the replica)."""
+        episodes) to ``metrics.jsonl`` and the logs (the game's headline metrics), with
+        :meth:`evaluation_views`' picture and Q-values if any. The console line is the batch's
+        (:func:`evaluation_line`)."""
         step = self.counters.step
         self.counters.evaluations += 1
         self.last_eval = {k: v for k, v in result.items() if k != "agent_returns"}  # team means (checkpoint meta)
@@ -319,16 +319,33 @@ class Replica:
             record["transfer_source"] = self.transfer_info
         with self.run_dir.metrics.open("a") as stream:
             stream.write(json.dumps(record) + "\n")
-        scalars = ("team_return", "success_rate", "trap_rate")
-        self.logger.scalars([(f"eval/{key}", result[key]) for key in scalars], step)  # one event
+        metrics = self.game.headline_metrics
+        self.logger.scalars([(f"eval/{key}", result[key]) for key in metrics], step)  # one event
         if views is not None:
             picture, q_values, _ = views
             self.logger.evaluation_views(picture, q_values, step)
-        log.info(
-            "eval step %d%s: team_return %.1f success_rate %.2f trap_rate %.2f",
-            step,
-            f" {self.run_dir.path.name}" if named else "",
-            result["team_return"],
-            result["success_rate"],
-            result["trap_rate"],
-        )
+
+
+def metric_text(key: str, value: float) -> str:
+    """``value`` of the evaluation metric ``key`` as the console shows it: returns and lengths to 0.1,
+    rates to 0.01."""
+    return f"{value:.1f}" if key in WHOLE_METRICS else f"{value:.2f}"
+
+
+def evaluation_line(step: int, results: Sequence[dict[str, Any]], metrics: Sequence[str]) -> str:
+    """The console line of one evaluation of a batch: ``metrics`` of its one replica, or of several the
+    mean, min and max over them (each replica's own numbers are in its ``metrics.jsonl`` and logs).
+
+    :param step: the evaluation's step.
+    :param results: each evaluated replica's record.
+    :param metrics: the keys shown, in order (the game's ``headline_metrics``).
+    """
+    if len(results) == 1:
+        shown = " ".join(f"{key} {metric_text(key, results[0][key])}" for key in metrics)
+        return f"eval step {step}: {shown}"
+    parts = []
+    for key in metrics:
+        values = [result[key] for result in results]
+        low, high = metric_text(key, min(values)), metric_text(key, max(values))
+        parts.append(f"{key} {metric_text(key, float(np.mean(values)))} [{low}, {high}]")
+    return f"eval step {step}, mean [min, max] of {len(results)} replicas: {' '.join(parts)}"

@@ -47,7 +47,7 @@ from dqn_transfer.storage.checkpoint import CheckpointError, atomic_write, atomi
 from dqn_transfer.storage.run_dir import RunDir, existing_run_message
 from dqn_transfer.timing import Stopwatch
 from dqn_transfer.training.plan import RunPlan
-from dqn_transfer.training.replica import EpisodeSums, EpsilonSchedule, Replica
+from dqn_transfer.training.replica import EpisodeSums, EpsilonSchedule, Replica, evaluation_line, metric_text
 from dqn_transfer.training.run_state import encode_checkpoint, load_checkpoint
 from dqn_transfer.training.stop import Interrupted, StopRequest
 from dqn_transfer.transfer.capabilities import check_capabilities
@@ -316,11 +316,11 @@ class Trainer:
         checkpoints, logdir = self._where()
         watched = Logger.tensorboard in [Logger(name) for name in self.config.logger]
         log.info(
-            "done: %d steps, %s episodes; last eval %s; checkpoints in %s; "
+            "done: %d steps, %s; last eval %s; checkpoints in %s; "
             + ("watch with `tensorboard --logdir %s`" if watched else "logs beside them: %s"),
             self.step,
-            "/".join(str(r.counters.episodes) for r in replicas),
-            rep.last_eval if len(replicas) == 1 else f"(mean of {len(replicas)} replicas) {self._mean_last_eval()}",
+            self._episodes_text(),
+            self._last_eval_text(),
             checkpoints,
             logdir if watched else ", ".join(Logger(name).value for name in self.config.logger),
         )
@@ -364,7 +364,8 @@ class Trainer:
                 log.warning("the evaluation at step %d was stopped unfinished; a resumed run plays it again", self.step)
                 return False
             for rep, result, view in zip(replicas, results, views):
-                rep.record_evaluation(result, view, named=len(self.replicas) > 1)
+                rep.record_evaluation(result, view)
+            log.info(evaluation_line(self.step, results, replicas[0].game.headline_metrics))
         return True
 
     def _stop_here(self, stop: StopRequest) -> NoReturn:
@@ -391,6 +392,20 @@ class Trainer:
             atomic_write_all({**agent_files, **state_files})
 
     # ------------------------------------------------------------------ summary
+    def _episodes_text(self) -> str:
+        """The done line's episodes: a lone run's count, or the replicas' mean [min, max]."""
+        counts = [rep.counters.episodes for rep in self.replicas]
+        if len(counts) == 1:
+            return f"{counts[0]} episodes"
+        return f"{np.mean(counts):.1f} [{min(counts)}, {max(counts)}] episodes a replica"
+
+    def _last_eval_text(self) -> str:
+        """The done line's last evaluation: what the game measures, a lone run's or the replicas' mean."""
+        game = self.replicas[0].game
+        last = self.replicas[0].last_eval if len(self.replicas) == 1 else self._mean_last_eval()
+        shown = ", ".join(f"{key} {metric_text(key, last[key])}" for key in game.evaluation_metrics if key in last)
+        return shown if len(self.replicas) == 1 else f"(mean of {len(self.replicas)} replicas) {shown}"
+
     def _mean_last_eval(self) -> dict[str, float]:
         return {
             key: float(np.mean([rep.last_eval[key] for rep in self.replicas])) for key in self.replicas[0].last_eval
