@@ -153,7 +153,7 @@ def test_the_budget_is_the_safety_multiple_rounded_up_and_capped():
     """The kinked curve's window of 4 evaluations first lies wholly on the flat part at step 4,500."""
     pilot = [kinked()]
     assert converged_step(pilot, 0.01) == 4_500
-    assert budget_rule(pilot, 0.01) == Budget(4_500, 7_000, False, 0.0, 0.0, 10_000)  # 1.5 x 4,500 = 6,750
+    assert budget_rule(pilot, 0.01) == Budget(4_500, 7_000, False, 0.0, 0.0, 10_000, 0.01)  # 1.5 x 4,500 = 6,750
     assert budget_rule(pilot, 0.01, round_to=250).budget == 6_750
     assert budget_rule(pilot, 0.01, safety=1.0).budget == 5_000  # 4,500 rounded up to a multiple of 1,000
     assert budget_rule(pilot, 0.01, safety=1.0, round_to=500).budget == 4_500  # a multiple already: kept
@@ -172,6 +172,19 @@ def test_a_cell_that_did_not_converge_gets_the_cap_flagged():
     assert (budget.converged_step, budget.budget, budget.capped, budget.slope_at_budget) == (None, 24_000, True, None)
     assert budget.final_slope == pytest.approx(0.05)
     assert budget.pilot_steps == 8_000
+    assert budget.margin == pytest.approx(0.04)  # only the last slope, 0.05, decided: 0.04 above 0.01
+
+
+def test_the_margin_is_the_closest_call_among_the_slopes_that_decided():
+    """The kinked curve: at 4,000 the window 2,500..4,000 (0.25, 0.3, 0.3, 0.3) has slope 0.03 per 1,000 steps
+    (covariance 0.0375 / variance 1.25), the last not below 0.01; every window after it is flat (slope 0). The
+    decision's closest call is a flat window, 0.01 below the threshold. A straight line of slope 0.0099 is
+    below 0.01 everywhere: converged at its first slope, by a margin of 0.0001."""
+    assert budget_rule([kinked()], 0.01).margin == pytest.approx(0.01, abs=1e-12)
+    assert budget_rule([kinked()], 0.025).margin == pytest.approx(0.005, abs=1e-12)  # 0.03 - 0.025
+    steps = np.arange(0, 8_001, 500, dtype=np.float64)
+    close = budget_rule([(steps, 0.0099 * steps / 1_000)], 0.01)
+    assert (close.converged_step, close.margin) == (1_500, pytest.approx(0.0001, abs=1e-12))
 
 
 def test_the_rule_refuses_a_safety_below_one_and_a_non_positive_cap_or_rounding():

@@ -137,6 +137,18 @@ def _converged(trajectory: Curve, threshold: float) -> int | None:
     return int(steps[first]) if first < steps.size else None
 
 
+def decision_margin(trajectory: Curve, threshold: float) -> float:
+    """How close the converged-step decision on ``trajectory`` (:func:`slope_trajectory`) came to going the
+    other way: the least ``|slope - threshold|`` over the slopes that decided it, the last one not below the
+    threshold (which put the converged step after it) and every one after it (each of which had to stay
+    below). A slope moving by less than this cannot move the converged step; a margin of 0 is a tie. Without
+    a slope not below the threshold, every slope decided it."""
+    steps, slopes = trajectory
+    not_below = np.flatnonzero(~(slopes < threshold))
+    deciding = slopes[int(not_below[-1]) if not_below.size else 0 :]
+    return float(np.min(np.abs(deciding - threshold)))
+
+
 def converged_step(
     curves: Sequence[Curve], threshold: float, fraction: float = FRACTION, min_points: int = MIN_POINTS
 ) -> int | None:
@@ -176,6 +188,7 @@ class Budget:
     slope_at_budget: float | None  # median plateau slope of the curves cut at the budget; None: beyond the pilot
     final_slope: float  # median plateau slope of the whole pilot curves
     pilot_steps: int  # the last evaluation step the pilot's runs share
+    margin: float  # how close the decision came to the threshold (:func:`decision_margin`)
 
     @property
     def converged(self) -> bool:
@@ -226,6 +239,7 @@ def budget_rule(
         slope_at_budget=float(slopes[at]) if at >= 0 and budget <= steps[-1] else None,
         final_slope=float(slopes[-1]),
         pilot_steps=int(steps[-1]),
+        margin=decision_margin((steps, slopes), threshold),
     )
 
 

@@ -314,6 +314,7 @@ def write_budgets(out: Path, groups: Sequence[GroupBudget], rule: BudgetRule) ->
                         "budget": c.budget.budget,
                         "capped": c.budget.capped,
                         "final_slope": round(c.budget.final_slope, 6),
+                        "margin": round(c.budget.margin, 6),
                     }
                     for c in g.cells
                 ],
@@ -327,17 +328,20 @@ def write_budgets(out: Path, groups: Sequence[GroupBudget], rule: BudgetRule) ->
         f"Budgets by the registered rule: the median over a job's pilot runs of the least-squares slope of their "
         f"last {rule.fraction:.0%} of evaluations (at least {rule.min_points}), in score per 1,000 steps; the "
         f"first step from which it stays below {rule.threshold:g}, times {rule.safety:g}, rounded up to a multiple "
-        f"of {rule.round_to:,}, at most {rule.cap:,}; a comparison group runs at the largest of its jobs' budgets.",
+        f"of {rule.round_to:,}, at most {rule.cap:,}; a comparison group runs at the largest of its jobs' budgets. "
+        f"Margin: how close the converged step came to moving, the least distance to {rule.threshold:g} of the slopes "
+        "that decided it (the last one not below it, and every one after); a slope that moves by less, on another "
+        "CPU or in another library version, leaves the converged step where it is.",
         "",
-        "| comparison | group | job | pilot runs | converged step | job budget | group budget |",
-        "|---|---|---|---:|---:|---:|---:|",
+        "| comparison | group | job | pilot runs | converged step | margin | job budget | group budget |",
+        "|---|---|---|---:|---:|---:|---:|---:|",
     ]
     for g in groups:
         for c in g.cells:
             converged = "not converged" if c.budget.converged_step is None else f"{c.budget.converged_step:,}"
             job = " ".join(f"{k}={v}" for k, v in c.values.items())
             lines.append(
-                f"| {g.comparison} | {group_label(g.key)} | {job} | {c.runs} | {converged} | "
+                f"| {g.comparison} | {group_label(g.key)} | {job} | {c.runs} | {converged} | {c.budget.margin:.4f} | "
                 f"{c.budget.budget:,}{' (cap)' if c.budget.capped else ''} | {g.budget:,} |"
             )
     (out / BUDGETS_TABLE).write_text("\n".join(lines) + "\n")
