@@ -20,11 +20,16 @@ import urllib.request
 
 import numpy as np
 import pytest
-from conftest import DOWN, always_acting_team
+from conftest import DOWN, always_acting_team, compose_config
 from PIL import Image
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+from tensorboard.backend.event_processing.event_file_loader import EventFileLoader
 from tensorboard.compat.proto.event_pb2 import Event
 from tensorboard.compat.proto.summary_pb2 import Summary
+from tensorboard.plugins.custom_scalar import layout_pb2
+from tensorboard.plugins.custom_scalar import metadata as custom_scalar_metadata
+from tensorboard.plugins.hparams import metadata as hparams_metadata
+from tensorboard.plugins.hparams import plugin_data_pb2
 from tensorboard.summary.writer.record_writer import RecordWriter
 
 from dqn_transfer.config import AgentConfig, TrainConfig, TransferConfig
@@ -227,3 +232,45 @@ def test_event_files_are_framed_as_tensorboards_own_writer_frames_them(tmp_path)
     accumulator.Reload()
     assert [(e.step, e.value) for e in accumulator.Scalars("x")] == [(s, float(s)) for s in range(50)]
     assert EventFile(tmp_path / "tb")._file.name != file._file.name  # a second file never overwrites the first
+
+
+def layout_and_hparams_metrics(run: RunDir) -> tuple[list[str], list[str]]:
+    """The tags of the run's custom-scalars layout (its charts') and of its hparams metrics."""
+    layout_tags, metric_tags = [], []
+    for path in run.tensorboard.iterdir():
+        for event in EventFileLoader(str(path)).Load():
+            for value in event.summary.value:
+                if value.tag == custom_scalar_metadata.CONFIG_SUMMARY_TAG:
+                    layout = layout_pb2.Layout.FromString(value.tensor.string_val[0])
+                    charts = [chart for category in layout.category for chart in category.chart]
+                    layout_tags += [tag for chart in charts for tag in chart.multiline.tag]
+                elif value.tag == hparams_metadata.EXPERIMENT_TAG:
+                    plugin_data = plugin_data_pb2.HParamsPluginData.FromString(value.metadata.plugin_data.content)
+                    metric_tags += [info.name.tag for info in plugin_data.experiment.metric_infos]
+    return layout_tags, metric_tags
+
+
+@pytest.mark.parametrize(
+    ("game", "eval_tags"),
+    [
+        ((), ["eval/team_return", "eval/success_rate", "eval/trap_rate"]),
+        (("env=lbf",), ["eval/team_return", "eval/episode_length"]),
+        (("env=mpe_spread",), ["eval/team_return", "eval/episode_length"]),
+        (("env=pettingzoo", "env.factory=corridor_env:parallel_env"), ["eval/team_return", "eval/episode_length"]),
+    ],
+)
+def test_the_layout_and_hparams_metrics_are_the_tags_the_game_records(tmp_path, game, eval_tags):
+    """The custom-scalars layout charts exactly the agent, team and evaluation tags the run writes (a
+    chart of a tag never written stays empty: another game records no chest or trap), and the hparams
+    table compares runs by the game's evaluation tags."""
+    config = compose_config(
+        *game, "agent=dqn", "agent.hidden=[8]", "agent.learning_starts=20", "total_steps=100", "eval_every=50",
+        "eval_episodes=1", "progress=false",
+    )  # fmt: skip
+    train(plan_run(config), tmp_path / "run")
+    run = RunDir(tmp_path / "run")
+    layout_tags, metric_tags = layout_and_hparams_metrics(run)
+    written = {tag for tag in events(run).Tags()["scalars"] if not tag.startswith("train/")}  # charted apart
+    assert sorted(layout_tags) == sorted(written)
+    assert metric_tags == eval_tags
+    assert {tag for tag in written if tag.startswith("eval/")} == set(eval_tags)

@@ -167,6 +167,7 @@ class PettingZooGame:
     # What the game measures (TreasureHuntGame's): its record's chest and trap keys stay, at 0, but
     # the console and the loggers show only these.
     evaluation_metrics = headline_metrics = ("team_return", "episode_length")
+    episode_metrics = ()  # an episode's end logs only the team's return: no chests, no traps
     treasures_collected = 0
 
     def __init__(self, factory: str, kwargs: Mapping[str, Any], reset_seed: int | None = None) -> None:

@@ -30,6 +30,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from dqn_transfer.enums import Logger
+from dqn_transfer.envs import Game
 from dqn_transfer.storage.checkpoint import atomic_write
 from dqn_transfer.storage.run_dir import RunDir
 from dqn_transfer.training.tensorboard import RunLogger
@@ -177,14 +178,23 @@ class WandbLogger:
 
 
 class RunLoggers:
-    """A replica's logs: the tag vocabulary's helpers, and every backend its ``logger`` list names."""
+    """A replica's logs: the tag vocabulary's helpers, and every backend its ``logger`` list names.
+
+    :param names: the backends (the ``logger`` list).
+    :param run_dir: the replica's run directory.
+    :param group: the W&B group, the batch's run directory's name.
+    :param game: the replica's game, whose team and metrics TensorBoard's layout and hparams name.
+    :param config: the replica's config, as plain data.
+    :param resume: whether the replica resumes from a checkpoint.
+    :param purge_step: a resumed run's first step, from which the killed run's points are dropped.
+    """
 
     def __init__(
         self,
         names: Iterable[Logger | str],
         run_dir: RunDir,
         group: str,
-        num_agents: int,
+        game: Game,
         config: Mapping[str, Any],
         resume: bool,
         purge_step: int | None = None,
@@ -193,7 +203,15 @@ class RunLoggers:
         try:
             for name in dict.fromkeys(Logger(n) for n in names):  # each once, in the given order
                 if name is Logger.tensorboard:
-                    self.backends.append(RunLogger(run_dir.tensorboard, num_agents, config, purge_step=purge_step))
+                    tensorboard = RunLogger(
+                        run_dir.tensorboard,
+                        game.num_agents,
+                        config,
+                        eval_metrics=game.headline_metrics,
+                        team_metrics=game.episode_metrics,
+                        purge_step=purge_step,
+                    )
+                    self.backends.append(tensorboard)
                 elif name is Logger.csv:
                     self.backends.append(CsvLogger(run_dir.scalars_csv, purge_step=purge_step))
                 else:

@@ -217,7 +217,7 @@ class Replica:
             self.config.logger,
             self.run_dir,
             group,
-            self.game.num_agents,
+            self.game,
             self.plain_config,
             resume=resume,
             purge_step=self.counters.step + 1 if resume else None,

@@ -2,12 +2,15 @@
 
 Per agent: ``agent_{i}/episodic_return``, ``agent_{i}/episodic_length``, ``agent_{i}/td_loss``,
 ``agent_{i}/q_mean``, and the histogram ``agent_{i}/q_values`` (at each evaluation: the Q-values of
-every observation the agent acted on in the evaluation's first episode).  Team: ``team/return``,
-``team/treasures_collected``, ``team/trap_rate``.  Evaluation: ``eval/team_return``,
-``eval/success_rate``, ``eval/trap_rate``, and the image ``eval/episode`` (the first episode's last
+every observation the agent acted on in the evaluation's first episode).  Team: ``team/return`` and
+the game's ``episode_metrics`` (the treasure hunt's ``team/treasures_collected``, ``team/trap_rate``).
+Evaluation: ``eval/`` and each of the game's ``headline_metrics`` (the treasure hunt's
+``eval/team_return``, ``eval/success_rate``, ``eval/trap_rate``; another game's ``eval/team_return``,
+``eval/episode_length``), and the image ``eval/episode`` (the treasure hunt's first episode's last
 frame with every agent's trail).  Training: ``train/epsilon``, ``train/sps``.
-A custom-scalars layout overlays the agents' curves in one chart each; the flattened config goes to
-the hparams plugin (so runs of a sweep can be compared in its table) and, as YAML, to the text plugin.
+A custom-scalars layout overlays the agents' curves in one chart each and charts the team's and the
+evaluations' tags the game records; the flattened config goes to the hparams plugin (so runs of a
+sweep can be compared in its table, by the game's evaluation tags) and, as YAML, to the text plugin.
 """
 
 from __future__ import annotations
@@ -123,13 +126,29 @@ class EventFile:
 class RunLogger:
     """Writes a run's TensorBoard events and owns the tag vocabulary.
 
-    ``purge_step`` (a resumed run): events of the killed run from this step on are hidden by
-    TensorBoard, which the run then logs again.
+    :param tb_dir: the directory of the run's event files.
+    :param num_agents: the team's size.
+    :param config: the run's config, as plain data (for the hparams and text plugins).
+    :param eval_metrics: the keys each evaluation logs as ``eval/{key}`` (the game's ``headline_metrics``).
+    :param team_metrics: the keys each training episode's end logs as ``team/{key}`` besides
+        ``team/return`` (the game's ``episode_metrics``).
+    :param purge_step: a resumed run's first step: events of the killed run from this step on are
+        hidden by TensorBoard, which the run then logs again.
     """
 
-    def __init__(self, tb_dir: Path, num_agents: int, config: Mapping[str, Any], purge_step: int | None = None):
+    def __init__(
+        self,
+        tb_dir: Path,
+        num_agents: int,
+        config: Mapping[str, Any],
+        eval_metrics: Sequence[str],
+        team_metrics: Sequence[str],
+        purge_step: int | None = None,
+    ):
         self.writer = EventFile(Path(tb_dir))
         self.num_agents = num_agents
+        self.eval_tags = [f"eval/{key}" for key in eval_metrics]
+        self.team_tags = [f"team/{key}" for key in team_metrics]
         if purge_step:  # TensorBoard drops the earlier events at or after the step of a restart
             self.writer.add_event(
                 Event(step=purge_step, wall_time=time.time(), session_log=SessionLog(status=SessionLog.START))
@@ -144,11 +163,11 @@ class RunLogger:
     def _write_layout(self) -> None:
         agents = range(self.num_agents)
         per_agent = {tag: [f"agent_{i}/{tag}" for i in agents] for tag in AGENT_TAGS}
-        team = {
-            "return": ["team/return", "eval/team_return"],
-            "treasures and traps": ["team/treasures_collected", "team/trap_rate"],
-            "eval success and trap rates": ["eval/success_rate", "eval/trap_rate"],
-        }
+        eval_return = [tag for tag in self.eval_tags if tag == "eval/team_return"]
+        eval_others = [tag for tag in self.eval_tags if tag != "eval/team_return"]
+        # A chart for each group the game records: a chart of tags never written would stay empty.
+        team = {"return": ["team/return", *eval_return]}
+        team.update({" and ".join(tags): tags for tags in (self.team_tags, eval_others) if tags})
         layout = layout_pb2.Layout(
             category=[
                 layout_pb2.Category(
@@ -174,7 +193,7 @@ class RunLogger:
         flat = flatten(config)
         hparam_values = {key: value for key, value in flat.items() if isinstance(value, (int, float, str, bool))}
         hparam_values.update({key: "null" for key, value in flat.items() if value is None})
-        metrics = [hparams_summary.Metric(tag) for tag in ("eval/team_return", "eval/success_rate")]
+        metrics = [hparams_summary.Metric(tag) for tag in self.eval_tags]
         self._add(hparams_summary.hparams_config_pb([hparams_summary.HParam(key) for key in hparam_values], metrics))
         self._add(hparams_summary.hparams_pb(hparam_values))
         text = "\n".join(f"    {key}: {value}" for key, value in sorted(flat.items()))
