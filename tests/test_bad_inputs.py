@@ -136,6 +136,14 @@ CASES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     # an optional dependency not installed (MISSING below): the one line names the extra to install
     "joblib_launcher_missing": (("-m", "seed=0,1", "hydra/launcher=joblib"), ('pip install "dqn_transfer[sweep]"',)),
     "optuna_sweeper_missing": (("-m", "hydra/sweeper=optuna"), ('pip install "dqn_transfer[optuna]"',)),
+    "tune_experiment_without_optuna": (
+        ("experiment=tune/sarsa_best",),
+        ("experiment=tune/sarsa_best", "hydra/sweeper=optuna", 'pip install "dqn_transfer[optuna]"'),
+    ),
+    "tune_sweep_without_optuna": (
+        ("-m", "experiment=tune/double_dqn_none"),
+        ("experiment=tune/double_dqn_none", 'pip install "dqn_transfer[optuna]"'),
+    ),
     "submitit_launcher_missing": (
         ("-m", "seed=0,1", "hydra/launcher=submitit_slurm"),
         ('pip install "dqn_transfer[slurm]"',),
@@ -155,6 +163,8 @@ CASES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
 MISSING = {
     "joblib_launcher_missing": "hydra_plugins.hydra_joblib_launcher",
     "optuna_sweeper_missing": "hydra_plugins.hydra_optuna_sweeper",
+    "tune_experiment_without_optuna": "hydra_plugins.hydra_optuna_sweeper",
+    "tune_sweep_without_optuna": "hydra_plugins.hydra_optuna_sweeper",
     "submitit_launcher_missing": "hydra_plugins.hydra_submitit_launcher",
     "lbforaging_missing": "lbforaging",
     "mpe2_missing": "mpe2",

@@ -1,6 +1,7 @@
 """Every config option composes through Hydra; typos, wrong types and out-of-range values are refused."""
 
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -17,6 +18,8 @@ from dqn_transfer.config import (
     to_plain,
     validate,
 )
+from dqn_transfer.config.help import group_options
+from dqn_transfer.config.overrides import check_overrides
 from dqn_transfer.enums import Algorithm, Fill, Mode
 
 
@@ -30,6 +33,22 @@ def test_every_group_option_composes(env, mode, agent, transfer):
     assert config.agent.algorithm is Algorithm(agent)
     assert config.transfer.enabled is (transfer == "on")
     validate(config)
+
+
+# conf/experiment/tune/: the searches, and base, the protocol they share
+TUNING_SEARCHES = [o for o in group_options("experiment") if o.startswith("tune/") and o != "tune/base"]
+
+
+@pytest.mark.parametrize("search", TUNING_SEARCHES)
+def test_a_tuning_search_without_the_optuna_sweeper_names_the_extra(search, monkeypatch):
+    """Every search of conf/experiment/tune/ runs on Hydra's Optuna sweeper (its base picks it): without
+    the plugin, choosing one is one line naming the extra, before Hydra's own multi-line error."""
+    monkeypatch.setitem(sys.modules, "hydra_plugins.hydra_optuna_sweeper", None)  # as if not installed
+    with pytest.raises(ConfigError) as refusal:
+        check_overrides([f"experiment={search}"])
+    assert str(refusal.value) == (
+        f'experiment={search} (hydra/sweeper=optuna) needs its Hydra plugin: pip install "dqn_transfer[optuna]"'
+    )
 
 
 def test_defaults_are_the_documented_ones():

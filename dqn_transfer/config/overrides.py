@@ -15,6 +15,7 @@ import importlib.util
 import re
 import sys
 import typing
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -23,8 +24,8 @@ from hydra.errors import HydraException
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from dqn_transfer.config.help import config_groups, group_options
-from dqn_transfer.config.schema import SB3_NAMES, ConfigError, StageConfig, TrainConfig
+from dqn_transfer.config.help import config_groups, group_options, option_values
+from dqn_transfer.config.schema import CONFIG_DIR, SB3_NAMES, ConfigError, StageConfig, TrainConfig
 from dqn_transfer.documented import describe
 from dqn_transfer.enums import EXTRA_MODULES, HYDRA_PLUGINS
 
@@ -84,13 +85,58 @@ def check_overrides(argv: list[str]) -> None:
 
 
 def check_plugins(overrides: list) -> None:
-    """Refuse a Hydra launcher or sweeper whose plugin is not installed (``hydra/launcher=joblib`` without
-    the sweep extra) in one line naming the extra, where Hydra would say only that the option is missing."""
+    """Refuse a Hydra launcher or sweeper whose plugin is not installed in one line naming the extra,
+    where Hydra would say in several only that the option is missing: one chosen on the command line
+    (``hydra/launcher=joblib`` without the sweep extra) or by the defaults of a chosen config
+    (``experiment=tune/sarsa_best`` picks ``hydra/sweeper=optuna``)."""
+    groups = config_groups()
     for override in overrides:
-        for (group, prefix), module in HYDRA_PLUGINS.items():
-            option = str(override.value()) if override.key_or_group == group else ""
-            if option.startswith(prefix) and importlib.util.find_spec(module) is None:
-                raise ConfigError(f"{group}={option} needs its Hydra plugin: {EXTRA_MODULES[module].install}")
+        group = override.key_or_group
+        if group in groups:
+            for option in chosen_options(override):
+                for plugin in plugin_choices(group, option):
+                    check_plugin(*plugin, chosen_by=f"{group}={option}")
+        elif group.startswith("hydra/"):
+            check_plugin(group, str(override.value()))
+
+
+def check_plugin(group: str, option: str, chosen_by: str | None = None) -> None:
+    """Refuse ``group=option`` (``hydra/sweeper=optuna``) if it is a Hydra plugin of an extra that is not installed.
+
+    :param group: a Hydra config group, ``hydra/launcher`` or ``hydra/sweeper``.
+    :param option: the option chosen in it.
+    :param chosen_by: the choice whose defaults picked it (``experiment=tune/sarsa_best``); None: the command line.
+    """
+    for (plugin_group, prefix), module in HYDRA_PLUGINS.items():
+        if group == plugin_group and option.startswith(prefix) and importlib.util.find_spec(module) is None:
+            where = f"{group}={option}" if chosen_by is None else f"{chosen_by} ({group}={option})"
+            raise ConfigError(f"{where} needs its Hydra plugin: {EXTRA_MODULES[module].install}")
+
+
+def plugin_choices(group: str, option: str) -> Iterator[tuple[str, str]]:
+    """Each ``(hydra/GROUP, OPTION)`` the defaults list of the config ``group=option`` picks, directly or
+    through a config it includes (``experiment=tune/sarsa_best``: ``tune/base`` picks ``hydra/sweeper=optuna``).
+
+    :param group: a config group of ``dqn_transfer/conf/`` (``experiment``).
+    :param option: one of its options (``tune/sarsa_best``); none is picked by an option without a file
+        (an absent optional default; an unknown option is refused by :func:`check_group_option`).
+    """
+    if not (CONFIG_DIR / group / f"{option}.yaml").is_file():
+        return
+    for entry in option_values(group, option).get("defaults") or []:
+        if isinstance(entry, str):  # a config of the option's own group (tune/base), or _self_
+            if entry != "_self_":
+                yield from plugin_choices(group, entry)
+            continue
+        for key, value in entry.items():  # {[override |optional ]GROUP: OPTION}
+            name = key.split()[-1]
+            path = name[1:] if name.startswith("/") else f"{group}/{name}"  # a GROUP without / is below the option's
+            if not isinstance(value, str):
+                continue
+            if path.startswith("hydra/"):
+                yield path, value
+            else:
+                yield from plugin_choices(path, value)
 
 
 # Keys of a mapping whose entries the user names freely (``env.kwargs.NAME=VALUE``): Hydra adds or
@@ -187,14 +233,16 @@ def override_words(argv: list[str]) -> list[str]:
     return words
 
 
+def chosen_options(override) -> list[str]:
+    """The options a group's override chooses: each of a sweep's, or its one."""
+    if override.is_sweep_override():
+        return list(override.sweep_string_iterator())
+    return [override.get_value_element_as_str()]
+
+
 def check_group_option(group: str, override) -> None:
     options = group_options(group)
-    chosen = (
-        list(override.sweep_string_iterator())
-        if override.is_sweep_override()
-        else [override.get_value_element_as_str()]
-    )
-    for option in chosen:
+    for option in chosen_options(override):
         if option not in options and option != "null":
             nearest = difflib.get_close_matches(option, options, n=1)
             hint = f"did you mean {group}={nearest[0]}? " if nearest else ""
