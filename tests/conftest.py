@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from collections.abc import Callable, Iterable, Sequence
@@ -257,3 +258,16 @@ def warm_start_config(
             enabled=True, cache_dir=str(cache), pretrain_steps=WARM_START_PRETRAIN_STEPS, **transfer
         ),
     )
+
+
+# Where a study report's text says its data are, in words true wherever it is written (--out copies no data).
+REPORT_DATA = "Data: `data/` of the results directory from which `dqn-transfer-report RESULTS [--out DIR]` writes"
+# What a study report says is beside it: its figures (markdown images) and any `PATH` "beside this report".
+BESIDE_A_REPORT = re.compile(r"!\[[^\]]*\]\(([^)]+)\)|`([^`]+)` beside this report")
+
+
+def missing_beside(report: Path) -> list[str]:
+    """The relative paths the study report ``report`` says are beside it that are not there."""
+    said = [image or text for image, text in BESIDE_A_REPORT.findall(report.read_text())]
+    assert said, "the report names nothing beside it: the check would have no teeth"
+    return [path for path in said if not (report.parent / path).exists()]

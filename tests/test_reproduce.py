@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from conftest import REPORT_DATA, missing_beside
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
@@ -357,6 +358,9 @@ def test_the_report_is_regenerated_from_its_data_byte_for_byte(tmp_path):
     assert (tmp_path / "again" / "REPORT.md").read_bytes() == (tmp_path / "results" / "REPORT.md").read_bytes()
     for figure in ("claim2.png", "hypothesis_profiles.png"):
         assert (tmp_path / "again" / figure).read_bytes() == (tmp_path / "results" / figure).read_bytes()
+    # What it says is beside it is there, and its data are named where they are, in the results directory.
+    assert missing_beside(tmp_path / "again" / "REPORT.md") == []
+    assert f"{REPORT_DATA} this report (one JSON line per run" in (tmp_path / "again" / "REPORT.md").read_text()
 
 
 def test_report_without_data_is_a_clear_error(tmp_path, capsys):

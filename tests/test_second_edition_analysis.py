@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import REPORT_DATA, missing_beside
 
 from dqn_transfer.analysis.hierarchical import MeanDifference
 from dqn_transfer.analysis.stats import Estimate
@@ -187,6 +188,9 @@ def test_a_report_written_elsewhere_is_the_same_bytes_with_its_figures_beside_it
     assert write_report(study, elsewhere).read_bytes() == here
     for figure in ("hypothesis.png", "tuning/tuning_sensitivity.png"):
         assert (elsewhere / figure).read_bytes() == (study / figure).read_bytes(), figure
+    # What it says is beside it is there, and its data are named where they are, in the results directory.
+    assert missing_beside(elsewhere / "REPORT.md") == []
+    assert f"{REPORT_DATA} this report. " in here.decode()
 
 
 def test_transfer_aware_runs_without_the_transfer_runs_report_what_there_is(tmp_path, capsys):

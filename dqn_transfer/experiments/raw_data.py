@@ -35,6 +35,11 @@ from dqn_transfer.storage.run_dir import natural_key
 from dqn_transfer.timing import cpu_model, cpus_available
 
 DATA_DIR = "data"
+# Where a report's text says its data are: true wherever the report is written (--out DIR writes the
+# report and its figures there; the data stay in the results directory), so the bytes are the same.
+DATA_SOURCE = (
+    f"`{DATA_DIR}/` of the results directory from which `dqn-transfer-report RESULTS [--out DIR]` writes this report"
+)
 REPO_DIR = Path(__file__).resolve().parents[2]  # the checkout the package runs from
 MANIFEST = "manifest.json"
 # The evaluation metrics kept per step (metrics.jsonl has more: episode lengths, wall times, epsilon).

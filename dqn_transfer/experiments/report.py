@@ -18,6 +18,7 @@ import numpy as np
 from dqn_transfer.experiments.claims import SECTIONS
 from dqn_transfer.experiments.raw_data import (
     DATA_DIR,
+    DATA_SOURCE,
     DataError,
     code_commit,
     export_sweep,
@@ -85,7 +86,7 @@ def _header(manifest: dict[str, Any], smoke: bool) -> list[str]:
     walls = manifest.get("wall_seconds", {})
     total = sum(walls.values())
     lines += [
-        f"Data: `{DATA_DIR}/` beside this report (one JSON line per run: its config and every evaluation), "
+        f"Data: {DATA_SOURCE} (one JSON line per run: its config and every evaluation), "
         f"made on {manifest.get('date', '?')} with the `{manifest.get('profile', '?')}` profile by code "
         f"{manifest.get('commit', '?')} on {manifest.get('machine', '?')}. Verdict rules: `{RULES_FILE}`, "
         f"committed at {manifest.get('rules_commit', '?')}, before these runs.",

@@ -20,7 +20,7 @@ import numpy as np
 from dqn_transfer.analysis.hierarchical import MeanDifference
 from dqn_transfer.analysis.plots import dot_whisker_figure, errorbar_figure
 from dqn_transfer.analysis.stats import Estimate
-from dqn_transfer.experiments.raw_data import DATA_DIR, DataError, RunData, read_data, read_manifest
+from dqn_transfer.experiments.raw_data import DATA_DIR, DATA_SOURCE, DataError, RunData, read_data, read_manifest
 from dqn_transfer.experiments.render import COLORS
 from dqn_transfer.experiments.second_edition import BUDGETS_TABLE, EXPERIMENTS
 from dqn_transfer.experiments.second_edition_analysis import (
@@ -378,7 +378,7 @@ def write_report(results: Path, out: Path | None = None) -> Path:
             if runs["transfer_aware"] and not runs["transfer"]
             else []
         ),
-        f"Data: `{DATA_DIR}/` beside this report. Verdict rules: `{RULES}`, tagged `{TAG}` at "
+        f"Data: {DATA_SOURCE}. Verdict rules: `{RULES}`, tagged `{TAG}` at "
         f"{manifest.get('rules_commit', '?')}, before any of these runs. Intervals are 95% hierarchical-bootstrap "
         f"intervals over maps (maps, then runs within maps); p-values are two-sided bootstrap p; a family's are "
         f"Holm-adjusted at {ALPHA:g}.",
