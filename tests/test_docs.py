@@ -6,7 +6,13 @@ from __future__ import annotations
 
 import importlib
 import re
+import sys
 from pathlib import Path
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # mypy's own dependency there
+    import tomli as tomllib
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = sorted([ROOT / "README.md", *(ROOT / "docs").glob("*.md")])
@@ -113,3 +119,12 @@ def test_the_pending_names_are_still_missing():
     """An allowed name that resolves (or no longer appears) must leave PENDING, so it empties after the merge."""
     named = {name for _, name in named_in_docs()}
     assert not {name for name in PENDING if resolves(name) or name not in named}
+
+
+def test_the_readme_names_every_console_script_and_no_other():
+    """The README's console scripts are ``[project.scripts]`` of pyproject.toml, all of them (issue #31: it missed
+    ``dqn-transfer-export``)."""
+    with open(ROOT / "pyproject.toml", "rb") as file:
+        scripts = set(tomllib.load(file)["project"]["scripts"])
+    named = set(re.findall(r"(?<![\w-])dqn-transfer-[a-z]+", (ROOT / "README.md").read_text(encoding="utf-8")))
+    assert named == scripts

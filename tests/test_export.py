@@ -135,19 +135,29 @@ def test_an_empty_existing_folder_is_fine(run, tmp_path):
     assert {p.name for p in (tmp_path / "empty").iterdir()} == EXPORTED
 
 
-def test_a_failed_write_leaves_nothing(run, tmp_path, monkeypatch, capsys):
+def test_the_folders_missing_parents_are_made(run, tmp_path):
+    """``export RUN shared/team`` in a folder without ``shared/`` (the README's example, issue #31)."""
+    assert ckpt(["export", str(run), str(tmp_path / "shared" / "team")]) == 0
+    assert {p.name for p in (tmp_path / "shared" / "team").iterdir()} == EXPORTED
+    assert [p.name for p in (tmp_path / "shared").iterdir()] == ["team"]
+
+
+@pytest.mark.parametrize("out", ["team", "shared/deeper/team"])
+def test_a_failed_write_leaves_nothing(run, tmp_path, monkeypatch, capsys, out):
+    """Nothing of a failed export stays: neither its folder nor the parent folders it made for it."""
+
     def refuse(src, dst):
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(model_card.os, "rename", refuse)
-    assert ckpt(["export", str(run), str(tmp_path / "team")]) == 1
-    assert capsys.readouterr().err == f"error: cannot export into {tmp_path / 'team'}: No space left on device\n"
+    assert ckpt(["export", str(run), str(tmp_path / out)]) == 1
+    assert capsys.readouterr().err == f"error: cannot export into {tmp_path / out}: No space left on device\n"
     assert list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.parametrize(
     "case",
-    ["missing_run", "not_a_run", "non_empty_out", "out_is_file", "out_parent_missing", "no_out", "out_with_list"],
+    ["missing_run", "not_a_run", "non_empty_out", "out_is_file", "out_under_a_file", "no_out", "out_with_list"],
 )
 def test_bad_input_is_one_error_line_and_leaves_nothing(case, run, tmp_path, capsys):
     (tmp_path / "full").mkdir()
@@ -159,7 +169,7 @@ def test_bad_input_is_one_error_line_and_leaves_nothing(case, run, tmp_path, cap
         "not_a_run": (["export", str(tmp_path / "empty_dir"), str(tmp_path / "out")], "no agent_*.safetensors"),
         "non_empty_out": (["export", str(run), str(tmp_path / "full")], "is not empty"),
         "out_is_file": (["export", str(run), str(tmp_path / "file")], "is a file"),
-        "out_parent_missing": (["export", str(run), str(tmp_path / "a" / "b")], "does not exist"),
+        "out_under_a_file": (["export", str(run), str(tmp_path / "file" / "a" / "b")], "file is a file"),
         "no_out": (["export", str(run)], "OUT_DIR goes with export only"),
         "out_with_list": (["list", str(run), str(tmp_path / "out")], "OUT_DIR goes with export only"),
     }[case]

@@ -294,12 +294,14 @@ def test_a_finished_run_extended_evaluates_as_the_longer_run(tmp_path, learning)
     ],
 )
 def test_bad_games_are_refused_in_one_line(tmp_path, monkeypatch, overrides, words):
+    """... and leave nothing behind: no run directory (issue #31: an AEC factory left one)."""
     with_corridor(monkeypatch)
     result = run_train(tmp_path, *overrides, check=False)
     lines = [line for line in result.output.splitlines() if line.strip()]
     assert result.returncode == 1 and len(lines) == 1, result.output
     for word in words:
         assert word in lines[0]
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_parallelizable_aec_env_is_played_as_its_parallel_env():

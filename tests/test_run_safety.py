@@ -116,6 +116,16 @@ def test_a_signal_checkpoints_says_how_to_resume_and_exits_with_its_code(signall
     assert 0 < out["step"] < 1500
 
 
+def test_a_resumed_run_names_its_directory_first(signalled):
+    """Its first line is ``run directory: ...``, then ``resumed ... at step N`` (issue #31: the resume's line came
+    first)."""
+    _, outcomes = signalled
+    for out in outcomes.values():
+        first, second = out["resumed"].output.splitlines()[:2]
+        assert first.endswith(f"run directory: {out['run_dir']}"), first
+        assert f"resumed {out['run_dir']} at step {out['step']}" in second, second
+
+
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
 def test_resuming_after_a_signal_gives_the_uninterrupted_run(signalled, signum):
     reference, outcomes = signalled

@@ -261,11 +261,47 @@ def leave_nothing_behind(claim: RunClaim | None) -> None:
     claim.undo()
 
 
-def announce(run: RunDir, caught: list[warnings.WarningMessage]) -> None:
-    """The run has started: name its directory, then the warnings its planning gave."""
+class HeldBack(logging.Filter):
+    """Keeps the log lines of a run's start (a requeued job's note, ``resumed ... at step N``, a warm start's
+    source) from the root logger's handlers until ``announce`` has named the run directory, so that line is
+    every run's first; a run refused meanwhile never says them (its one line is its ``error:``). A
+    context manager: on leaving it, whatever is still held is dropped."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.handlers = list(logging.getLogger().handlers)
+        self.held: list[logging.LogRecord] = []
+
+    def __enter__(self) -> HeldBack:
+        for handler in self.handlers:
+            handler.addFilter(self)
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.release()
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if not self.held or self.held[-1] is not record:  # one record passes every handler in turn
+            self.held.append(record)
+        return False
+
+    def release(self) -> list[logging.LogRecord]:
+        """Stop holding; returns the lines held so far (once: a second call returns none)."""
+        for handler in self.handlers:
+            handler.removeFilter(self)
+        held, self.held = self.held, []
+        return held
+
+
+def announce(run: RunDir, caught: list[warnings.WarningMessage], held: HeldBack) -> None:
+    """The run has started: name its directory, then the warnings its planning gave and the lines held
+    back until now."""
+    earlier = held.release()
     log.info("run directory: %s", run)
     for warning in caught:
         log_warning(warning.message, warning.category, warning.filename, warning.lineno)
+    for record in earlier:
+        logging.getLogger().handle(record)
 
 
 # ------------------------------------------------------------------------------------ the app
@@ -284,27 +320,28 @@ def app(cfg: DictConfig) -> float:
     run = RunDir(hydra_config.runtime.output_dir)
     claim = ClaimRunDir.claim
     try:
-        if (cfg.resume or ClaimRunDir.requeued) and run.has_run():
-            if ClaimRunDir.requeued:
-                log.info("this job ran before and was stopped (requeued): resuming it from its last checkpoint")
-            recorded = claim.recorded_config() if claim is not None else None
-            config = resume_config(run, cfg, hydra_config.overrides.task, recorded)
-        else:
-            config = OmegaConf.to_object(cfg)  # type: ignore[assignment]
-        with warnings.catch_warnings(record=True) as caught:  # said once the plan holds, never before a refusal
-            plan = plan_run(config)
-        # Announced once the run really starts: before a transfer source's pretraining or a curriculum's
-        # stages (which can take minutes), else once the trainer has checked the run's start.
-        if plan.chain:
-            announce(run, caught)
-        launch_dir = Path(get_original_cwd())
-        sources = (
-            curriculum_sources(plan, launch_dir) if config.curriculum.stages else transfer_sources(plan, launch_dir)
-        )
-        trainer = Trainer(plan, run.path, sources=sources)
-        trainer.prepare()
-        if not plan.chain:
-            announce(run, caught)
+        with HeldBack() as held:
+            if (cfg.resume or ClaimRunDir.requeued) and run.has_run():
+                if ClaimRunDir.requeued:
+                    log.info("this job ran before and was stopped (requeued): resuming it from its last checkpoint")
+                recorded = claim.recorded_config() if claim is not None else None
+                config = resume_config(run, cfg, hydra_config.overrides.task, recorded)
+            else:
+                config = OmegaConf.to_object(cfg)  # type: ignore[assignment]
+            with warnings.catch_warnings(record=True) as caught:  # said once the plan holds, never before a refusal
+                plan = plan_run(config)
+            # Announced once the run really starts: before a transfer source's pretraining or a curriculum's
+            # stages (which can take minutes), else once the trainer has checked the run's start.
+            if plan.chain:
+                announce(run, caught, held)
+            launch_dir = Path(get_original_cwd())
+            sources = (
+                curriculum_sources(plan, launch_dir) if config.curriculum.stages else transfer_sources(plan, launch_dir)
+            )
+            trainer = Trainer(plan, run.path, sources=sources)
+            trainer.prepare()
+            if not plan.chain:
+                announce(run, caught, held)
         trainer.run()
     except USER_ERRORS as err:
         report_user_error(err)

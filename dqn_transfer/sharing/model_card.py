@@ -14,11 +14,13 @@ upload to a model hub as it is.
 ``transfer.source=OUT_DIR`` warm-starts a new run from the folder. The card's metrics are measured
 when exporting, on greedy episodes whose seeds it states, so ``dqn-transfer-play OUT_DIR --episodes N
 --seed S`` reproduces them. The folder appears whole or not at all: everything is written into a
-temporary sibling, which is renamed to OUT_DIR once complete (and removed on any failure).
+temporary sibling, which is renamed to OUT_DIR once complete (and removed on any failure, with the
+missing parent directories the export made for it).
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import secrets
 import shutil
@@ -36,6 +38,7 @@ from dqn_transfer.envs.settings import DEFAULTS, MAP_KEYS, EnvConfig
 from dqn_transfer.evaluation.watch import RecordedEpisode, gif_bytes, watch_team
 from dqn_transfer.sharing.team import TeamError, TrainedTeam, load_team
 from dqn_transfer.storage.checkpoint import CheckpointError, atomic_write_all
+from dqn_transfer.storage.run_dir import file_in_the_way
 
 CARD_FILE, MAP_FILE, GIF_FILE = "README.md", "map.txt", "replay.gif"
 EVAL_EPISODES, EVAL_SEED = 10, 0
@@ -80,19 +83,25 @@ def check_destination(out_dir: Path) -> None:
         raise ExportError(f"{out_dir} is a file; give a new folder to export into")
     if out_dir.is_dir() and any(out_dir.iterdir()):
         raise ExportError(f"{out_dir} is not empty; give a new or empty folder to export into")
-    if not out_dir.parent.is_dir():
-        raise ExportError(f"the directory {out_dir.parent} does not exist (create it, or export elsewhere)")
+    if (file := file_in_the_way(out_dir.parent)) is not None:
+        raise ExportError(f"cannot export into {out_dir}: {file} is a file")
 
 
 def write_folder(out_dir: Path, files: dict[Path, bytes]) -> None:
-    """All of ``files`` (paths inside ``out_dir``) into ``out_dir`` at once, or nothing."""
+    """All of ``files`` (paths inside ``out_dir``) into ``out_dir`` at once, or nothing; the parent
+    directories ``out_dir`` lacks are made (``shared/team`` in a fresh folder), and removed on a failure."""
     temp = out_dir.with_name(f".{out_dir.name}.export-{secrets.token_hex(4)}")
+    made = [parent for parent in out_dir.absolute().parents if not parent.exists()]  # nearest first
     try:
+        out_dir.parent.mkdir(parents=True, exist_ok=True)
         temp.mkdir()
         atomic_write_all({temp / path.relative_to(out_dir): data for path, data in files.items()})
         os.rename(temp, out_dir)  # replaces an empty out_dir; refused if someone filled it meanwhile
     except (OSError, CheckpointError) as err:
         shutil.rmtree(temp, ignore_errors=True)
+        for parent in made:
+            with contextlib.suppress(OSError):  # only if still empty: never what another process put there
+                parent.rmdir()
         reason = err.strerror if isinstance(err, OSError) else str(err)
         raise ExportError(f"cannot export into {out_dir}: {reason}") from None
 
