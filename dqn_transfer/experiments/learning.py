@@ -1,13 +1,14 @@
 """How well the shipped commands learn, over seeds, and whether the two DQN engines learn alike.
 
-Two kinds of sweep, each a Hydra multirun into ``OUT/runs/<name>/`` whose runs are exported as raw data to
+Three kinds of sweep, each a Hydra multirun into ``OUT/runs/<name>/`` whose runs are exported as raw data to
 ``OUT/data/<name>.jsonl`` (:mod:`dqn_transfer.experiments.raw_data`), from which :func:`tables` computes
 every figure of docs/learning.md:
 
 - **reliability**: each of the README's training commands (:data:`EXAMPLES`) as it is written, with 10
   seeds as replicas (``experiment=learning/reliability``), judged by its game's :class:`Criterion`;
 - **parity**: Double DQN on three 7x7 maps, 10 seeds each, ``agent.engine=numpy`` against ``torch``
-  (``experiment=learning/parity``), judged by :func:`~dqn_transfer.analysis.reliability.parity`.
+  (``experiment=learning/parity``), judged by :func:`~dqn_transfer.analysis.reliability.parity`;
+- **diagnoses** (:data:`DIAGNOSES`): the parity's numpy runs on its hardest map with one setting changed.
 
 The rules are :mod:`dqn_transfer.analysis.reliability`'s, fixed before the runs.
 """
@@ -70,6 +71,10 @@ DIAGNOSES = {
     "hard_map_eps_end": ("agent.eps_end=0.01",),
     "hard_map_long_exploration": ("agent.exploration_fraction=0.9",),
     "hard_map_deliberative": ("mode=deliberative",),
+    "hard_map_competitive": ("mode=competitive",),
+    "hard_map_wide": ("agent.hidden=[256,256]",),
+    "hard_map_small_replay": ("agent.buffer_size=10000",),
+    "hard_map_sarsa": ("agent=sarsa",),
 }
 NAMES = (*(e.name for e in EXAMPLES), PARITY, *DIAGNOSES)
 BOOTSTRAP_SEED = 0
