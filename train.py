@@ -1,6 +1,6 @@
 """Train agents on the treasure hunt: `python train.py [group=option ...] [key=value ...]`.
 
-See README.md and dqn_transfer/conf/config.yaml for the menu of options; the app is dqn_transfer/cli/train.py.
+See README.md and conf/config.yaml for the menu of options; the app is dqn_transfer/cli/train.py.
 """
 
 from dqn_transfer.cli.train import main

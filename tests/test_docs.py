@@ -1,6 +1,6 @@
 """The docs name only what exists: every backticked ``dqn_transfer.…`` name in README.md and docs/*.md
-imports (a module, or an attribute of one), and every backticked ``dqn_transfer/…`` path is a file or
-folder of the package, so a rename or a move that forgets the docs fails here."""
+imports (a module, or an attribute of one), and every backticked ``dqn_transfer/…`` or ``conf/…`` path is a file
+or folder of the repository, so a rename or a move that forgets the docs fails here."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ DOCS = sorted([ROOT / "README.md", *(ROOT / "docs").glob("*.md")])
 
 CODE_SPAN = re.compile(r"`([^`\n]+)`")
 DOTTED = re.compile(r"(?<![\w./-])dqn_transfer(?:\.(?:[A-Za-z_]\w*|<[\w|]+>))+")  # <a|b>: one per alternative
-PATH = re.compile(r"(?<![\w./-])dqn_transfer/[\w./{},-]*")  # {a,b}: one name per alternative
+PATH = re.compile(r"(?<![\w./-])(?:dqn_transfer|conf)/[\w./{},-]*")  # {a,b}: one name per alternative
 FROM_IMPORT = re.compile(r"^\s*from\s+([\w.]+)\s+import\s+([\w\s,]+?)\s*(?:#.*)?$")
 ALTERNATIVES = re.compile(r"\{([^{}]*)\}|<([^<>]*)>")
 
@@ -92,6 +92,7 @@ def test_the_docs_name_something():
     """The extraction finds what it should (a regex gone wrong would make the next test pass on nothing)."""
     names = {name for _, name in named_in_docs()}
     assert "dqn_transfer/config/schema.py" in names
+    assert "conf/config.yaml" in names
     assert any(name.startswith("dqn_transfer.") for name in names)
     assert "dqn_transfer.sharing.team.load_team" in names  # from a fenced example's import line
 
@@ -99,11 +100,9 @@ def test_the_docs_name_something():
 def test_resolves_tells_what_exists_from_what_does_not():
     assert resolves("dqn_transfer.storage.checkpoint")
     assert resolves("dqn_transfer.envs.maps.optimal_team_return")
-    assert resolves("dqn_transfer/storage/run_dir.py") and resolves("dqn_transfer/conf/")
-    assert expand("dqn_transfer/conf/env/study/m{2,3}.yaml") == [
-        "dqn_transfer/conf/env/study/m2.yaml",
-        "dqn_transfer/conf/env/study/m3.yaml",
-    ]
+    assert resolves("dqn_transfer/storage/run_dir.py") and resolves("conf/env/study/m2.yaml")
+    assert not resolves("dqn_transfer/conf/")  # the config groups before they moved to the repository's root
+    assert expand("conf/env/study/m{2,3}.yaml") == ["conf/env/study/m2.yaml", "conf/env/study/m3.yaml"]
     assert expand("dqn_transfer.cli.<train|play>") == ["dqn_transfer.cli.train", "dqn_transfer.cli.play"]
     assert not resolves("dqn_transfer.checkpoint")  # the module before it moved to storage/
     assert not resolves("dqn_transfer.envs.maps.no_such_function")

@@ -13,7 +13,7 @@ import pytest
 from conftest import TRAIN_PY, train_env
 
 from dqn_transfer.config import TrainConfig
-from dqn_transfer.config.help import first_sentence, help_text
+from dqn_transfer.config.help import config_groups, first_sentence, help_text
 from dqn_transfer.documented import describe, documented
 
 
@@ -95,6 +95,16 @@ def test_help_shows_the_menu_with_its_defaults():
         for option in options:
             assert re.search(rf"^   {'[*]' if option == default else ' '}{option}\s+\S", menu, re.M), option
     assert re.search(r"^   \*simple\s+A small map: 6x6, 2 chests, 2 traps, 2 agents$", menu, re.M)
+
+
+def test_the_groups_are_the_config_folders_not_pythons_bytecode_cache(tmp_path):
+    """conf/ is a Python package (conf/__init__.py), so importing it may leave a __pycache__ folder there: the
+    menu and the overrides' checks do not take it for a group, as Hydra does not."""
+    for folder in ["agent", "env/study", "__pycache__"]:
+        (tmp_path / folder).mkdir(parents=True)
+    (tmp_path / "__init__.py").write_text("")
+    (tmp_path / "config.yaml").write_text("defaults: []\n")
+    assert config_groups(tmp_path) == ("agent", "env")
 
 
 def test_a_schema_key_without_a_description_is_refused():

@@ -17,7 +17,7 @@ from omegaconf import OmegaConf
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from dqn_transfer.agents.numpy_dqn import NumpyMLP
-from dqn_transfer.config import AgentConfig, ReplicasConfig, TrainConfig
+from dqn_transfer.config import CONFIG_DIR, AgentConfig, ReplicasConfig, TrainConfig
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.storage.run_dir import RunDir
 from dqn_transfer.training import trainer
@@ -136,11 +136,9 @@ def test_a_batch_of_replicas_draws_the_first_replicas_pictures_unless_asked(tmp_
 
 
 def test_the_study_experiments_draw_no_pictures():
-    from pathlib import Path
-
-    import dqn_transfer
-
-    for path in sorted((Path(dqn_transfer.__file__).parent / "conf" / "experiment").glob("*.yaml")):
+    experiments = sorted((CONFIG_DIR / "experiment").glob("*.yaml"))
+    assert experiments  # the folder is there: a moved one would make this test pass on nothing
+    for path in experiments:
         config = OmegaConf.load(path)
         if "total_steps" in config:  # a whole experiment (the others extend one)
             assert config.eval_pictures is False, path.name

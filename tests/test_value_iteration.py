@@ -32,7 +32,7 @@ from dqn_transfer.evaluation.value_iteration import (
     tie_rng,
 )
 
-CONF = Path(__file__).resolve().parents[1] / "dqn_transfer" / "conf"
+CONF = Path(__file__).resolve().parents[1] / "conf"
 
 # Agent 0 is one move from the chest: 100. Agent 1 has no trap to end in: -4 over the horizon 2 * 2 = 4.
 BESIDE = "0T\n1."

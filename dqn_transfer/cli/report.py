@@ -13,7 +13,7 @@
 holding ``budgets.md`` is the second edition's (``results/``, rules in ``results/VERDICT_RULES.md``; its runs:
 ``python -m dqn_transfer.cli.second_edition``), any other the first edition's. The first edition: each
 experiment is one Hydra multirun of ``python -m dqn_transfer.cli.train -m experiment=<name>``
-(``dqn_transfer/conf/experiment/``) into ``OUT/runs/<name>/``; ``--launcher joblib`` (the default, from the
+(``conf/experiment/``) into ``OUT/runs/<name>/``; ``--launcher joblib`` (the default, from the
 ``sweep`` extra) runs ``--n-jobs`` jobs at a time. The runs' evaluations are then exported to
 ``OUT/data/<name>.jsonl`` (one JSON line per run, with its config) and the report is computed from
 those files alone, by the rules of ``results/v1/VERDICT_RULES.md``:

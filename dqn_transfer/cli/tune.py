@@ -47,7 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--apply",
         action="store_true",
-        help="no training: write OUT/tuned.yaml's values into dqn_transfer/conf/tuned/, which the methods compose",
+        help="no training: write OUT/tuned.yaml's values into conf/tuned/, which the methods compose",
     )
     args = parser.parse_args(argv)
     if args.parallel < 1:

@@ -1,7 +1,7 @@
 """The run's configuration: typed schemas (:mod:`.schema`) and the ``--help`` page (:mod:`.help`).
 
-The YAML options of each config group live in ``dqn_transfer/conf/`` (inside the package, so an
-installed package finds them from any directory); the schemas give every key its type and default.
+The YAML options of each config group live in ``conf/`` at the repository's root (installed as the package
+``dqn_transfer.conf``, so it is found from any directory); the schemas give every key its type and default.
 """
 
 from dqn_transfer.config.schema import (

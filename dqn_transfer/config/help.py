@@ -1,8 +1,8 @@
 """``python train.py --help``: the config menu and every key with its description and default.
 
 Both come from where they are defined, never from a copy: the groups and their options from the
-YAML files under ``dqn_transfer/conf/`` (an option's description is its file's first comment line, its default
-the one ``dqn_transfer/conf/config.yaml`` picks), the keys from the schema dataclasses (each field's
+YAML files under ``conf/`` (an option's description is its file's first comment line, its default
+the one ``conf/config.yaml`` picks), the keys from the schema dataclasses (each field's
 :func:`~dqn_transfer.documented.documented` description and default).
 """
 
@@ -21,8 +21,9 @@ ROOT_CONFIG = "config.yaml"
 
 
 def config_groups(config_dir: Path = CONFIG_DIR) -> tuple[str, ...]:
-    """The config groups (``agent``, ``env``, ...): the folders under ``dqn_transfer/conf/``."""
-    return tuple(sorted(p.name for p in config_dir.iterdir() if p.is_dir()))
+    """The config groups (``agent``, ``env``, ...): the folders under ``conf/``."""
+    # not the bytecode cache of conf/__init__.py (the package dqn_transfer.conf), which Hydra skips too
+    return tuple(sorted(p.name for p in config_dir.iterdir() if p.is_dir() and p.name != "__pycache__"))
 
 
 def group_options(group: str, config_dir: Path = CONFIG_DIR) -> list[str]:
@@ -37,7 +38,7 @@ def option_values(group: str, option: str, config_dir: Path = CONFIG_DIR) -> dic
 
 
 def default_options(config_dir: Path = CONFIG_DIR) -> dict[str, str | None]:
-    """The option ``dqn_transfer/conf/config.yaml``'s defaults list picks for each group (None: none)."""
+    """The option ``conf/config.yaml``'s defaults list picks for each group (None: none)."""
     defaults = yaml.safe_load((config_dir / ROOT_CONFIG).read_text())["defaults"]
     return {group: option for entry in defaults if isinstance(entry, dict) for group, option in entry.items()}
 

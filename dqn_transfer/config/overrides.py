@@ -117,7 +117,7 @@ def plugin_choices(group: str, option: str) -> Iterator[tuple[str, str]]:
     """Each ``(hydra/GROUP, OPTION)`` the defaults list of the config ``group=option`` picks, directly or
     through a config it includes (``experiment=tune/sarsa_best``: ``tune/base`` picks ``hydra/sweeper=optuna``).
 
-    :param group: a config group of ``dqn_transfer/conf/`` (``experiment``).
+    :param group: a config group of ``conf/`` (``experiment``).
     :param option: one of its options (``tune/sarsa_best``); none is picked by an option without a file
         (an absent optional default; an unknown option is refused by :func:`check_group_option`).
     """

@@ -1,6 +1,6 @@
 """Typed configuration schemas, registered in Hydra's ConfigStore.
 
-The YAML files under ``dqn_transfer/conf/`` are merged *into* these dataclasses, so a misspelt key
+The YAML files under ``conf/`` are merged *into* these dataclasses, so a misspelt key
 (``agent.learning_rate``) or a wrong type (``agent.gamma=high``) is refused by Hydra before
 anything runs.  Enums give the closed vocabularies (modes, algorithms) the same protection.
 Range checks that a type cannot express live in :func:`validate`. The ``env`` schema is the game's
@@ -15,6 +15,7 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 from enum import Enum
+from importlib.resources import files
 from pathlib import Path
 from typing import Any, Dict, List, Optional
 
@@ -41,8 +42,9 @@ from dqn_transfer.enums import (
 )
 from dqn_transfer.envs.settings import ENV_KEYS, FACTORY_PLACEHOLDER, EnvConfig
 
-# The config groups: dqn_transfer/conf/, inside the package (found from any directory, installed or not).
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "conf"
+# The config groups: conf/ at the repository's root, the package dqn_transfer.conf once installed (pyproject.toml
+# maps it), so the import system finds it from any directory, in a wheel's install as in an editable one.
+CONFIG_DIR = Path(str(files("dqn_transfer.conf")))
 
 
 @dataclass
@@ -246,7 +248,7 @@ class TrainConfig:
 
 
 def register_configs() -> None:
-    """Make the schemas available to ``dqn_transfer/conf/config.yaml`` (its defaults list names them)."""
+    """Make the schemas available to ``conf/config.yaml`` (its defaults list names them)."""
     cs = ConfigStore.instance()
     cs.store(name="train_schema", node=TrainConfig)
 

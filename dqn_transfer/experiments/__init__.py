@@ -1,6 +1,6 @@
 """The study's experiments, their raw data and their report.
 
-The study's questions, each answered by experiments (Hydra multiruns of ``dqn_transfer/conf/experiment/<name>.yaml``):
+The study's questions, each answered by experiments (Hydra multiruns of ``conf/experiment/<name>.yaml``):
 
 - the main hypothesis, a group that exchanges knowledge learns better than the same group without
   (``hypothesis``, ``hypothesis_shared``);

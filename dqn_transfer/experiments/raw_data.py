@@ -232,10 +232,10 @@ def git_output(*args: str) -> str:
 
 
 def code_commit() -> str:
-    """The commit the runs are made with, marked when the package (which holds its conf/) has uncommitted
+    """The commit the runs are made with, marked when the package or its configs (conf/) have uncommitted
     changes."""
     commit = git_output("rev-parse", "--short", "HEAD") or "unknown"
-    dirty = bool(git_output("status", "--porcelain", "--", "dqn_transfer"))
+    dirty = bool(git_output("status", "--porcelain", "--", "dqn_transfer", "conf"))
     return commit + (" (with uncommitted changes)" if dirty else "")
 
 

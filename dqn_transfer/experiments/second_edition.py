@@ -52,7 +52,7 @@ from dqn_transfer.experiments.raw_data import (
 )
 from dqn_transfer.experiments.sweeps import RUNS_DIR, Multirun, ReproduceError, quoted_path, run_multirun
 
-GROUP = "v2"  # dqn_transfer/conf/experiment/v2/
+GROUP = "v2"  # conf/experiment/v2/
 EXPERIMENTS = ("hypothesis", "lbf_hypothesis", "claim1", "claim2", "transfer", "transfer_aware")
 PILOT_DIR, BUDGETS_FILE, BUDGETS_TABLE = "pilot", "budgets.json", "budgets.md"
 RULES_TAG = "study-v2-rules"  # results/VERDICT_RULES.md as registered before the runs

@@ -1,6 +1,6 @@
 """Running the study's experiments: one Hydra multirun per experiment, into ``OUT/runs/<name>/``.
 
-Each experiment is ``python -m dqn_transfer.cli.train -m experiment=<name>`` (``dqn_transfer/conf/experiment/``)
+Each experiment is ``python -m dqn_transfer.cli.train -m experiment=<name>`` (``conf/experiment/``)
 in a subprocess, with the profile's overrides: one job per condition, its seeds batched inside the
 job as replicas (``replicas.seeds``, one run directory each); ``--launcher joblib`` (the default, from
 the ``sweep`` extra; without it, Hydra's basic launcher) runs ``--n-jobs`` jobs at a time,
@@ -70,7 +70,7 @@ PROFILES = {
         "that the pipeline works end to end and is NOT evidence for or against any claim.",
     ),
     "full": Profile(
-        description="the evidence: the maps, seeds and step counts of dqn_transfer/conf/experiment/*.yaml "
+        description="the evidence: the maps, seeds and step counts of conf/experiment/*.yaml "
         "(10 to 20 runs per condition)."
     ),
 }
@@ -229,7 +229,7 @@ class Multirun:
     """One Hydra multirun of an experiment config (``python -m dqn_transfer.cli.train -m experiment=...``)."""
 
     label: str  # names it in the progress lines and its log, OUT/logs/<label>.log
-    experiment: str  # the option of dqn_transfer/conf/experiment/
+    experiment: str  # the option of conf/experiment/
     overrides: tuple[str, ...]
     sweep_dir: Path
     jobs: int  # the job directories a finished multirun holds

@@ -1,6 +1,6 @@
 """The fair tuning protocol (docs/tuning.md): one Optuna search per learner x knowledge-exchange method.
 
-Each search is the experiment config ``tune/<learner>_<method>`` (``dqn_transfer/conf/experiment/tune/``,
+Each search is the experiment config ``tune/<learner>_<method>`` (``conf/experiment/tune/``,
 every one from ``tune/base``: the same budget, tuning maps, sampler and number of trials), run as one
 Hydra multirun with the Optuna sweeper into ``OUT/runs/<learner>_<method>/`` (:func:`run_multirun`:
 its trials one after another in one process, ``parallel`` searches at once). Its trials are then read
@@ -45,8 +45,8 @@ from dqn_transfer.experiments.sweeps import RUNS_DIR, Multirun, job_dirs, run_mu
 from dqn_transfer.storage.run_dir import RunDir
 
 TRIALS_FILE, TUNED_FILE, TABLE_FILE, FIGURE_FILE = "tuning.jsonl", "tuned.yaml", "tuning.md", "tuning_sensitivity.png"
-TUNE_GROUP = "tune"  # dqn_transfer/conf/experiment/tune/
-TUNED_GROUP = "tuned"  # dqn_transfer/conf/tuned/<learner>_<method>.yaml: the chosen values, which conf/method/ composes
+TUNE_GROUP = "tune"  # conf/experiment/tune/
+TUNED_GROUP = "tuned"  # conf/tuned/<learner>_<method>.yaml: the chosen values, which conf/method/ composes
 # The quick profile: two trials of tiny runs on two tuning maps per search, to check the pipeline (not
 # evidence: 300 steps teach a team next to nothing).
 PROFILES: dict[str, tuple[str, ...]] = {

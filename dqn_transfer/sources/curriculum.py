@@ -1,6 +1,6 @@
 """A curriculum: stages trained one after another, each warm-starting the next; the run is the last.
 
-``curriculum.stages`` (a ``dqn_transfer/conf/curriculum/`` option) lists the stages before the run, easiest first.
+``curriculum.stages`` (a ``conf/curriculum/`` option) lists the stages before the run, easiest first.
 Stage ``n`` is the run's own config with its env changed by the stage's ``env``, trained for the
 stage's ``steps``. Every stage after the first starts from the previous stage's agents through the
 transfer hook (the previous map placed at the stage's ``offset``, its agents picked by the stage's

@@ -197,7 +197,7 @@ def plain(value: Any) -> Any:
 
 @functools.cache
 def env_option_values() -> tuple[dict[str, Any], ...]:
-    """The treasure hunt's keys as each ``env`` option (``dqn_transfer/conf/env/**.yaml``) gives them to a run,
+    """The treasure hunt's keys as each ``env`` option (``conf/env/**.yaml``) gives them to a run,
     and the schema's defaults: the values a run has when its user set none of these keys."""
     options = [{key: plain(getattr(DEFAULTS, key)) for key in ENV_KEYS}]
     for path in sorted((CONFIG_DIR / "env").rglob("*.yaml")):
