@@ -44,7 +44,10 @@ from dqn_transfer.envs.settings import ENV_KEYS, FACTORY_PLACEHOLDER, EnvConfig
 
 # The config groups: conf/ at the repository's root, the package dqn_transfer.conf once installed (pyproject.toml
 # maps it), so the import system finds it from any directory, in a wheel's install as in an editable one.
-CONFIG_DIR = Path(str(files("dqn_transfer.conf")))
+try:
+    CONFIG_DIR = Path(str(files("dqn_transfer.conf")))
+except ModuleNotFoundError:  # a checkout used without installing the package: its conf/ beside dqn_transfer/
+    CONFIG_DIR = Path(__file__).resolve().parents[2] / "conf"
 
 
 @dataclass
