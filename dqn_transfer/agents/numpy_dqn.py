@@ -1,14 +1,17 @@
 """The ``numpy`` engine of :class:`~dqn_transfer.agents.dqn_base.BatchedDQN`: CPU only, no torch in the process.
 
-For networks this small (a few 64x64 MLPs) a gradient step is a few dozen tiny array operations, and
-what they cost is per-call overhead, not arithmetic: numpy's is a fraction of torch's, and a process
-that never imports torch starts seconds sooner. The algorithm's decisions (target, Huber loss and its
-gradient, clip rule) are :mod:`dqn_transfer.agents.dqn_update`'s, shared with the torch engine; this
-module holds the numeric kernels (forward, the chain rule through ReLU layers, per-member gradient
-norms, Adam's arithmetic), in float32 with numpy's kernels: results agree with the torch engine and
-with ``dqn_update.reference_update`` to float32 rounding, not bit for bit,
-and the initial weights come from numpy's generator (same distribution as ``nn.Linear``'s, other
-numbers). ``agent.engine`` is therefore part of what a run is (its config and checkpoints record it).
+A fast path for the losses it implements (DQN, Double DQN, VDN); the torch engine
+(:meth:`~dqn_transfer.agents.dqn.DQNLearner.train_on`) states the update, runs anything else, and is what
+this engine is checked against, step for step. For networks this small (a few 64x64 MLPs) a gradient
+step is a few dozen tiny array operations, and what they cost is per-call overhead, not arithmetic:
+numpy's is a fraction of torch's (autograd and ``torch.optim`` included), and a process that never
+imports torch starts seconds sooner. The target, the Huber loss and the clip rule are
+:mod:`dqn_transfer.agents.dqn_update`'s, shared with the torch engine; this module holds the loss's
+gradient and the numeric kernels (forward, the chain rule through ReLU layers, per-member gradient norms,
+Adam's arithmetic), in float32 with numpy's kernels: results agree with the torch engine to float32
+rounding, not bit for bit, and the initial weights come from numpy's generator (same distribution as
+``nn.Linear``'s, other numbers). ``agent.engine`` is therefore part of what a run is (its config and
+checkpoints record it).
 """
 
 from __future__ import annotations
@@ -23,11 +26,9 @@ from dqn_transfer.agents.dqn_update import (
     clip_coefficient,
     double_dqn_targets,
     dqn_targets,
+    huber,
     live_mean,
-    td_loss_grad,
     td_losses,
-    team_loss_grad,
-    team_losses,
     team_td_errors,
 )
 from dqn_transfer.agents.replay import ReplayBatch
@@ -35,6 +36,34 @@ from dqn_transfer.agents.stacked import SMALLEST_NORMAL, AdamState, StackedLayou
 from dqn_transfer.config import AgentConfig
 
 WEIGHT_STREAM = 2  # SeedSequence spawn key of the initial weights (0 and 1: exploration and replay)
+
+
+def huber_grad(error: np.ndarray) -> np.ndarray:
+    """d :func:`~dqn_transfer.agents.dqn_update.huber` / d error: the TD error clipped to ``[-1, 1]``."""
+    return np.clip(error, -1.0, 1.0)
+
+
+def td_loss_grad(error: np.ndarray, weights: np.ndarray, sample_weights: np.ndarray | None = None) -> np.ndarray:
+    """d loss / d ``Q(s, a)`` ``[rows, B]`` for the loss ``sum_rows weights[row] * td_losses(error,
+    sample_weights)[row]`` (``weights`` ``[rows]``: see ``BatchedDQN.loss_weights``)."""
+    if sample_weights is None:
+        return huber_grad(error) * (weights[:, None] / error.shape[-1])
+    return huber_grad(error) * (weights[:, None] * sample_weights)
+
+
+def team_losses(team_error: np.ndarray, num_agents: int) -> np.ndarray:
+    """Each agent's row ``[rows]``: its team's loss, the mean ``huber`` of its ``team_td_errors``."""
+    return np.repeat(huber(team_error).mean(-1), num_agents)
+
+
+def team_loss_grad(team_error: np.ndarray, live: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """d loss / d ``Q_k(s, a)`` ``[rows, B]`` for VDN's loss ``sum_teams weights[team] * mean_b
+    huber(team_error)``: every agent live in a sample gets its team's gradient there (d Q_tot / d Q_k = 1),
+    the others none. ``weights`` ``[rows]`` is the same for a team's rows (see ``BatchedDQN.loss_weights``)."""
+    teams, batch = team_error.shape
+    k = live.shape[0] // teams
+    grad = huber_grad(team_error)[:, None, :] * live.reshape(teams, k, batch) * (weights.reshape(teams, k, 1) / batch)
+    return grad.reshape(teams * k, batch)
 
 
 class NumpyMLP(StackedLayout):

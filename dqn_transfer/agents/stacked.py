@@ -1,10 +1,11 @@
-"""What both DQN engines' networks and Adam share: M stacked MLPs in one flat buffer, and Adam's bookkeeping.
+"""What both DQN engines' networks share: the layout of M stacked MLPs; and the numpy engine's Adam bookkeeping.
 
-Member m's layer l is ``weight_l[m]`` (``[in, out]``) and ``bias_l[m]``; all tensors lie one after the
+Member m's layer l is ``weight_l[m]`` (``[in, out]``) and ``bias_l[m]``, in both engines, and so are Adam's
+moments (a checkpoint's ``optim.weight_l.exp_avg``, ...). Checkpoints use ``nn.Linear``'s convention for
+the weights instead (``layers.{l}.weight`` ``[out, in]``). The numpy engine lays all tensors one after the
 other in one flat buffer (``spans``), so a target sync is one copy and an Adam step a few passes over
-one buffer. Checkpoints use ``nn.Linear``'s convention instead (``layers.{l}.weight`` ``[out, in]``).
-Nothing here computes: the torch engine's buffers are tensors, the numpy engine's arrays, and slices
-and ``reshape`` of either are views.
+one buffer (the torch engine keeps one Parameter per tensor, for ``torch.optim.Adam``). Nothing here
+computes.
 """
 
 from __future__ import annotations
@@ -97,6 +98,15 @@ class AdamState:
             "exp_avg": self.exp_avg[a:b].reshape(tuple(shape)),
             "exp_avg_sq": self.exp_avg_sq[a:b].reshape(tuple(shape)),
         }
+
+    def step_count(self, i: int) -> int:
+        """Tensor i's Adam steps so far."""
+        return self.steps[i]
+
+    def set_step(self, i: int, step: int) -> None:
+        """Set tensor i's step count, giving it zero moments first if it has no state (e.g. loading a checkpoint)."""
+        self.init_state(i)
+        self.steps[i] = step
 
     def init_state(self, i: int) -> None:
         """Give tensor i the state Adam creates at its first step (zero moments, step 0), if it has none."""
