@@ -121,7 +121,7 @@ def resolve_engine(
     engine: Engine | str, device: Device | str, algorithm: Algorithm | str, mixer: Mixer | str
 ) -> Engine:
     """The engine ``agent.engine`` means on ``device`` for ``agent.algorithm`` and ``agent.mixer``: ``auto``
-    is numpy on the CPU for a loss it implements (3x torch's speed on this project's small networks, and no
+    is numpy on the CPU for a loss it implements (2-5x torch's update speed on this project's small networks, no
     torch import), torch otherwise."""
     engine = Engine(engine)
     if engine is not Engine.auto:

@@ -80,7 +80,7 @@ class AgentConfig:
     engine: Engine = documented(
         Engine.auto,
         "DQN arithmetic: auto (numpy on device=cpu, else torch) | torch (any device, any loss: the update in "
-        "autograd) | numpy (CPU, no torch import, DQN / Double DQN / VDN only: ~3x torch on these small networks)",
+        "autograd) | numpy (CPU, no torch import, DQN / Double DQN / VDN only: the fastest on these small networks)",
     )
     agent_id_input: bool = documented(
         False,
