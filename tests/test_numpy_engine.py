@@ -73,6 +73,7 @@ def engines(num_agents: int, **kwargs) -> tuple[DQNLearner, NumpyDQNLearner]:
         dict(),
         dict(share_parameters=True),
         dict(max_grad_norm=0.05),
+        dict(mixer=Mixer.vdn),
     ],
 )
 def test_numpy_updates_are_the_torch_engines_to_float32_rounding(setting):

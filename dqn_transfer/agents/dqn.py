@@ -219,7 +219,9 @@ class DQNLearner(BatchedDQN):
         self.q_network.clip_grad_norm_(self.max_grad_norm)
         self.optimizer.step()
         self.num_gradient_steps += 1
-        if self.num_gradient_steps % FLUSH_EVERY == 0:
+        # Every FLUSH_EVERY Adam steps (a saved count, so a resumed or warm-started run flushes alike).
+        layers = self.trainable_layers
+        if layers and self.optimizer.step_count(2 * layers[0]) % FLUSH_EVERY == 0:
             self.optimizer.flush_subnormals()
 
         stats = torch.stack([agent_losses, q_mean]).detach().cpu().numpy()  # one transfer

@@ -71,7 +71,7 @@ class StackedNetwork(Protocol):
 
 class StackedOptimizer(Protocol):
     """What :class:`BatchedDQN` uses of an engine's Adam (``torch.optim.Adam`` in
-    :class:`~dqn_transfer.agents.dqn.StackedAdam`, :class:`~dqn_transfer.agents.stacked.AdamState` in numpy):
+    :class:`~dqn_transfer.agents.dqn.StackedAdam`, :class:`~dqn_transfer.agents.numpy_dqn.NumpyAdam` in numpy):
     per stacked tensor i, whether it has state, its moments shaped as the tensor (write through them), its
     step count, and setting that count (creating zero moments if it had no state)."""
 

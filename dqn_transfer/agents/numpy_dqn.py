@@ -32,7 +32,7 @@ from dqn_transfer.agents.dqn_update import (
     team_td_errors,
 )
 from dqn_transfer.agents.replay import ReplayBatch
-from dqn_transfer.agents.stacked import SMALLEST_NORMAL, AdamState, StackedLayout
+from dqn_transfer.agents.stacked import FLUSH_EVERY, SMALLEST_NORMAL, StackedLayout
 from dqn_transfer.config import AgentConfig
 
 WEIGHT_STREAM = 2  # SeedSequence spawn key of the initial weights (0 and 1: exploration and replay)
@@ -191,10 +191,12 @@ class NumpyMLP(StackedLayout):
         self.flat += step
 
 
-class NumpyAdam(AdamState):
+class NumpyAdam:
     """Adam (``torch.optim.Adam``'s defaults and arithmetic order) over the tensors ``spans`` of one flat
-    buffer, one pass per stretch of neighbouring tensors at the same step count. A tensor that gets
-    no gradient in a step (a frozen layer) is skipped: its moments and step count stay as they were.
+    buffer, one pass per stretch of neighbouring tensors at the same step count, with
+    ``torch.optim.Adam``'s rules: state exists for a tensor from its first step on (or from
+    :meth:`init_state`), and a tensor that gets no gradient in a step (a frozen layer) is skipped
+    entirely, its moments and step count kept.
 
     :param flat: the parameters, one 1-D float32 array
     :param flat_grad: their gradients, same shape
@@ -213,10 +215,59 @@ class NumpyAdam(AdamState):
         betas: tuple[float, float] = (0.9, 0.999),
         eps: float = 1e-8,
     ) -> None:
-        super().__init__(spans, np.zeros_like(flat), np.zeros_like(flat))
+        self.spans = list(spans)
+        self.exp_avg, self.exp_avg_sq = np.zeros_like(flat), np.zeros_like(flat)
+        self.steps = [0] * len(self.spans)
+        self.has_state = [False] * len(self.spans)
         self.flat, self.flat_grad = flat, flat_grad
         self.lr, (self.beta1, self.beta2), self.eps = lr, betas, eps
         self._scratch = np.zeros_like(flat)
+
+    def moments(self, i: int, shape: Sequence[int]) -> dict[str, np.ndarray]:
+        """Tensor i's ``exp_avg`` and ``exp_avg_sq``, as views of shape ``shape`` (write through them)."""
+        a, b = self.spans[i]
+        return {
+            "exp_avg": self.exp_avg[a:b].reshape(tuple(shape)),
+            "exp_avg_sq": self.exp_avg_sq[a:b].reshape(tuple(shape)),
+        }
+
+    def step_count(self, i: int) -> int:
+        """Tensor i's Adam steps so far."""
+        return self.steps[i]
+
+    def set_step(self, i: int, step: int) -> None:
+        """Set tensor i's step count, giving it zero moments first if it has no state (e.g. loading a checkpoint)."""
+        self.init_state(i)
+        self.steps[i] = step
+
+    def init_state(self, i: int) -> None:
+        """Give tensor i the state Adam creates at its first step (zero moments, step 0), if it has none."""
+        if not self.has_state[i]:
+            a, b = self.spans[i]
+            self.exp_avg[a:b] = 0.0
+            self.exp_avg_sq[a:b] = 0.0
+            self.steps[i] = 0
+            self.has_state[i] = True
+
+    def count_step(self, active: Sequence[int]) -> bool:
+        """Count one step of the tensors ``active``; returns whether the subnormal moments are due
+        for a flush (every ``FLUSH_EVERY`` steps of a saved count, so a resumed run flushes alike)."""
+        for i in active:
+            self.init_state(i)
+            self.steps[i] += 1
+        return bool(active) and self.steps[active[0]] % FLUSH_EVERY == 0
+
+    def stretches(self, active: Sequence[int]) -> list[tuple[int, int, int]]:
+        """Neighbouring ``active`` tensors at the same step count, merged: ``(start, end, a tensor of it)``
+        (one update pass each instead of one per tensor)."""
+        merged: list[list[int]] = []  # [start, end, step, first index]
+        for i in sorted(active):
+            (a, b), step = self.spans[i], self.steps[i]
+            if merged and merged[-1][1] == a and merged[-1][2] == step:
+                merged[-1][1] = b
+            else:
+                merged.append([a, b, step, i])
+        return [(a, b, i) for a, b, _, i in merged]
 
     def step(self, active: Sequence[int]) -> None:
         """One Adam step for the tensors ``active`` (the others got no gradient)."""
