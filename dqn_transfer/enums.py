@@ -99,20 +99,34 @@ class Objective(Enum):
 
 class Engine(Enum):
     """What computes the DQN learners: ``torch`` (any device), ``numpy`` (CPU, no torch in the process)
-    or ``auto`` (numpy for ``device=cpu``, else torch: see :func:`resolve_engine`)."""
+    or ``auto`` (numpy for ``device=cpu`` and a loss it implements, else torch: see :func:`resolve_engine`)."""
 
     auto = "auto"
     torch = "torch"
     numpy = "numpy"
 
 
-def resolve_engine(engine: Engine | str, device: Device | str) -> Engine:
-    """The engine ``agent.engine`` means on ``device``: ``auto`` is numpy on the CPU (3x torch's speed on
-    this project's small networks, and no torch import) and torch for ``cuda`` / ``auto`` devices."""
+# The losses the numpy engine implements (each agent.algorithm with each agent.mixer listed); any other runs on
+# torch, where the update is stated with autograd (dqn_transfer.agents.dqn).
+NUMPY_ALGORITHMS = (Algorithm.dqn, Algorithm.double_dqn)
+NUMPY_MIXERS = (Mixer.none, Mixer.vdn)
+
+
+def numpy_implements(algorithm: Algorithm | str, mixer: Mixer | str) -> bool:
+    """Whether the numpy engine implements the loss of ``agent.algorithm`` with ``agent.mixer``."""
+    return Algorithm(algorithm) in NUMPY_ALGORITHMS and Mixer(mixer) in NUMPY_MIXERS
+
+
+def resolve_engine(
+    engine: Engine | str, device: Device | str, algorithm: Algorithm | str, mixer: Mixer | str
+) -> Engine:
+    """The engine ``agent.engine`` means on ``device`` for ``agent.algorithm`` and ``agent.mixer``: ``auto``
+    is numpy on the CPU for a loss it implements (2-5x torch's update speed on this project's small networks, no
+    torch import), torch otherwise."""
     engine = Engine(engine)
     if engine is not Engine.auto:
         return engine
-    return Engine.numpy if Device(device) is Device.cpu else Engine.torch
+    return Engine.numpy if Device(device) is Device.cpu and numpy_implements(algorithm, mixer) else Engine.torch
 
 
 class Logger(Enum):

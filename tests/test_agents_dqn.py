@@ -8,10 +8,11 @@ import torch
 from safetensors.numpy import load as load_numpy
 from safetensors.numpy import save as save_numpy
 
+from dqn_transfer import enums
 from dqn_transfer.agents import DQNLearner, TabularLearner, Transition, linear_schedule, make_learner
 from dqn_transfer.agents.numpy_dqn import NumpyDQNLearner
 from dqn_transfer.config import AgentConfig
-from dqn_transfer.enums import Algorithm, Engine, resolve_engine
+from dqn_transfer.enums import Algorithm, Engine, Mixer, resolve_engine
 
 LAYOUT = [("position", 3), ("treasures", 1)]
 D, A = 4, 2
@@ -232,12 +233,19 @@ def test_training_state_round_trip_continues_bit_identically(share_parameters):
     assert b.frozen_layers == [0] and a.num_gradient_steps == b.num_gradient_steps
 
 
-def test_engine_auto_is_numpy_on_the_cpu_and_torch_elsewhere():
-    assert resolve_engine("auto", "cpu") is Engine.numpy
-    assert resolve_engine("auto", "cuda") is Engine.torch and resolve_engine("auto", "auto") is Engine.torch
-    assert resolve_engine("torch", "cpu") is Engine.torch and resolve_engine("numpy", "cpu") is Engine.numpy
+def test_engine_auto_is_numpy_on_the_cpu_and_torch_elsewhere(monkeypatch):
+    dqn, none = Algorithm.dqn, Mixer.none
+    assert resolve_engine("auto", "cpu", dqn, none) is Engine.numpy
+    assert resolve_engine("auto", "cuda", dqn, none) is Engine.torch
+    assert resolve_engine("auto", "auto", dqn, none) is Engine.torch
+    assert resolve_engine("torch", "cpu", dqn, none) is Engine.torch
+    assert resolve_engine("numpy", "cpu", dqn, none) is Engine.numpy
     assert AgentConfig().engine is Engine.auto
     assert isinstance(make_learner(AgentConfig(), 2, LAYOUT, A, seed=0), NumpyDQNLearner)
+    # A loss the numpy engine does not implement (here: VDN, as if it were new) runs on torch.
+    monkeypatch.setattr(enums, "NUMPY_MIXERS", (Mixer.none,))
+    assert resolve_engine("auto", "cpu", dqn, Mixer.vdn) is Engine.torch
+    assert isinstance(make_learner(AgentConfig(mixer=Mixer.vdn), 2, LAYOUT, A, seed=0), DQNLearner)
 
 
 def test_make_learner_builds_each_algorithm_from_its_config():
@@ -327,7 +335,8 @@ def test_greedy_actions_are_torchs_argmax_ties_included(share_parameters):
     rng = np.random.default_rng(0)
 
     def torch_argmax(obs):
-        q = learner.q_network.predict(learner._team_batch(torch.from_numpy(obs).unsqueeze(1)))
+        with torch.no_grad():
+            q = learner.q_network(learner._team_batch(torch.from_numpy(obs).unsqueeze(1)))
         return q.reshape(3, -1).argmax(dim=-1).numpy()
 
     for _ in range(200):

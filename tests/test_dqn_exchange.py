@@ -1,7 +1,7 @@
 """The DQN side of the second edition's exchange methods (#24): shared experience
 (``transfer.exchange=experience``) and parameter sharing with an agent-id input
 (``agent.agent_id_input``). Worked cases on K = 2 agents in R = 2 replicas, each engine against
-``dqn_update.reference_update`` and against plain autograd, the transfer mapping of the ``agent_id``
+``dqn_reference.reference_update`` and against plain autograd, the transfer mapping of the ``agent_id``
 segment, the config refusals and an exact resume."""
 
 from __future__ import annotations
@@ -11,12 +11,13 @@ import pytest
 import torch
 import torch.nn.functional as F
 from conftest import agent_meta
-from test_dqn_update import ENGINES, Learner, learner_rows_per_member, sequential
+from dqn_reference import reference_update
+from test_dqn_update import ENGINES, Learner, learner_rows_per_member, sequential, stacked_grad
 from test_train_cli import MAP, kill_and_resume
 
 from dqn_transfer.agents import ReplayBatch, Transition
 from dqn_transfer.agents.agent_id import AGENT_ID, agent_id_rows, append_agent_id
-from dqn_transfer.agents.dqn_update import double_dqn_targets, reference_update
+from dqn_transfer.agents.dqn_update import double_dqn_targets
 from dqn_transfer.agents.shared_experience import batch_sources
 from dqn_transfer.config import AgentConfig, ConfigError, TrainConfig, TransferConfig, validate
 from dqn_transfer.enums import Algorithm, Exchange
@@ -97,8 +98,8 @@ def per_sample_losses(learner: Learner, batch: ReplayBatch, row: int) -> tuple[t
 
 def engine_gradients(learner: Learner, row: int) -> list[np.ndarray]:
     """Row's gradients as the engine left them, in ``nn.Sequential``'s parameter order and layout."""
-    grads = learner.q_network.grads
-    return [np.asarray(grads[i][row]).T if i % 2 == 0 else np.asarray(grads[i][row]) for i in range(len(grads))]
+    grads = [stacked_grad(learner, i)[row] for i in range(len(learner.q_network.shapes))]
+    return [grad.T if i % 2 == 0 else grad for i, grad in enumerate(grads)]
 
 
 @pytest.mark.parametrize("engine", ["numpy", "torch"])

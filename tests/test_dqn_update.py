@@ -1,4 +1,4 @@
-"""Each engine's gradient step is ``dqn_update.reference_update``'s: the same losses, clipped gradients
+"""Each engine's gradient step is ``dqn_reference.reference_update``'s: the same losses, clipped gradients
 and updated weights, computed by plain ``nn.Sequential`` networks, autograd and ``torch.optim.Adam``
 from the same weights on the same batches (R = 2 replicas of K = 2 agents, one network per agent or
 one per replica)."""
@@ -10,10 +10,10 @@ from typing import TypeAlias
 import numpy as np
 import pytest
 import torch
+from dqn_reference import reference_update
 from torch import nn
 
 from dqn_transfer.agents import DQNLearner, Experience, ReplayBatch
-from dqn_transfer.agents.dqn_update import reference_update
 from dqn_transfer.agents.numpy_dqn import NumpyDQNLearner
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm
@@ -97,6 +97,14 @@ def learner_rows_per_member(learner: Learner) -> int:
     return learner.num_agents if learner.share_parameters else 1
 
 
+def stacked_grad(learner: Learner, i: int) -> np.ndarray:
+    """The gradient of stacked tensor i ``[M, ...]`` (zeros where the engine computed none)."""
+    if isinstance(learner, NumpyDQNLearner):
+        return learner.q_network.grads[i]
+    grad = learner.q_network.tensors[i].grad
+    return np.zeros(learner.q_network.shapes[i], np.float32) if grad is None else grad.numpy()
+
+
 def make(engine: str, max_grad_norm: float, **kwargs) -> Learner:
     hp = AgentConfig(hidden=[16, 16], batch_size=B, buffer_size=32, lr=1e-2, max_grad_norm=max_grad_norm, **kwargs)
     learner = ENGINES[engine](K, LAYOUT, A, hp, seed=SEEDS)
@@ -132,7 +140,7 @@ def check_against_reference(learner: Learner, clip_active: bool, double: bool | 
                 assert float(norm) < learner.max_grad_norm
             weights = learner.q_network.member_state(m)
             for l, layer in enumerate(layers):
-                grad_w, grad_b = learner.q_network.grads[2 * l][m], learner.q_network.grads[2 * l + 1][m]
+                grad_w, grad_b = stacked_grad(learner, 2 * l)[m], stacked_grad(learner, 2 * l + 1)[m]
                 if l in learner.frozen_layers:
                     assert layer.weight.grad is None
                     assert not np.asarray(grad_w).any()

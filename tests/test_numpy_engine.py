@@ -11,10 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from dqn_transfer import enums
 from dqn_transfer.agents import DQNLearner, Transition, make_replicas
 from dqn_transfer.agents.numpy_dqn import NumpyDQNLearner
 from dqn_transfer.config import AgentConfig, ConfigError, TrainConfig, validate
-from dqn_transfer.enums import Algorithm, Device, Engine
+from dqn_transfer.enums import Algorithm, Device, Engine, Mixer, Mode
+from dqn_transfer.envs.settings import EnvConfig
 
 LAYOUT = [("position", 5), ("treasures", 2)]
 D, A = 7, 4
@@ -71,6 +73,7 @@ def engines(num_agents: int, **kwargs) -> tuple[DQNLearner, NumpyDQNLearner]:
         dict(),
         dict(share_parameters=True),
         dict(max_grad_norm=0.05),
+        dict(mixer=Mixer.vdn),
     ],
 )
 def test_numpy_updates_are_the_torch_engines_to_float32_rounding(setting):
@@ -141,6 +144,20 @@ def test_numpy_engine_on_cuda_is_refused():
     cfg = TrainConfig(agent=AgentConfig(engine=Engine.numpy), device=Device.cuda)
     with pytest.raises(ConfigError, match="agent.engine=numpy runs on the CPU"):
         validate(cfg)
+
+
+def test_a_loss_the_numpy_engine_does_not_implement_is_refused_in_one_line_naming_torch(monkeypatch):
+    """Today the numpy engine implements every loss (DQN, Double DQN, VDN); a new one is written for torch
+    first. Here VDN stands in for such a loss: refused on numpy, and the message says what to use."""
+    cooperative = EnvConfig(mode=Mode.cooperative)
+    cfg = TrainConfig(env=cooperative, agent=AgentConfig(engine=Engine.numpy, mixer=Mixer.vdn))
+    validate(cfg)
+    monkeypatch.setattr(enums, "NUMPY_MIXERS", (Mixer.none,))
+    with pytest.raises(ConfigError) as refusal:
+        validate(cfg)
+    message = str(refusal.value)
+    assert "\n" not in message and message.endswith("use agent.engine=torch")
+    assert "agent.mixer=vdn" in message
 
 
 @pytest.mark.parametrize("overrides", [["agent=dqn", "agent.engine=numpy"], ["agent=sarsa"]])

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 import torch
 from conftest import agent_meta, read_metrics, run_many
+from dqn_reference import reference_vdn_update
 from safetensors.numpy import load_file
-from test_dqn_update import ENGINES, Learner, linear_layers, sequential
+from test_dqn_update import ENGINES, Learner, linear_layers, sequential, stacked_grad
 from test_train_cli import MAP, kill_and_resume
 
 from dqn_transfer.agents import ReplayBatch, ReplayBuffer, Transition
-from dqn_transfer.agents.dqn_update import reference_vdn_update
 from dqn_transfer.config import AgentConfig, ConfigError, TrainConfig, TransferConfig, validate
 from dqn_transfer.enums import Algorithm, Exchange, Mixer, Mode, RewardMode
 from dqn_transfer.envs.settings import EnvConfig
@@ -84,7 +84,7 @@ def test_the_team_target_and_gradient_by_hand_with_a_finished_agent(engine, algo
     stats = learner.train_on(batch, live=live)
     np.testing.assert_allclose(stats.td_loss, [49.5, 49.5])
     np.testing.assert_allclose(stats.q_mean, [3.0, 2.0])  # agent 0: (2 + 4) / 2; agent 1: step 0 only
-    output_bias_grad = np.asarray(learner.q_network.grads[3])
+    output_bias_grad = stacked_grad(learner, 3)
     np.testing.assert_allclose(output_bias_grad, [[0.0, -0.5, 0.0, 0.5], [0.0, 0.0, -0.5, 0.0]])
 
 
@@ -158,7 +158,7 @@ def test_each_engines_vdn_step_is_autograd_of_the_summed_loss(
             assert (float(norm) == pytest.approx(max_grad_norm, rel=1e-4)) if clip_active else norm < max_grad_norm
             weights = learner.q_network.member_state(m)
             for l, layer in enumerate(linear_layers(network)):
-                grad_w, grad_b = learner.q_network.grads[2 * l][m], learner.q_network.grads[2 * l + 1][m]
+                grad_w, grad_b = stacked_grad(learner, 2 * l)[m], stacked_grad(learner, 2 * l + 1)[m]
                 np.testing.assert_allclose(np.asarray(grad_w).T, layer.weight.grad.numpy(), rtol=RTOL, atol=ATOL)
                 np.testing.assert_allclose(np.asarray(grad_b), layer.bias.grad.numpy(), rtol=RTOL, atol=ATOL)
                 for name, parameter in (("weight", layer.weight), ("bias", layer.bias)):

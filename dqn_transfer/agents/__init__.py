@@ -11,8 +11,8 @@ methods and checks a capability with :func:`require`, never a learner's class.
 
 The DQN family has two engines (``agent.engine``, whose default ``auto`` means numpy on the CPU and
 torch on a GPU): ``torch`` (:mod:`~dqn_transfer.agents.dqn`) and ``numpy``
-(:mod:`~dqn_transfer.agents.numpy_dqn`), which share :mod:`~dqn_transfer.agents.dqn_update`
-(the gradient step, stated once; it imports torch only when its reference update is called). An
+(:mod:`~dqn_transfer.agents.numpy_dqn`, a CPU fast path for DQN, Double DQN and VDN), which share
+:mod:`~dqn_transfer.agents.dqn_update` (the target, the loss and the clip rule; no torch import). An
 engine's module is imported when a learner of it is built, so that a process that trains a tabular or
 numpy learner never imports torch (3-4 s of start-up); the torch engine's names below
 (``DQNLearner``, ``BatchedMLP``, ...) are imported on first use.
@@ -134,7 +134,7 @@ def make_replicas(
     """
     if Algorithm(hp.algorithm).is_tabular:
         return TabularLearner(num_agents, obs_layout, num_actions, hp, seed=list(seeds))
-    if resolve_engine(hp.engine, device) is Engine.numpy:
+    if resolve_engine(hp.engine, device, hp.algorithm, hp.mixer) is Engine.numpy:
         engine = import_module("dqn_transfer.agents.numpy_dqn")
         return engine.NumpyDQNLearner(num_agents, obs_layout, num_actions, hp, seed=list(seeds))
     engine = import_module("dqn_transfer.agents.dqn")

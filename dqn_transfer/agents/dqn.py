@@ -1,36 +1,28 @@
-"""The ``torch`` engine of :class:`~dqn_transfer.agents.dqn_base.BatchedDQN` (the default): any device.
+"""The ``torch`` engine of :class:`~dqn_transfer.agents.dqn_base.BatchedDQN`: any device; the DQN update stated once.
 
-The networks are one :class:`~dqn_transfer.agents.networks.BatchedMLP`, trained without autograd by
-its hand-written backward and :class:`~dqn_transfer.agents.adam.FlatAdam`, both bit-identical to
-``loss.backward()`` and ``torch.optim.Adam`` (the tests check it; ``scripts/time_dqn_backward.py``
-measures what they save: about 6 % of a step for 40 networks, a quarter for 4). The target, the loss
-and its gradient and the clip rule are :mod:`dqn_transfer.agents.dqn_update`'s, whose
-``reference_update`` states the algorithm; the schedule is :mod:`dqn_transfer.agents.dqn_base`'s.
-The replay batch comes from the host and is moved to the device.
+Read :meth:`DQNLearner.train_on`: CleanRL's ``dqn.py`` update, for all agents' networks at once (one
+:class:`~dqn_transfer.agents.networks.BatchedMLP`): the target under ``torch.no_grad()``, the Huber loss,
+``loss.backward()``, the gradient clip, ``torch.optim.Adam``'s step. Any new network or loss runs here
+first; the ``numpy`` engine (:mod:`~dqn_transfer.agents.numpy_dqn`) is a CPU fast path for the losses it
+implements, checked step for step against this one. The target and the loss are
+:mod:`dqn_transfer.agents.dqn_update`'s; the schedule is :mod:`dqn_transfer.agents.dqn_base`'s. The replay
+batch comes from the host and is moved to the device.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
+from typing import Any
 
 import numpy as np
 import torch
 
-from dqn_transfer.agents.adam import FlatAdam
 from dqn_transfer.agents.base import ObsLayout, UpdateStats
 from dqn_transfer.agents.dqn_base import BatchedDQN
-from dqn_transfer.agents.dqn_update import (
-    double_dqn_targets,
-    dqn_targets,
-    live_mean,
-    td_loss_grad,
-    td_losses,
-    team_loss_grad,
-    team_losses,
-    team_td_errors,
-)
+from dqn_transfer.agents.dqn_update import double_dqn_targets, dqn_targets, huber, live_mean, td_losses, team_td_errors
 from dqn_transfer.agents.networks import BatchedMLP
 from dqn_transfer.agents.replay import ReplayBatch
+from dqn_transfer.agents.stacked import FLUSH_EVERY, SMALLEST_NORMAL
 from dqn_transfer.config import AgentConfig, ConfigError
 from dqn_transfer.enums import Device
 
@@ -50,6 +42,51 @@ def resolve_device(device: Device | str, threads: int | None = None) -> str:
     if device is Device.cuda and not torch.cuda.is_available():
         raise ConfigError("device=cuda but no CUDA device is available here (use device=cpu or device=auto)")
     return device.value
+
+
+class StackedAdam(torch.optim.Adam):
+    """``torch.optim.Adam`` (foreach) over a :class:`~dqn_transfer.agents.networks.BatchedMLP`'s tensors, with
+    the per-tensor state access :class:`~dqn_transfer.agents.dqn_base.BatchedDQN`'s checkpoints and transfer
+    use (:class:`~dqn_transfer.agents.dqn_base.StackedOptimizer`): state ``i`` is tensor ``i``'s, shaped as it.
+
+    :param network: the online networks
+    :param lr: the step size
+    """
+
+    def __init__(self, network: BatchedMLP, lr: float) -> None:
+        super().__init__(network.tensors, lr=lr, foreach=True)
+        self.tensors = network.tensors
+
+    @property
+    def has_state(self) -> list[bool]:
+        return [bool(self.state.get(tensor)) for tensor in self.tensors]
+
+    def moments(self, i: int, shape: Sequence[int]) -> dict[str, Any]:
+        state = self.state[self.tensors[i]]
+        return {"exp_avg": state["exp_avg"], "exp_avg_sq": state["exp_avg_sq"]}
+
+    def step_count(self, i: int) -> int:
+        return int(self.state[self.tensors[i]]["step"])
+
+    def set_step(self, i: int, step: int) -> None:
+        tensor = self.tensors[i]
+        state = self.state[tensor]
+        if not state:  # the state torch.optim.Adam creates at a tensor's first step
+            state.update(exp_avg=torch.zeros_like(tensor), exp_avg_sq=torch.zeros_like(tensor))
+        state["step"] = torch.tensor(float(step))
+
+    @torch.no_grad()
+    def flush_subnormals(self) -> None:
+        """Set moments below float32's smallest normal number to zero.
+
+        A moment that stops receiving gradient (an input the agent no longer sees) decays towards zero
+        and turns subnormal, and element-wise kernels run 10-15x slower on subnormal numbers. Such a
+        moment is ~1e-38: its share of a weight's step is below that weight's last bit, so flushing it
+        changes no weight.
+        """
+        for state in self.state.values():
+            for key in ("exp_avg", "exp_avg_sq"):
+                state[key].masked_fill_(state[key].abs() < SMALLEST_NORMAL, 0.0)
 
 
 class DQNLearner(BatchedDQN):
@@ -73,8 +110,9 @@ class DQNLearner(BatchedDQN):
         generators = [torch.Generator().manual_seed(s) for s in self.seeds]
         self.q_network = BatchedMLP(self.num_members, self.obs_dim, self.hidden, num_actions, generators, self.device)
         self.target_network = BatchedMLP(self.num_members, self.obs_dim, self.hidden, num_actions, device=self.device)
+        self.target_network.requires_grad_(False)
         self.target_network.update_from(self.q_network, tau=1.0)
-        self.optimizer = FlatAdam(self.q_network.flat, self.q_network.flat_grad, self.q_network.spans, lr=self.lr)
+        self.optimizer = StackedAdam(self.q_network, lr=self.lr)
         self._device_weights: dict[str, tuple[np.ndarray, torch.Tensor]] = {}  # name: (host array, its device copy)
 
     def _to_engine(self, array: np.ndarray) -> torch.Tensor:
@@ -95,7 +133,7 @@ class DQNLearner(BatchedDQN):
 
     def _q_values(self, network: BatchedMLP, obs: torch.Tensor, replica: int | None = None) -> torch.Tensor:
         """``obs [rows, B, D] -> Q [rows, B, A]`` (rows of one replica, or of all)."""
-        q_values = network.predict(self._team_batch(obs), self._members(replica))
+        q_values = network(self._team_batch(obs), self._members(replica))
         return q_values.view(*obs.shape[:2], -1) if self.share_parameters else q_values
 
     @torch.no_grad()
@@ -103,6 +141,7 @@ class DQNLearner(BatchedDQN):
         inputs_t = torch.as_tensor(inputs, device=self.device)
         return self._q_values(self.q_network, inputs_t.unsqueeze(1), replica).squeeze(1).cpu().numpy()
 
+    @torch.no_grad()
     def _greedy_actions(self, inputs: np.ndarray, replica: int | None) -> np.ndarray:
         """On the CPU the Q-values are first computed in numpy, several times cheaper for these tiny
         batches. numpy's kernels may differ from torch's in the last bits, which can only change an
@@ -129,51 +168,61 @@ class DQNLearner(BatchedDQN):
             copy = self._device_weights[name] = (weights, torch.from_numpy(weights).to(self.device))
         return copy[1]
 
+    def freeze(self, layer_indices: Iterable[int]) -> None:
+        super().freeze(layer_indices)
+        for l in self.frozen_layers:  # no gradient, so Adam skips them (moments and step count kept)
+            for tensor in self.q_network.layer(l):
+                tensor.requires_grad_(False)
+
     def train_on(
         self, batch: ReplayBatch, sample_weights: np.ndarray | None = None, live: np.ndarray | None = None
     ) -> UpdateStats:
-        """One Adam step for all agents on ``batch`` (``[rows, B, ...]``, numpy on the host):
-        :func:`~dqn_transfer.agents.dqn_update.reference_update` for every network at once (with ``live``:
-        :func:`~dqn_transfer.agents.dqn_update.reference_vdn_update` for every replica's team).
+        """One Adam step for all agents on ``batch`` (``[rows, B, ...]``, numpy on the host).
 
-        The loss is ``sum_rows weight[row] * mean_batch Huber(Q(s, a) - y)`` (see ``loss_weights``);
-        its gradient is taken by hand (``td_loss_grad``, then ``BatchedMLP.backward``).
+        The loss is ``sum_rows weight[row] * mean_batch Huber(Q(s, a) - y)`` (``loss_weights``: each agent's
+        gradient is its own network's; with ``sample_weights`` a weighted mean, ``td_losses``); with ``live``
+        (VDN) ``sum_teams weight[team] * mean_batch Huber(Q_tot(s, a) - y_tot)``, each row reporting its team's.
         """
         obs, actions, rewards, next_obs, terminated = (torch.from_numpy(field).to(self.device) for field in batch)
+        valid = self.replay.size > 0
+        loss_weights = self._on_device("loss", self.loss_weights(valid))
+
+        # The target: no gradient flows into it. DQN takes the target network's max over the next actions;
+        # Double DQN lets the online network choose the action and the target network score it.
         with torch.no_grad():
             next_q_target = self._q_values(self.target_network, next_obs)
             if self.double:
                 next_q_online = self._q_values(self.q_network, next_obs)
-                targets = double_dqn_targets(rewards, next_q_online, next_q_target, terminated, self.gamma)
+                td_target = double_dqn_targets(rewards, next_q_online, next_q_target, terminated, self.gamma)
             else:
-                targets = dqn_targets(rewards, next_q_target, terminated, self.gamma)
+                td_target = dqn_targets(rewards, next_q_target, terminated, self.gamma)
 
-            out, inputs = self.q_network.forward_cached(self._team_batch(obs))
-            q_values = out.reshape(*obs.shape[:2], -1)
-            actions = actions.unsqueeze(-1)
-            q_taken = q_values.gather(-1, actions).squeeze(-1)  # Q(s, a) [rows, B]
-            error = q_taken - targets
-            valid = self.replay.size > 0
-            loss_weights = self._on_device("loss", self.loss_weights(valid))
+        # The loss: Huber between Q(s, a) and the target, each agent's batch mean, weighted over agents.
+        q_taken = self._q_values(self.q_network, obs).gather(-1, actions.unsqueeze(-1)).squeeze(-1)  # [rows, B]
+        error = q_taken - td_target
+        if live is None:
+            sample_weights_t = None if sample_weights is None else self._on_device("sample", sample_weights)
+            agent_losses = td_losses(error, sample_weights_t)  # [rows]
+            loss = (loss_weights * agent_losses).sum()
+            q_mean = q_taken.mean(dim=1)
+        else:  # VDN: one TD error per team, Q_tot - y_tot; a team's rows share its weight
+            live_t = torch.from_numpy(live).to(self.device)
+            team_losses = huber(team_td_errors(error, live_t, self.num_agents)).mean(dim=1)  # [teams]
+            loss = (loss_weights[:: self.num_agents] * team_losses).sum()
+            agent_losses = team_losses.repeat_interleave(self.num_agents)
+            q_mean = live_mean(q_taken, live_t)
 
-            # d loss / d Q(s, a), scattered onto the actions taken, then back through the network.
-            if live is None:
-                sample_weights_t = None if sample_weights is None else self._on_device("sample", sample_weights)
-                agent_losses = td_losses(error, sample_weights_t)  # [rows]
-                grad_taken = td_loss_grad(error, loss_weights, sample_weights_t)
-                q_mean = q_taken.mean(dim=1)
-            else:
-                live_t = torch.from_numpy(live).to(self.device)
-                team_error = team_td_errors(error, live_t, self.num_agents)
-                agent_losses = team_losses(team_error, self.num_agents)
-                grad_taken = team_loss_grad(team_error, live_t, loss_weights)
-                q_mean = live_mean(q_taken, live_t)
-            grad_q = torch.zeros_like(q_values).scatter_add_(-1, actions, grad_taken.unsqueeze(-1))
-            layers = self.trainable_layers
-            self.q_network.backward(inputs, self._team_batch(grad_q), layers)
-            self.q_network.clip_grad_norm_(self.max_grad_norm, layers)
-            self.optimizer.step([2 * l + kind for l in layers for kind in (0, 1)])
-            self.num_gradient_steps += 1
+        # The step: gradient, each network's norm clipped to max_grad_norm (per agent, or per replica's
+        # shared network: never one norm over all), Adam (frozen layers have no gradient and are skipped).
+        self.optimizer.zero_grad()
+        loss.backward()
+        self.q_network.clip_grad_norm_(self.max_grad_norm)
+        self.optimizer.step()
+        self.num_gradient_steps += 1
+        # Every FLUSH_EVERY Adam steps (a saved count, so a resumed or warm-started run flushes alike).
+        layers = self.trainable_layers
+        if layers and self.optimizer.step_count(2 * layers[0]) % FLUSH_EVERY == 0:
+            self.optimizer.flush_subnormals()
 
-            stats = torch.stack([agent_losses, q_mean]).cpu().numpy()  # one transfer
+        stats = torch.stack([agent_losses, q_mean]).detach().cpu().numpy()  # one transfer
         return UpdateStats(np.where(valid, stats[0], np.nan), np.where(valid, stats[1], np.nan))

@@ -1,12 +1,12 @@
 """DQN and Double DQN for R replicas of a team of K agents, batched into one network module and one optimizer.
 
-The algorithm is CleanRL's ``dqn.py`` per agent (read :meth:`BatchedDQN.update`, then
-:func:`~dqn_transfer.agents.dqn_update.reference_update`, the gradient step every engine's ``train_on``
-takes for all agents at once): store the transition; every ``train_freq`` env steps after
-``learning_starts``, take ``gradient_steps`` steps of Huber loss between ``Q(s, a)`` and the
-bootstrapped target on a uniform replay batch (Adam, gradient-norm clip); every ``target_update``
-env steps move the target network ``tau`` of the way to the online one (``tau == 1``: a hard copy) —
-the same rule as SB3's ``target_update_interval``/``tau`` and CleanRL's ``target_network_frequency``/``tau``.
+The algorithm is CleanRL's ``dqn.py`` per agent (read :meth:`BatchedDQN.update`, then the torch
+engine's :meth:`~dqn_transfer.agents.dqn.DQNLearner.train_on`, the gradient step for all agents at
+once): store the transition; every ``train_freq`` env steps after ``learning_starts``, take
+``gradient_steps`` steps of Huber loss between ``Q(s, a)`` and the bootstrapped target on a uniform
+replay batch (Adam, gradient-norm clip); every ``target_update`` env steps move the target network
+``tau`` of the way to the online one (``tau == 1``: a hard copy) — the same rule as SB3's
+``target_update_interval``/``tau`` and CleanRL's ``target_network_frequency``/``tau``.
 
 What is particular here: all R x K agents are one batched network (stacked weights), their replay is
 one ``[R * K, capacity, ...]`` storage, and one Adam step updates everyone. The loss is the *sum* of
@@ -17,12 +17,12 @@ still per agent, loss the *mean* over the replica's agents. Replica r (rows ``r 
 has its own initial weights, exploration and replay sampling streams, seeded as a lone learner of its
 seed would be; :meth:`BatchedDQN.replica` is its team (:mod:`dqn_transfer.agents.replicas`). With
 ``agent.mixer=vdn`` each replica's team is trained on one TD error instead, from a joint replay of its
-aligned steps (:func:`~dqn_transfer.agents.dqn_update.reference_vdn_update`).
+aligned steps (``train_on`` with ``live``).
 
 Two engines do the arithmetic (``agent.engine``): ``torch`` (:mod:`dqn_transfer.agents.dqn`, any
-device, bit-identical to autograd and ``torch.optim.Adam``) and ``numpy``
-(:mod:`dqn_transfer.agents.numpy_dqn`, CPU only, no torch in the process: the fastest for a few small
-networks, and what the default ``auto`` picks on the CPU). This module is what they share, and imports
+device and any loss: autograd and ``torch.optim.Adam``) and ``numpy`` (:mod:`dqn_transfer.agents.numpy_dqn`,
+CPU only, no torch in the process, DQN / Double DQN / VDN: the fastest for a few small networks, and what
+the default ``auto`` picks on the CPU). This module is what they share, and imports
 neither torch nor an engine.
 """
 
@@ -70,13 +70,16 @@ class StackedNetwork(Protocol):
 
 
 class StackedOptimizer(Protocol):
-    """What :class:`BatchedDQN` uses of an engine's Adam (:class:`~dqn_transfer.agents.stacked.AdamState`)."""
+    """What :class:`BatchedDQN` uses of an engine's Adam (``torch.optim.Adam`` in
+    :class:`~dqn_transfer.agents.dqn.StackedAdam`, :class:`~dqn_transfer.agents.numpy_dqn.NumpyAdam` in numpy):
+    per stacked tensor i, whether it has state, its moments shaped as the tensor (write through them), its
+    step count, and setting that count (creating zero moments if it had no state)."""
 
-    steps: list[int]
-    has_state: list[bool]
-
+    @property
+    def has_state(self) -> list[bool]: ...
     def moments(self, i: int, shape: Sequence[int]) -> dict[str, Any]: ...
-    def init_state(self, i: int) -> None: ...
+    def step_count(self, i: int) -> int: ...
+    def set_step(self, i: int, step: int) -> None: ...
 
 
 NetworkT = TypeVar("NetworkT", bound=StackedNetwork)
@@ -97,7 +100,7 @@ class BatchedDQN(Learner, KnowledgeExchange, ExperienceSharing, WarmStart, Gener
 
     q_network: NetworkT  # the online networks
     target_network: NetworkT  # the target networks (``update_from`` the online ones)
-    optimizer: OptimizerT  # Adam over the online networks' flat buffer
+    optimizer: OptimizerT  # Adam over the online networks' tensors
 
     def __init__(
         self, num_agents: int, obs_layout: ObsLayout, num_actions: int, hp: AgentConfig, seed: int | Sequence[int]
@@ -358,10 +361,9 @@ class BatchedDQN(Learner, KnowledgeExchange, ExperienceSharing, WarmStart, Gener
         for index, name in enumerate(network.tensor_names):
             if name not in moments:  # e.g. a layer the source kept frozen has no moments
                 continue
-            optimizer.init_state(index)
+            optimizer.set_step(index, int(step))
             for key, moment in optimizer.moments(index, network.shapes[index]).items():
                 moment[m] = self._to_engine(np.asarray(moments[name][key]))
-            optimizer.steps[index] = int(step)
 
     def _member(self, i: int) -> int:
         if not 0 <= i < self.num_rows:
@@ -421,7 +423,7 @@ class BatchedDQN(Learner, KnowledgeExchange, ExperienceSharing, WarmStart, Gener
             if optimizer.has_state[index]:
                 for key, moment in optimizer.moments(index, network.shapes[index]).items():
                     arrays[f"optim.{name}.{key}"] = np.ascontiguousarray(self._to_numpy(moment[members]))
-                arrays[f"optim.{name}.step"] = np.array(optimizer.steps[index], dtype=np.float32)
+                arrays[f"optim.{name}.step"] = np.array(optimizer.step_count(index), dtype=np.float32)
         meta = {
             "explore_rng": self.rngs[replica].bit_generator.state,
             "replay_rng": self.replay.rngs[replica].bit_generator.state,
@@ -442,12 +444,11 @@ class BatchedDQN(Learner, KnowledgeExchange, ExperienceSharing, WarmStart, Gener
             if prefix + "step" not in arrays:
                 continue
             shape = network.shapes[index]
-            optimizer.init_state(index)
+            optimizer.set_step(index, int(np.asarray(arrays[prefix + "step"]).reshape(-1)[0]))
             for key, moment in optimizer.moments(index, shape).items():
                 value = np.array(arrays[prefix + key], dtype=np.float32)
                 check_tensor_shape(prefix + key, value, (self.members_per_replica, *shape[1:]))
                 moment[members] = self._to_engine(value)
-            optimizer.steps[index] = int(np.asarray(arrays[prefix + "step"]).reshape(-1)[0])
         self.rngs[replica].bit_generator.state = meta["explore_rng"]
         self.replay.rngs[replica].bit_generator.state = meta["replay_rng"]
         self.num_gradient_steps = int(meta["num_gradient_steps"])

@@ -1,14 +1,17 @@
 """The ``numpy`` engine of :class:`~dqn_transfer.agents.dqn_base.BatchedDQN`: CPU only, no torch in the process.
 
-For networks this small (a few 64x64 MLPs) a gradient step is a few dozen tiny array operations, and
-what they cost is per-call overhead, not arithmetic: numpy's is a fraction of torch's, and a process
-that never imports torch starts seconds sooner. The algorithm's decisions (target, Huber loss and its
-gradient, clip rule) are :mod:`dqn_transfer.agents.dqn_update`'s, shared with the torch engine; this
-module holds the numeric kernels (forward, the chain rule through ReLU layers, per-member gradient
-norms, Adam's arithmetic), in float32 with numpy's kernels: results agree with the torch engine and
-with ``dqn_update.reference_update`` to float32 rounding, not bit for bit,
-and the initial weights come from numpy's generator (same distribution as ``nn.Linear``'s, other
-numbers). ``agent.engine`` is therefore part of what a run is (its config and checkpoints record it).
+A fast path for the losses it implements (DQN, Double DQN, VDN); the torch engine
+(:meth:`~dqn_transfer.agents.dqn.DQNLearner.train_on`) states the update, runs anything else, and is what
+this engine is checked against, step for step. For networks this small (a few 64x64 MLPs) a gradient
+step is a few dozen tiny array operations, and what they cost is per-call overhead, not arithmetic:
+numpy's is a fraction of torch's (autograd and ``torch.optim`` included), and a process that never
+imports torch starts seconds sooner. The target, the Huber loss and the clip rule are
+:mod:`dqn_transfer.agents.dqn_update`'s, shared with the torch engine; this module holds the loss's
+gradient and the numeric kernels (forward, the chain rule through ReLU layers, per-member gradient norms,
+Adam's arithmetic), in float32 with numpy's kernels: results agree with the torch engine to float32
+rounding, not bit for bit, and the initial weights come from numpy's generator (same distribution as
+``nn.Linear``'s, other numbers). ``agent.engine`` is therefore part of what a run is (its config and
+checkpoints record it).
 """
 
 from __future__ import annotations
@@ -23,18 +26,44 @@ from dqn_transfer.agents.dqn_update import (
     clip_coefficient,
     double_dqn_targets,
     dqn_targets,
+    huber,
     live_mean,
-    td_loss_grad,
     td_losses,
-    team_loss_grad,
-    team_losses,
     team_td_errors,
 )
 from dqn_transfer.agents.replay import ReplayBatch
-from dqn_transfer.agents.stacked import SMALLEST_NORMAL, AdamState, StackedLayout
+from dqn_transfer.agents.stacked import FLUSH_EVERY, SMALLEST_NORMAL, StackedLayout
 from dqn_transfer.config import AgentConfig
 
 WEIGHT_STREAM = 2  # SeedSequence spawn key of the initial weights (0 and 1: exploration and replay)
+
+
+def huber_grad(error: np.ndarray) -> np.ndarray:
+    """d :func:`~dqn_transfer.agents.dqn_update.huber` / d error: the TD error clipped to ``[-1, 1]``."""
+    return np.clip(error, -1.0, 1.0)
+
+
+def td_loss_grad(error: np.ndarray, weights: np.ndarray, sample_weights: np.ndarray | None = None) -> np.ndarray:
+    """d loss / d ``Q(s, a)`` ``[rows, B]`` for the loss ``sum_rows weights[row] * td_losses(error,
+    sample_weights)[row]`` (``weights`` ``[rows]``: see ``BatchedDQN.loss_weights``)."""
+    if sample_weights is None:
+        return huber_grad(error) * (weights[:, None] / error.shape[-1])
+    return huber_grad(error) * (weights[:, None] * sample_weights)
+
+
+def team_losses(team_error: np.ndarray, num_agents: int) -> np.ndarray:
+    """Each agent's row ``[rows]``: its team's loss, the mean ``huber`` of its ``team_td_errors``."""
+    return np.repeat(huber(team_error).mean(-1), num_agents)
+
+
+def team_loss_grad(team_error: np.ndarray, live: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """d loss / d ``Q_k(s, a)`` ``[rows, B]`` for VDN's loss ``sum_teams weights[team] * mean_b
+    huber(team_error)``: every agent live in a sample gets its team's gradient there (d Q_tot / d Q_k = 1),
+    the others none. ``weights`` ``[rows]`` is the same for a team's rows (see ``BatchedDQN.loss_weights``)."""
+    teams, batch = team_error.shape
+    k = live.shape[0] // teams
+    grad = huber_grad(team_error)[:, None, :] * live.reshape(teams, k, batch) * (weights.reshape(teams, k, 1) / batch)
+    return grad.reshape(teams * k, batch)
 
 
 class NumpyMLP(StackedLayout):
@@ -162,10 +191,12 @@ class NumpyMLP(StackedLayout):
         self.flat += step
 
 
-class NumpyAdam(AdamState):
+class NumpyAdam:
     """Adam (``torch.optim.Adam``'s defaults and arithmetic order) over the tensors ``spans`` of one flat
-    buffer, one pass per stretch of neighbouring tensors at the same step count. A tensor that gets
-    no gradient in a step (a frozen layer) is skipped: its moments and step count stay as they were.
+    buffer, one pass per stretch of neighbouring tensors at the same step count, with
+    ``torch.optim.Adam``'s rules: state exists for a tensor from its first step on (or from
+    :meth:`init_state`), and a tensor that gets no gradient in a step (a frozen layer) is skipped
+    entirely, its moments and step count kept.
 
     :param flat: the parameters, one 1-D float32 array
     :param flat_grad: their gradients, same shape
@@ -184,10 +215,59 @@ class NumpyAdam(AdamState):
         betas: tuple[float, float] = (0.9, 0.999),
         eps: float = 1e-8,
     ) -> None:
-        super().__init__(spans, np.zeros_like(flat), np.zeros_like(flat))
+        self.spans = list(spans)
+        self.exp_avg, self.exp_avg_sq = np.zeros_like(flat), np.zeros_like(flat)
+        self.steps = [0] * len(self.spans)
+        self.has_state = [False] * len(self.spans)
         self.flat, self.flat_grad = flat, flat_grad
         self.lr, (self.beta1, self.beta2), self.eps = lr, betas, eps
         self._scratch = np.zeros_like(flat)
+
+    def moments(self, i: int, shape: Sequence[int]) -> dict[str, np.ndarray]:
+        """Tensor i's ``exp_avg`` and ``exp_avg_sq``, as views of shape ``shape`` (write through them)."""
+        a, b = self.spans[i]
+        return {
+            "exp_avg": self.exp_avg[a:b].reshape(tuple(shape)),
+            "exp_avg_sq": self.exp_avg_sq[a:b].reshape(tuple(shape)),
+        }
+
+    def step_count(self, i: int) -> int:
+        """Tensor i's Adam steps so far."""
+        return self.steps[i]
+
+    def set_step(self, i: int, step: int) -> None:
+        """Set tensor i's step count, giving it zero moments first if it has no state (e.g. loading a checkpoint)."""
+        self.init_state(i)
+        self.steps[i] = step
+
+    def init_state(self, i: int) -> None:
+        """Give tensor i the state Adam creates at its first step (zero moments, step 0), if it has none."""
+        if not self.has_state[i]:
+            a, b = self.spans[i]
+            self.exp_avg[a:b] = 0.0
+            self.exp_avg_sq[a:b] = 0.0
+            self.steps[i] = 0
+            self.has_state[i] = True
+
+    def count_step(self, active: Sequence[int]) -> bool:
+        """Count one step of the tensors ``active``; returns whether the subnormal moments are due
+        for a flush (every ``FLUSH_EVERY`` steps of a saved count, so a resumed run flushes alike)."""
+        for i in active:
+            self.init_state(i)
+            self.steps[i] += 1
+        return bool(active) and self.steps[active[0]] % FLUSH_EVERY == 0
+
+    def stretches(self, active: Sequence[int]) -> list[tuple[int, int, int]]:
+        """Neighbouring ``active`` tensors at the same step count, merged: ``(start, end, a tensor of it)``
+        (one update pass each instead of one per tensor)."""
+        merged: list[list[int]] = []  # [start, end, step, first index]
+        for i in sorted(active):
+            (a, b), step = self.spans[i], self.steps[i]
+            if merged and merged[-1][1] == a and merged[-1][2] == step:
+                merged[-1][1] = b
+            else:
+                merged.append([a, b, step, i])
+        return [(a, b, i) for a, b, _, i in merged]
 
     def step(self, active: Sequence[int]) -> None:
         """One Adam step for the tensors ``active`` (the others got no gradient)."""

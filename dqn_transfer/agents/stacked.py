@@ -1,10 +1,11 @@
-"""What both DQN engines' networks and Adam share: M stacked MLPs in one flat buffer, and Adam's bookkeeping.
+"""What both DQN engines share: the layout of M stacked MLPs, and when subnormal Adam moments are flushed.
 
-Member m's layer l is ``weight_l[m]`` (``[in, out]``) and ``bias_l[m]``; all tensors lie one after the
+Member m's layer l is ``weight_l[m]`` (``[in, out]``) and ``bias_l[m]``, in both engines, and so are Adam's
+moments (a checkpoint's ``optim.weight_l.exp_avg``, ...). Checkpoints use ``nn.Linear``'s convention for
+the weights instead (``layers.{l}.weight`` ``[out, in]``). The numpy engine lays all tensors one after the
 other in one flat buffer (``spans``), so a target sync is one copy and an Adam step a few passes over
-one buffer. Checkpoints use ``nn.Linear``'s convention instead (``layers.{l}.weight`` ``[out, in]``).
-Nothing here computes: the torch engine's buffers are tensors, the numpy engine's arrays, and slices
-and ``reshape`` of either are views.
+one buffer (the torch engine keeps one Parameter per tensor, for ``torch.optim.Adam``). Nothing here
+computes.
 """
 
 from __future__ import annotations
@@ -71,58 +72,3 @@ class StackedLayout:
                 if name not in state:
                     raise ValueError(f"tensor '{name_prefix}{name}' is missing")
                 check_tensor_shape(name_prefix + name, state[name], shape)
-
-
-class AdamState:
-    """Adam's bookkeeping for the tensors ``spans[i] = (start, end)`` of one flat buffer, with
-    ``torch.optim.Adam``'s rules: state exists for a tensor from its first step on (or from
-    :meth:`init_state`), and a tensor that gets no gradient in a step (a frozen layer) is skipped
-    entirely, its moments and step count kept.
-
-    :param spans: the ``[start, end)`` range of each tensor, in order and without overlap
-    :param exp_avg: the first moments, one buffer like the parameters (zeros)
-    :param exp_avg_sq: the second moments, likewise
-    """
-
-    def __init__(self, spans: Sequence[tuple[int, int]], exp_avg: Any, exp_avg_sq: Any) -> None:
-        self.spans = list(spans)
-        self.exp_avg, self.exp_avg_sq = exp_avg, exp_avg_sq
-        self.steps = [0] * len(self.spans)
-        self.has_state = [False] * len(self.spans)
-
-    def moments(self, i: int, shape: Sequence[int]) -> dict[str, Any]:
-        """Tensor i's ``exp_avg`` and ``exp_avg_sq``, as views of shape ``shape`` (write through them)."""
-        a, b = self.spans[i]
-        return {
-            "exp_avg": self.exp_avg[a:b].reshape(tuple(shape)),
-            "exp_avg_sq": self.exp_avg_sq[a:b].reshape(tuple(shape)),
-        }
-
-    def init_state(self, i: int) -> None:
-        """Give tensor i the state Adam creates at its first step (zero moments, step 0), if it has none."""
-        if not self.has_state[i]:
-            a, b = self.spans[i]
-            self.exp_avg[a:b] = 0.0
-            self.exp_avg_sq[a:b] = 0.0
-            self.steps[i] = 0
-            self.has_state[i] = True
-
-    def count_step(self, active: Sequence[int]) -> bool:
-        """Count one step of the tensors ``active``; returns whether the subnormal moments are due
-        for a flush (every ``FLUSH_EVERY`` steps of a saved count, so a resumed run flushes alike)."""
-        for i in active:
-            self.init_state(i)
-            self.steps[i] += 1
-        return bool(active) and self.steps[active[0]] % FLUSH_EVERY == 0
-
-    def stretches(self, active: Sequence[int]) -> list[tuple[int, int, int]]:
-        """Neighbouring ``active`` tensors at the same step count, merged: ``(start, end, a tensor of it)``
-        (one update pass each instead of one per tensor)."""
-        merged: list[list[int]] = []  # [start, end, step, first index]
-        for i in sorted(active):
-            (a, b), step = self.spans[i], self.steps[i]
-            if merged and merged[-1][1] == a and merged[-1][2] == step:
-                merged[-1][1] = b
-            else:
-                merged.append([a, b, step, i])
-        return [(a, b, i) for a, b, _, i in merged]

@@ -3,8 +3,8 @@
 - ``bare``: a CleanRL-style update of an ``nn.Sequential`` (Linear/ReLU) on a batch already in memory
   as tensors: target max under no_grad, gather, Huber loss, backward, ``clip_grad_norm_``, Adam step.
   The floor PyTorch gives for this work.
-- ``in_memory``: ``DQNLearner.train_on(batch)``, our update (hand-written backward, per-member clip,
-  flat Adam, per-agent loss/Q statistics) on the same batch in memory.
+- ``in_memory``: ``DQNLearner.train_on(batch)``, our update (autograd over the stacked networks,
+  per-member clip, ``torch.optim.Adam``, per-agent loss/Q statistics) on the same batch in memory.
 - ``ours``: ``DQNLearner.gradient_step()``: replay sample + ``in_memory``.
 - ``sample``: ``ReplayBuffer.sample`` alone (part of ``ours``).
 - ``sb3``: SB3's ``DQN.train``, per gradient step (its replay sample included).

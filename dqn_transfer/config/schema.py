@@ -38,6 +38,7 @@ from dqn_transfer.enums import (
     Objective,
     RewardMode,
     SourceTask,
+    numpy_implements,
     values,
 )
 from dqn_transfer.envs.settings import ENV_KEYS, FACTORY_PLACEHOLDER, EnvConfig
@@ -78,8 +79,8 @@ class AgentConfig:
     share_parameters: bool = documented(False, "one network for all agents (parameter-sharing baseline)")
     engine: Engine = documented(
         Engine.auto,
-        "DQN arithmetic: auto (numpy on device=cpu, else torch) | torch (any device) | numpy (CPU, no torch "
-        "import: ~3x torch on these small networks)",
+        "DQN arithmetic: auto (numpy on device=cpu, else torch) | torch (any device, any loss: the update in "
+        "autograd) | numpy (CPU, no torch import, DQN / Double DQN / VDN only: the fastest on these small networks)",
     )
     agent_id_input: bool = documented(
         False,
@@ -369,6 +370,11 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
     _check(
         Engine(agent.engine) is not Engine.numpy or Device(cfg.device) is not Device.cuda,
         "agent.engine=numpy runs on the CPU: use device=cpu (or agent.engine=torch for device=cuda)",
+    )
+    _check(
+        Engine(agent.engine) is not Engine.numpy or is_tabular or numpy_implements(agent.algorithm, agent.mixer),
+        f"agent.engine=numpy implements DQN, Double DQN and VDN only, not agent.algorithm="
+        f"{Algorithm(agent.algorithm).value} with agent.mixer={Mixer(agent.mixer).value}: use agent.engine=torch",
     )
     _check(
         cfg.replicas.maps == 1 or (env.layout is None and env.layout_file is None),
