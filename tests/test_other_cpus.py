@@ -30,7 +30,7 @@ FLOAT_SENSITIVE = [
 def test_float_sensitive_tests_pass_on_another_cpus_kernels():
     env = {**os.environ, "OPENBLAS_CORETYPE": "Haswell"}
     done = subprocess.run(
-        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *FLOAT_SENSITIVE],
+        [sys.executable, "-m", "pytest", "-q", "-n", "0", "-p", "no:cacheprovider", *FLOAT_SENSITIVE],
         env=env,
         capture_output=True,
         text=True,
