@@ -46,6 +46,7 @@ CASES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "seed_float": (("seed=1.5",), ("seed=1.5", "expected an integer")),
     "total_steps_exponent": (("total_steps=1e5",), ("total_steps=1e5", "expected an integer")),
     "sweep_with_a_bad_value": (("-m", "seed=1,abc"), ("seed=abc", "expected an integer")),
+    "two_hydra_modes": (("-m", "seed=1,2", "--cfg", "job"), ("--multirun and --cfg", "one of")),
     # out of range
     "no_treasures": (("env.num_treasures=0",), ("env.num_treasures", ">= 1")),
     "eps_end_negative": (("agent.eps_end=-0.1",), ("agent.eps_end", "[0, 1]")),

@@ -137,6 +137,26 @@ def test_train_py_and_the_console_script_print_it_without_running(tmp_path):
     assert list(tmp_path.iterdir()) == []  # no run started, no outputs/
 
 
+@pytest.mark.slow
+def test_help_read_by_a_reader_that_stops_early_exits_quietly(tmp_path):
+    """``python train.py --help | head -1``: the reader closes the pipe after one line of the 23 KB menu; the
+    writer ends with exit code 0 and says nothing (it was a BrokenPipeError traceback)."""
+    reader = subprocess.Popen(["head", "-1"], stdin=subprocess.PIPE, stdout=subprocess.DEVNULL)
+    assert reader.stdin is not None
+    writer = subprocess.run(
+        [sys.executable, str(TRAIN_PY), "--help"],
+        cwd=tmp_path,
+        env=train_env(),
+        stdout=reader.stdin,
+        stderr=subprocess.PIPE,
+        text=True,
+        timeout=120,
+    )
+    reader.stdin.close()
+    reader.wait()
+    assert (writer.returncode, writer.stderr) == (0, "")
+
+
 def test_an_option_summary_is_its_whole_first_sentence():
     """An abbreviation's period ("et al.") does not end the sentence (the menu once read ``double_dqn
     Double DQN (van Hasselt et al``); a sentence running onto the next comment line is shown whole."""

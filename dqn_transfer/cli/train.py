@@ -27,6 +27,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from dqn_transfer.analysis.runs import EvaluationError, run_objective
+from dqn_transfer.cli.console import exit_with
 from dqn_transfer.config import (
     CONFIG_DIR,
     ConfigError,
@@ -385,8 +386,7 @@ def main() -> None:
     """The command line: ``--help`` (the menu and every key's description), unknown keys refused
     first, then the Hydra app."""
     if {"--help", "-h"} & set(sys.argv[1:]):
-        print(help_text(program_name()))
-        return
+        exit_with(print_help)
     try:
         check_overrides(sys.argv[1:])
     except ConfigError as err:
@@ -394,6 +394,11 @@ def main() -> None:
     register_configs()  # the schemas conf/config.yaml's defaults list names
     sys.argv[1:] = open_mapping_overrides(sys.argv[1:])
     app()
+
+
+def print_help() -> int:
+    print(help_text(program_name()))
+    return 0
 
 
 def program_name() -> str:

@@ -47,6 +47,7 @@ AGENT_ALIASES = {
 def check_overrides(argv: list[str]) -> None:
     """Refuse a key outside the schema (``+`` appends included) or an option no group has, naming the
     nearest valid one, before Hydra turns it into a multi-line error or silently stores it."""
+    check_hydra_modes(argv)
     parser = OverridesParser.create()
     overrides = []
     for word in override_words(argv):  # malformed (agent.lr, =5, unicode junk): one line, not Hydra's four
@@ -212,6 +213,25 @@ HYDRA_FLAGS = {
 }
 INFO_FLAGS = ("-i", "--info")
 INFO_TOPICS = ("all", "config", "defaults", "defaults-tree", "plugins", "searchpath")
+
+
+# Hydra runs in one of these modes; two on one command line are its ValueError and a traceback.
+HYDRA_MODES = {
+    "--run": ("-r", "--run"),
+    "--multirun": ("-m", "--multirun"),
+    "--cfg": ("-c", "--cfg"),
+    "--info": INFO_FLAGS,
+    "--shell-completion": ("-sc", "--shell-completion"),
+}
+
+
+def check_hydra_modes(argv: list[str]) -> None:
+    """Refuse two of Hydra's modes on one command line (``-m ... --cfg job``) in one line."""
+    flags = {word.split("=", 1)[0] for word in argv if word.startswith("-")}
+    chosen = [mode for mode, spellings in HYDRA_MODES.items() if flags & set(spellings)]
+    if len(chosen) > 1:
+        modes = ", ".join(HYDRA_MODES)
+        raise ConfigError(f"{' and '.join(chosen)} cannot be given together: Hydra runs in one of {modes}")
 
 
 def override_words(argv: list[str]) -> list[str]:
