@@ -88,7 +88,8 @@ def multirun(name: str, out: Path) -> Multirun:
         return Multirun(name, "learning/parity", (), sweep_dir, len(PARITY_ENGINES), {"experiment": name})
     if name in DIAGNOSES:
         overrides = (*HARD_MAP, *DIAGNOSES[name])  # the command line's engine replaces the file's sweep of it
-        return Multirun(name, "learning/parity", overrides, sweep_dir, 1, {"experiment": name, "overrides": overrides})
+        stamp = {"experiment": name, "overrides": list(overrides)}  # as JSON reads it back: a finished sweep is reused
+        return Multirun(name, "learning/parity", overrides, sweep_dir, 1, stamp)
     example = next((e for e in EXAMPLES if e.name == name), None)
     if example is None:
         raise ReproduceError(f"unknown learning sweep {name!r} (choose from {', '.join(NAMES)})")
