@@ -13,7 +13,6 @@ warning that names it and says why, and only an empty result is an error.
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import sys
 import warnings
@@ -26,6 +25,7 @@ import numpy as np
 import yaml
 
 from dqn_transfer.analysis.transfer_metrics import Curve
+from dqn_transfer.storage.jsonl import json_lines
 from dqn_transfer.storage.run_dir import CONFIG_FILE, HYDRA_DIR, LOG_FILE, METRICS_FILE, RunDir, natural_key
 
 
@@ -59,17 +59,15 @@ def read_metrics(run_dir: str | os.PathLike) -> list[dict[str, Any]]:
             f"{path}: missing; {run_dir} has no evaluations (not a run directory, or the run has not evaluated yet)"
         ) from None
     lines = text.split("\n")
+
+    def bad_line(number: int) -> None:
+        if number == len(lines):  # no trailing newline: interrupted append
+            warnings.warn(f"{path}: skipping incomplete last line {number}", IncompleteLastLine, stacklevel=4)
+            return
+        raise EvaluationError(f"{path}: line {number} is not valid JSON") from None
+
     records = []
-    for number, line in enumerate(lines, start=1):
-        if not line.strip():
-            continue
-        try:
-            record = json.loads(line)
-        except json.JSONDecodeError:
-            if number == len(lines):  # no trailing newline: interrupted append
-                warnings.warn(f"{path}: skipping incomplete last line {number}", IncompleteLastLine, stacklevel=2)
-                continue
-            raise EvaluationError(f"{path}: line {number} is not valid JSON") from None
+    for number, record in json_lines(lines, bad_line):
         if not isinstance(record, dict):
             raise EvaluationError(f"{path}: line {number} is not a JSON object")
         records.append(record)

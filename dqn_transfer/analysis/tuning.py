@@ -21,6 +21,7 @@ import numpy as np
 import yaml
 
 from dqn_transfer.analysis.plots import DosePanel
+from dqn_transfer.storage.jsonl import json_lines
 
 OBJECTIVES = ("final", "mean")  # the config's `objective`: the last evaluation's team return, or their mean
 
@@ -132,15 +133,11 @@ def read_trials(path: str | os.PathLike) -> list[Trial]:
         lines = Path(path).read_text().splitlines()
     except OSError as err:
         raise TuningError(f"{path}: cannot read it ({err.strerror or err})") from None
-    trials = []
-    for number, line in enumerate(lines, start=1):
-        if not line.strip():
-            continue
-        try:
-            record = json.loads(line)
-        except json.JSONDecodeError:
-            raise TuningError(f"{path}:{number}: not valid JSON") from None
-        trials.append(trial_from_record(record, f"{path}:{number}"))
+
+    def bad_line(number: int) -> None:
+        raise TuningError(f"{path}:{number}: not valid JSON") from None
+
+    trials = [trial_from_record(record, f"{path}:{number}") for number, record in json_lines(lines, bad_line)]
     if not trials:
         raise TuningError(f"{path}: holds no trials")
     check_searches(trials, str(path))
