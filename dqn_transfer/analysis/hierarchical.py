@@ -153,6 +153,18 @@ def _pooled(resampled: np.ndarray) -> np.ndarray:
     return resampled.reshape(resampled.shape[0], -1)
 
 
+def _resampled(
+    values_by_map: ValuesByMap, statistic: Statistic, rng: np.random.Generator, n_resamples: int
+) -> tuple[float, np.ndarray | None]:
+    """The statistic of all runs pooled and its two-stage resamples ``[resamples]`` (None with one map)."""
+    values, counts = _padded(values_by_map)
+    point = float(statistic(values.reshape(1, -1))[0])
+    if len(counts) < 2:
+        return point, None
+    maps = _draw_maps(len(counts), rng, n_resamples)
+    return point, statistic(_pooled(_take(values, maps, _draw_runs(counts, maps, rng))))
+
+
 def _interval(point: float, resampled: np.ndarray, confidence: float, n_maps: int) -> Estimate:
     if not 0.0 < confidence < 1.0:
         raise ValueError(f"confidence must be in (0, 1), got {confidence}")
@@ -183,13 +195,10 @@ def hierarchical_bootstrap(
     :param n_resamples: bootstrap resamples.
     :param confidence: the interval's coverage, in (0, 1).
     """
-    values, counts = _padded(values_by_map)
-    point = float(statistic(values.reshape(1, -1))[0])
-    if len(counts) < 2:
-        return _no_interval(point, len(counts))
-    maps = _draw_maps(len(counts), rng, n_resamples)
-    resampled = statistic(_pooled(_take(values, maps, _draw_runs(counts, maps, rng))))
-    return _interval(point, resampled, confidence, len(counts))
+    point, resampled = _resampled(values_by_map, statistic, rng, n_resamples)
+    if resampled is None:
+        return _no_interval(point, len(values_by_map))
+    return _interval(point, resampled, confidence, len(values_by_map))
 
 
 def failure_rate(
@@ -250,24 +259,12 @@ def paired_mean_difference(
     :param n_resamples: bootstrap resamples.
     :param confidence: the interval's coverage, in (0, 1).
     """
-    point, resampled = _resampled_means(differences_by_map, rng, n_resamples)
+    point, resampled = _resampled(differences_by_map, mean_of_runs, rng, n_resamples)
     if resampled is None:
         return MeanDifference(_no_interval(point, len(differences_by_map)), math.nan)
     return MeanDifference(
         _interval(point, resampled, confidence, len(differences_by_map)), bootstrap_p_value(resampled)
     )
-
-
-def _resampled_means(
-    values_by_map: ValuesByMap, rng: np.random.Generator, n_resamples: int
-) -> tuple[float, np.ndarray | None]:
-    """The pooled runs' mean and its two-stage resamples ``[resamples]`` (None with one map)."""
-    values, counts = _padded(values_by_map)
-    point = float(np.nanmean(values))
-    if len(counts) < 2:
-        return point, None
-    maps = _draw_maps(len(counts), rng, n_resamples)
-    return point, mean_of_runs(_pooled(_take(values, maps, _draw_runs(counts, maps, rng))))
 
 
 def independent_mean_difference(
@@ -286,7 +283,7 @@ def independent_mean_difference(
     :param n_resamples: bootstrap resamples.
     :param confidence: the interval's coverage, in (0, 1).
     """
-    (x, x_resampled), (y, y_resampled) = (_resampled_means(v, rng, n_resamples) for v in (x_by_map, y_by_map))
+    (x, x_resampled), (y, y_resampled) = (_resampled(v, mean_of_runs, rng, n_resamples) for v in (x_by_map, y_by_map))
     n_maps = len(x_by_map) + len(y_by_map)
     if x_resampled is None or y_resampled is None:
         return MeanDifference(_no_interval(x - y, n_maps), math.nan)
@@ -314,7 +311,7 @@ def paired_slope(
     if sizes.size < 2:
         raise ValueError(f"a slope needs two sizes or more, got {sizes.size}")
     centred = sizes - sizes.mean()
-    drawn = [_resampled_means(differences_by_size[int(m)], rng, n_resamples) for m in sizes]
+    drawn = [_resampled(differences_by_size[int(m)], mean_of_runs, rng, n_resamples) for m in sizes]
     point = float(centred @ np.array([mean for mean, _ in drawn]) / (centred @ centred))
     n_maps = sum(len(differences_by_size[int(m)]) for m in sizes)
     if any(resampled is None for _, resampled in drawn):
