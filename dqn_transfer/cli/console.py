@@ -34,6 +34,29 @@ class OneLineErrors(argparse.ArgumentParser):
         sys.exit(2)
 
 
+def docstring_parser(doc: str, prog: str | None = None) -> OneLineErrors:
+    """A :class:`OneLineErrors` parser that a command module's docstring describes: its first paragraph above
+    the options, the rest below them as written.
+
+    :param doc: the command module's ``__doc__``
+    :param prog: the program's name in the usage line (None: argparse's, from ``sys.argv[0]``)
+    """
+    summary, details = doc.split("\n\n", 1)
+    return OneLineErrors(
+        prog=prog, description=summary, formatter_class=argparse.RawDescriptionHelpFormatter, epilog=details
+    )
+
+
+def add_launcher_options(parser: argparse.ArgumentParser) -> None:
+    """``--launcher`` and ``--n-jobs``: how a study command runs its Hydra sweeps
+    (:func:`~dqn_transfer.experiments.sweeps.choose_launcher`).
+
+    :param parser: the command's parser
+    """
+    parser.add_argument("--launcher", default=None, help="Hydra launcher: joblib (default), basic, submitit_slurm")
+    parser.add_argument("--n-jobs", type=int, default=2, help="parallel jobs with --launcher joblib (default 2)")
+
+
 def run_study_command(body: Callable[[], Path]) -> int:
     """Run one of the study's commands: 0 and ``wrote PATH (N s in total)`` after ``body()`` returns the file it
     wrote; 1 and one ``error:`` line on stderr for bad input or a failed sweep; 130 on Ctrl-C."""

@@ -16,7 +16,7 @@ import argparse
 from pathlib import Path
 
 from dqn_transfer.analysis.runs import skipped_runs_on_stderr
-from dqn_transfer.cli.console import OneLineErrors, exit_with, run_study_command
+from dqn_transfer.cli.console import add_launcher_options, docstring_parser, exit_with, run_study_command
 from dqn_transfer.experiments.learning import NAMES, TABLES_FILE, run, tables
 from dqn_transfer.experiments.raw_data import DATA_DIR
 from dqn_transfer.experiments.sweeps import choose_launcher, chosen_experiments
@@ -24,17 +24,11 @@ from dqn_transfer.storage.checkpoint import atomic_write
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = OneLineErrors(
-        prog="python -m dqn_transfer.cli.learning",
-        description=__doc__.split("\n\n")[0],
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog=__doc__.split("\n\n", 1)[1],
-    )
+    parser = docstring_parser(__doc__, prog="python -m dqn_transfer.cli.learning")
     parser.add_argument("stage", choices=["run", "table"])
     parser.add_argument("--out", type=Path, required=True, help="the sweeps' directory (results/learning)")
     parser.add_argument("--only", default=",".join(NAMES), help=f"run: a subset of {','.join(NAMES)}")
-    parser.add_argument("--launcher", default=None, help="Hydra launcher: joblib (default), basic, submitit_slurm")
-    parser.add_argument("--n-jobs", type=int, default=2, help="parallel jobs with --launcher joblib (default 2)")
+    add_launcher_options(parser)
     return parser
 
 

@@ -22,7 +22,7 @@ import argparse
 from pathlib import Path
 
 from dqn_transfer.analysis.runs import skipped_runs_on_stderr
-from dqn_transfer.cli.console import OneLineErrors, exit_with, run_study_command
+from dqn_transfer.cli.console import add_launcher_options, docstring_parser, exit_with, run_study_command
 from dqn_transfer.experiments.raw_data import DATA_DIR
 from dqn_transfer.experiments.second_edition import (
     BUDGETS_FILE,
@@ -40,18 +40,12 @@ from dqn_transfer.experiments.sweeps import ReproduceError, choose_launcher, cho
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = OneLineErrors(
-        prog="python -m dqn_transfer.cli.second_edition",
-        description=__doc__.split("\n\n")[0],
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog=__doc__.split("\n\n", 1)[1],
-    )
+    parser = docstring_parser(__doc__, prog="python -m dqn_transfer.cli.second_edition")
     parser.add_argument("stage", choices=["pilot", "full", "report"])
     parser.add_argument("--out", type=Path, required=True, help="the study's directory (results/ for the evidence)")
     parser.add_argument("--profile", choices=sorted(PROFILES), default="full")
     parser.add_argument("--only", default=",".join(EXPERIMENTS), help=f"a subset of {','.join(EXPERIMENTS)}")
-    parser.add_argument("--launcher", default=None, help="Hydra launcher: joblib (default), basic, submitit_slurm")
-    parser.add_argument("--n-jobs", type=int, default=2, help="parallel jobs with --launcher joblib (default 2)")
+    add_launcher_options(parser)
     parser.add_argument("--budgets", type=Path, help=f"full: the budgets file (default OUT/{BUDGETS_FILE})")
     parser.add_argument("--report-only", action="store_true", help="pilot: budgets from OUT/pilot/data/, run nothing")
     return parser

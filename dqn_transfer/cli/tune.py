@@ -16,23 +16,18 @@ settings is reused; a directory holding another one's runs is an error, never ov
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 from dqn_transfer.analysis.tuning import TuningError
-from dqn_transfer.cli.console import OneLineErrors, exit_with
+from dqn_transfer.cli.console import docstring_parser, exit_with
 from dqn_transfer.experiments.sweeps import ReproduceError
 from dqn_transfer.experiments.tuning import PROFILES, SEARCHES, TRIALS_FILE, analyse, apply_tuned, search_named, tune
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the searches and analyse them; exit 1 with one ``error:`` message on a failure or bad trials."""
-    parser = OneLineErrors(
-        description=__doc__.split("\n\n")[0],
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog=__doc__.split("\n\n", 1)[1],
-    )
+    parser = docstring_parser(__doc__)
     parser.add_argument("--out", type=Path, required=True, help="output directory (runs/, logs/, tuning.jsonl, ...)")
     parser.add_argument("--profile", choices=sorted(PROFILES), default="full")
     parser.add_argument(
