@@ -3,8 +3,6 @@ learning tables' command (dqn_transfer.cli.learning) on data written here."""
 
 from __future__ import annotations
 
-import copy
-
 import numpy as np
 import pytest
 
@@ -71,7 +69,7 @@ def _run(name: str, engine: str, map_seed: int, seed: int, success: list[float])
     return RunData(
         name,
         f"0/seed_{seed}",
-        copy.deepcopy(config),
+        config,
         steps,
         {"success_rate": tuple(success), "team_return": team_return},
         0,

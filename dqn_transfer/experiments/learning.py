@@ -154,10 +154,9 @@ def reliability_table(data_dir: Path) -> str:
     return "\n".join(lines)
 
 
-def diagnosis_table(data_dir: Path) -> str:
+def diagnosis_table(data_dir: Path, parity_runs: Sequence[RunData]) -> str:
     """The parity's numpy runs on the hard map, then each diagnosis whose data are in ``data_dir``."""
-    runs = read_data(data_dir / f"{PARITY}.jsonl")
-    baseline = [r for r in runs if r.map_seed == HARD_MAP_SEED and _engine(r) == "numpy"]
+    baseline = [r for r in parity_runs if r.map_seed == HARD_MAP_SEED and _engine(r) == "numpy"]
     rows = [f"| nothing (the parity's numpy runs) | {reliability_row(baseline, TREASURE_HUNT)}"] if baseline else []
     for name, overrides in DIAGNOSES.items():
         path = data_dir / f"{name}.jsonl"
@@ -170,9 +169,8 @@ def _engine(run: RunData) -> str:
     return str(run.config["agent"]["engine"])
 
 
-def parity_table(data_dir: Path) -> str:
-    """The Markdown table of the engines' parity, from ``data_dir/parity.jsonl``."""
-    runs = read_data(data_dir / f"{PARITY}.jsonl")
+def parity_table(runs: Sequence[RunData]) -> str:
+    """The Markdown table of the engines' parity, from the parity sweep's runs."""
     by_engine: dict[str, dict[int, list[RunOutcome]]] = {engine: defaultdict(list) for engine in PARITY_ENGINES}
     for run in runs:
         by_engine[_engine(run)][run.map_seed].append(outcome(run, TREASURE_HUNT))
@@ -180,8 +178,8 @@ def parity_table(data_dir: Path) -> str:
     a, b = ([by_engine[engine][m] for m in maps] for engine in PARITY_ENGINES)
     result = parity(a, b, np.random.default_rng(BOOTSTRAP_SEED))
     per_map = ", ".join(
-        f"map {m}: {sum(o.solved for o in by_engine['numpy'][m])} vs {sum(o.solved for o in by_engine['torch'][m])}"
-        for m in maps
+        f"map {m}: {sum(o.solved for o in runs_a)} vs {sum(o.solved for o in runs_b)}"
+        for m, runs_a, runs_b in zip(maps, a, b, strict=True)
     )
     return "\n".join(
         [
@@ -215,13 +213,15 @@ def tables(data_dir: Path) -> str:
         raise ReproduceError(f"{data_dir}: no such directory (run the sweeps first: `run --out {data_dir.parent}`)")
     parts = [f"A run is solved when {MAJORITY} of its last {LAST} evaluations solve the task.", ""]
     parts.append(reliability_table(data_dir))
-    if (data_dir / f"{PARITY}.jsonl").exists():
+    parity_path = data_dir / f"{PARITY}.jsonl"
+    if parity_path.exists():
+        parity_runs = read_data(parity_path)
         parts += [
             "",
-            parity_table(data_dir),
+            parity_table(parity_runs),
             "",
             f"Map {HARD_MAP_SEED}, one setting changed at a time:",
             "",
-            diagnosis_table(data_dir),
+            diagnosis_table(data_dir, parity_runs),
         ]
     return "\n".join(parts) + "\n"
