@@ -1,4 +1,4 @@
-"""Joint steps per second of R games: the one-game core in a loop vs the batched core.
+"""Joint steps per second of R games: R one-games in a loop vs the R games as one batch.
 
     python scripts/bench_batched_core.py [--replicas 1 4 8 100] [--repeats 3] [--seconds 1.0]
 

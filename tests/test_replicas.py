@@ -17,7 +17,6 @@ from dqn_transfer.agents import DQNLearner, Transition
 from dqn_transfer.analysis.runs import find_run_dirs, load_config
 from dqn_transfer.config import AgentConfig, ConfigError, ReplicasConfig, TrainConfig, TransferConfig, validate
 from dqn_transfer.enums import Algorithm, Mode
-from dqn_transfer.envs.game_batch import BATCHED_CORE_MIN_REPLICAS
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.sources.resolve import resolve_source
 from dqn_transfer.storage.checkpoint import CheckpointError, find_checkpoints
@@ -73,11 +72,10 @@ def assert_same_run(a: Path, b: Path) -> None:
     ids=["dqn_nothing_learned", "dqn_learning", "sarsa"],
 )
 def test_each_replica_is_the_lone_run_of_its_seed_and_map(tmp_path, agent):
-    """3 seeds x 2 maps (enough replicas for the batched game core): every replica's evaluations, agent
-    files and resume state are those of the lone run with its seed and map seed (which steps the
-    one-game core). Bit for bit, learning included: on the CPU each member's batched matrix product is
-    computed on its own, so a replica's numbers do not depend on its neighbours."""
-    assert BATCHED_CORE_MIN_REPLICAS <= 3 * 2
+    """3 seeds x 2 maps (six games in one batch): every replica's evaluations, agent files and resume
+    state are those of the lone run with its seed and map seed. Bit for bit, learning included: on the
+    CPU each member's batched matrix product is computed on its own, so a replica's numbers do not
+    depend on its neighbours."""
     Trainer(plan_run(config(agent, seeds=3, maps=2)), tmp_path / "batch").run()
     names = sorted(p.name for p in (tmp_path / "batch").iterdir() if p.is_dir() and not p.name.startswith("."))
     assert names == [f"seed_{s}-map_{m}" for s in (4, 5, 6) for m in (3, 4)]

@@ -1,7 +1,7 @@
 """``shared_replay`` leaves out a team-mate's obstacle bounces: a move into an obstacle sends the mover
 back to its own start, a cell no team-mate starts on (a map has one start per agent, so the case of two
 agents sharing a start cannot be built). Worked by hand on a 3x3 map, and the game's bounce flags checked
-against the map through the training loop, one game and the batched core.
+against the map through the training loop, for one game and for a batch of four.
 
 Actions: 0 up, 1 down, 2 left, 3 right; cell index = row * n + col.
 """
@@ -15,8 +15,7 @@ from test_train_cli import MAP
 from dqn_transfer.agents import Transition, make_learner
 from dqn_transfer.config import AgentConfig, ReplicasConfig, TrainConfig, TransferConfig
 from dqn_transfer.enums import Algorithm, Engine, Exchange
-from dqn_transfer.envs.game import TreasureHuntGame
-from dqn_transfer.envs.game_batch import BatchedTreasureHunts, LoopedGames
+from dqn_transfer.envs.game import TreasureHuntGame, TreasureHunts
 from dqn_transfer.envs.maps import parse_layout
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.storage.checkpoint import encode_training_state, load_training_state
@@ -108,8 +107,8 @@ def shared_replay_run(seeds: int = 1) -> TrainConfig:
 
 
 @pytest.mark.filterwarnings("ignore:a layout fixes the map")
-@pytest.mark.parametrize(("seeds", "games"), [(1, LoopedGames), (4, BatchedTreasureHunts)])
-def test_the_loop_hands_the_exchange_the_games_bounces(tmp_path, monkeypatch, seeds, games):
+@pytest.mark.parametrize("seeds", [1, 4])
+def test_the_loop_hands_the_exchange_the_games_bounces(tmp_path, monkeypatch, seeds):
     import dqn_transfer.training.replica as replica_module
 
     windows = []
@@ -120,7 +119,7 @@ def test_the_loop_hands_the_exchange_the_games_bounces(tmp_path, monkeypatch, se
     monkeypatch.setattr(replica_module, "exchange_replay", spy)
     trainer = Trainer(plan_run(shared_replay_run(seeds)), tmp_path / "run")
     trainer.run()
-    assert isinstance(trainer.games, games)
+    assert isinstance(trainer.games, TreasureHunts)
     assert len(windows) >= 2 * seeds
     for transitions, bounced in windows:
         np.testing.assert_array_equal(bounced, map_bounces(transitions))

@@ -1,11 +1,10 @@
-"""Joint steps per second of R games as the training loop steps them: the one-game core in a loop
-(:class:`~dqn_transfer.envs.game_batch.LoopedGames`) against the batched core
-(:class:`~dqn_transfer.envs.game_batch.BatchedTreasureHunts`).
+"""Joint steps per second of R games: R one-games in a loop
+(:class:`~dqn_transfer.envs.game_batch.LoopedGames`) against the R games in one batch, as the training loop
+steps them (:class:`~dqn_transfer.envs.game.TreasureHunts`): what batching the replicas saves.
 
 Both play the same pre-drawn random actions on the same maps (8x8, 4 agents, 4 chests, complexity 0.1;
 R replicas over 10 generated maps), each replica restarting its episode as it ends, in one process, one
-after the other, ``repeats`` times each; a "joint step" is one step of one replica. Its figures set
-:data:`~dqn_transfer.envs.game_batch.BATCHED_CORE_MIN_REPLICAS`. Run it with
+after the other, ``repeats`` times each; a "joint step" is one step of one replica. Run it with
 ``python scripts/bench_batched_core.py``; not a section of ``dqn-transfer-bench`` (the suite's records
 and tables are built for the learners' sections).
 """
@@ -19,12 +18,13 @@ from typing import NamedTuple
 
 import numpy as np
 
-from dqn_transfer.envs.game import TreasureHuntGame
-from dqn_transfer.envs.game_batch import BatchedTreasureHunts, GameBatch, LoopedGames
+from dqn_transfer.envs.batch import GameBatch
+from dqn_transfer.envs.game import TreasureHuntGame, TreasureHunts
+from dqn_transfer.envs.game_batch import LoopedGames
 from dqn_transfer.envs.maps import GridMap, generate_layout, parse_layout
 
 SIZE, AGENTS, CHESTS, COMPLEXITY, DISTINCT_MAPS = 8, 4, 4, 0.1, 10
-# A way to step the games: LoopedGames or BatchedTreasureHunts, built from the games and their generators.
+# A way to step the games: LoopedGames or TreasureHunts.of_games, built from the games and their generators.
 BatchKind = Callable[[Sequence[TreasureHuntGame], Sequence[np.random.Generator]], GameBatch]
 
 
@@ -58,7 +58,7 @@ def measure(
         parse_layout(generate_layout(SIZE, CHESTS, num_agents=AGENTS, complexity=COMPLEXITY, seed=seed))
         for seed in range(DISTINCT_MAPS)
     ]
-    kinds: dict[str, BatchKind] = {"looped": LoopedGames, "batched": BatchedTreasureHunts}
+    kinds: dict[str, BatchKind] = {"looped": LoopedGames, "batched": TreasureHunts.of_games}
     for mode in modes:
         for replicas in replica_counts:
             grid_maps = [distinct[r % DISTINCT_MAPS] for r in range(replicas)]

@@ -50,6 +50,15 @@ RUNS: dict[str, list[str]] = {
     "replicas_sarsa": ["agent=sarsa", "replicas.seeds=2", "replicas.maps=2", "mode=cooperative"],
     "replicas_double_dqn_numpy": ["agent.engine=numpy", "replicas.seeds=2", "agent.learning_starts=200"],
     "replicas_dqn_torch": ["agent=dqn", "replicas.seeds=2", "agent.learning_starts=200"],
+    # Enough replicas that every game steps in one batch, with chest ties and the coordinator.
+    "replicas_sarsa_deliberative": ["agent=sarsa", "replicas.seeds=6", "mode=deliberative", "env=complex"],
+    "replicas_qlearning_view_competitive": [
+        "agent=qlearning",
+        "replicas.seeds=5",
+        "mode=competitive",
+        "env.view_radius=1",
+        "env.reward_mode=team",
+    ],
     "exchange_best": [
         "mode=cooperative",
         "transfer.exchange=best",

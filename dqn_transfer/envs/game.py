@@ -1,10 +1,6 @@
-"""The treasure-hunt game: a pure numpy core stepping K agents at once (rules: docs/game.md).
-
-The trainer drives :class:`TreasureHuntGame` directly (arrays in, arrays out); the PettingZoo and
-Gymnasium faces are thin wrappers around it. Everything that does not change during a run is
-precomputed once per map (next-cell tables, BFS distances, view windows) so a step is a handful
-of numpy fancy-indexing operations, with a Python slow path only on steps where an agent enters a
-chest or a trap.
+"""The treasure hunt as the package plays it: :class:`TreasureHunts`, R games stepped together by the
+compiled rules (:mod:`dqn_transfer.envs.rules`), and :class:`TreasureHuntGame`, one game (its R = 1 view),
+which the PettingZoo and Gymnasium faces wrap. Rules: docs/game.md.
 
 Choices the specification leaves open, made here:
 
@@ -18,8 +14,8 @@ Choices the specification leaves open, made here:
 * ``cooperative``/``deliberative``: every agent sees the true chest state.
 * ``deliberative`` ties: agents are considered in index order; each gets the nearest chest
   (lowest chest number on equal distance), or none when there are more agents than chests, that
-  still leaves a minimum-total assignment for the others (see :func:`assign_agents`). An agent
-  that ends keeps its last assignment in its final observation.
+  still leaves a minimum-total assignment for the others (:func:`~dqn_transfer.envs.rules.best_assignment`).
+  An agent that ends keeps its last assignment in its final observation.
 * Two agents entering the same full chest in one step: the winner is drawn with the generator
   passed to :meth:`TreasureHuntGame.reset`; every loser gets ``step_reward`` and (in competitive
   mode) learns the chest is empty.
@@ -28,20 +24,20 @@ Choices the specification leaves open, made here:
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import fields
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, TypeGuard
 
 import numpy as np
 
+import dqn_transfer.envs.rules as rules
 from dqn_transfer.enums import Mode, ObsEncoding, RewardMode, check_choice, check_enum
+from dqn_transfer.envs.batch import BatchStep, GameBatch
 from dqn_transfer.envs.maps import GridMap, resolve_map
+from dqn_transfer.envs.rules import ACTION_MOVES
 from dqn_transfer.envs.settings import DEFAULTS, MAP_KEYS, RULE_KEYS, EnvConfig
 
 RENDER_MODES = ("ansi", "rgb_array", "human")  # human: the ansi frame printed to the terminal
-ACTION_MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))  # 0 up, 1 down, 2 left, 3 right
-
-_FREE, _CHEST, _TRAP = 0, 1, 2  # what a move can land on (an obstacle sends the agent home)
 
 CELL_PX = 16
 COLOURS = {
@@ -89,58 +85,6 @@ def _check_int(name: str, value: object, low: int) -> int:
     return int(value)
 
 
-def _best_matching(cost: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple[int, int, np.ndarray, np.ndarray]:
-    """Minimum-cost maximum matching of ``rows`` to ``cols``: (pairs, total, rows, cols)."""
-    if len(rows) == 0 or len(cols) == 0:
-        return 0, 0, rows[:0], cols[:0]
-    # Imported here: scipy.optimize is 0.65 s of every process's start-up, and only the deliberative
-    # mode's coordinator uses it.
-    from scipy.optimize import linear_sum_assignment
-
-    sub = cost[np.ix_(rows, cols)]
-    r, c = linear_sum_assignment(sub)
-    return len(r), int(sub[r, c].sum()), rows[r], cols[c]
-
-
-def assign_agents(cost: np.ndarray) -> np.ndarray:
-    """Chest column for each agent row (``-1``: none) minimising the total integer ``cost``.
-
-    Among the optimal assignments, ties go to the lower agent index: agents are fixed in index
-    order, each to its most preferred option -- cheapest chest, then lowest column, then no chest
-    (only possible with more agents than chests) -- for which the remaining agents can still
-    complete an assignment of minimum total. Exact on integers; a few small
-    ``linear_sum_assignment`` calls, done only when chests or live agents change.
-    """
-    num_rows, num_cols = cost.shape
-    all_rows, all_cols = np.arange(num_rows), np.arange(num_cols)
-    pairs, best, rows, cols = _best_matching(cost, all_rows, all_cols)
-    # One optimal assignment, kept consistent with the choices fixed so far.
-    current = np.full(num_rows, -1, dtype=np.int64)
-    current[rows] = cols
-    fixed_pairs, fixed_cost, free_cols = 0, 0, list(range(num_cols))
-    for agent in range(num_rows):
-        options = sorted(free_cols, key=lambda c: (cost[agent, c], c))
-        if num_rows > num_cols:
-            options.append(-1)
-        rest_rows = all_rows[agent + 1 :]
-        for option in options:
-            if option == current[agent]:
-                break  # the assignment in hand already makes this choice
-            own_pairs, own_cost = (1, int(cost[agent, option])) if option >= 0 else (0, 0)
-            rest_cols = np.array([c for c in free_cols if c != option], dtype=np.int64)
-            n, total, rows, cols = _best_matching(cost, rest_rows, rest_cols)
-            if fixed_pairs + own_pairs + n == pairs and fixed_cost + own_cost + total == best:
-                current[rest_rows] = -1
-                current[rows] = cols
-                current[agent] = option
-                break
-        if current[agent] >= 0:
-            fixed_pairs += 1
-            fixed_cost += int(cost[agent, current[agent]])
-            free_cols.remove(int(current[agent]))
-    return current
-
-
 def _state_array(state: Mapping[str, Any], key: str, shape: tuple[int, ...], kinds: str, game: str) -> np.ndarray:
     """``state[key]`` as an array of ``shape`` and dtype kind in ``kinds``, else ``ValueError``."""
     try:
@@ -186,8 +130,266 @@ class StepOutcome(NamedTuple):
         }
 
 
+class TreasureHunts(GameBatch):
+    """R treasure hunts under one set of rules, stepped together by the compiled rules
+    (:mod:`dqn_transfer.envs.rules`); replica r draws its chest ties from ``rngs[r]``. The maps may
+    differ but share their size and chest count, and have at least ``num_agents`` starts.
+
+    Its arrays (:attr:`obs`, :attr:`live`, a :class:`~dqn_transfer.envs.batch.BatchStep`'s) are new at
+    every step and reset, so a caller may keep them. A replica whose episode is over stays as it is when
+    stepped, until it is reset.
+    """
+
+    def __init__(
+        self,
+        grid_maps: Sequence[GridMap],
+        rngs: Sequence[np.random.Generator] | None = None,
+        *,
+        mode: Mode | str = DEFAULTS.mode,
+        reward_mode: RewardMode | str = DEFAULTS.reward_mode,
+        obs_encoding: ObsEncoding | str = DEFAULTS.obs_encoding,
+        view_radius: int = DEFAULTS.view_radius,
+        max_steps: int | None = DEFAULTS.max_steps,
+        treasure_reward: float = DEFAULTS.treasure_reward,
+        trap_reward: float = DEFAULTS.trap_reward,
+        step_reward: float = DEFAULTS.step_reward,
+        num_agents: int | None = None,
+        include_treasures: bool = True,
+    ) -> None:
+        """
+        :param grid_maps: one map per replica (repeats allowed)
+        :param rngs: replica r's generator of chest ties (None: each a ``default_rng(0)`` until reset)
+        :param mode: competitive | cooperative | deliberative (docs/game.md)
+        :param reward_mode: individual | team
+        :param obs_encoding: onehot | coords, the ``position`` segment
+        :param view_radius: the local view's radius (0: no view segment)
+        :param max_steps: the episode's time limit (None: ``size * size``)
+        :param treasure_reward: the reward of the agent that takes a chest
+        :param trap_reward: the reward of an agent entering a trap
+        :param step_reward: every other agent-step's reward
+        :param num_agents: the first ``num_agents`` starts of each map play (None: all the first map's)
+        :param include_treasures: the observation has the ``treasures`` segment
+        """
+        self.maps = tuple(grid_maps)
+        if not self.maps:
+            raise ValueError("a batch of treasure hunts needs at least one map")
+        first = self.maps[0]
+        shapes = sorted({(m.size, m.num_treasures) for m in self.maps})
+        if len(shapes) > 1:
+            named = "; ".join(f"size {n}, {k} chests" for n, k in shapes)
+            raise ValueError(f"the maps of one batch must share their size and chest count; got {named}")
+        map_agents = min(m.num_agents for m in self.maps)
+        if num_agents is None:
+            num_agents = first.num_agents
+        integer = isinstance(num_agents, (int, np.integer)) and not isinstance(num_agents, bool)
+        if not integer or not 1 <= num_agents <= map_agents:
+            raise ValueError(f"num_agents must be between 1 and the map's {map_agents} starts, got {num_agents!r}")
+        self.map = first
+        self.size = n = first.size
+        self.num_agents = int(num_agents)
+        self.num_treasures = first.num_treasures
+        self.num_actions = len(ACTION_MOVES)
+        self.num_replicas = len(self.maps)
+        self.mode = check_enum("mode", mode, Mode)
+        self.reward_mode = check_enum("reward_mode", reward_mode, RewardMode)
+        self.obs_encoding = check_enum("obs_encoding", obs_encoding, ObsEncoding)
+        self.view_radius = _check_int("view_radius", view_radius, 0)
+        self.max_steps = n * n if max_steps is None else _check_int("max_steps", max_steps, 1)
+        self.treasure_reward = _check_reward("treasure_reward", treasure_reward)
+        self.trap_reward = _check_reward("trap_reward", trap_reward)
+        self.step_reward = _check_reward("step_reward", step_reward)
+        self.include_treasures = bool(include_treasures)
+        self._layout = rules.obs_layout(
+            n, self.num_treasures, self.mode, self.obs_encoding, self.view_radius, self.include_treasures
+        )
+        self.obs_dim = sum(width for _, width in self._layout)
+        self.tables = rules.build_tables(
+            self.maps, self.num_agents, self.mode, self.obs_encoding, self.view_radius, self._layout
+        )
+        self._rewards = np.array([self.step_reward, self.trap_reward, self.treasure_reward], dtype=np.float32)
+        self._team = self.reward_mode is RewardMode.team
+        self._announce = self.mode is not Mode.competitive
+        self.rngs = list(rngs) if rngs is not None else [np.random.default_rng(0) for _ in self.maps]
+        if len(self.rngs) != self.num_replicas:
+            raise ValueError(f"{len(self.rngs)} generators for {self.num_replicas} games")
+        self.state = rules.State.empty(self.num_replicas, self.num_agents, self.num_treasures, self.obs_dim)
+        self._out = rules.Outcome.empty(self.num_replicas, self.num_agents, self.num_treasures)
+        self._row = rules.arrays(self.tables, self.state, self._out)
+        self.reset(np.ones(self.num_replicas, dtype=bool))
+
+    @classmethod
+    def of_games(cls, games: Sequence[TreasureHuntGame], rngs: Sequence[np.random.Generator]) -> TreasureHunts:
+        """The games' replicas as one batch, each continuing its game's episode (games that
+        :func:`fit_one_batch`); ``rngs[r]`` draws replica r's ties."""
+        batch = cls([game.map for game in games], rngs, **games[0].settings())
+        for r, game in enumerate(games):
+            batch.load_state_dict(r, game.state_dict())
+        return batch
+
+    # ------------------------------------------------------------------ what a step reads
+    @property
+    def obs(self) -> np.ndarray:
+        return self.state.obs
+
+    @property
+    def live(self) -> np.ndarray:
+        return self.state.live
+
+    def settings(self) -> dict:
+        """The constructor arguments of these games, besides their maps and generators."""
+        rule_values = {key: getattr(self, key) for key in RULE_KEYS}
+        return dict(rule_values, num_agents=self.num_agents, include_treasures=self.include_treasures)
+
+    def obs_layout(self) -> list[tuple[str, int]]:
+        """Named observation segments, in order; the same for every agent."""
+        return list(self._layout)
+
+    # ------------------------------------------------------------------ dynamics
+    def _fresh_arrays(self) -> None:
+        """New ``obs`` and ``live`` arrays for the kernels to change (a caller may hold the old ones)."""
+        s = self.state
+        self.state = rules.State(
+            s.pos, s.live.copy(), s.chest_full, s.belief, s.assigned, s.t, s.treasures_collected, s.obs.copy()
+        )
+        self._row = rules.arrays(self.tables, self.state, self._out)
+
+    def step(self, actions: np.ndarray) -> BatchStep:
+        """One joint step of every replica with ``actions [R, K]`` integers (non-live agents' are ignored)."""
+        acts = np.asarray(actions)
+        if acts.shape != (self.num_replicas, self.num_agents) or acts.dtype.kind not in "iu":
+            raise ValueError(
+                f"actions must be integers of shape {(self.num_replicas, self.num_agents)}, "
+                f"got {acts.dtype} {acts.shape}"
+            )
+        out = self.advance(acts.astype(np.int64, copy=False))
+        return BatchStep(
+            next_obs=self.state.obs,
+            rewards=out.rewards.copy(),
+            terminated=out.terminated.copy(),
+            truncated=out.truncated.copy(),
+            trap=out.trap.copy(),
+            bounced=out.bounced.copy(),
+            treasures_collected=out.collected.copy(),
+            episode_treasures=self.state.treasures_collected.copy(),
+            episode_end=out.ended.copy(),
+        )
+
+    def advance(self, actions: np.ndarray) -> rules.Outcome:
+        """The joint step of ``actions [R, K] int64``; the outcome's arrays are overwritten by the next one."""
+        self._fresh_arrays()
+        status = self._step(actions, ties_drawn=False)
+        if status == rules.NEEDS_TIE_DRAWS:
+            self._draw_ties()
+            status = self._step(actions, ties_drawn=True)
+        if status == rules.BAD_ACTION:
+            played = np.unique(actions[self.state.live]).tolist()
+            raise ValueError(f"actions must be in 0..{self.num_actions - 1}, got {played}")
+        return self._out
+
+    def _step(self, actions: np.ndarray, ties_drawn: bool) -> int:
+        return int(
+            rules.step_arrays(
+                actions, ties_drawn, self._rewards, self.max_steps, self._team, self._announce, *self._row
+            )
+        )
+
+    def _draw_ties(self) -> None:
+        """The winner of every chest several agents entered while full: replica r draws from
+        ``rngs[r]``, its chests in the order of their lowest-index contender."""
+        out = self._out
+        for r in np.flatnonzero((out.contenders > 1).any(axis=1)).tolist():
+            drawn: set[int] = set()
+            for chest in out.entered[r].tolist():
+                count = int(out.contenders[r, chest]) if chest >= 0 else 0
+                if count > 1 and chest not in drawn:
+                    drawn.add(chest)
+                    out.winner[r, chest] = int(self.rngs[r].integers(count))
+
+    def reset(self, which: np.ndarray) -> None:
+        """Start a new episode in the replicas of the mask ``which [R] bool``."""
+        which = np.asarray(which, dtype=bool)
+        if which.any():
+            self._fresh_arrays()
+            rules.reset_arrays(which, *self._row)
+
+    # ------------------------------------------------------------------ one replica's episode
+    def state_dict(self, replica: int) -> dict[str, Any]:
+        """Replica ``replica``'s episode in progress as JSON-able plain values (its generator is the
+        caller's, saved along with this)."""
+        s, k = self.state, self.num_treasures
+        return {
+            "pos": s.pos[replica].tolist(),
+            "live": s.live[replica].tolist(),
+            "chest_full": s.chest_full[replica].tolist(),
+            "belief": s.belief[replica, :, :k].tolist(),  # column k is a constant 0
+            "assigned": s.assigned[replica].tolist(),
+            "obs": s.obs[replica].tolist(),  # float32 -> exact Python floats: round-trips bit-exactly
+            "t": int(s.t[replica]),
+            "treasures_collected": int(s.treasures_collected[replica]),
+        }
+
+    def load_state_dict(self, replica: int, state: Mapping[str, Any]) -> None:
+        """Continue a :meth:`state_dict`'s episode in replica ``replica``. Everything is checked before
+        anything is assigned, so a state that does not fit the replica's game (another map or rules)
+        raises ``ValueError`` and leaves the games as they were."""
+        agents, k, cells = self.num_agents, self.num_treasures, self.size**2
+        grid_map = self.maps[replica]
+        game = f"this game has {agents} agents, {k} chests, obs_dim {self.obs_dim} on a {self.size} x {self.size} grid"
+        if not isinstance(state, Mapping):
+            raise ValueError(f"game state must be a mapping, got {type(state).__name__}")
+        keys = {"pos", "live", "chest_full", "belief", "assigned", "obs", "t", "treasures_collected"}
+        if set(state) != keys:
+            missing, unknown = sorted(keys - set(state)), sorted(map(str, set(state) - keys))
+            raise ValueError(f"game state keys do not match: missing {missing}, unknown {unknown}")
+        pos = _state_array(state, "pos", (agents,), "iu", game)
+        live = _state_array(state, "live", (agents,), "b", game)
+        chest_full = _state_array(state, "chest_full", (k,), "b", game)
+        belief = _state_array(state, "belief", (agents, k), "fiu", game)
+        assigned = _state_array(state, "assigned", (agents,), "iu", game)
+        obs = _state_array(state, "obs", (agents, self.obs_dim), "fiu", game)
+        t = _state_int(state, "t", self.max_steps)
+        collected = _state_int(state, "treasures_collected", k)
+        outside = np.flatnonzero((pos < 0) | (pos >= cells))
+        if outside.size:
+            raise ValueError(
+                f"game state 'pos' puts agent {int(outside[0])} at cell "
+                f"{int(pos[outside[0]])}, outside the {self.size} x {self.size} grid"
+            )
+        cells_at = [divmod(cell, self.size) for cell in pos.tolist()]
+        blocked = [a for a, cell in enumerate(cells_at) if cell in grid_map.obstacles]
+        if blocked:
+            raise ValueError(f"game state 'pos' puts agent {blocked[0]} on an obstacle of this map")
+        if ((assigned < -1) | (assigned >= k)).any():
+            raise ValueError(f"game state 'assigned' holds {assigned.tolist()}: chests are -1..{k - 1} here")
+        for name, value in (("belief", belief), ("obs", obs)):
+            if not np.array_equal(value.astype(np.float32), value):  # also rejects nan
+                raise ValueError(f"game state {name!r} holds values that are not float32 numbers")
+        self._fresh_arrays()
+        s = self.state
+        s.pos[replica], s.live[replica], s.chest_full[replica] = pos, live, chest_full
+        s.belief[replica, :, :k], s.belief[replica, :, k] = belief, 0.0
+        s.assigned[replica], s.obs[replica] = assigned, obs
+        s.t[replica], s.treasures_collected[replica] = t, collected
+
+
+def fit_one_batch(games: Sequence[Any]) -> TypeGuard[Sequence[TreasureHuntGame]]:
+    """Whether ``games`` are treasure hunts one :class:`TreasureHunts` steps together (same size, chest
+    count and rules; their maps may differ)."""
+    first = games[0]
+    return all(
+        isinstance(game, TreasureHuntGame)
+        and isinstance(first, TreasureHuntGame)
+        and game.settings() == first.settings()
+        and (game.size, game.num_treasures) == (first.size, first.num_treasures)
+        for game in games
+    )
+
+
 class TreasureHuntGame:
-    """K agents hunting the chests of one map; see the module docstring for the rules' details."""
+    """One treasure hunt: K agents hunting the chests of one map (rules: :mod:`dqn_transfer.envs.rules`),
+    the R = 1 view of :class:`TreasureHunts` behind the PettingZoo and Gymnasium faces, play, GIFs and
+    the bounds. Arrays in, arrays out: ``reset(rng) -> obs [K, obs_dim]``, ``step(actions [K]) ->``
+    :class:`StepOutcome`."""
 
     # The keys of an evaluation's record (rollout.summarize) this game measures, and those each
     # evaluation's console line and the loggers' eval/ tags show.
@@ -203,137 +405,45 @@ class TreasureHuntGame:
     # The keys each training episode's end logs as team/ tags besides the return (Replica._log_episode).
     episode_metrics = ("treasures_collected", "trap_rate")
 
-    def __init__(
-        self,
-        grid_map: GridMap,
-        *,
-        mode: Mode | str = DEFAULTS.mode,
-        reward_mode: RewardMode | str = DEFAULTS.reward_mode,
-        obs_encoding: ObsEncoding | str = DEFAULTS.obs_encoding,
-        view_radius: int = DEFAULTS.view_radius,
-        max_steps: int | None = DEFAULTS.max_steps,
-        treasure_reward: float = DEFAULTS.treasure_reward,
-        trap_reward: float = DEFAULTS.trap_reward,
-        step_reward: float = DEFAULTS.step_reward,
-        num_agents: int | None = None,
-        include_treasures: bool = True,
-    ) -> None:
+    def __init__(self, grid_map: GridMap, **settings: Any) -> None:
+        """
+        :param grid_map: the map played
+        :param settings: the rules, as :class:`TreasureHunts` takes them (``mode``, ``reward_mode``,
+            ``obs_encoding``, ``view_radius``, ``max_steps``, the three rewards, ``num_agents``,
+            ``include_treasures``)
+        """
+        self._games = games = TreasureHunts([grid_map], **settings)
+        self._first = np.ones(1, dtype=bool)
         self.map = grid_map
-        self.mode = check_enum("mode", mode, Mode)
-        self.reward_mode = check_enum("reward_mode", reward_mode, RewardMode)
-        self.obs_encoding = check_enum("obs_encoding", obs_encoding, ObsEncoding)
-        self.view_radius = _check_int("view_radius", view_radius, 0)
-        n = grid_map.size
-        self.size = n
-        self.max_steps = n * n if max_steps is None else _check_int("max_steps", max_steps, 1)
-        self.treasure_reward = _check_reward("treasure_reward", treasure_reward)
-        self.trap_reward = _check_reward("trap_reward", trap_reward)
-        self.step_reward = _check_reward("step_reward", step_reward)
-        if num_agents is None:
-            num_agents = grid_map.num_agents
-        elif isinstance(num_agents, bool) or not 1 <= num_agents <= grid_map.num_agents:
-            raise ValueError(
-                f"num_agents must be between 1 and the map's {grid_map.num_agents} starts, got {num_agents!r}"
-            )
-        self.num_agents = int(num_agents)
-        self.num_treasures = grid_map.num_treasures
-        self.num_actions = len(ACTION_MOVES)
-        self.include_treasures = bool(include_treasures)
-        self._build_tables()
-        self._build_obs_layout()
-        k, agents = self.num_treasures, self.num_agents
-        self._pos = self._starts.copy()
-        self._live = np.ones(agents, dtype=bool)
-        self._live_idx = np.arange(agents)
-        self._chest_full = np.ones(k, dtype=bool)
-        # Each agent's belief about each chest, plus a constant-0 column k: the "no chest" entry
-        # the view's chest plane indexes for cells without a chest.
-        self._belief = np.zeros((agents, k + 1), dtype=np.float32)
-        self._assigned = np.full(agents, -1, dtype=np.int64)
-        self._obs = np.zeros((agents, self.obs_dim), dtype=np.float32)
-        self._rng = np.random.default_rng(0)
-        self._t = 0
-        self.treasures_collected = 0
-
-    # ------------------------------------------------------------------ precomputation
-    def _build_tables(self) -> None:
-        n, gm = self.size, self.map
-        cells = n * n
-        flat = lambda cell: cell[0] * n + cell[1]  # noqa: E731
-        obstacle = np.zeros(cells, dtype=bool)
-        obstacle[[flat(c) for c in gm.obstacles]] = True
-        self._kind = np.full(cells, _FREE, dtype=np.int8)
-        self._kind[[flat(c) for c in gm.traps]] = _TRAP
-        self._kind[[flat(c) for c in gm.chests]] = _CHEST
-        self._chest_of = np.full(cells, self.num_treasures, dtype=np.int64)  # k = no chest
-        self._chest_of[[flat(c) for c in gm.chests]] = np.arange(self.num_treasures)
-        self._starts = np.array([flat(c) for c in gm.starts[: self.num_agents]], dtype=np.int64)
-        self._coords = np.stack(np.divmod(np.arange(cells), n), axis=1).astype(np.float32) / (n - 1)
-
-        rows, cols = np.divmod(np.arange(cells), n)
-        moves = np.empty((cells, len(ACTION_MOVES)), dtype=np.int64)
-        for a, (dr, dc) in enumerate(ACTION_MOVES):
-            rr, cc = rows + dr, cols + dc
-            inside = (rr >= 0) & (rr < n) & (cc >= 0) & (cc < n)
-            moves[:, a] = np.where(inside, rr * n + cc, np.arange(cells))  # off-grid: stay
-        # Per agent, because bumping into an obstacle sends an agent to its own start.
-        self._bounce = obstacle[moves]  # [cells, 4]: the move runs into an obstacle
-        self._next = np.where(self._bounce[None], self._starts[:, None, None], moves[None])
-
-        if self.mode is Mode.deliberative:
-            unreachable = self.num_agents * cells  # worse than any assignment of reachable pairs
-            dist = np.stack([gm.distances_from(c).reshape(-1) for c in gm.chests])
-            self._chest_dist = np.where(dist < 0, unreachable, dist)
-
-        r = self.view_radius
-        if r > 0:
-            span = np.arange(-r, r + 1)
-            wr = rows[:, None, None] + span[None, :, None]  # [cells, W, 1]
-            wc = cols[:, None, None] + span[None, None, :]  # [cells, 1, W]
-            inside = (wr >= 0) & (wr < n) & (wc >= 0) & (wc < n)
-            idx = np.where(inside, np.clip(wr, 0, n - 1) * n + np.clip(wc, 0, n - 1), 0)
-            idx = idx.reshape(cells, -1)
-            inside = inside.reshape(cells, -1)
-            blocked = np.where(inside, obstacle[idx], True)
-            trap = inside & (self._kind[idx] == _TRAP)
-            self._view_static = np.concatenate([blocked, trap], axis=1).astype(np.float32)
-            self._view_chest = np.where(inside, self._chest_of[idx], self.num_treasures)
-
-    def _build_obs_layout(self) -> None:
-        k = self.num_treasures
-        layout = [("position", self.size**2 if self.obs_encoding is ObsEncoding.onehot else 2)]
-        if self.include_treasures:
-            layout.append(("treasures", k))
-        if self.mode is Mode.deliberative:
-            layout.append(("assignment", k))
-        if self.view_radius > 0:
-            layout.append(("view", 3 * (2 * self.view_radius + 1) ** 2))
-        self._layout = layout
-        offsets, start = {}, 0
-        for name, width in layout:
-            offsets[name] = (start, start + width)
-            start += width
-        self._offsets = offsets
-        self.obs_dim = start
+        self.size, self.num_agents, self.num_treasures = games.size, games.num_agents, games.num_treasures
+        self.num_actions, self.obs_dim, self.max_steps = games.num_actions, games.obs_dim, games.max_steps
+        self.mode, self.reward_mode, self.obs_encoding = games.mode, games.reward_mode, games.obs_encoding
+        self.view_radius, self.include_treasures = games.view_radius, games.include_treasures
+        self.treasure_reward, self.trap_reward, self.step_reward = (
+            games.treasure_reward,
+            games.trap_reward,
+            games.step_reward,
+        )
 
     def obs_layout(self) -> list[tuple[str, int]]:
         """Named observation segments, in order; the same for every agent."""
-        return list(self._layout)
+        return self._games.obs_layout()
 
     def obs_offsets(self) -> dict[str, tuple[int, int]]:
         """Each observation segment's ``(start, end)`` columns."""
-        return dict(self._offsets)
+        offsets, start = {}, 0
+        for name, width in self.obs_layout():
+            offsets[name] = (start, start + width)
+            start += width
+        return offsets
 
     def position_codes(self) -> np.ndarray:
         """The ``position`` segment of each cell, row-major: ``[n * n, width]`` float32."""
-        if self.obs_encoding is ObsEncoding.onehot:
-            return np.eye(self.size**2, dtype=np.float32)
-        return self._coords.copy()
+        return self._games.tables.position_code.copy()
 
     def settings(self) -> dict:
         """The constructor arguments of this game, besides its map."""
-        rules = {key: getattr(self, key) for key in RULE_KEYS}
-        return dict(rules, num_agents=self.num_agents, include_treasures=self.include_treasures)
+        return self._games.settings()
 
     def recorded_env(self) -> dict[str, Any]:
         """What a checkpoint records of the game besides its config: the map as played (:func:`map_settings`)."""
@@ -364,29 +474,34 @@ class TreasureHuntGame:
     # ------------------------------------------------------------------ state
     @property
     def live(self) -> np.ndarray:
-        return self._live.copy()
+        return self._games.state.live[0].copy()
 
     @property
     def done(self) -> bool:
-        return self._live_idx.size == 0
+        return not self._games.state.live[0].any()
 
     @property
     def chest_full(self) -> np.ndarray:
-        return self._chest_full.copy()
+        return self._games.state.chest_full[0].copy()
 
     @property
     def positions(self) -> np.ndarray:
         """``[K, 2]`` (row, col) of every agent."""
-        return np.stack(np.divmod(self._pos, self.size), axis=1)
+        return np.stack(np.divmod(self._games.state.pos[0], self.size), axis=1)
 
     @property
     def assignment(self) -> np.ndarray:
         """Chest assigned to each agent (deliberative mode; ``-1``: none)."""
-        return self._assigned.copy()
+        return self._games.state.assigned[0].copy()
 
     @property
     def steps(self) -> int:
-        return self._t
+        return int(self._games.state.t[0])
+
+    @property
+    def treasures_collected(self) -> int:
+        """Chests emptied so far in the episode."""
+        return int(self._games.state.treasures_collected[0])
 
     # ------------------------------------------------------------------ checkpointing
     def state_dict(self) -> dict[str, Any]:
@@ -395,192 +510,42 @@ class TreasureHuntGame:
         The tie generator is not in it: it is the caller's (passed to :meth:`reset`), and the caller
         saves its state along with this.
         """
-        return {
-            "pos": self._pos.tolist(),
-            "live": self._live.tolist(),
-            "chest_full": self._chest_full.tolist(),
-            "belief": self._belief[:, : self.num_treasures].tolist(),  # column k is a constant 0
-            "assigned": self._assigned.tolist(),
-            "obs": self._obs.tolist(),  # float32 -> exact Python floats: round-trips bit-exactly
-            "t": self._t,
-            "treasures_collected": self.treasures_collected,
-        }
+        return self._games.state_dict(0)
 
     def load_state_dict(self, state: Mapping[str, Any], rng: np.random.Generator) -> np.ndarray:
         """Resume the episode of a :meth:`state_dict`, returning the current observation; ``rng``
-        draws the later ties, as in :meth:`reset`.
-
-        Everything is checked before anything is assigned, so a state that does not fit this game
-        (another map or rules) raises ``ValueError`` and leaves the game as it was.
-        """
-        agents, k, cells = self.num_agents, self.num_treasures, self.size**2
-        game = f"this game has {agents} agents, {k} chests, obs_dim {self.obs_dim} on a {self.size} x {self.size} grid"
-        if not isinstance(state, Mapping):
-            raise ValueError(f"game state must be a mapping, got {type(state).__name__}")
-        keys = {"pos", "live", "chest_full", "belief", "assigned", "obs", "t", "treasures_collected"}
-        if set(state) != keys:
-            missing, unknown = sorted(keys - set(state)), sorted(map(str, set(state) - keys))
-            raise ValueError(f"game state keys do not match: missing {missing}, unknown {unknown}")
-        pos = _state_array(state, "pos", (agents,), "iu", game)
-        live = _state_array(state, "live", (agents,), "b", game)
-        chest_full = _state_array(state, "chest_full", (k,), "b", game)
-        belief = _state_array(state, "belief", (agents, k), "fiu", game)
-        assigned = _state_array(state, "assigned", (agents,), "iu", game)
-        obs = _state_array(state, "obs", (agents, self.obs_dim), "fiu", game)
-        t = _state_int(state, "t", self.max_steps)
-        collected = _state_int(state, "treasures_collected", k)
-        outside = np.flatnonzero((pos < 0) | (pos >= cells))
-        if outside.size:
-            raise ValueError(
-                f"game state 'pos' puts agent {int(outside[0])} at cell "
-                f"{int(pos[outside[0]])}, outside the {self.size} x {self.size} grid"
-            )
-        cells_at = [divmod(cell, self.size) for cell in pos.tolist()]
-        blocked = [a for a, cell in enumerate(cells_at) if cell in self.map.obstacles]
-        if blocked:
-            raise ValueError(f"game state 'pos' puts agent {blocked[0]} on an obstacle of this map")
-        if ((assigned < -1) | (assigned >= k)).any():
-            raise ValueError(f"game state 'assigned' holds {assigned.tolist()}: chests are -1..{k - 1} here")
-        for name, value in (("belief", belief), ("obs", obs)):
-            if not np.array_equal(value.astype(np.float32), value):  # also rejects nan
-                raise ValueError(f"game state {name!r} holds values that are not float32 numbers")
-        self._rng = rng
-        self._pos[:] = pos
-        self._live[:] = live
-        self._live_idx = np.flatnonzero(self._live)
-        self._chest_full[:] = chest_full
-        self._belief[:, :k] = belief
-        self._assigned[:] = assigned
-        self._obs[:] = obs
-        self._t = t
-        self.treasures_collected = collected
-        return self._obs.copy()
+        draws the later ties, as in :meth:`reset`. A state that does not fit this game (another map or
+        rules) raises ``ValueError`` and leaves the game as it was."""
+        self._games.load_state_dict(0, state)
+        self._games.rngs[0] = rng
+        return self._games.state.obs[0].copy()
 
     # ------------------------------------------------------------------ dynamics
     def reset(self, rng: np.random.Generator) -> np.ndarray:
         """Agents to their starts, every chest full; ``rng`` draws the winners of chest ties."""
-        self._rng = rng
-        self._pos[:] = self._starts
-        self._live[:] = True
-        self._live_idx = np.arange(self.num_agents)
-        self._chest_full[:] = True
-        self._belief[:, : self.num_treasures] = 1.0
-        self._t = 0
-        self.treasures_collected = 0
-        self._assigned[:] = -1
-        if self.mode is Mode.deliberative:
-            self._assign()
-        self._obs[:] = 0.0
-        self._write_obs(self._live_idx, self._pos, None, env_changed=True)
-        return self._obs.copy()
+        self._games.rngs[0] = rng
+        self._games.reset(self._first)
+        return self._games.state.obs[0].copy()
 
     def step(self, actions: np.ndarray) -> StepOutcome:
         """Move every live agent at once; actions of non-live agents are ignored."""
-        idx = self._live_idx
-        if idx.size == 0:
+        games = self._games
+        if not games.state.live[0].any():
             raise RuntimeError("the episode is over: call reset() before step()")
-        acts = np.asarray(actions)[idx]
-        if acts.min() < 0 or acts.max() >= self.num_actions:
-            raise ValueError(f"actions must be in 0..{self.num_actions - 1}, got {acts.tolist()}")
-        old = self._pos[idx]
-        new = self._next[idx, old, acts]
-        self._pos[idx] = new
-        self._t += 1
-        agents = self.num_agents
-        bounced = np.zeros(agents, dtype=bool)
-        bounced[idx] = self._bounce[old, acts]
-        rewards = np.zeros(agents, dtype=np.float32)
-        rewards[idx] = self.step_reward
-        terminated = np.zeros(agents, dtype=bool)
-        trap = np.zeros(agents, dtype=bool)
-        kinds = self._kind[new]
-        events = bool(kinds.any())
-        collected = 0
-        if events:
-            collected = self._resolve_events(idx, new, kinds, rewards, terminated, trap)
-        truncated = np.zeros(agents, dtype=bool)
-        if self._t >= self.max_steps:
-            truncated[idx] = ~terminated[idx]
-        ended = terminated | truncated
-        if ended.any():  # a chest is only ever emptied by an agent that thereby ends
-            self._live &= ~ended
-            self._live_idx = np.flatnonzero(self._live)
-            if self.mode is Mode.deliberative and self._live_idx.size:
-                self._assign()
-        self._write_obs(idx, new, old, env_changed=events)
-        if self.reward_mode is RewardMode.team:
-            rewards[idx] = rewards[idx].sum()
+        acts = np.asarray(actions)
+        if acts.shape != (self.num_agents,) or acts.dtype.kind not in "iu":
+            raise ValueError(f"actions must be {self.num_agents} integers, got {acts.dtype} {acts.shape}")
+        out = games.advance(acts.reshape(1, -1).astype(np.int64, copy=False))
         return StepOutcome(
-            self._obs.copy(), rewards, terminated, truncated, trap, collected, self._live.copy(), bounced
+            games.state.obs[0],  # new arrays each step: never changed afterwards
+            out.rewards[0].copy(),
+            out.terminated[0].copy(),
+            out.truncated[0].copy(),
+            out.trap[0].copy(),
+            int(out.collected[0]),
+            games.state.live[0],
+            out.bounced[0].copy(),
         )
-
-    def _resolve_events(
-        self,
-        idx: np.ndarray,
-        new: np.ndarray,
-        kinds: np.ndarray,
-        rewards: np.ndarray,
-        terminated: np.ndarray,
-        trap: np.ndarray,
-    ) -> int:
-        """Slow path for the few steps where some agent entered a chest or a trap."""
-        contenders: dict[int, list[int]] = {}
-        hits = np.flatnonzero(kinds)
-        for agent, cell, kind in zip(idx[hits].tolist(), new[hits].tolist(), kinds[hits].tolist()):
-            if kind == _TRAP:
-                rewards[agent] = self.trap_reward
-                terminated[agent] = trap[agent] = True
-            else:
-                contenders.setdefault(int(self._chest_of[cell]), []).append(agent)
-        collected = 0
-        for chest, group in contenders.items():
-            if self._chest_full[chest]:
-                winner = group[int(self._rng.integers(len(group)))] if len(group) > 1 else group[0]
-                self._chest_full[chest] = False
-                rewards[winner] = self.treasure_reward
-                terminated[winner] = True
-                collected += 1
-                if self.mode is not Mode.competitive:  # announced: everybody knows the truth
-                    self._belief[:, chest] = 0.0
-            self._belief[group, chest] = 0.0  # whoever entered saw it empty (or emptied it)
-        self.treasures_collected += collected
-        return collected
-
-    def _assign(self) -> None:
-        """Coordinator: live agents to full chests, minimum total shortest-path length."""
-        live = self._live_idx
-        full = np.flatnonzero(self._chest_full)
-        self._assigned[live] = -1
-        if live.size and full.size:
-            cost = self._chest_dist[np.ix_(full, self._pos[live])].T
-            picks = assign_agents(cost)
-            self._assigned[live] = np.where(picks >= 0, full[picks], -1)
-
-    def _write_obs(self, rows: np.ndarray, new: np.ndarray, old: np.ndarray | None, env_changed: bool) -> None:
-        """Refresh the observation rows of the agents that just moved (others keep their last)."""
-        obs = self._obs
-        if self.obs_encoding is ObsEncoding.onehot:
-            if old is not None:
-                obs[rows, old] = 0.0
-            obs[rows, new] = 1.0
-        else:
-            obs[rows, 0:2] = self._coords[new]
-        if env_changed:
-            k = self.num_treasures
-            if self.include_treasures:
-                lo, hi = self._offsets["treasures"]
-                obs[rows, lo:hi] = self._belief[rows, :k]
-            if self.mode is Mode.deliberative:
-                lo, hi = self._offsets["assignment"]
-                obs[rows, lo:hi] = 0.0
-                chosen = self._assigned[rows]
-                has = chosen >= 0
-                obs[rows[has], lo + chosen[has]] = 1.0
-        if self.view_radius > 0:
-            lo, hi = self._offsets["view"]
-            mid = hi - self._view_chest.shape[1]
-            obs[rows, lo:mid] = self._view_static[new]
-            obs[rows, mid:hi] = self._belief[rows[:, None], self._view_chest[new]]
 
     # ------------------------------------------------------------------ rendering
     def render(self, render_mode: str | None) -> str | np.ndarray | None:
@@ -596,11 +561,12 @@ class TreasureHuntGame:
 
     def render_ansi(self) -> str:
         """The grid (``T`` full chest, ``t`` empty chest, digits: live agents, ``*``: several)."""
+        live, chest_full = self.live, self.chest_full
         status = (
-            f"step {self._t}/{self.max_steps}  live agents: {self._live_idx.tolist()}  "
-            f"full chests: {int(self._chest_full.sum())}/{self.num_treasures}"
+            f"step {self.steps}/{self.max_steps}  live agents: {np.flatnonzero(live).tolist()}  "
+            f"full chests: {int(chest_full.sum())}/{self.num_treasures}"
         )
-        return text_grid(self.map, self.positions, self._live, self._chest_full) + "\n" + status
+        return text_grid(self.map, self.positions, live, chest_full) + "\n" + status
 
     def render_rgb(self) -> np.ndarray:
         """``[n*16, n*16, 3]`` uint8 image: cells coloured by type, live agents drawn on top."""
@@ -612,13 +578,14 @@ class TreasureHuntGame:
         for r, c in self.map.traps:
             colour[r, c] = COLOURS["trap"]
         for chest, (r, c) in enumerate(self.map.chests):
-            colour[r, c] = COLOURS["chest_full" if self._chest_full[chest] else "chest_empty"]
+            colour[r, c] = COLOURS["chest_full" if self._games.state.chest_full[0, chest] else "chest_empty"]
         img = np.repeat(np.repeat(colour, px, axis=0), px, axis=1)
         img[::px, :] = COLOURS["grid"]
         img[:, ::px] = COLOURS["grid"]
         pad = px // 4
-        for agent in self._live_idx.tolist():
-            r, c = divmod(int(self._pos[agent]), n)
+        state = self._games.state
+        for agent in np.flatnonzero(state.live[0]).tolist():
+            r, c = divmod(int(state.pos[0, agent]), n)
             img[r * px + pad : (r + 1) * px - pad, c * px + pad : (c + 1) * px - pad] = AGENT_COLOURS[
                 agent % len(AGENT_COLOURS)
             ]

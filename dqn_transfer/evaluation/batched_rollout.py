@@ -1,5 +1,5 @@
 """Greedy evaluation of every replica of a batched learner at once: all their episodes played side by
-side through the batched core, with the numbers of :func:`~dqn_transfer.evaluation.rollout.evaluate`.
+side as one batch of treasure hunts, with the numbers of :func:`~dqn_transfer.evaluation.rollout.evaluate`.
 
 An evaluation of replica r plays ``episodes`` greedy episodes, episode e reset with
 :func:`~dqn_transfer.evaluation.rollout.evaluation_rng` ``(seed_r, step_r, e)`` (which draws the
@@ -8,7 +8,7 @@ are one batch (game ``e * R + r``, so that the learner's ``R * K`` rows answer e
 one call, ``best_actions_stacked``), stepped until every episode has ended; each game draws from its own
 generators in the same order as when played alone, so every record is the one
 :func:`~dqn_transfer.evaluation.rollout.evaluate` gives (``tests/test_batched_rollout.py``). Games
-the batched core cannot step together (another game) are evaluated replica by replica.
+that cannot share a batch (another game) are evaluated replica by replica.
 """
 
 from __future__ import annotations
@@ -20,9 +20,8 @@ import numpy as np
 
 from dqn_transfer.agents.base import Learner, Team
 from dqn_transfer.enums import RewardMode
-from dqn_transfer.envs import Game, batched
-from dqn_transfer.envs.game import TreasureHuntGame
-from dqn_transfer.envs.game_batch import fits_one_batch
+from dqn_transfer.envs import Game
+from dqn_transfer.envs.game import TreasureHuntGame, TreasureHunts, fit_one_batch
 from dqn_transfer.evaluation.rollout import (
     EpisodeResult,
     EvaluationStopped,
@@ -57,7 +56,7 @@ def evaluate_replicas(
     :param stopped: whether a stop was asked for: then :class:`~dqn_transfer.evaluation.rollout.EvaluationStopped`
         is raised within a joint step (or an episode, replica by replica)
     """
-    if learner is None or not fits_one_batch(games):
+    if learner is None or not fit_one_batch(games):
         return [
             evaluate(team, game, episodes, seed, step, first, stopped)
             for team, game, seed, step, first in zip(teams, games, seeds, steps, firsts)
@@ -82,7 +81,7 @@ def play_greedy_batch(
     stopped: Callable[[], bool] = never,
 ) -> list[list[EpisodeResult]]:
     """Replica r's greedy episodes ``0..episodes-1`` (episode 0 a placeholder where ``skip_first[r]``),
-    played in batches of the batched core of at most :data:`GAMES_PER_BATCH` games (every replica's episodes
+    played in batches of at most :data:`GAMES_PER_BATCH` games (every replica's episodes
     ``e0..e1-1``); :class:`~dqn_transfer.evaluation.rollout.EvaluationStopped` between two joint steps once
     ``stopped()``."""
     per_batch = max(1, GAMES_PER_BATCH // len(games))
@@ -109,22 +108,22 @@ def _play_episodes(
     replicas, agents, episodes = len(games), games[0].num_agents, len(numbers)
     chests, reward_mode = games[0].num_treasures, RewardMode(games[0].reward_mode)
     slots = [(e, r) for e in numbers for r in range(replicas)]  # game g = (e - numbers.start) * R + r
-    maps = batched.batch_maps([games[r].map for _, r in slots], **games[0].settings())
     rngs = [evaluation_rng(seeds[r], steps[r], e) for e, r in slots]
     ties = [rng.spawn(1)[0] for rng in rngs]  # a child: the parent's stream stays the chest ties'
-    state, _ = batched.reset(maps)
+    hunts = TreasureHunts([games[r].map for _, r in slots], rngs, **games[0].settings())
     skipped = np.array([e == 0 and skip_first[r] for e, r in slots])
-    state = state._replace(live=state.live & ~skipped[:, None])
+    hunts.state.live[skipped] = False  # not played: a finished episode stays as it is
     count = len(slots)
     team_return, return_after_clear = np.zeros(count), np.zeros(count)
     length, trapped = np.zeros(count, dtype=np.int64), np.zeros(count, dtype=np.int64)
     agent_returns = np.zeros((count, agents))
     cleared_at = np.full(count, -1, dtype=np.int64)  # the joint step that emptied the last full chest
-    while state.live.any():
+    collected = np.zeros(count, dtype=np.int64)
+    while hunts.live.any():
         if stopped():
             raise EvaluationStopped
-        live = state.live
-        obs = state.obs.reshape(episodes, replicas * agents, -1)
+        live = hunts.live
+        obs = hunts.obs.reshape(episodes, replicas * agents, -1)
         best = learner.best_actions_stacked(obs).reshape(count * agents, -1)  # [G * K, A]
         actions = np.where(live.reshape(-1), best.argmax(axis=1), 0).astype(np.int64)
         counts = best.sum(axis=1)
@@ -134,7 +133,8 @@ def _play_episodes(
                 int(ties[row // agents].integers(count)) for row, count in zip(tied.tolist(), counts[tied].tolist())
             ]
             actions[tied] = np.argmax(np.cumsum(best[tied], axis=1) > np.array(picks)[:, None], axis=1)
-        state, outcome = batched.step(maps, state, actions.reshape(count, agents), rngs, finished_stay=True)
+        outcome = hunts.step(actions.reshape(count, agents))
+        collected = outcome.episode_treasures
         active = live.any(axis=1)
         step_return = team_returns_of(outcome.rewards, live, reward_mode)
         team_return[active] += step_return[active]
@@ -143,17 +143,16 @@ def _play_episodes(
         length += active
         after = active & (cleared_at >= 0)
         return_after_clear[after] += step_return[after]
-        newly = active & (cleared_at < 0) & (state.treasures_collected == chests)
+        newly = active & (cleared_at < 0) & (collected == chests)
         cleared_at[newly] = length[newly]
     results: list[list[EpisodeResult]] = [[] for _ in range(replicas)]
     for g, (_, r) in enumerate(slots):
-        collected = int(state.treasures_collected[g])
         results[r].append(
             EpisodeResult(
                 float(team_return[g]),
                 int(length[g]),
-                collected,
-                collected / chests,
+                int(collected[g]),
+                int(collected[g]) / chests,
                 int(trapped[g]) / agents,
                 int(length[g] - cleared_at[g]) if cleared_at[g] >= 0 else 0,
                 float(return_after_clear[g]),

@@ -4,7 +4,7 @@ See docs/bounds.md. There are two:
 
 * :data:`~dqn_transfer.enums.Bound.oracle`, the upper reference: it sees the whole game (every agent's
   cell, the true chests) and, at every step, matches the live agents to the full chests for the least
-  total shortest-path length (:func:`~dqn_transfer.envs.game.assign_agents`, the deliberative
+  total shortest-path length (:func:`~dqn_transfer.envs.rules.best_assignment`, the deliberative
   coordinator's rule and tie-break); each agent takes one step along a shortest path to its chest.
 * :data:`~dqn_transfer.enums.Bound.greedy`, the floor: each agent, from its own observation alone,
   takes one step towards the nearest chest it believes full (or, when its observation carries a
@@ -33,8 +33,9 @@ from typing import Any
 import numpy as np
 
 from dqn_transfer.enums import Bound
-from dqn_transfer.envs.game import ACTION_MOVES, TreasureHuntGame, assign_agents
+from dqn_transfer.envs.game import TreasureHuntGame
 from dqn_transfer.envs.maps import GridMap
+from dqn_transfer.envs.rules import ACTION_MOVES, best_assignment
 from dqn_transfer.evaluation.rollout import Policy, evaluation_rng, play_episode, summarize
 
 # How an agent without a chest ranks a move (lowest first): staying in place, a harmless cell, a move
@@ -101,7 +102,7 @@ class Walker:
 
     def matching(self, cells: np.ndarray, live: np.ndarray, full: np.ndarray) -> np.ndarray:
         """Each agent's chest (``-1``: none) in a minimum-total-distance matching of the ``live`` agents at
-        ``cells`` to the ``full`` chests, with :func:`assign_agents`' tie-break."""
+        ``cells`` to the ``full`` chests, with the coordinator's tie-break."""
         agents, chests = np.flatnonzero(live), np.flatnonzero(full)
         targets = np.full(len(cells), -1, dtype=np.int64)
         if agents.size and chests.size:
@@ -109,7 +110,7 @@ class Walker:
             # Worse than any matching of reachable pairs (as in the game's coordinator), so as many agents as
             # possible get a chest they can reach; one matched out of reach stays (Walker.toward: None).
             unreachable = len(cells) * self.distances.shape[1]
-            picks = assign_agents(np.where(distance < 0, unreachable, distance))
+            picks = best_assignment(np.where(distance < 0, unreachable, distance).astype(np.int64))
             targets[agents] = np.where(picks >= 0, chests[picks], -1)
         return targets
 
