@@ -299,7 +299,7 @@ def test_state_ids_number_each_replicas_observations_in_the_order_first_met(monk
     observations collide) the ids are still the first-seen numbering."""
     if collide:
         monkeypatch.setattr(
-            "dqn_transfer.agents.tabular.observation_hashes", lambda bits, replicas: np.zeros(len(bits), np.uint64)
+            "dqn_transfer.agents.state_index.observation_hashes", lambda bits, replicas: np.zeros(len(bits), np.uint64)
         )
     agents, replicas = 2, 3
     table = TabularLearner(agents, [("cell", 3)], 2, AgentConfig(algorithm=Algorithm.sarsa), seed=list(range(replicas)))
@@ -312,7 +312,7 @@ def test_state_ids_number_each_replicas_observations_in_the_order_first_met(monk
     got = [table.state_ids(obs, rows) for obs, rows in stream]
     for g, e in zip(got, first_seen_ids(stream, table.row_replica)):
         np.testing.assert_array_equal(g, e)
-    assert table.num_states.tolist() == [64, 64, 64]  # all 4^3 observations met, in every replica
+    assert table.index.num_states.tolist() == [64, 64, 64]  # all 4^3 observations met, in every replica
 
 
 def learn_from_one_at_a_time(table: TabularLearner, i: int, experience) -> None:
@@ -360,8 +360,8 @@ def test_learning_from_team_mates_is_one_update_per_transition_in_order(algorith
     fast, reference = tables
     assert np.array_equal(fast.q.view(np.uint32), reference.q.view(np.uint32))  # bit for bit
     assert np.array_equal(fast.entry_order, reference.entry_order) and fast._entries == reference._entries
-    assert np.array_equal(fast.num_states, reference.num_states)
-    assert np.array_equal(fast.state_keys, reference.state_keys)
+    assert np.array_equal(fast.index.num_states, reference.index.num_states)
+    assert np.array_equal(fast.index.state_keys, reference.index.state_keys)
     assert fast.counters["learn_from"].tolist() == reference.counters["learn_from"].tolist() == [0, 600]
     assert np.array_equal(fast.next_action, reference.next_action) and fast.next_action[5] == -1
     for i in range(6):
@@ -383,5 +383,5 @@ def test_best_actions_of_stacked_observations_are_one_lookup_of_the_one_at_a_tim
         obs = cells[rng.integers(0, 9, size=(4, 6))]  # E = 4 observations for each of the 6 rows
         fast, reference = tables[0].best_actions_stacked(obs), Acting.best_actions_stacked(tables[1], obs)
         assert fast.shape == (4, 6, 3) and np.array_equal(fast, reference)
-    assert np.array_equal(tables[0].num_states, tables[1].num_states)
-    assert np.array_equal(tables[0].state_keys, tables[1].state_keys)
+    assert np.array_equal(tables[0].index.num_states, tables[1].index.num_states)
+    assert np.array_equal(tables[0].index.state_keys, tables[1].index.state_keys)
