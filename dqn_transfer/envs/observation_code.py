@@ -119,7 +119,7 @@ class ObservationCode:
     def decode(self, replica: int, ids: np.ndarray) -> np.ndarray:
         """``float32 [N, D]``: the observations of replica ``replica``'s game whose ids are ``ids [N]``."""
         ids = np.asarray(ids, dtype=np.int64)
-        out = np.zeros((len(ids), self.obs_dim), dtype=np.float32)
+        out = np.empty((len(ids), self.obs_dim), dtype=np.float32)
         _decode(ids, int(self._replica_map[replica]), out, *self._tables())
         return out
 
@@ -149,7 +149,7 @@ def _write_observation(
     view_static: np.ndarray,
     view_chest: np.ndarray,
 ) -> None:
-    """Write the observation of id ``state`` on map ``map_index`` into ``out [D]`` (zeroed by the caller)."""
+    """Write the observation of id ``state`` on map ``map_index`` into ``out [D]`` (every value)."""
     assignment = state % slots
     beliefs = (state // slots) % (1 << bits)
     cell = state // slots // (1 << bits)
@@ -158,15 +158,15 @@ def _write_observation(
     if treasures >= 0:
         for chest in range(k):
             out[treasures + chest] = (beliefs >> chest) & 1
-    if assigned >= 0 and assignment > 0:
-        out[assigned + assignment - 1] = 1.0
+    if assigned >= 0:
+        for chest in range(k):
+            out[assigned + chest] = chest + 1 == assignment
     if view >= 0:
         static = view_static.shape[2]
         out[view : view + static] = view_static[map_index, cell]
         for w in range(view_chest.shape[2]):
             chest = view_chest[map_index, cell, w]
-            if chest < k:
-                out[view + static + w] = (beliefs >> chest) & 1
+            out[view + static + w] = (beliefs >> chest) & 1 if chest < k else 0
 
 
 @njit(cache=True)
@@ -219,12 +219,11 @@ def _encode(
                     assignment = chest + 1
                     break
         state = (cell * (1 << bits) + beliefs) * slots + assignment
-        decoded[:] = 0.0
         _write_observation(state, maps[n], decoded, k, bits, slots, offsets, position_codes, view_static, view_chest)
-        same = True
+        differ = 0
         for d in range(len(row)):
-            same = same and decoded[d] == row[d]
-        if same:
+            differ += decoded[d] != row[d]
+        if differ == 0:
             ids[n] = state
     return ids
 
@@ -242,6 +241,6 @@ def _decode(
     view_static: np.ndarray,
     view_chest: np.ndarray,
 ) -> None:
-    """:meth:`ObservationCode.decode` into ``out [N, D]`` (zeros)."""
+    """:meth:`ObservationCode.decode` into ``out [N, D]``."""
     for n in range(len(ids)):
         _write_observation(ids[n], map_index, out[n], k, bits, slots, offsets, position_codes, view_static, view_chest)
