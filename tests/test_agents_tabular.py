@@ -5,9 +5,12 @@ import pytest
 
 from dqn_transfer.agents import Experience, TabularLearner, Transition
 from dqn_transfer.agents.base import Acting
+from dqn_transfer.agents.state_index import DenseIndex, MetOrderIndex
+from dqn_transfer.agents.visit_exchange import AdviceRules
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm, Mode
 from dqn_transfer.envs.game import make_game
+from dqn_transfer.envs.observation_code import observation_code
 from dqn_transfer.evaluation.rollout import evaluate
 from dqn_transfer.transfer.exchange import exchange_best, exchange_replay
 
@@ -299,7 +302,7 @@ def test_state_ids_number_each_replicas_observations_in_the_order_first_met(monk
     observations collide) the ids are still the first-seen numbering."""
     if collide:
         monkeypatch.setattr(
-            "dqn_transfer.agents.tabular.observation_hashes", lambda bits, replicas: np.zeros(len(bits), np.uint64)
+            "dqn_transfer.agents.state_index.observation_hashes", lambda bits, replicas: np.zeros(len(bits), np.uint64)
         )
     agents, replicas = 2, 3
     table = TabularLearner(agents, [("cell", 3)], 2, AgentConfig(algorithm=Algorithm.sarsa), seed=list(range(replicas)))
@@ -312,7 +315,7 @@ def test_state_ids_number_each_replicas_observations_in_the_order_first_met(monk
     got = [table.state_ids(obs, rows) for obs, rows in stream]
     for g, e in zip(got, first_seen_ids(stream, table.row_replica)):
         np.testing.assert_array_equal(g, e)
-    assert table.num_states.tolist() == [64, 64, 64]  # all 4^3 observations met, in every replica
+    assert table.index.num_states.tolist() == [64, 64, 64]  # all 4^3 observations met, in every replica
 
 
 def learn_from_one_at_a_time(table: TabularLearner, i: int, experience) -> None:
@@ -360,8 +363,8 @@ def test_learning_from_team_mates_is_one_update_per_transition_in_order(algorith
     fast, reference = tables
     assert np.array_equal(fast.q.view(np.uint32), reference.q.view(np.uint32))  # bit for bit
     assert np.array_equal(fast.entry_order, reference.entry_order) and fast._entries == reference._entries
-    assert np.array_equal(fast.num_states, reference.num_states)
-    assert np.array_equal(fast.state_keys, reference.state_keys)
+    assert np.array_equal(fast.index.num_states, reference.index.num_states)
+    assert np.array_equal(fast.index.state_keys, reference.index.state_keys)
     assert fast.counters["learn_from"].tolist() == reference.counters["learn_from"].tolist() == [0, 600]
     assert np.array_equal(fast.next_action, reference.next_action) and fast.next_action[5] == -1
     for i in range(6):
@@ -383,5 +386,132 @@ def test_best_actions_of_stacked_observations_are_one_lookup_of_the_one_at_a_tim
         obs = cells[rng.integers(0, 9, size=(4, 6))]  # E = 4 observations for each of the 6 rows
         fast, reference = tables[0].best_actions_stacked(obs), Acting.best_actions_stacked(tables[1], obs)
         assert fast.shape == (4, 6, 3) and np.array_equal(fast, reference)
-    assert np.array_equal(tables[0].num_states, tables[1].num_states)
-    assert np.array_equal(tables[0].state_keys, tables[1].state_keys)
+    assert np.array_equal(tables[0].index.num_states, tables[1].index.num_states)
+    assert np.array_equal(tables[0].index.state_keys, tables[1].index.state_keys)
+
+
+def dense_and_met_order(algorithm: str, games: list, seeds: list[int]) -> tuple[TabularLearner, TabularLearner]:
+    """The same learner twice: with the games' observation code (dense tables), and without."""
+    first = games[0]
+    hp = AgentConfig(algorithm=Algorithm(algorithm), lr=0.3, gamma=0.9)
+    code = observation_code(games)
+    pair = tuple(
+        TabularLearner(first.num_agents, first.obs_layout(), first.num_actions, hp, seed=seeds, code=c)
+        for c in (code, None)
+    )
+    assert isinstance(pair[0].index, DenseIndex) and isinstance(pair[1].index, MetOrderIndex)
+    return pair
+
+
+@pytest.mark.parametrize(("algorithm", "mode"), [("sarsa", "deliberative"), ("qlearning", "competitive")])
+def test_dense_tables_learn_exactly_what_the_met_order_index_learns(algorithm, mode):
+    """Two replicas on two maps play, learn, exchange (best, confidence, team-mates' transitions) and
+    take advice, from a fallback table: actions, statistics, tables and training state bit for bit."""
+    games = [
+        make_game(size=5, num_treasures=2, num_traps=1, num_agents=3, mode=mode, view_radius=1, map_seed=s)
+        for s in (0, 3)
+    ]
+    dense, met = dense_and_met_order(algorithm, games, [7, 8])
+    cells = games[0].position_codes()
+    fallback = (
+        cells,
+        np.random.default_rng(0).normal(size=(len(cells), 4)).astype(np.float32),
+        np.arange(len(cells[0])),
+    )
+    for learner in (dense, met):
+        learner.add_fallback(*fallback, agent=4)
+        learner.start_advice(AdviceRules(ask_below=2, answer_from=3, budget=50))
+    rngs = [np.random.default_rng(r) for r in range(2)]
+    obs = np.concatenate([game.reset(rng) for game, rng in zip(games, rngs)])
+    experience: list = []
+    for step in range(1, 400):
+        live = np.concatenate([game.live for game in games])
+        actions = dense.act(obs, live, epsilon=0.3)
+        np.testing.assert_array_equal(actions, met.act(obs, live, epsilon=0.3))
+        outcomes = [game.step(a) for game, a in zip(games, actions.reshape(2, -1))]
+        joined = [np.concatenate(field) for field in zip(*(o[:4] for o in outcomes))]
+        transition = Transition(obs, actions, joined[1], joined[0], joined[2], joined[3], live)
+        for a, b in zip(dense.update(transition, step), met.update(transition, step)):
+            np.testing.assert_array_equal(a, b)
+        experience.append(transition)
+        obs = joined[0]
+        for r, (game, rng) in enumerate(zip(games, rngs)):
+            if game.done:
+                obs[r * 3 : (r + 1) * 3] = game.reset(rng)
+        if step % 50 == 0:
+            shared = Experience(*(np.stack([t[f][1] for t in experience]) for f in (0, 1, 2, 3, 4)))
+            for learner in (dense, met):
+                learner.soft_copy_best(0, 0.5, replica=1)
+                learner.merge_confident(0.5, replica=0)
+                learner.learn_from(2, shared)
+            experience.clear()
+    for row in range(6):
+        mine, theirs = dense.agent_tensors(row), met.agent_tensors(row)
+        assert mine.keys() == theirs.keys()
+        for name in mine:
+            np.testing.assert_array_equal(mine[name], theirs[name])
+    for replica in range(2):
+        (arrays, meta), (their_arrays, their_meta) = dense.training_state(replica), met.training_state(replica)
+        assert meta == their_meta and arrays.keys() == their_arrays.keys()
+        for name in arrays:
+            np.testing.assert_array_equal(arrays[name], their_arrays[name])
+
+
+def test_checkpoints_of_either_index_load_into_the_other():
+    """A met-order checkpoint (today's) loads into dense tables and back, values and visits intact."""
+    games = [make_game(size=5, num_treasures=2, num_traps=1, num_agents=2)]
+    dense, met = dense_and_met_order("sarsa", games, [1])
+    rng = np.random.default_rng(0)
+    obs = games[0].reset(rng)
+    for step in range(1, 60):
+        actions = met.act(obs, games[0].live, epsilon=0.5)
+        out = games[0].step(actions)
+        met.update(Transition(obs, actions, out.rewards, out.obs, out.terminated, out.truncated, out.live | True), step)
+        obs = out.obs if not games[0].done else games[0].reset(rng)
+    restored, _ = dense_and_met_order("sarsa", games, [1])
+    for source, target in ((met, dense), (dense, restored)):
+        for i in range(2):
+            target.load_agent_tensors(i, source.agent_tensors(i))
+        target.load_training_state(*source.training_state())
+    for learner in (dense, restored):
+        for i in range(2):
+            for name, array in met.agent_tensors(i).items():
+                np.testing.assert_array_equal(learner.agent_tensors(i)[name], array)
+        for name, array in met.training_state()[0].items():
+            np.testing.assert_array_equal(learner.training_state()[0][name], array)
+
+
+def test_dense_tables_refuse_a_key_that_is_no_observation_of_the_game():
+    game = make_game(size=5, num_treasures=2, num_traps=1, num_agents=2)
+    dense, _ = dense_and_met_order("qlearning", [game], [0])
+    key = np.zeros((1, game.obs_dim), dtype=np.float32)  # on no cell
+    with pytest.raises(ValueError, match="is no observation of this game"):
+        dense.load_agent_tensors(0, {"keys": key, "values": np.ones((1, 4), dtype=np.float32)})
+
+
+def test_dense_tables_start_every_state_from_the_fallback_at_once():
+    """A fallback keyed on the position: every state of cell c starts at [c, 0, 0, 0] (ids are
+    ``cell * 2**chests + beliefs`` in cooperative mode)."""
+    game = make_game(size=5, num_treasures=2, num_traps=1, num_agents=2)
+    dense, _ = dense_and_met_order("sarsa", [game], [0])
+    cells = game.position_codes()
+    values = np.zeros((25, 4), dtype=np.float32)
+    values[:, 0] = np.arange(25)
+    dense.add_fallback(cells, values, np.arange(25), agent=1)
+    np.testing.assert_array_equal(dense.q[1, :, 0], np.arange(100) // 4)
+    assert not dense.q[0].any()  # agent 0 has no fallback
+
+
+class _HugeCode:
+    num_ids = 10**9
+
+    def encode(self, obs, replicas):
+        raise AssertionError("never asked")
+
+    def decode(self, replica, ids):
+        raise AssertionError("never asked")
+
+
+def test_a_code_whose_tables_would_not_fit_keeps_the_met_order_index():
+    learner = TabularLearner(2, LAYOUT, 2, AgentConfig(algorithm=Algorithm.sarsa), code=_HugeCode())
+    assert isinstance(learner.index, MetOrderIndex) and learner.q.shape[1] < 1000

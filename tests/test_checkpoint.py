@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import pickle
@@ -407,3 +408,25 @@ def test_a_disk_full_during_a_run_keeps_the_previous_checkpoint_whole(tmp_path: 
     steps = {load_agent_checkpoint(run.agent_checkpoint(i))[1]["steps"] for i in (0, 1)}
     _, state = load_training_state(run.training_state)
     assert steps == {state["counters"]["step"]} and 100 <= state["counters"]["step"] < 200
+
+
+def test_resuming_from_a_table_key_that_is_no_observation_of_the_game_is_refused_in_one_line(tmp_path: Path):
+    """Dense tables number the game's own observations: a resume state whose table holds another
+    vector (a game whose observations changed, a file edited) is a CheckpointError naming the file."""
+    layout = "0..T\n....\n....\n1..T"
+    config = TrainConfig(
+        env=EnvConfig(layout=layout, size=4, num_treasures=2, num_traps=0, num_agents=2, complexity=0.0),
+        agent=AgentConfig(algorithm=Algorithm.sarsa, lr=0.5),
+        total_steps=20,
+        eval_every=20,
+        eval_episodes=1,
+        progress=False,
+    )
+    run = RunDir(tmp_path / "run")
+    Trainer(plan_run(config), run.path).run()
+    arrays, meta = load_training_state(run.training_state)
+    arrays["agent_0/keys"][0] = 0.0  # on no cell
+    save_training_state(run.training_state, arrays, meta)
+    resumed = dataclasses.replace(config, resume=True, total_steps=40)
+    with pytest.raises(CheckpointError, match=r"training_state.safetensors: \[0.0, .* is no observation of this game"):
+        Trainer(plan_run(resumed), run.path).run()

@@ -8,7 +8,7 @@ import pytest
 
 from dqn_transfer.agents import TabularLearner, Transition
 from dqn_transfer.agents.random_streams import mix64, stream_keys, uniforms
-from dqn_transfer.agents.tabular import epsilon_greedy_rows
+from dqn_transfer.agents.tabular_kernels import epsilon_greedy_rows
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm
 
@@ -100,7 +100,7 @@ def test_the_table_grows_past_its_first_room_and_keeps_every_value():
             ),
             n + 1,
         )
-    assert learner.num_states[0] == 300 and learner.q.shape[1] >= 300
+    assert learner.index.num_states[0] == 300 and learner.q.shape[1] >= 300
     table0, table1 = learner.agent_tensors(0), learner.agent_tensors(1)
     np.testing.assert_array_equal(table0["keys"], states)  # in the order agent 0 updated them
     np.testing.assert_array_equal(table0["values"][:, 1], np.arange(300))

@@ -129,11 +129,11 @@ def source_mlp(path: Path) -> nn.Sequential:
 
 def random_observations(mode: Mode, num_treasures: int, count: int, rng: np.random.Generator):
     """``(position one-hot [count, n*n], expanded obs [count, D])`` in the observation's documented
-    segment order (docs/game.md)."""
+    segment order (docs/game.md): observations the game can produce (an assignment is one chest or none)."""
     position = np.eye(N * N, dtype=np.float32)[rng.integers(N * N, size=count)]
     parts = [position, rng.integers(0, 2, size=(count, num_treasures)).astype(np.float32)]
     if mode is Mode.deliberative:
-        parts.append(rng.integers(0, 2, size=(count, num_treasures)).astype(np.float32))
+        parts.append(np.eye(num_treasures + 1, dtype=np.float32)[rng.integers(num_treasures + 1, size=count), 1:])
     return position, np.concatenate(parts, axis=1)
 
 

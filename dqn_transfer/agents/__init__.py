@@ -47,6 +47,7 @@ from dqn_transfer.agents.dqn_update import double_dqn_targets, dqn_targets
 from dqn_transfer.agents.replay import ReplayBatch, ReplayBuffer
 from dqn_transfer.agents.replicas import TeamView, team_view
 from dqn_transfer.agents.schedules import linear_schedule
+from dqn_transfer.agents.state_index import StateCode
 from dqn_transfer.agents.tabular import TabularLearner
 from dqn_transfer.agents.visit_exchange import AdviceRules, VisitExchange
 from dqn_transfer.config import AgentConfig
@@ -72,6 +73,7 @@ __all__ = [
     "Learning",
     "ReplayBatch",
     "ReplayBuffer",
+    "StateCode",
     "TabularLearner",
     "Team",
     "TeamView",
@@ -123,6 +125,7 @@ def make_replicas(
     seeds: Sequence[int],
     device: Device | str = "cpu",
     threads: int | None = None,
+    code: StateCode | None = None,
 ) -> Learner:
     """One replica of ``num_agents`` agents per seed, in one learner (rows ``r * K + k``, ``replica(r)``
     its team): for the DQN family one network module holds every replica, for the tabular ones
@@ -130,10 +133,11 @@ def make_replicas(
 
     ``device`` (cpu | cuda | auto) and ``threads`` (torch's CPU threads; None: as they are) concern the torch engine;
     the numpy engine and the tabular learners run on the CPU. Raises ``ConfigError`` for a device
-    that is not there.
+    that is not there. ``code`` is the games' numbering of their observations, if they have one: the
+    tabular learners then hold dense tables (:mod:`~dqn_transfer.agents.state_index`).
     """
     if Algorithm(hp.algorithm).is_tabular:
-        return TabularLearner(num_agents, obs_layout, num_actions, hp, seed=list(seeds))
+        return TabularLearner(num_agents, obs_layout, num_actions, hp, seed=list(seeds), code=code)
     if resolve_engine(hp.engine, device, hp.algorithm, hp.mixer) is Engine.numpy:
         engine = import_module("dqn_transfer.agents.numpy_dqn")
         return engine.NumpyDQNLearner(num_agents, obs_layout, num_actions, hp, seed=list(seeds))

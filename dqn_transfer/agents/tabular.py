@@ -1,9 +1,12 @@
 """Tabular SARSA (the study's base learner) and Q-learning for K agents, in R replicas, as arrays.
 
-Each agent has its own Q-table over the exact observations (float32 vectors) of its game. The
-observations a replica's agents meet get dense ids in the order they are first seen (one index per
-replica: its agents share the game), so every agent's table is a row of one array ``Q [R * K, S, A]``
-and acting or updating all agents of all replicas is a few array operations. An observation is worth
+Each agent has its own Q-table over the exact observations (float32 vectors) of its game. A replica's
+observations have dense ids (its agents share the game): the game's own numbering when it offers one
+and the tables fit (the treasure hunt's, :mod:`dqn_transfer.envs.observation_code`: every state's row
+allocated at once), else the order they are first met (:mod:`~dqn_transfer.agents.state_index`). So
+every agent's table is a row of one array ``Q [R * K, S, A]`` and acting or updating all agents of all
+replicas is a few array operations, the choice and the update compiled loops over rows
+(:mod:`~dqn_transfer.agents.tabular_kernels`). An observation is worth
 0 for every action until its agent updates it, unless the agent has *fallbacks*: tables from another
 agent (set by transfer), each looked up on a projection of the observation, in turn; the first that
 knows it gives the entry's starting values. An agent's table (what its checkpoint holds) is the
@@ -32,7 +35,6 @@ exchanges by visit counts read (:mod:`~dqn_transfer.agents.visit_exchange`: conf
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -50,39 +52,27 @@ from dqn_transfer.agents.base import (
     check_tensor_shape,
 )
 from dqn_transfer.agents.dqn_update import huber
-from dqn_transfer.agents.random_streams import mix64, stream_keys, uniforms
+from dqn_transfer.agents.random_streams import stream_keys, uniforms
 from dqn_transfer.agents.replicas import team_view
+from dqn_transfer.agents.state_index import DenseIndex, MetOrderIndex, StateCode, StateIndex
+from dqn_transfer.agents.tabular_kernels import epsilon_greedy_rows, update_in_order, update_rows
 from dqn_transfer.agents.visit_exchange import AdviceRules, VisitExchange, advised_actions, confident_merge
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm
 
 _NO_ACTION = -1  # empty slot of the SARSA next-action cache
 
-
-def observation_hashes(bits: np.ndarray, replicas: np.ndarray) -> np.ndarray:
-    """``uint64 [N]``: a hash of each row's (replica, observation bits ``[N, D]`` uint32) pair. Each
-    value is mixed with its column first, so the sum over columns tells reordered values apart."""
-    columns = np.arange(bits.shape[1], dtype=np.uint64) << np.uint64(32)
-    with np.errstate(over="ignore"):  # uint64 arithmetic wraps by design
-        values = mix64(bits.astype(np.uint64) | columns).sum(axis=1, dtype=np.uint64)
-        return mix64(values + mix64(np.asarray(replicas).astype(np.uint64)))
-
-
 # The purposes of the counter-based draws (one stream each).
 ACT_STREAM, NEXT_ACTION_STREAM, LEARN_FROM_STREAM = 1, 2, 3
 DRAWS_PER_AGENT_STEP = 3  # explore?, a random action, a pick among tied best actions
-_INITIAL_STATES = 64  # ids a replica's index holds before it first grows (doubling)
+# Dense tables (every id of the game's code allocated at once) up to this many bytes for all rows; beyond,
+# the ids of the observations met (a 6-agent deliberative team on 10x10 with 6 chests has 44,800 states).
+DENSE_TABLES_MAX_BYTES = 256 * 2**20
 
 
-def epsilon_greedy_rows(q: np.ndarray, epsilon: np.ndarray, draws: np.ndarray) -> np.ndarray:
-    """Per row of ``q [N, A]``: with probability ``epsilon [N]`` a uniformly random action, else a best
-    action, ties going to a uniformly drawn one of them; ``draws [N, 3]`` uniforms in ``[0, 1)`` (one
-    per choice, always all three)."""
-    best = q == q.max(axis=1, keepdims=True)
-    pick = np.floor(draws[:, 2] * best.sum(axis=1)).astype(np.int64)  # the pick-th best action
-    greedy = np.argmax(np.cumsum(best, axis=1) > pick[:, None], axis=1)
-    random_action = np.floor(draws[:, 1] * q.shape[1]).astype(np.int64)
-    return np.where(draws[:, 0] < epsilon, random_action, greedy)
+def table_bytes_per_state(num_actions: int) -> int:
+    """Bytes a row's arrays hold per state: its Q-values (float32), entry order (int32) and visits (int64)."""
+    return 4 * num_actions + 4 + 8
 
 
 def fallback_names(level: int) -> tuple[str, str, str]:
@@ -112,10 +102,12 @@ class _Fallback:
         self.keys = np.ascontiguousarray(keys, dtype=np.float32)
         self.values = np.ascontiguousarray(values, dtype=np.float32)
         self.projection = np.asarray(projection, dtype=np.int64)
-        self.table = {key.tobytes(): row for key, row in zip(self.keys, self.values)}
+        self.table = {key.tobytes(): n for n, key in enumerate(self.keys)}
 
-    def get(self, obs: np.ndarray) -> np.ndarray | None:
-        return self.table.get(obs[self.projection].tobytes())
+    def rows_of(self, obs: np.ndarray) -> np.ndarray:
+        """The row of ``values`` each observation ``obs [N, D]`` finds (-1: none)."""
+        keys = np.ascontiguousarray(obs[:, self.projection], dtype=np.float32)
+        return np.array([self.table.get(key.tobytes(), -1) for key in keys], dtype=np.int64)
 
 
 def check_fallback(
@@ -144,6 +136,7 @@ class TabularLearner(Learner, KnowledgeExchange, VisitExchange):
         hp: AgentConfig,
         *,
         seed: int | Sequence[int] = 0,
+        code: StateCode | None = None,
     ) -> None:
         """
         :param num_agents: K, the agents of the team (one table each)
@@ -152,6 +145,8 @@ class TabularLearner(Learner, KnowledgeExchange, VisitExchange):
         :param hp: the hyperparameters, documented on :class:`~dqn_transfer.config.AgentConfig`:
             ``algorithm`` (sarsa | qlearning), ``lr`` (alpha, the step size of the table update), ``gamma``
         :param seed: fixes exploration and tie-breaking; a list of R seeds makes R replicas
+        :param code: the game's numbering of its observations (None: it has none), used when the dense
+            tables fit in :data:`DENSE_TABLES_MAX_BYTES`
         """
         algorithm = Algorithm(hp.algorithm)
         if not algorithm.is_tabular:
@@ -167,25 +162,20 @@ class TabularLearner(Learner, KnowledgeExchange, VisitExchange):
         self.row_seed = np.repeat(np.asarray(seeds, dtype=np.int64), num_agents)
         self.row_replica = np.repeat(np.arange(replicas), num_agents)
         self.row_agent = np.tile(np.arange(num_agents), replicas)
-        # Each replica's observations by id (its agents share the index), and how many it has.
-        self._ids: list[dict[bytes, int]] = [{} for _ in range(replicas)]
-        # In front of the dicts, for lookups of all rows at once: the known (replica, observation) pairs'
-        # hashes, sorted, and their ids. A hit is checked against the stored observation, so a hash
-        # collision only sends that observation to its dict.
-        self._hashes = np.zeros(0, dtype=np.uint64)
-        self._hashed_ids = np.zeros(0, dtype=np.int64)
-        self._new_hashes: list[tuple[int, int]] = []  # (hash, id) of the states added in this lookup
-        self.state_keys = np.zeros((replicas, _INITIAL_STATES, self.obs_dim), dtype=np.float32)
-        self.num_states = np.zeros(replicas, dtype=np.int64)
-        self._last_obs = np.zeros((rows, self.obs_dim), dtype=np.uint32)  # each row's last observation's bits
-        self._last_ids = np.full(rows, -1, dtype=np.int64)  # ... and its id (-1: none yet)
-        self.q = np.zeros((rows, _INITIAL_STATES, num_actions), dtype=np.float32)
+        dense = code is not None and rows * code.num_ids * table_bytes_per_state(num_actions) <= DENSE_TABLES_MAX_BYTES
+        self.index: StateIndex = (
+            DenseIndex(code, self.row_replica)
+            if code is not None and dense
+            else MetOrderIndex(replicas, self.obs_dim, self.row_replica)
+        )
+        states = self.index.capacity
+        self.q = np.zeros((rows, states, num_actions), dtype=np.float32)
         # Entry order: when the agent first updated it (-1: not in its table, the value is a start value).
-        self.entry_order = np.full((rows, _INITIAL_STATES), -1, dtype=np.int32)
+        self.entry_order = np.full((rows, states), -1, dtype=np.int32)
         self._entries = 0  # entries entered so far, all rows together (the next entry's order)
         # Visits: how many of its own transitions each agent has learned from in each state (what the
         # exchanges by visit counts weigh, agents/visit_exchange.py); team-mates' transitions do not count.
-        self.visits = np.zeros((rows, _INITIAL_STATES), dtype=np.int64)
+        self.visits = np.zeros((rows, states), dtype=np.int64)
         self.advice: AdviceRules | None = None  # None: no advice (transfer.exchange=advice sets it)
         self.advice_left = np.zeros(rows, dtype=np.int64)  # each agent's remaining advised steps
         self.fallbacks: list[list[_Fallback]] = [[] for _ in range(rows)]
@@ -211,84 +201,37 @@ class TabularLearner(Learner, KnowledgeExchange, VisitExchange):
     # ---------------------------------------------------------------------------------- tables
 
     def state_ids(self, obs: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        """The id of each row's observation ``obs [N, D]`` in its replica's index (``rows [N]``),
-        new observations getting the next ids (their entries start at the fallbacks' values, else 0).
-
-        A row's last observation and id are remembered: the loop asks for the same observation again
-        (act on s', then update on it), so only the rows whose observation changed are looked up."""
-        obs = np.ascontiguousarray(obs, dtype=np.float32)
+        """The id of each row's observation ``obs [N, D]`` in its replica's index (``rows [N]``, may
+        repeat). With the met-order index, new observations get the next ids, their entries starting at
+        the fallbacks' values (else 0), and the arrays grow to hold them."""
         rows = np.asarray(rows, dtype=np.int64)
-        bits = obs.view(np.uint32)  # compared bit for bit, as the index's keys are
-        same = (self._last_ids[rows] >= 0) & (bits == self._last_obs[rows]).all(axis=1)
-        ids = self._last_ids[rows]
-        changed = np.flatnonzero(~same)
-        if changed.size:
-            replicas = self.row_replica[rows[changed]]
-            hashes = observation_hashes(bits[changed], replicas)
-            found = self._known_ids(hashes, replicas, bits[changed])
-            for n in np.flatnonzero(found < 0).tolist():  # unseen, or a hash collision: the dict decides
-                r, key = int(replicas[n]), obs[changed[n]].tobytes()
-                known = self._ids[r].get(key)
-                found[n] = self._new_state(r, key, obs[changed[n]], int(hashes[n])) if known is None else known
-            self._index_new_hashes()
-            ids[changed] = found
-            # Remember each row's last looked-up observation (a row may come more than once).
-            last = len(changed) - 1 - np.unique(rows[changed][::-1], return_index=True)[1]
-            self._last_obs[rows[changed[last]]] = bits[changed[last]]
-            self._last_ids[rows[changed[last]]] = found[last]
+        ids, new_replicas, new_states = self.index.lookup(obs, rows)
+        if self.index.capacity > self.q.shape[1]:
+            self._grow(self.index.capacity)
+        for r in np.unique(new_replicas).tolist():
+            states = new_states[new_replicas == r]
+            for row in self._rows(r).tolist():
+                self.q[row, states] = self._start_values(row, self.index.observations(r, states))
         return ids
 
-    def _known_ids(self, hashes: np.ndarray, replicas: np.ndarray, bits: np.ndarray) -> np.ndarray:
-        """The ids the hash index gives (``-1``: no hit, or a hit on another observation)."""
-        at = np.minimum(np.searchsorted(self._hashes, hashes), max(len(self._hashes) - 1, 0))
-        hit = np.flatnonzero(self._hashes[at] == hashes) if len(self._hashes) else np.zeros(0, dtype=np.int64)
-        found = np.full(len(hashes), -1, dtype=np.int64)
-        candidates = self._hashed_ids[at[hit]]
-        stored = self.state_keys[replicas[hit], candidates].view(np.uint32)
-        found[hit] = np.where((stored == bits[hit]).all(axis=1), candidates, -1)
-        return found
-
-    def _new_state(self, r: int, key: bytes, obs: np.ndarray, hashed: int) -> int:
-        state = int(self.num_states[r])
-        if state == self.q.shape[1]:
-            self._grow()
-        self._ids[r][key] = state
-        self._new_hashes.append((hashed, state))
-        self.state_keys[r, state] = obs
-        self.num_states[r] += 1
-        for row in self._rows(r).tolist():
-            self.q[row, state] = self._start_values(row, obs)
-        return state
-
-    def _index_new_hashes(self) -> None:
-        """Add the states of this lookup to the hash index, one insertion for all. A hash already
-        there (a collision) keeps its first state; the other observation is found in its dict."""
-        if not self._new_hashes:
-            return
-        hashes = np.array([hashed for hashed, _ in self._new_hashes], dtype=np.uint64)
-        states = np.array([state for _, state in self._new_hashes], dtype=np.int64)
-        self._new_hashes.clear()
-        hashes, first = np.unique(hashes, return_index=True)
-        at = np.searchsorted(self._hashes, hashes)
-        fresh = self._hashes[np.minimum(at, len(self._hashes) - 1)] != hashes if len(self._hashes) else at >= 0
-        self._hashes = np.insert(self._hashes, at[fresh], hashes[fresh])
-        self._hashed_ids = np.insert(self._hashed_ids, at[fresh], states[first][fresh])
-
-    def _grow(self) -> None:
-        """Double every replica's room for states."""
-        self.q = np.concatenate([self.q, np.zeros_like(self.q)], axis=1)
-        self.entry_order = np.concatenate([self.entry_order, np.full_like(self.entry_order, -1)], axis=1)
-        self.visits = np.concatenate([self.visits, np.zeros_like(self.visits)], axis=1)
-        self.state_keys = np.concatenate([self.state_keys, np.zeros_like(self.state_keys)], axis=1)
+    def _grow(self, states: int) -> None:
+        """Room for ``states`` states in every row (the new ones at 0, in no table, unvisited)."""
+        more = states - self.q.shape[1]
+        self.q = np.concatenate([self.q, np.zeros((self.num_rows, more, self.num_actions), np.float32)], axis=1)
+        self.entry_order = np.concatenate([self.entry_order, np.full((self.num_rows, more), -1, np.int32)], axis=1)
+        self.visits = np.concatenate([self.visits, np.zeros((self.num_rows, more), np.int64)], axis=1)
 
     def _start_values(self, row: int, obs: np.ndarray) -> np.ndarray:
-        """What an entry of ``row`` holds before its agent updates it: the first fallback that knows
-        ``obs``, else 0."""
+        """What the entries of ``row`` for observations ``obs [N, D]`` hold before its agent updates
+        them: for each, the values of the first fallback that knows it, else 0."""
+        values = np.zeros((len(obs), self.num_actions), dtype=np.float32)
+        open_ = np.ones(len(obs), dtype=bool)  # no fallback has known it yet
         for fallback in self.fallbacks[row]:
-            values = fallback.get(obs)
-            if values is not None:
-                return values
-        return np.zeros(self.num_actions, dtype=np.float32)
+            found = fallback.rows_of(obs)
+            fill = open_ & (found >= 0)
+            values[fill] = fallback.values[found[fill]]
+            open_ &= ~fill
+        return values
 
     def q_values(self, obs: np.ndarray, replica: int | None = None) -> np.ndarray:
         """Each agent's Q-values of its own observation: ``obs [rows, D] -> [rows, A]``."""
@@ -320,10 +263,11 @@ class TabularLearner(Learner, KnowledgeExchange, VisitExchange):
             self._restart_entries(row)
 
     def _restart_entries(self, row: int) -> None:
-        """Set the entries of ``row`` that its agent has not updated to their start values."""
+        """Set the entries of ``row`` that its agent has not updated to their start values (with dense
+        tables: of every state of the game, from their observations decoded at once)."""
         r = int(self.row_replica[row])
-        for state in np.flatnonzero(self.entry_order[row, : self.num_states[r]] < 0).tolist():
-            self.q[row, state] = self._start_values(row, self.state_keys[r, state])
+        states = np.flatnonzero(self.entry_order[row, : self.index.count(r)] < 0)
+        self.q[row, states] = self._start_values(row, self.index.observations(r, states))
 
     def _enter(self, rows: np.ndarray, states: np.ndarray) -> None:
         """Count ``(rows[n], states[n])`` as in their agents' tables, in this order, if not yet."""
@@ -424,21 +368,26 @@ class TabularLearner(Learner, KnowledgeExchange, VisitExchange):
         states, next_states = self.state_ids(obs, rows), self.state_ids(next_obs, rows)
         self.visits[rows, states] += 1  # after the lookups, which may grow the arrays
         self.next_action[rows] = _NO_ACTION
-        q_next = self.q[rows, next_states]
         if self.algorithm == Algorithm.qlearning.value:
-            bootstrap = q_next.max(axis=1)
+            next_action = np.full(len(rows), -1, dtype=np.int64)  # bootstrap on the max
         else:
             keep = cache & ~terminated
-            next_action = self._advise(
-                rows, next_states, epsilon_greedy_rows(q_next, self.epsilon[rows], draws), asking=keep
-            )
-            bootstrap = q_next[np.arange(len(rows)), next_action]
+            chosen = epsilon_greedy_rows(self.q[rows, next_states], self.epsilon[rows], draws)
+            next_action = self._advise(rows, next_states, chosen, asking=keep)
             self.next_action[rows[keep]] = next_action[keep]
             self.next_state[rows[keep]] = next_states[keep]
-        q_sa = self.q[rows, states, actions]
-        target = np.where(terminated, rewards, rewards + np.float32(self.gamma) * bootstrap).astype(np.float32)
-        td_error = target - q_sa
-        self.q[rows, states, actions] = q_sa + np.float32(self.lr) * td_error
+        q_sa, td_error = update_rows(
+            self.q,
+            rows,
+            states,
+            np.asarray(actions, dtype=np.int64),
+            rewards,
+            next_states,
+            terminated,
+            next_action,
+            np.float32(self.gamma),
+            np.float32(self.lr),
+        )
         self._enter(rows, states)
         return q_sa, huber(td_error.astype(np.float64))  # DQN's loss, so td_loss curves compare
 
@@ -450,7 +399,7 @@ class TabularLearner(Learner, KnowledgeExchange, VisitExchange):
         fallback's, or 0)."""
         rows = self._rows(replica)
         best_row = int(rows[best])
-        count = int(self.num_states[replica])
+        count = self.index.count(replica)
         best_order = self.entry_order[best_row, :count]
         for row in rows.tolist():
             if row == best_row:
@@ -468,9 +417,9 @@ class TabularLearner(Learner, KnowledgeExchange, VisitExchange):
         One that does not terminate bootstraps like any non-terminal step but caches no next action: the
         cache belongs to the agent's own next step (each update clears it, as its own updates do).
 
-        :meth:`_learn` once per transition, computed with scalars: the ids, draws and entry order
-        are found for all transitions at once (none depends on the values), then the values are updated
-        one after another, each update reading the ones before (tests check it against :meth:`_learn`)."""
+        :meth:`_learn` once per transition, in one compiled loop: the ids, draws and entry order are
+        found for all transitions at once (none depends on the values), then the values are updated one
+        after another, each update reading the ones before (tests check it against :meth:`_learn`)."""
         count = len(experience.obs)
         if count == 0:
             return
@@ -482,27 +431,20 @@ class TabularLearner(Learner, KnowledgeExchange, VisitExchange):
         draws = uniforms(np.full(count, self.stream_keys["learn_from"][i]), counters, DRAWS_PER_AGENT_STEP)
         self.counters["learn_from"][replica] += count
         self.next_action[i] = _NO_ACTION
-        q = self.q[i]  # a view: the updates below land in the table
-        num_actions = self.num_actions
-        gamma, lr, epsilon = np.float32(self.gamma), np.float32(self.lr), float(self.epsilon[i])
-        sarsa = self.algorithm == Algorithm.sarsa.value
-        rewards = np.asarray(experience.rewards, dtype=np.float32)
-        terminated = np.asarray(experience.terminated, dtype=bool).tolist()
-        actions = np.asarray(experience.actions).tolist()
-        for n, ((state, next_state), draw) in enumerate(zip(ids.tolist(), draws.tolist())):
-            q_next = q[next_state]
-            if sarsa:  # epsilon_greedy_rows for one row
-                if draw[0] < epsilon:
-                    next_action = math.floor(draw[1] * num_actions)
-                else:
-                    best = np.flatnonzero(q_next == q_next.max())
-                    next_action = int(best[math.floor(draw[2] * len(best))])
-                bootstrap = q_next[next_action]
-            else:
-                bootstrap = q_next.max()
-            q_sa = q[state, actions[n]]
-            target = rewards[n] if terminated[n] else rewards[n] + gamma * bootstrap
-            q[state, actions[n]] = q_sa + lr * (target - q_sa)
+        update_in_order(
+            self.q,
+            i,
+            np.ascontiguousarray(ids[:, 0]),
+            np.asarray(experience.actions, dtype=np.int64),
+            np.asarray(experience.rewards, dtype=np.float32),
+            np.ascontiguousarray(ids[:, 1]),
+            np.asarray(experience.terminated, dtype=bool),
+            draws,
+            float(self.epsilon[i]),
+            self.algorithm == Algorithm.sarsa.value,
+            np.float32(self.gamma),
+            np.float32(self.lr),
+        )
         first = np.sort(np.unique(ids[:, 0], return_index=True)[1])  # each state where first updated
         self._enter(np.full(len(first), i), ids[first, 0])
 
@@ -511,7 +453,7 @@ class TabularLearner(Learner, KnowledgeExchange, VisitExchange):
         A merged entry new to an agent enters its table grouped by the team-mate it came from (the lowest
         index first), each group in that team-mate's order: an order a resumed run rebuilds exactly."""
         rows = self._rows(replica)
-        count = int(self.num_states[replica])
+        count = self.index.count(replica)
         values, merged, source = confident_merge(self.q[rows, :count], self.visits[rows, :count], weight)
         self.q[rows, :count] = values
         for agent, row in enumerate(rows.tolist()):
@@ -546,10 +488,10 @@ class TabularLearner(Learner, KnowledgeExchange, VisitExchange):
         it first did, plus the fallbacks in lookup order (``fallback_keys``, ``fallback_values``,
         ``fallback_projection`` int64, then ``fallback1_*``...)."""
         r = int(self.row_replica[i])
-        order = self.entry_order[i, : self.num_states[r]]
+        order = self.entry_order[i, : self.index.count(r)]
         states = np.flatnonzero(order >= 0)
         states = states[np.argsort(order[states], kind="stable")]
-        tensors = {"keys": self.state_keys[r, states].copy(), "values": self.q[i, states].copy()}
+        tensors = {"keys": self.index.observations(r, states).copy(), "values": self.q[i, states].copy()}
         for level, fallback in enumerate(self.fallbacks[i]):
             arrays: tuple[np.ndarray, ...] = (fallback.keys, fallback.values, fallback.projection)
             for name, array in zip(fallback_names(level), arrays):
@@ -585,16 +527,18 @@ class TabularLearner(Learner, KnowledgeExchange, VisitExchange):
         rows = self._rows(replica)
         cached = self.next_action[rows] != _NO_ACTION
         next_obs = np.zeros((len(rows), self.obs_dim), dtype=np.float32)
-        next_obs[cached] = self.state_keys[replica, self.next_state[rows[cached]]]
-        visited = np.flatnonzero(self.visits[rows, : self.num_states[replica]].any(axis=0))
+        next_obs[cached] = self.index.observations(replica, self.next_state[rows[cached]])
+        visited = np.flatnonzero(self.visits[rows, : self.index.count(replica)].any(axis=0))
         # In the observations' lexicographic order: ids depend on the order of lookups (an evaluation
-        # picture looks up states early; a resume enters them anew), the checkpoint must not.
-        keys = self.state_keys[replica, visited]
-        visited = visited[np.lexsort(keys.T[::-1])]
+        # picture looks up states early; a resume enters them anew) or on the game's code, the checkpoint
+        # must not.
+        keys = self.index.observations(replica, visited)
+        order = np.lexsort(keys.T[::-1])
+        visited = visited[order]
         arrays = {
             "next_action": self.next_action[rows].copy(),
             "next_action_obs": next_obs,
-            "visit_keys": self.state_keys[replica, visited].copy(),
+            "visit_keys": keys[order],
             "visits": self.visits[rows[:, None], visited],
             "advice_left": self.advice_left[rows].copy(),
         }

@@ -14,11 +14,12 @@ Per run, with R replicas (``replicas.seeds * replicas.maps``), A agents, observa
   ``np.zeros``, committed as it fills, so a run that stops filling it never pays for the rest;
 * DQN networks: R * (1 with share_parameters, else A) members of P parameters (layers D, hidden..., 4),
   5 float32 copies each (online, target, gradient, Adam's two moments);
-* tabular: per replica an index of S observations, S at most ``min(2 A (total_steps + 1), states)``
-  (each agent meets at most one new observation per step, greedy evaluations as many again; states =
-  cells * 2^k chest flags, * (k + 1) assignments in deliberative mode), held in arrays of up to 2 S
-  rows (they grow by doubling): A Q-rows of 4 float32 and an int32 entry order each, the key (D
-  float32), and ~150 bytes of the index's dict entry;
+* tabular: states = cells * 2^k chest flags, * (k + 1) assignments in deliberative mode. Dense tables
+  when they fit in ``DENSE_TABLES_MAX_BYTES`` (256 MB): every state's row for each of the R * A agents,
+  4 float32 Q-values, an int32 entry order and an int64 visit count. Else per replica an index of S
+  observations, S at most ``min(2 A (total_steps + 1), states)`` (each agent meets at most one new
+  observation per step, greedy evaluations as many again), held in arrays of up to 2 S rows (they grow
+  by doubling): A rows of the same per state, the key (D float32), and ~150 bytes of the index's dict entry;
 * the map: per replica two games (training, evaluation) of ``cells * (16 + 12 (2r + 1)^2)`` bytes, and
   with transfer the source's and the target's one-hot position tables (2 * cells^2 float32).
 """
@@ -28,6 +29,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
+from dqn_transfer.agents.tabular import DENSE_TABLES_MAX_BYTES, table_bytes_per_state
 from dqn_transfer.config import ConfigError, TrainConfig
 from dqn_transfer.enums import Algorithm, Exchange, Mode, ObsEncoding
 
@@ -95,8 +97,12 @@ def estimate(config: TrainConfig, size: int, num_agents: int, num_treasures: int
             * 2 ** min(num_treasures, 40)
             * (num_treasures + 1 if Mode(config.env.mode) is Mode.deliberative else 1)
         )
+        per_row = table_bytes_per_state(NUM_ACTIONS)
+        dense = replicas * num_agents * states * per_row
+        if dense <= DENSE_TABLES_MAX_BYTES:
+            return Estimate(tables=dense, maps=maps)
         seen = min(2 * num_agents * (steps + 1), states)
-        per_state = num_agents * (NUM_ACTIONS + 1) * FLOAT + FLOAT * width + INDEX_ENTRY_OVERHEAD
+        per_state = num_agents * per_row + FLOAT * width + INDEX_ENTRY_OVERHEAD
         return Estimate(tables=replicas * 2 * seen * per_state, maps=maps)
     shared = Exchange(config.transfer.exchange) is Exchange.shared_replay
     filled = min(agent.buffer_size, steps * (num_agents if shared else 1))

@@ -102,12 +102,16 @@ def load_checkpoint(rep: Replica, algorithm: Algorithm) -> None:
             f"{rep.run_dir.checkpoints}: the run was trained on another map:\n"
             f"{meta.get('layout')}\nthis config gives\n{rep.game.identity()}"
         )
-    for i in range(rep.game.num_agents):
-        prefix = f"agent_{i}/"
-        rep.learner.load_agent_tensors(i, {k[len(prefix) :]: v for k, v in arrays.items() if k.startswith(prefix)})
-    rep.learner.load_training_state(
-        {k[len("learner/") :]: v for k, v in arrays.items() if k.startswith("learner/")}, meta["learner"]
-    )
+    try:  # tensors the learner cannot take (a shape, a table key that is no observation of this game)
+        for i in range(rep.game.num_agents):
+            prefix = f"agent_{i}/"
+            agent = {k[len(prefix) :]: v for k, v in arrays.items() if k.startswith(prefix)}
+            rep.learner.load_agent_tensors(i, agent)
+        rep.learner.load_training_state(
+            {k[len("learner/") :]: v for k, v in arrays.items() if k.startswith("learner/")}, meta["learner"]
+        )
+    except ValueError as err:
+        raise CheckpointError(f"{rep.run_dir.training_state}: {err}") from None
     rep.counters = Counters(**meta["counters"])
     rep.window_returns = list(arrays.get("exchange/returns", []))
     if "exchange/obs" in arrays:

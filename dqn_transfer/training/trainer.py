@@ -41,6 +41,7 @@ from dqn_transfer.agents import ExperienceSharing, Learner, Transition, UpdateSt
 from dqn_transfer.config import ConfigError, plain_yaml, to_plain
 from dqn_transfer.enums import Algorithm, Exchange, Logger
 from dqn_transfer.envs.game_batch import GameBatch, game_batch
+from dqn_transfer.envs.observation_code import observation_code
 from dqn_transfer.evaluation.batched_rollout import evaluate_replicas
 from dqn_transfer.evaluation.rollout import EvaluationStopped
 from dqn_transfer.storage.checkpoint import CheckpointError, atomic_write, atomic_write_all
@@ -106,6 +107,7 @@ class Trainer:
             seeds=[r.config.seed for r in plan.replicas],
             device=config.device,
             threads=config.threads,
+            code=observation_code(games),
         )
         check_capabilities(config, self.learner, warm_start=config.transfer.enabled and not self.source_task)
         if config.transfer.exchange is Exchange.advice:  # full budgets; a resumed run then loads what was left
