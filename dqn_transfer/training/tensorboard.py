@@ -108,7 +108,9 @@ class EventFile:
     episode end's event) on a writer thread that every event wakes (one per replica). Here the records
     go into the file's buffer, which goes to the operating system when it fills and at each
     :meth:`flush` (the run's log interval, its checkpoints, its end), and reaches the disk at a
-    durable flush (checkpoints, the end).
+    durable flush (checkpoints, the end). Still one event per episode once they are batched: swapped for
+    TensorBoard's or tensorboardX's writer, a 100-replica SARSA run took 1.56x or 1.77x the CPU time
+    (docs/integrations.md).
     """
 
     def __init__(self, logdir: Path) -> None:
