@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import signal
 import struct
 from pathlib import Path
@@ -26,7 +27,7 @@ from dqn_transfer.enums import Algorithm, Logger
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.storage.checkpoint import load_training_state
 from dqn_transfer.storage.run_dir import RunDir
-from dqn_transfer.training.loggers import import_wandb
+from dqn_transfer.training.loggers import PendingRows, RunLoggers, import_wandb
 from dqn_transfer.training.plan import plan_run
 from dqn_transfer.training.trainer import Trainer, train
 
@@ -138,6 +139,115 @@ def test_resumed_run_continues_the_csv_without_duplicates(tmp_path, monkeypatch)
     # the same points as the uninterrupted run (but for the speed)
     not_speed = lambda points: [p for p in points if p[1] != "train/sps"]  # noqa: E731
     assert sorted(not_speed(rows)) == sorted(not_speed(csv_points(RunDir(tmp_path / "reference"))))
+
+
+@pytest.mark.filterwarnings("ignore:a layout fixes the map")
+def test_what_a_checkpoint_covers_is_on_the_disk_before_the_checkpoint(tmp_path, monkeypatch):
+    """The episodes' points wait in memory between log intervals; at each checkpoint (steps 200, 400
+    and the end, 600), before its resume state replaces the last one, the CSV and the event file hold
+    every point up to its step and are fsync'ed: a run killed (or a machine that crashed) right after
+    the checkpoint resumes with no gap in its logs."""
+    run = RunDir(tmp_path / "run")
+    fsync, replace = os.fsync, os.replace
+    synced: set[int] = set()  # the inodes fsync'ed since the last resume state
+    at_checkpoints: list[tuple[set[int], list, list]] = []
+
+    def recorded_fsync(fd: int) -> None:
+        synced.add(os.fstat(fd).st_ino)
+        fsync(fd)
+
+    def recorded_replace(source, target) -> None:
+        if Path(target) == run.training_state:
+            at_checkpoints.append((set(synced), csv_points(run), tensorboard_points(run)))
+            synced.clear()
+        replace(source, target)
+
+    monkeypatch.setattr(os, "fsync", recorded_fsync)
+    monkeypatch.setattr(os, "replace", recorded_replace)
+    train(plan_run(config(["tensorboard", "csv"])), run.path)
+    monkeypatch.undo()
+
+    logs = {run.scalars_csv.stat().st_ino, next(run.tensorboard.iterdir()).stat().st_ino}
+    rows, points = csv_points(run), tensorboard_points(run)
+    assert len(at_checkpoints) == 3
+    for step, (synced_then, rows_then, points_then) in zip((200, 400, 600), at_checkpoints):
+        assert logs <= synced_then, step
+        assert rows_then == [row for row in rows if row[0] <= step]
+        assert sorted(points_then) == sorted(point for point in points if point[0] <= step)
+    assert any(tag == "team/return" and step > 400 for step, tag, _ in rows)  # episodes ended after 400 too
+
+
+class CallsInOrder:
+    """A backend that records what it is handed, in order: ``(call, steps)``."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[str, list[int]]] = []
+
+    def scalars(self, points, step):
+        self.calls.append(("scalars", [step]))
+
+    def scalar_rows(self, tags, steps, values, wall_times):
+        self.calls.append(("rows", steps.tolist()))
+        self.rows = dict(zip(steps.tolist(), values.tolist()))
+
+    def evaluation_views(self, picture, q_values, step):
+        self.calls.append(("views", [step]))
+
+    def text(self, tag, text, step=0):
+        self.calls.append(("text", [step]))
+
+    def flush(self, durable=False):
+        self.calls.append(("flush", [durable]))
+
+    def close(self):
+        self.calls.append(("close", []))
+
+
+def test_episodes_reach_the_backends_in_one_batch_and_before_any_later_point(tmp_path):
+    """Episodes' points wait until a flush or another point comes: then they go first, in one batch, so
+    every backend sees the steps in order (W&B drops a point at a step it has passed)."""
+    game = plan_run(config(["csv"], env=EnvConfig(num_agents=2))).replicas[0].new_game()
+    loggers = RunLoggers([], RunDir(tmp_path), "group", game, {}, resume=False)
+    backend = CallsInOrder()
+    loggers.backends.append(backend)
+    assert loggers.episode_tags == [
+        "agent_0/episodic_return",
+        "agent_1/episodic_return",
+        "agent_0/episodic_length",
+        "agent_1/episodic_length",
+        "team/return",
+        "team/treasures_collected",
+        "team/trap_rate",
+    ]
+    for step in (3, 5, 8):
+        loggers.episode(step, np.arange(7.0) + step)
+    assert backend.calls == []
+    loggers.scalar("team/exchange_best_agent", 1, 8)
+    loggers.episode(11, np.arange(7.0))
+    loggers.flush()
+    loggers.flush(durable=True)
+    loggers.episode(12, np.arange(7.0))
+    loggers.close()
+    assert backend.calls == [
+        ("rows", [3, 5, 8]),
+        ("scalars", [8]),
+        ("rows", [11]),
+        ("flush", [False]),
+        ("flush", [True]),
+        ("rows", [12]),
+        ("close", []),
+    ]
+
+
+def test_pending_rows_grow_and_keep_every_row(tmp_path):
+    pending = PendingRows(2)
+    for step in range(150):  # beyond the first arrays' room
+        pending.add(step, np.array([step, -step]))
+    steps, wall_times, values = pending.take()
+    assert steps.tolist() == list(range(150))
+    assert values.tolist() == [[step, -step] for step in range(150)]
+    assert np.all(np.diff(wall_times) >= 0)
+    assert pending.take()[0].size == 0
 
 
 # ------------------------------------------------------------------------ Weights & Biases, offline

@@ -35,6 +35,7 @@ from tensorboard.summary.writer.record_writer import RecordWriter
 from dqn_transfer.config import AgentConfig, TrainConfig, TransferConfig
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.storage.run_dir import RunDir
+from dqn_transfer.training.loggers import RunLoggers
 from dqn_transfer.training.plan import plan_run
 from dqn_transfer.training.tensorboard import EventFile, RunLogger, event_record
 from dqn_transfer.training.trainer import train
@@ -175,13 +176,22 @@ def scalar_points(run_dir) -> dict[str, list[tuple[int, float]]]:
     return {tag: [(s.step, s.value) for s in accumulator.Scalars(tag)] for tag in accumulator.Tags()["scalars"]}
 
 
-def test_scalars_written_together_read_back_as_one_event_each(tmp_path, monkeypatch):
-    """A step's scalars go out as one event (a summary with a value per tag): TensorBoard reads the same
-    tags, steps and values as when each was an event of its own, as they used to be."""
+def test_points_written_together_read_back_as_one_event_each_written_at_once(tmp_path, monkeypatch):
+    """A step's scalars go out as one event (a summary with a value per tag), and the episodes' ends wait
+    in arrays for the log interval, then go out in one batch per replica: TensorBoard reads the same
+    tags, steps and values, and the CSV the same rows in the same order, as when every episode was
+    logged the moment it ended and each point was an event of its own, as they used to be."""
     env = EnvConfig(size=4, num_treasures=1, num_traps=1, num_agents=2, max_steps=15)
     agent = AgentConfig(algorithm="dqn", hidden=[8], learning_starts=50, batch_size=8)
     config = TrainConfig(
-        env=env, agent=agent, total_steps=400, eval_every=200, eval_episodes=2, progress=False, eval_pictures=False
+        env=env,
+        agent=agent,
+        total_steps=400,
+        eval_every=200,
+        eval_episodes=2,
+        progress=False,
+        eval_pictures=False,
+        logger=["tensorboard", "csv"],
     )
     train(plan_run(config), tmp_path / "together")
 
@@ -190,7 +200,11 @@ def test_scalars_written_together_read_back_as_one_event_each(tmp_path, monkeypa
             if value is not None and not math.isnan(float(value)):
                 self._add(Summary(value=[Summary.Value(tag=tag, simple_value=float(value))]), step)
 
+    def logged_at_once(self, step, values):
+        self.scalars(zip(self.episode_tags, values.tolist()), step)
+
     monkeypatch.setattr(RunLogger, "scalars", one_event_each)
+    monkeypatch.setattr(RunLoggers, "episode", logged_at_once)
     train(plan_run(config), tmp_path / "apart")
     together, apart = scalar_points(tmp_path / "together"), scalar_points(tmp_path / "apart")
     for tag in (
@@ -207,8 +221,14 @@ def test_scalars_written_together_read_back_as_one_event_each(tmp_path, monkeypa
         "eval/trap_rate",
     ):
         assert together[tag], tag
+    assert len(together["team/return"]) > 20  # episodes enough to batch
     assert [step for step, _ in together.pop("train/sps")] == [step for step, _ in apart.pop("train/sps")]
     assert together == apart  # train/sps aside, which measures the clock
+    without_speed = [
+        [row for row in (tmp_path / name / "scalars.csv").read_text().splitlines() if ",train/sps," not in row]
+        for name in ("together", "apart")
+    ]
+    assert without_speed[0] == without_speed[1]
 
 
 def test_event_files_are_framed_as_tensorboards_own_writer_frames_them(tmp_path):

@@ -363,12 +363,22 @@ def test_resumed_run_equals_the_uninterrupted_run(resumed):
 
 
 def test_resumed_tensorboard_has_no_duplicate_points(resumed):
+    """Evaluations and episodes alike: the episodes' points wait in memory between log intervals, so
+    the kill lost those after the last write; the resumed run logs again what its checkpoint did not
+    cover, and its curves are the uninterrupted run's, with no gap and nothing twice."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-    acc = EventAccumulator(str(resumed["result"].run_dir / "tb"), size_guidance={"scalars": 0})
-    acc.Reload()
-    steps = [e.step for e in acc.Scalars("eval/team_return")]
-    assert steps == list(range(0, 1501, 125))
+    def points(run_dir: Path, tag: str) -> list[tuple[int, float]]:
+        acc = EventAccumulator(str(run_dir / "tb"), size_guidance={"scalars": 0})
+        acc.Reload()
+        return [(e.step, e.value) for e in acc.Scalars(tag)]
+
+    resumed_dir = resumed["result"].run_dir
+    assert [step for step, _ in points(resumed_dir, "eval/team_return")] == list(range(0, 1501, 125))
+    for tag in ("team/return", "agent_1/episodic_length", "team/treasures_collected"):
+        episodes = points(resumed_dir, tag)
+        assert any(step > resumed["checkpointed"] for step, _ in episodes), tag
+        assert episodes == points(resumed["reference_dir"], tag), tag
 
 
 def test_resuming_a_finished_run_adds_no_evaluation(runs, tmp_path):

@@ -1,7 +1,10 @@
 """Where a run's scalars, evaluation pictures and config go: the backends ``logger`` names.
 
 :class:`RunLoggers` is what a replica logs to: it drops the points without a value (NaN, None: no
-update yet) once and hands the rest to each backend of the run's ``logger`` list:
+update yet) once and hands the rest to each backend of the run's ``logger`` list. The points of the
+training episodes' ends, the most frequent by far, wait in arrays (:class:`PendingRows`) and go to
+the backends in one batch at the next :meth:`RunLoggers.flush` (the loop's log interval, its
+checkpoints, its end) or before any other point, so every backend gets the points in step order:
 
 * ``tensorboard`` (the default): :class:`~dqn_transfer.training.tensorboard.RunLogger`, ``tb/``;
 * ``csv``: :class:`CsvLogger`, ``scalars.csv`` with one row ``step,tag,value`` per scalar point;
@@ -11,8 +14,8 @@ update yet) once and hands the rest to each backend of the run's ``logger`` list
   that group. ``WANDB_MODE=offline`` writes only the local run directory (``wandb/`` in the run
   directory; ``wandb sync`` uploads it later). W&B prints nothing on the console.
 
-A backend's interface (:class:`Backend`) is four calls: several scalars of one step, an evaluation's
-views, a text, and close; the config is given when it is made.
+A backend's interface (:class:`Backend`) is six calls: several scalars of one step, rows of scalars
+of several steps, an evaluation's views, a text, flush and close; the config is given when it is made.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import io
 import math
 import os
 import secrets
+import time
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Protocol
@@ -33,7 +37,7 @@ from dqn_transfer.enums import Logger
 from dqn_transfer.envs import Game
 from dqn_transfer.storage.checkpoint import atomic_write
 from dqn_transfer.storage.run_dir import RunDir
-from dqn_transfer.training.tensorboard import RunLogger
+from dqn_transfer.training.tensorboard import RunLogger, episode_tags
 
 CSV_HEADER = ("step", "tag", "value")
 WANDB_PROJECT = "dqn_transfer"  # unless WANDB_PROJECT says otherwise
@@ -42,11 +46,45 @@ WANDB_PROJECT = "dqn_transfer"  # unless WANDB_PROJECT says otherwise
 class Backend(Protocol):
     def scalars(self, points: Sequence[tuple[str, float]], step: int) -> None: ...
 
+    def scalar_rows(self, tags: Sequence[str], steps: np.ndarray, values: np.ndarray, wall_times: np.ndarray) -> None:
+        """Row i of ``values`` (every value a number), the points of ``tags`` at ``steps[i]``, logged at
+        ``wall_times[i]``."""
+
     def evaluation_views(self, picture: np.ndarray, q_values: Sequence[np.ndarray], step: int) -> None: ...
 
     def text(self, tag: str, text: str, step: int = 0) -> None: ...
 
+    def flush(self, durable: bool = False) -> None:
+        """Hand what is buffered to the operating system, and with ``durable`` wait until it is on the disk."""
+
     def close(self) -> None: ...
+
+
+class PendingRows:
+    """Rows of values of fixed tags, a step each, kept in growing arrays until they are written.
+
+    :param width: the values of a row (its tags).
+    """
+
+    def __init__(self, width: int) -> None:
+        self.steps = np.zeros(64, dtype=np.int64)
+        self.wall_times = np.zeros(64)
+        self.values = np.zeros((64, width))
+        self.count = 0
+
+    def add(self, step: int, values: np.ndarray) -> None:
+        if self.count == len(self.steps):  # full: twice the room
+            self.steps, self.wall_times, self.values = (
+                np.concatenate([column, np.zeros_like(column)]) for column in (self.steps, self.wall_times, self.values)
+            )
+        self.steps[self.count], self.wall_times[self.count], self.values[self.count] = step, time.time(), values
+        self.count += 1
+
+    def take(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The rows' steps, wall times and values, oldest first, which are no longer pending (views of
+        the arrays, valid until the next :meth:`add`)."""
+        count, self.count = self.count, 0
+        return self.steps[:count], self.wall_times[:count], self.values[:count]
 
 
 class CsvLogger:
@@ -54,9 +92,9 @@ class CsvLogger:
 
     Long rather than wide: which tags a step has varies (evaluations, episode ends, training points),
     so a row per point needs no header that grows with new tags, appends as the run goes, and reads
-    as TensorBoard's own (tag, step, value) points. Each call's rows are flushed at once, so a killed
-    run keeps what it logged; a resumed run (``purge_step``) first drops the rows from that step on,
-    which it logs again, as TensorBoard hides the same events.
+    as TensorBoard's own (tag, step, value) points. The rows go to the operating system at each
+    :meth:`flush`, so a killed run keeps what it flushed; a resumed run (``purge_step``) first drops the
+    rows from that step on, which it logs again, as TensorBoard hides the same events.
     """
 
     def __init__(self, path: Path, purge_step: int | None = None):
@@ -89,13 +127,24 @@ class CsvLogger:
 
     def scalars(self, points: Sequence[tuple[str, float]], step: int) -> None:
         self.writer.writerows((step, tag, repr(float(value))) for tag, value in points)
-        self.file.flush()
+
+    def scalar_rows(self, tags: Sequence[str], steps: np.ndarray, values: np.ndarray, wall_times: np.ndarray) -> None:
+        self.writer.writerows(
+            (step, tag, repr(value))
+            for step, row in zip(steps.tolist(), values.tolist())
+            for tag, value in zip(tags, row)
+        )
 
     def evaluation_views(self, picture: np.ndarray, q_values: Sequence[np.ndarray], step: int) -> None:
         pass  # scalars only
 
     def text(self, tag: str, text: str, step: int = 0) -> None:
         pass
+
+    def flush(self, durable: bool = False) -> None:
+        self.file.flush()
+        if durable:
+            os.fsync(self.file.fileno())
 
     def close(self) -> None:
         self.file.close()
@@ -163,6 +212,10 @@ class WandbLogger:
     def scalars(self, points: Sequence[tuple[str, float]], step: int) -> None:
         self.run.log(dict(points), step=step)
 
+    def scalar_rows(self, tags: Sequence[str], steps: np.ndarray, values: np.ndarray, wall_times: np.ndarray) -> None:
+        for step, row in zip(steps.tolist(), values.tolist()):
+            self.run.log(dict(zip(tags, row)), step=step)
+
     def evaluation_views(self, picture: np.ndarray, q_values: Sequence[np.ndarray], step: int) -> None:
         views: dict[str, Any] = {"eval/episode": self.wandb.Image(picture)}
         views.update(
@@ -172,6 +225,9 @@ class WandbLogger:
 
     def text(self, tag: str, text: str, step: int = 0) -> None:
         self.run.log({tag: self.wandb.Html(f"<pre>{html.escape(text)}</pre>")}, step=step)
+
+    def flush(self, durable: bool = False) -> None:
+        pass  # W&B's own process writes and uploads what run.log handed it
 
     def close(self) -> None:
         self.run.finish()
@@ -200,6 +256,8 @@ class RunLoggers:
         purge_step: int | None = None,
     ):
         self.backends: list[Backend] = []
+        self.episode_tags = episode_tags(game.num_agents, game.episode_metrics)
+        self.episodes = PendingRows(len(self.episode_tags))
         try:
             for name in dict.fromkeys(Logger(n) for n in names):  # each once, in the given order
                 if name is Logger.tensorboard:
@@ -220,11 +278,25 @@ class RunLoggers:
             self.close()
             raise
 
+    def episode(self, step: int, values: np.ndarray) -> None:
+        """A training episode that ended at ``step``: its ``values``, in the order of :attr:`episode_tags`
+        (:func:`~dqn_transfer.training.tensorboard.episode_tags`), wait for the next write."""
+        self.episodes.add(step, values)
+
+    def _write_episodes(self) -> None:
+        """The pending episodes' points to every backend, in one batch: before any later point (W&B
+        drops a point at a step it has passed) and at each flush."""
+        if self.episodes.count:
+            steps, wall_times, values = self.episodes.take()
+            for backend in self.backends:
+                backend.scalar_rows(self.episode_tags, steps, values, wall_times)
+
     def scalars(self, values: Iterable[tuple[str, float | None]], step: int) -> None:
         """Several ``(tag, value)`` points of one step; NaNs and Nones (no update yet) are skipped,
         and nothing is logged if none is left."""
         points = [(tag, float(value)) for tag, value in values if value is not None and not math.isnan(float(value))]
         if points:
+            self._write_episodes()
             for backend in self.backends:
                 backend.scalars(points, step)
 
@@ -233,17 +305,25 @@ class RunLoggers:
 
     agent_values = staticmethod(RunLogger.agent_values)
 
-    def agent_scalars(self, name: str, values: Iterable[float], step: int) -> None:
-        self.scalars(self.agent_values(name, values), step)
-
     def evaluation_views(self, picture: np.ndarray, q_values: Sequence[np.ndarray], step: int) -> None:
+        self._write_episodes()
         for backend in self.backends:
             backend.evaluation_views(picture, q_values, step)
 
     def text(self, tag: str, text: str, step: int = 0) -> None:
+        self._write_episodes()
         for backend in self.backends:
             backend.text(tag, text, step)
 
+    def flush(self, durable: bool = False) -> None:
+        """Write the pending episodes and hand everything to the operating system, so a killed run keeps
+        it; ``durable`` (at a checkpoint, before its files) also waits until it is on the disk, so what
+        a checkpoint covers survives a crash of the machine too."""
+        self._write_episodes()
+        for backend in self.backends:
+            backend.flush(durable)
+
     def close(self) -> None:
+        self._write_episodes()
         for backend in self.backends:
             backend.close()

@@ -63,10 +63,17 @@ class EpsilonSchedule(NamedTuple):
 
 class EpisodeSums:
     """Running sums of R replicas' episodes in progress (row r: replica r), as the loop adds each joint
-    step of all of them, and each replica's recent team returns (the progress bar's)."""
+    step of all of them, and each replica's recent team returns (the progress bar's).
 
-    def __init__(self, replicas: int, agents: int, reward_mode: RewardMode) -> None:
+    :param replicas: R.
+    :param agents: the team's size.
+    :param reward_mode: the game's, which says what the team's return is.
+    :param team_metrics: what an episode's end logs besides the team's return (the game's ``episode_metrics``).
+    """
+
+    def __init__(self, replicas: int, agents: int, reward_mode: RewardMode, team_metrics: Sequence[str]) -> None:
         self.reward_mode = RewardMode(reward_mode)
+        self.team_metrics = tuple(team_metrics)
         self.returns = np.zeros((replicas, agents))
         self.lengths = np.zeros((replicas, agents), dtype=np.int64)
         self.traps = np.zeros(replicas, dtype=np.int64)
@@ -79,6 +86,15 @@ class EpisodeSums:
         self.lengths += live
         self.traps += traps.sum(axis=1)
         self.team_return += team_returns_of(rewards, live, self.reward_mode)
+
+    def ended_values(self, ended: np.ndarray, treasures: np.ndarray) -> np.ndarray:
+        """The logged values of the episodes of replicas ``ended`` (indices), which just ended with
+        ``treasures [R]`` chests emptied: a row each, in the order of
+        :func:`~dqn_transfer.training.tensorboard.episode_tags`."""
+        team = {"treasures_collected": treasures[ended], "trap_rate": self.traps[ended] / self.returns.shape[1]}
+        return np.column_stack(
+            [self.returns[ended], self.lengths[ended], self.team_return[ended], *(team[k] for k in self.team_metrics)]
+        )
 
 
 class EpisodeStats:
@@ -245,27 +261,16 @@ class Replica:
         else:
             self.game.reset(self.env_rng)
 
-    def end_episode(self, treasures: int) -> None:
-        """The episode just ended (its team emptied ``treasures`` chests): log it and exchange knowledge
-        when due. The loop then starts the next one."""
+    def end_episode(self, values: np.ndarray) -> None:
+        """The episode just ended: log its ``values`` (:meth:`EpisodeSums.ended_values`' row) and exchange
+        knowledge when due. The loop then starts the next one."""
         counters, transfer = self.counters, self.config.transfer
         counters.episodes += 1
-        self._log_episode(treasures)
+        self.logger.episode(counters.step, values)
         self.window_returns.append(self.episode.returns.copy())
         self.episode.reset()
         if transfer.exchange in EXCHANGES_AT_EPISODE_ENDS and counters.episodes % transfer.exchange_every == 0:
             self._exchange()
-
-    def _log_episode(self, treasures: int) -> None:
-        logger, episode, step, game = self.logger, self.episode, self.counters.step, self.game
-        points = [
-            *logger.agent_values("episodic_return", episode.returns),
-            *logger.agent_values("episodic_length", episode.lengths),
-            ("team/return", episode.team_return),
-        ]
-        if isinstance(game, TreasureHuntGame):  # another game has neither chests nor traps
-            points += [("team/treasures_collected", treasures), ("team/trap_rate", episode.traps / game.num_agents)]
-        logger.scalars(points, step)  # one event for the episode's points
 
     def _exchange(self) -> None:
         transfer = self.config.transfer
@@ -282,7 +287,9 @@ class Replica:
 
     def log_training(self, sps: float, window_means: UpdateStats | None) -> None:
         """A training-curve point: the mean losses and Q-values of the updates since the last point
-        (``window_means``, the agents' rows; None when there was none), epsilon and speed."""
+        (``window_means``, the agents' rows; None when there was none), epsilon and speed; then the
+        logs, with the episodes since the last point, go to the operating system (a watching
+        TensorBoard reads them, a killed run keeps them)."""
         logger, step = self.logger, self.counters.step
         points: list[tuple[str, float]] = []
         if window_means is not None:
@@ -290,6 +297,7 @@ class Replica:
             points += logger.agent_values("q_mean", window_means.q_mean)
         points += [("train/epsilon", float(self.epsilon(step).mean())), ("train/sps", sps)]
         logger.scalars(points, step)  # one event
+        logger.flush()
 
     # ------------------------------------------------------------------ evaluation
     def evaluation_views(self) -> EvaluationViews | None:

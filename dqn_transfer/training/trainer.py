@@ -7,12 +7,14 @@ its own run directory). :meth:`Trainer.run` reads top to bottom:
 
 1. act epsilon-greedily for every live agent (one batched forward for all agents of all replicas);
 2. step the games, hand the joint transition to the learner (which stores it and trains);
-3. at a replica's episode end: log per-agent and team statistics, exchange knowledge if due, reset;
+3. at a replica's episode end: record per-agent and team statistics (written with step 5's points),
+   exchange knowledge if due, reset;
 4. every ``eval_every`` steps: greedy evaluation on episodes seeded by (seed, step, episode) alone ->
    ``metrics.jsonl``, and to TensorBoard with a picture of its first episode and the agents' Q-values there;
-5. every ``LOG_EVERY`` steps: losses, Q means, epsilon and speed to TensorBoard and the progress bar;
+5. every ``LOG_EVERY`` steps: losses, Q means, epsilon and speed to TensorBoard and the progress bar,
+   and the episodes' points since the last time, each replica's in one batch;
 6. every ``checkpoint_every`` steps, and when a signal asks to stop: a checkpoint of every replica
-   (:mod:`dqn_transfer.training.run_state`).
+   (:mod:`dqn_transfer.training.run_state`), its logs on the disk first.
 
 The run is planned (validated, its replicas' maps resolved) beforehand, by
 :func:`~dqn_transfer.training.plan.plan_run`.
@@ -121,7 +123,8 @@ class Trainer:
         if config.eval_pictures is not None:
             pictures = [config.eval_pictures] * len(plan.replicas)
         per_replica = list(sources) if sources is not None else [None] * len(plan.replicas)
-        self.episodes = EpisodeSums(len(games), first.num_agents, first.reward_mode)  # every replica's episode
+        # every replica's episode
+        self.episodes = EpisodeSums(len(games), first.num_agents, first.reward_mode, first.episode_metrics)
         self.replicas = [
             Replica(
                 r,
@@ -274,8 +277,11 @@ class Trainer:
                 for rep in replicas:
                     rep.shared_transitions.append(Transition(*(column[rep.rows] for column in transition)))
                     rep.shared_bounced.append(outcome.bounced[rep.index])
-            for r in np.flatnonzero(outcome.episode_end).tolist():
-                replicas[r].end_episode(int(outcome.episode_treasures[r]))
+            ended = np.flatnonzero(outcome.episode_end)
+            if ended.size:
+                values = self.episodes.ended_values(ended, outcome.episode_treasures)  # all replicas' at once
+                for r, row in zip(ended.tolist(), values):
+                    replicas[r].end_episode(row)
             games.reset(outcome.episode_end)
             # 4. evaluation
             if step % config.eval_every == 0:
@@ -380,10 +386,13 @@ class Trainer:
     def save_checkpoint(self) -> None:
         """Every replica's agent files (for sharing) and resume state, which alone is read on resume.
 
-        All files are written before any replaces its predecessor, the resume states last: a failed
-        write leaves the previous checkpoints whole.
+        The replicas' logs are on the disk first, so whatever a checkpoint covers is logged, whatever
+        stops the run after it. All files are written before any replaces its predecessor, the resume
+        states last: a failed write leaves the previous checkpoints whole.
         """
         with self.checkpoint_time:
+            for rep in self.replicas:
+                rep.logger.flush(durable=True)
             agent_files: dict[Path, bytes] = {}
             state_files: dict[Path, bytes] = {}
             for r, rep in enumerate(self.replicas):
