@@ -402,7 +402,7 @@ class TreasureHuntGame:
         "return_after_clear",
     )
     headline_metrics = ("team_return", "success_rate", "trap_rate")
-    # The keys each training episode's end logs as team/ tags besides the return (Replica._log_episode).
+    # The keys each training episode's end logs as team/ tags besides the return (training.replica.EpisodeSums).
     episode_metrics = ("treasures_collected", "trap_rate")
 
     def __init__(self, grid_map: GridMap, **settings: Any) -> None:
