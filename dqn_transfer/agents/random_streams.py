@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from dqn_transfer.compiled import kernel
+
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)  # 2^64 / golden ratio, SplitMix64's increment
 _MIX1, _MIX2 = np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB)
 _S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(11)
@@ -57,3 +59,20 @@ def uniforms(keys: np.ndarray, counters: np.ndarray | int, slots: int) -> np.nda
         position = _absorb(np.asarray(keys), np.broadcast_to(np.asarray(counters), np.shape(keys)))
         bits = _absorb(position[:, None], np.arange(slots, dtype=np.uint64)[None, :])
     return (bits >> _S11).astype(np.float64) * _TO_UNIT
+
+
+@kernel
+def _mix64_one(x: np.uint64) -> np.uint64:
+    x = (x ^ (x >> _S30)) * _MIX1
+    x = (x ^ (x >> _S27)) * _MIX2
+    return x ^ (x >> _S31)
+
+
+@kernel
+def draw_uniforms(key: np.uint64, counter: np.int64, out: np.ndarray) -> None:
+    """:func:`uniforms` of one row, compiled: ``out [slots]`` float64, the draws at ``counter`` of the
+    stream ``key`` (the same numbers, bit for bit)."""
+    position = _mix64_one(key + np.uint64(counter) * _GOLDEN + _GOLDEN)
+    for slot in range(out.shape[0]):
+        bits = _mix64_one(position + np.uint64(slot) * _GOLDEN + _GOLDEN)
+        out[slot] = np.float64(bits >> _S11) * _TO_UNIT

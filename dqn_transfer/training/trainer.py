@@ -16,6 +16,9 @@ its own run directory). :meth:`Trainer.run` reads top to bottom:
 6. every ``checkpoint_every`` steps, and when a signal asks to stop: a checkpoint of every replica
    (:mod:`dqn_transfer.training.run_state`), its logs on the disk first.
 
+Steps 1-3 of a tabular team on the treasure hunt run compiled (:mod:`~dqn_transfer.training.tabular_steps`),
+many at a time, with the same numbers.
+
 The run is planned (validated, its replicas' maps resolved) beforehand, by
 :func:`~dqn_transfer.training.plan.plan_run`.
 """
@@ -28,7 +31,6 @@ import json
 import logging
 import sys
 import time
-import warnings
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, NoReturn, cast
@@ -40,7 +42,7 @@ from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
 from dqn_transfer.agents import ExperienceSharing, Learner, Transition, UpdateStats, make_replicas, require
-from dqn_transfer.config import ConfigError, plain_yaml, to_plain
+from dqn_transfer.config import ConfigError, TrainConfig, plain_yaml, to_plain
 from dqn_transfer.enums import Algorithm, Exchange, Logger
 from dqn_transfer.envs.game_batch import GameBatch, game_batch
 from dqn_transfer.envs.observation_code import observation_code
@@ -53,6 +55,7 @@ from dqn_transfer.training.plan import RunPlan
 from dqn_transfer.training.replica import EpisodeSums, EpsilonSchedule, Replica, evaluation_line, metric_text
 from dqn_transfer.training.run_state import encode_checkpoint, load_checkpoint
 from dqn_transfer.training.stop import Interrupted, StopRequest
+from dqn_transfer.training.tabular_steps import UpdateWindow, compiled_steps
 from dqn_transfer.transfer.capabilities import check_capabilities
 from dqn_transfer.transfer.visit_exchange import start_advice
 from dqn_transfer.transfer.warm_start import apply_transfer, lineage_table
@@ -236,8 +239,9 @@ class Trainer:
         self.games = games = game_batch([rep.game for rep in replicas], [rep.env_rng for rep in replicas])
         num_rows = games.num_replicas * games.num_agents
         schedule = EpsilonSchedule.joined([rep.epsilon_schedule() for rep in replicas])
-        window: list[UpdateStats] = []  # the updates' statistics since the last training-curve point
+        window = UpdateWindow(num_rows)  # the updates' statistics since the last training-curve point
         shared_replay = config.transfer.exchange is Exchange.shared_replay
+        compiled = compiled_steps(learner, games, config.transfer.exchange, schedule, self.episodes, window)
         bar = tqdm(
             total=config.total_steps,
             initial=self.step,
@@ -250,39 +254,21 @@ class Trainer:
         )
         sps_clock, sps_step = time.perf_counter(), self.step
         while self.step < config.total_steps:
-            # 1. act: one batched forward for every agent of every replica
-            step = self.step
-            epsilon = schedule.at(step)
-            live = games.live.reshape(num_rows)
-            obs = games.obs.reshape(num_rows, -1)
-            actions = learner.act(obs, live, epsilon=epsilon)
-            # 2. step the games and learn
-            outcome = games.step(actions.reshape(games.num_replicas, games.num_agents))
-            step += 1
-            transition = Transition(
-                obs,
-                actions,
-                outcome.rewards.reshape(num_rows),
-                outcome.next_obs.reshape(num_rows, -1),
-                outcome.terminated.reshape(num_rows),
-                outcome.truncated.reshape(num_rows),
-                live,
-            )
-            window.append(learner.update(transition, step))
-            # 3. the episodes' sums; where one ended: log it, exchange knowledge; then the next episodes
-            self.episodes.add(outcome.rewards, live.reshape(outcome.rewards.shape), outcome.trap)
+            if compiled is not None:
+                # 1-3. the same steps compiled, up to an episode's end or the next step 4-6 act on
+                boundary = next_boundary(self.step, config, replicas[0].counters.next_checkpoint)
+                step, episode_end, episode_treasures = compiled.run(self.step, boundary)
+            else:
+                step, episode_end, episode_treasures = self._step(games, schedule, window, shared_replay)
             for rep in replicas:
                 rep.counters.step = step
-            if shared_replay:
-                for rep in replicas:
-                    rep.shared_transitions.append(Transition(*(column[rep.rows] for column in transition)))
-                    rep.shared_bounced.append(outcome.bounced[rep.index])
-            ended = np.flatnonzero(outcome.episode_end)
+            # 3. where an episode ended: log it, exchange knowledge; then the next episodes
+            ended = np.flatnonzero(episode_end)
             if ended.size:
-                values = self.episodes.ended_values(ended, outcome.episode_treasures)  # all replicas' at once
+                values = self.episodes.ended_values(ended, episode_treasures)  # all replicas' at once
                 for r, row in zip(ended.tolist(), values):
                     replicas[r].end_episode(row)
-            games.reset(outcome.episode_end)
+            games.reset(episode_end)
             # 4. evaluation
             if step % config.eval_every == 0:
                 self.run_evaluation(replicas, stop)  # stopped unfinished: the checkpoint below, then out
@@ -291,16 +277,15 @@ class Trainer:
                 now = time.perf_counter()
                 sps = (step - sps_step) / max(now - sps_clock, 1e-9)
                 sps_clock, sps_step = now, step
-                means = window_means(window)
+                means = window.means()
                 for rep in replicas:
                     rep.log_training(
                         sps, None if means is None else UpdateStats(*(column[rep.rows] for column in means))
                     )
-                window = []
                 recent = [r for rep in replicas for r in rep.episode.recent_team_returns]
                 bar.set_postfix(
                     team_return=f"{np.mean(recent):.1f}" if recent else "-",
-                    eps=f"{epsilon.mean():.2f}",
+                    eps=f"{schedule.at(step - 1).mean():.2f}",  # the last step's
                     sps=f"{sps:.0f}",
                     refresh=False,
                 )
@@ -333,6 +318,38 @@ class Trainer:
             logdir if watched else ", ".join(Logger(name).value for name in self.config.logger),
         )
         return self._summary()
+
+    def _step(
+        self, games: GameBatch, schedule: EpsilonSchedule, window: UpdateWindow, shared_replay: bool
+    ) -> tuple[int, np.ndarray, np.ndarray]:
+        """Steps 1-2 of the loop, one joint step: act, step the games, learn, add to the episodes' sums.
+        Returns the step after it, which replicas' episodes it ended and their chests emptied."""
+        learner, replicas = self.learner, self.replicas
+        num_rows = games.num_replicas * games.num_agents
+        # 1. act: one batched forward for every agent of every replica
+        step = self.step
+        epsilon = schedule.at(step)
+        live = games.live.reshape(num_rows)
+        obs = games.obs.reshape(num_rows, -1)
+        actions = learner.act(obs, live, epsilon=epsilon)
+        # 2. step the games and learn
+        outcome = games.step(actions.reshape(games.num_replicas, games.num_agents))
+        transition = Transition(
+            obs,
+            actions,
+            outcome.rewards.reshape(num_rows),
+            outcome.next_obs.reshape(num_rows, -1),
+            outcome.terminated.reshape(num_rows),
+            outcome.truncated.reshape(num_rows),
+            live,
+        )
+        window.add(*learner.update(transition, step + 1))
+        self.episodes.add(outcome.rewards, live.reshape(outcome.rewards.shape), outcome.trap)
+        if shared_replay:
+            for rep in replicas:
+                rep.shared_transitions.append(Transition(*(column[rep.rows] for column in transition)))
+                rep.shared_bounced.append(outcome.bounced[rep.index])
+        return step + 1, outcome.episode_end, outcome.episode_treasures
 
     def _group(self) -> str:
         """The name the run's replicas share in W&B: its run directory's, where the run ends up."""
@@ -464,19 +481,15 @@ def train(
     return Trainer(plan, run_dir, sources=sources, tag=tag, final_dirs=final_dirs).run()
 
 
-def window_means(window: Sequence[UpdateStats]) -> UpdateStats | None:
-    """Each row's mean ``td_loss`` and ``q_mean`` over the updates of ``window`` that had it (None for an
-    empty window; NaN for a row that had none)."""
-    if not window:
-        return None
-    with warnings.catch_warnings():  # all-NaN columns (no update yet) are expected
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return UpdateStats(
-            *(
-                np.nanmean(np.asarray([getattr(s, name) for s in window], dtype=float), axis=0)
-                for name in UpdateStats._fields
-            )
-        )
+def next_boundary(step: int, config: TrainConfig, next_checkpoint: int) -> int:
+    """The first step after ``step`` at which the loop evaluates, logs a training-curve point, takes a
+    checkpoint or ends."""
+    return min(
+        config.total_steps,
+        (step // config.eval_every + 1) * config.eval_every,
+        (step // LOG_EVERY + 1) * LOG_EVERY,
+        max(next_checkpoint, step + 1),
+    )
 
 
 def in_multirun() -> bool:

@@ -1,0 +1,296 @@
+"""The training loop's joint steps of a tabular team on the treasure hunt, compiled: act, step the games,
+learn and add up the episodes, step after step in one kernel call, until an episode ends or a boundary
+(an evaluation, a training-curve point, a checkpoint, the end) is reached.
+
+These are the steps of :meth:`~dqn_transfer.training.trainer.Trainer.run` with every call it makes
+inlined: :meth:`TabularLearner.act <dqn_transfer.agents.tabular.TabularLearner.act>` (state ids from the
+observation code, the counter-based draws, epsilon-greedy, SARSA's cached next action),
+:class:`~dqn_transfer.envs.game.TreasureHunts`' step (the rules' kernel), :meth:`TabularLearner.update
+<dqn_transfer.agents.tabular.TabularLearner.update>` (visits, SARSA's next action, the table update, the
+entry order), the update statistics' window and the episode sums, in the same order and the same
+floats, so a run is the same bit for bit either way (``tests/test_tabular_steps.py``, the reference
+runs). What the loop does at an episode's end (log it, reset the game) stays in Python, as do the
+runs this does not cover (:func:`compiled_steps` says which): exchanges at episode ends, advice,
+shared replay, games without an observation code.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from dqn_transfer.agents.random_streams import draw_uniforms
+from dqn_transfer.agents.state_index import DenseIndex
+from dqn_transfer.agents.tabular import DRAWS_PER_AGENT_STEP, TabularLearner
+from dqn_transfer.agents.tabular_kernels import _choose, _update_entry
+from dqn_transfer.compiled import kernel
+from dqn_transfer.enums import Algorithm, Exchange, RewardMode
+from dqn_transfer.envs import rules
+from dqn_transfer.envs.game import TreasureHunts
+from dqn_transfer.envs.game_batch import GameBatch
+from dqn_transfer.envs.observation_code import _encode
+
+# How a call of :func:`_run` ended.
+REACHED, EPISODE_ENDED, NEEDS_TIE_DRAWS = 0, 1, 2
+
+
+class UpdateWindow:
+    """Each row's mean ``td_loss`` and ``q_mean`` over the updates since the last training-curve point,
+    as running sums: the first step's values (NaN, no update, as 0), then each later step's added, and
+    the count of updates -- the floats of ``numpy.nanmean`` over the window's rows."""
+
+    def __init__(self, rows: int) -> None:
+        self.sums = np.zeros((2, rows))  # td_loss, q_mean
+        self.counts = np.zeros((2, rows), dtype=np.int64)
+        self.steps = np.zeros(1, dtype=np.int64)  # steps in the window (an array: the kernel adds to it)
+
+    def add(self, td_loss: np.ndarray, q_mean: np.ndarray) -> None:
+        """One step's statistics (NaN where a row had no update)."""
+        values = np.stack([td_loss, q_mean]).astype(np.float64)
+        known = ~np.isnan(values)
+        values[~known] = 0.0
+        self.sums[:] = values if self.steps[0] == 0 else self.sums + values
+        self.counts += known
+        self.steps[0] += 1
+
+    def means(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(td_loss, q_mean)`` per row (NaN for a row without an update), None for an empty window;
+        the window then starts again."""
+        if self.steps[0] == 0:
+            return None
+        with np.errstate(invalid="ignore", divide="ignore"):
+            means = self.sums / self.counts
+        self.sums[:] = 0.0
+        self.counts[:] = 0
+        self.steps[0] = 0
+        return means[0], means[1]
+
+
+def compiled_steps(
+    learner: Any, games: GameBatch, exchange: Exchange, schedule: Any, sums: Any, window: UpdateWindow
+) -> TabularSteps | None:
+    """The compiled steps of this run, None where they do not cover it: they need a tabular learner with
+    dense tables on treasure hunts stepped as one batch, and no exchange that acts inside a step or at an
+    episode's end."""
+    if not isinstance(learner, TabularLearner) or not isinstance(games, TreasureHunts):
+        return None
+    covered = isinstance(learner.index, DenseIndex) and learner.advice is None
+    return TabularSteps(learner, games, schedule, sums, window) if covered and exchange is Exchange.none else None
+
+
+class TabularSteps:
+    """The compiled steps of one run (:func:`compiled_steps`), over the arrays the learner, the games,
+    the episode sums and the update window own (changed in place)."""
+
+    def __init__(self, learner: TabularLearner, games: TreasureHunts, schedule: Any, sums: Any, window: UpdateWindow):
+        self.learner, self.games, self.schedule, self.sums, self.window = learner, games, schedule, sums, window
+        code = learner.index.code  # type: ignore[attr-defined]
+        rows = learner.num_rows
+        self.state_ids = np.zeros(rows, dtype=np.int64)  # the ids of the observations acted on
+        self.actions = np.zeros((games.num_replicas, games.num_agents), dtype=np.int64)
+        self.entries = np.zeros(1, dtype=np.int64)
+        self.draws = np.zeros(DRAWS_PER_AGENT_STEP)
+        self.row_maps = code._replica_map[learner.row_replica]
+        self.code = (code._size, code._onehot, *code._tables())
+        self.sarsa = learner.algorithm == Algorithm.sarsa.value
+        self.team = games.reward_mode is RewardMode.team
+        self.learning = (np.float32(learner.gamma), np.float32(learner.lr))
+
+    def run(self, step: int, last: int) -> tuple[int, np.ndarray, np.ndarray]:
+        """Joint steps from ``step`` until one ends an episode or ``last`` is reached; returns the step
+        after the last one taken, which replicas' episodes it ended and their chests emptied."""
+        learner, games = self.learner, self.games
+        self.entries[0] = learner._entries
+        resume = False
+        while True:
+            games._fresh_arrays()  # new obs and live arrays: callers may hold the old ones
+            status, step = _run(
+                step,
+                last,
+                resume,
+                self.state_ids,
+                self.actions,
+                learner.q,
+                learner.visits,
+                learner.entry_order,
+                self.entries,
+                learner.epsilon,
+                learner.next_action,
+                learner.next_state,
+                learner.counters["act"],
+                learner.counters["next_action"],
+                learner.stream_keys["act"],
+                learner.stream_keys["next_action"],
+                learner.row_replica,
+                self.schedule.start,
+                self.schedule.end,
+                self.schedule.duration,
+                self.sums.returns,
+                self.sums.lengths,
+                self.sums.traps,
+                self.sums.team_return,
+                self.window.sums,
+                self.window.counts,
+                self.window.steps,
+                self.draws,
+                self.sarsa,
+                self.team,
+                self.learning,
+                self.row_maps,
+                self.code,
+                games._rewards,
+                games.max_steps,
+                games._team,
+                games._announce,
+                games._row,
+            )
+            if status != NEEDS_TIE_DRAWS:
+                break
+            games._draw_ties()
+            resume = True
+        learner._entries = int(self.entries[0])
+        return step, games._out.ended.copy(), games.state.treasures_collected.copy()
+
+
+@kernel
+def _run(
+    step,
+    last,
+    resume,
+    state_ids,
+    actions,
+    q,
+    visits,
+    entry_order,
+    entries,
+    epsilon,
+    next_action,
+    next_state,
+    act_counters,
+    next_counters,
+    act_keys,
+    next_keys,
+    row_replica,
+    eps_start,
+    eps_end,
+    eps_duration,
+    returns,
+    lengths,
+    traps,
+    team_return,
+    window_sums,
+    window_counts,
+    window_steps,
+    draws,
+    sarsa,
+    team,
+    learning,
+    row_maps,
+    code,
+    rewards,
+    max_steps,
+    team_rewards,
+    announce,
+    game,
+):
+    """The steps of :meth:`TabularSteps.run` (see the module docstring); ``resume``: the step's actions
+    are taken and its chest ties drawn, go on with the game's step."""
+    tables, state, out = game[: rules._TABLES], game[rules._TABLES : rules._STATE_END], game[rules._STATE_END :]
+    tables, state, out = rules.Tables(*tables), rules.State(*state), rules.Outcome(*out)
+    replicas, agents = state.pos.shape
+    rows = replicas * agents
+    size, onehot, chests, bits, slots, offsets, position_codes, view_static, view_chest = code
+    gamma, lr = learning
+    obs = state.obs.reshape(rows, -1)
+    while step < last:
+        if not resume:
+            # 1. act (TabularLearner.act): epsilon-greedy on the ids of the observations, or SARSA's cached action
+            state_ids[:] = _encode(
+                obs, row_maps, size, onehot, chests, bits, slots, offsets, position_codes, view_static, view_chest
+            )
+            for row in range(rows):
+                duration = eps_duration[row]
+                fraction = min(max(step / duration, 0.0), 1.0) if duration > 0 else 1.0
+                epsilon[row] = eps_start[row] + fraction * (eps_end[row] - eps_start[row])
+                r, a = row // agents, row % agents
+                draw_uniforms(act_keys[row], act_counters[r], draws)
+                chosen = _choose(q[row, state_ids[row]], epsilon[row], draws)
+                live = state.live[r, a]
+                if live and next_action[row] >= 0 and next_state[row] == state_ids[row]:
+                    chosen = next_action[row]
+                if live:
+                    next_action[row] = -1
+                actions[r, a] = chosen if live else 0
+            for r in range(replicas):
+                act_counters[r] += 1
+        # 2. the games' step (the caller draws the chest ties, then resumes here)
+        status = rules.step(tables, state, actions, out, resume, rewards, max_steps, team_rewards, announce)
+        if status == rules.NEEDS_TIE_DRAWS:
+            return NEEDS_TIE_DRAWS, step
+        resume = False
+        step += 1
+        # 3. learn (TabularLearner.update) and the update window
+        next_ids = _encode(
+            obs, row_maps, size, onehot, chests, bits, slots, offsets, position_codes, view_static, view_chest
+        )
+        first = window_steps[0] == 0
+        for row in range(rows):
+            r, a = row // agents, row % agents
+            if not out.acted[r, a]:
+                if first:
+                    window_sums[0, row] = 0.0
+                    window_sums[1, row] = 0.0
+                continue
+            draw_uniforms(next_keys[row], next_counters[r], draws)
+            here, there = state_ids[row], next_ids[row]
+            visits[row, here] += 1
+            next_action[row] = -1
+            bootstrap = -1
+            if sarsa:
+                bootstrap = _choose(q[row, there], epsilon[row], draws)
+                if not out.truncated[r, a] and not out.terminated[r, a]:
+                    next_action[row] = bootstrap
+                    next_state[row] = there
+            q_sa, td_error = _update_entry(
+                q, row, here, actions[r, a], out.rewards[r, a], there, out.terminated[r, a], bootstrap, gamma, lr
+            )
+            if entry_order[row, here] < 0:
+                entry_order[row, here] = entries[0]
+                entries[0] += 1
+            error = np.float64(td_error)
+            loss = 0.5 * error * error if abs(error) < 1.0 else abs(error) - 0.5
+            if first:
+                window_sums[0, row] = loss
+                window_sums[1, row] = np.float64(q_sa)
+            else:
+                window_sums[0, row] += loss
+                window_sums[1, row] += np.float64(q_sa)
+            window_counts[0, row] += 1
+            window_counts[1, row] += 1
+        window_steps[0] += 1
+        for r in range(replicas):
+            next_counters[r] += 1
+        # 4. the episodes' sums (EpisodeSums.add)
+        ended = False
+        for r in range(replicas):
+            acted = False
+            total = np.float32(0.0)
+            best = np.float32(-np.inf)
+            for a in range(agents):
+                reward = out.rewards[r, a]
+                returns[r, a] += np.float64(reward)
+                if out.acted[r, a]:
+                    acted = True
+                    lengths[r, a] += 1
+                    total += reward
+                    best = max(best, reward)
+                else:
+                    total += np.float32(0.0)
+                if out.trap[r, a]:
+                    traps[r] += 1
+            team_return[r] += (np.float64(best) if team else np.float64(total)) if acted else 0.0
+            ended = ended or out.ended[r]
+        if ended:
+            return EPISODE_ENDED, step
+    return REACHED, step
