@@ -358,29 +358,34 @@ def assign(tables, state, r):
 
 
 @kernel
-def reset(tables, state, which):
-    """Start a new episode in the replicas of the mask ``which [R]``: agents on their starts, every
-    chest full and believed so, the coordinator's assignment (deliberative) and the observations."""
+def reset_replica(tables, state, r):
+    """Start a new episode in replica ``r``: agents on their starts, every chest full and believed so,
+    the coordinator's assignment (deliberative) and the observations."""
     agents, chests = state.live.shape[1], state.chest_full.shape[1]
-    for r in range(state.pos.shape[0]):
-        if not which[r]:
-            continue
-        for a in range(agents):
-            state.pos[r, a] = tables.starts[r, a]
-            state.live[r, a] = True
-            state.assigned[r, a] = -1
-            for c in range(chests):
-                state.belief[r, a, c] = 1.0
-            state.belief[r, a, chests] = 0.0
+    for a in range(agents):
+        state.pos[r, a] = tables.starts[r, a]
+        state.live[r, a] = True
+        state.assigned[r, a] = -1
         for c in range(chests):
-            state.chest_full[r, c] = True
-        state.t[r] = 0
-        state.treasures_collected[r] = 0
-        if tables.chest_dist.shape[2] > 0:  # deliberative
-            assign(tables, state, r)
-        for a in range(agents):
-            state.obs[r, a] = 0.0
-            observe(tables, state, r, a)
+            state.belief[r, a, c] = 1.0
+        state.belief[r, a, chests] = 0.0
+    for c in range(chests):
+        state.chest_full[r, c] = True
+    state.t[r] = 0
+    state.treasures_collected[r] = 0
+    if tables.chest_dist.shape[2] > 0:  # deliberative
+        assign(tables, state, r)
+    for a in range(agents):
+        state.obs[r, a] = 0.0
+        observe(tables, state, r, a)
+
+
+@kernel
+def reset(tables, state, which):
+    """:func:`reset_replica` of the replicas of the mask ``which [R]``."""
+    for r in range(state.pos.shape[0]):
+        if which[r]:
+            reset_replica(tables, state, r)
 
 
 @kernel

@@ -124,7 +124,6 @@ class EpisodeStats:
         return self.sums.recent_team_returns[self.r]
 
     def reset(self) -> None:
-        self.recent_team_returns.append(self.team_return)
         self.sums.returns[self.r] = 0.0
         self.sums.lengths[self.r] = 0
         self.sums.traps[self.r] = 0
@@ -264,13 +263,20 @@ class Replica:
     def end_episode(self, values: np.ndarray) -> None:
         """The episode just ended: log its ``values`` (:meth:`EpisodeSums.ended_values`' row) and exchange
         knowledge when due. The loop then starts the next one."""
-        counters, transfer = self.counters, self.config.transfer
-        counters.episodes += 1
-        self.logger.episode(counters.step, values)
-        self.window_returns.append(self.episode.returns.copy())
+        transfer = self.config.transfer
+        self.record_episode(self.counters.step, values)
         self.episode.reset()
-        if transfer.exchange in EXCHANGES_AT_EPISODE_ENDS and counters.episodes % transfer.exchange_every == 0:
+        if transfer.exchange in EXCHANGES_AT_EPISODE_ENDS and self.counters.episodes % transfer.exchange_every == 0:
             self._exchange()
+
+    def record_episode(self, step: int, values: np.ndarray) -> None:
+        """Count and log an episode that ended at ``step`` with ``values`` (:meth:`EpisodeSums.ended_values`'
+        row: the agents' returns first, then their lengths, then the team's return)."""
+        agents = len(self.episode.returns)
+        self.counters.episodes += 1
+        self.logger.episode(step, values)
+        self.window_returns.append(values[:agents].copy())
+        self.episode.recent_team_returns.append(float(values[2 * agents]))
 
     def _exchange(self) -> None:
         transfer = self.config.transfer

@@ -1,17 +1,19 @@
 """The training loop's joint steps of a tabular team on the treasure hunt, compiled: act, step the games,
-learn and add up the episodes, step after step in one kernel call, until an episode ends or a boundary
-(an evaluation, a training-curve point, a checkpoint, the end) is reached.
+learn, add up the episodes and restart the ended ones, step after step in one kernel call, up to the
+next boundary (an evaluation, a training-curve point, a checkpoint, the end).
 
 These are the steps of :meth:`~dqn_transfer.training.trainer.Trainer.run` with every call it makes
 inlined: :meth:`TabularLearner.act <dqn_transfer.agents.tabular.TabularLearner.act>` (state ids from the
 observation code, the counter-based draws, epsilon-greedy, SARSA's cached next action),
 :class:`~dqn_transfer.envs.game.TreasureHunts`' step (the rules' kernel), :meth:`TabularLearner.update
 <dqn_transfer.agents.tabular.TabularLearner.update>` (visits, SARSA's next action, the table update, the
-entry order), the update statistics' window and the episode sums, in the same order and the same
-floats, so a run is the same bit for bit either way (``tests/test_tabular_steps.py``, the reference
-runs). What the loop does at an episode's end (log it, reset the game) stays in Python, as do the
-runs this does not cover (:func:`compiled_steps` says which): exchanges at episode ends, advice,
-shared replay, games without an observation code.
+entry order), the update statistics' window, the episode sums and an ended episode's values and reset
+(:meth:`EpisodeSums.ended_values <dqn_transfer.training.replica.EpisodeSums.ended_values>`,
+``TreasureHunts.reset``), in the same order and the same floats, so a run is the same bit for bit
+either way (``tests/test_tabular_steps.py``, the reference runs). The ended episodes are logged after
+the call, in order (:meth:`Replica.record_episode <dqn_transfer.training.replica.Replica.record_episode>`).
+Runs this does not cover stay in Python (:func:`compiled_steps` says which): exchanges at episode
+ends, advice, shared replay, games without an observation code.
 """
 
 from __future__ import annotations
@@ -31,8 +33,10 @@ from dqn_transfer.envs.game import TreasureHunts
 from dqn_transfer.envs.game_batch import GameBatch
 from dqn_transfer.envs.observation_code import _encode
 
-# How a call of :func:`_run` ended.
-REACHED, EPISODE_ENDED, NEEDS_TIE_DRAWS = 0, 1, 2
+# How a call of :func:`_run` ended: at the boundary, for the chest ties' draws, or with its record of
+# ended episodes full.
+REACHED, NEEDS_TIE_DRAWS, RECORD_FULL = 0, 1, 2
+EPISODES_PER_CALL = 4096  # the most ended episodes one call records before the caller logs them
 
 
 class UpdateWindow:
@@ -96,14 +100,22 @@ class TabularSteps:
         self.sarsa = learner.algorithm == Algorithm.sarsa.value
         self.team = games.reward_mode is RewardMode.team
         self.learning = (np.float32(learner.gamma), np.float32(learner.lr))
+        if tuple(sums.team_metrics) != ("treasures_collected", "trap_rate"):
+            raise ValueError(f"the compiled steps log the treasure hunt's episode metrics, not {sums.team_metrics}")
+        # Each ended episode: its step, its replica, then EpisodeSums.ended_values' row.
+        agents = games.num_agents
+        self.ended = np.zeros((max(EPISODES_PER_CALL, games.num_replicas), 2 + 2 * agents + 3))
+        self.num_ended = np.zeros(1, dtype=np.int64)
 
-    def run(self, step: int, last: int) -> tuple[int, np.ndarray, np.ndarray]:
-        """Joint steps from ``step`` until one ends an episode or ``last`` is reached; returns the step
-        after the last one taken, which replicas' episodes it ended and their chests emptied."""
+    def run(self, step: int, last: int) -> list[tuple[int, int, np.ndarray]]:
+        """Joint steps from ``step`` to ``last``; returns each episode that ended on the way, in order, as
+        ``(step, replica, values)`` (:meth:`EpisodeSums.ended_values`' row). Its game was restarted."""
         learner, games = self.learner, self.games
-        self.entries[0] = learner._entries
+        episodes: list[tuple[int, int, np.ndarray]] = []
         resume = False
-        while True:
+        while step < last:
+            self.entries[0] = learner._entries
+            self.num_ended[0] = 0
             games._fresh_arrays()  # new obs and live arrays: callers may hold the old ones
             status, step = _run(
                 step,
@@ -134,6 +146,8 @@ class TabularSteps:
                 self.window.counts,
                 self.window.steps,
                 self.draws,
+                self.ended,
+                self.num_ended,
                 self.sarsa,
                 self.team,
                 self.learning,
@@ -145,12 +159,12 @@ class TabularSteps:
                 games._announce,
                 games._row,
             )
-            if status != NEEDS_TIE_DRAWS:
-                break
-            games._draw_ties()
-            resume = True
-        learner._entries = int(self.entries[0])
-        return step, games._out.ended.copy(), games.state.treasures_collected.copy()
+            learner._entries = int(self.entries[0])
+            episodes += [(int(row[0]), int(row[1]), row[2:].copy()) for row in self.ended[: self.num_ended[0]]]
+            resume = status == NEEDS_TIE_DRAWS
+            if resume:
+                games._draw_ties()
+        return episodes
 
 
 @kernel
@@ -183,6 +197,8 @@ def _run(
     window_counts,
     window_steps,
     draws,
+    ended,
+    num_ended,
     sarsa,
     team,
     learning,
@@ -204,6 +220,8 @@ def _run(
     gamma, lr = learning
     obs = state.obs.reshape(rows, -1)
     while step < last:
+        if num_ended[0] + replicas > ended.shape[0]:
+            return RECORD_FULL, step
         if not resume:
             # 1. act (TabularLearner.act): epsilon-greedy on the ids of the observations, or SARSA's cached action
             state_ids[:] = _encode(
@@ -271,8 +289,7 @@ def _run(
         window_steps[0] += 1
         for r in range(replicas):
             next_counters[r] += 1
-        # 4. the episodes' sums (EpisodeSums.add)
-        ended = False
+        # 4. the episodes' sums (EpisodeSums.add); an ended one recorded (EpisodeSums.ended_values) and restarted
         for r in range(replicas):
             acted = False
             total = np.float32(0.0)
@@ -290,7 +307,20 @@ def _run(
                 if out.trap[r, a]:
                     traps[r] += 1
             team_return[r] += (np.float64(best) if team else np.float64(total)) if acted else 0.0
-            ended = ended or out.ended[r]
-        if ended:
-            return EPISODE_ENDED, step
+            if not out.ended[r]:
+                continue
+            record = ended[num_ended[0]]
+            num_ended[0] += 1
+            record[0], record[1] = step, r
+            for a in range(agents):
+                record[2 + a] = returns[r, a]
+                record[2 + agents + a] = lengths[r, a]
+                returns[r, a] = 0.0
+                lengths[r, a] = 0
+            record[2 + 2 * agents] = team_return[r]
+            record[3 + 2 * agents] = state.treasures_collected[r]
+            record[4 + 2 * agents] = traps[r] / agents
+            team_return[r] = 0.0
+            traps[r] = 0
+            rules.reset_replica(tables, state, r)
     return REACHED, step

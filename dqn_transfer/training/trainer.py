@@ -255,20 +255,15 @@ class Trainer:
         sps_clock, sps_step = time.perf_counter(), self.step
         while self.step < config.total_steps:
             if compiled is not None:
-                # 1-3. the same steps compiled, up to an episode's end or the next step 4-6 act on
-                boundary = next_boundary(self.step, config, replicas[0].counters.next_checkpoint)
-                step, episode_end, episode_treasures = compiled.run(self.step, boundary)
+                # 1-3. the same steps compiled, up to the next step 4-6 act on
+                last = next_boundary(self.step, config, replicas[0].counters.next_checkpoint)
+                for ended_at, r, values in compiled.run(self.step, last):
+                    replicas[r].record_episode(ended_at, values)
+                step = last
+                for rep in replicas:
+                    rep.counters.step = step
             else:
-                step, episode_end, episode_treasures = self._step(games, schedule, window, shared_replay)
-            for rep in replicas:
-                rep.counters.step = step
-            # 3. where an episode ended: log it, exchange knowledge; then the next episodes
-            ended = np.flatnonzero(episode_end)
-            if ended.size:
-                values = self.episodes.ended_values(ended, episode_treasures)  # all replicas' at once
-                for r, row in zip(ended.tolist(), values):
-                    replicas[r].end_episode(row)
-            games.reset(episode_end)
+                step = self._step(games, schedule, window, shared_replay)
             # 4. evaluation
             if step % config.eval_every == 0:
                 self.run_evaluation(replicas, stop)  # stopped unfinished: the checkpoint below, then out
@@ -319,11 +314,9 @@ class Trainer:
         )
         return self._summary()
 
-    def _step(
-        self, games: GameBatch, schedule: EpsilonSchedule, window: UpdateWindow, shared_replay: bool
-    ) -> tuple[int, np.ndarray, np.ndarray]:
-        """Steps 1-2 of the loop, one joint step: act, step the games, learn, add to the episodes' sums.
-        Returns the step after it, which replicas' episodes it ended and their chests emptied."""
+    def _step(self, games: GameBatch, schedule: EpsilonSchedule, window: UpdateWindow, shared_replay: bool) -> int:
+        """Steps 1-3 of the loop, one joint step: act, step the games, learn, add to the episodes' sums,
+        log the ended episodes and restart their games. Returns the step after it."""
         learner, replicas = self.learner, self.replicas
         num_rows = games.num_replicas * games.num_agents
         # 1. act: one batched forward for every agent of every replica
@@ -345,11 +338,20 @@ class Trainer:
         )
         window.add(*learner.update(transition, step + 1))
         self.episodes.add(outcome.rewards, live.reshape(outcome.rewards.shape), outcome.trap)
+        for rep in replicas:
+            rep.counters.step = step + 1
         if shared_replay:
             for rep in replicas:
                 rep.shared_transitions.append(Transition(*(column[rep.rows] for column in transition)))
                 rep.shared_bounced.append(outcome.bounced[rep.index])
-        return step + 1, outcome.episode_end, outcome.episode_treasures
+        # 3. where an episode ended: log it, exchange knowledge; then the next episodes
+        ended = np.flatnonzero(outcome.episode_end)
+        if ended.size:
+            values = self.episodes.ended_values(ended, outcome.episode_treasures)  # all replicas' at once
+            for r, row in zip(ended.tolist(), values):
+                replicas[r].end_episode(row)
+        games.reset(outcome.episode_end)
+        return step + 1
 
     def _group(self) -> str:
         """The name the run's replicas share in W&B: its run directory's, where the run ends up."""
