@@ -120,7 +120,7 @@ class ObservationCode:
         """``float32 [N, D]``: the observations of replica ``replica``'s game whose ids are ``ids [N]``."""
         ids = np.asarray(ids, dtype=np.int64)
         out = np.empty((len(ids), self.obs_dim), dtype=np.float32)
-        _decode(ids, int(self._replica_map[replica]), out, *self._tables())
+        _decode(ids, int(self._replica_map[replica]), out, self._tables())
         return out
 
     def _tables(self) -> tuple:
@@ -137,19 +137,10 @@ class ObservationCode:
 
 
 @kernel
-def _write_observation(
-    state: int,
-    map_index: int,
-    out: np.ndarray,
-    k: int,
-    bits: int,
-    slots: int,
-    offsets: np.ndarray,
-    position_codes: np.ndarray,
-    view_static: np.ndarray,
-    view_chest: np.ndarray,
-) -> None:
-    """Write the observation of id ``state`` on map ``map_index`` into ``out [D]`` (every value)."""
+def _write_observation(state: int, map_index: int, out: np.ndarray, tables: tuple) -> None:
+    """Write the observation of id ``state`` on map ``map_index`` into ``out [D]`` (every value);
+    ``tables``: :meth:`ObservationCode._tables`."""
+    k, bits, slots, offsets, position_codes, view_static, view_chest = tables
     assignment = state % slots
     beliefs = (state // slots) % (1 << bits)
     cell = state // slots // (1 << bits)
@@ -219,7 +210,7 @@ def _encode(
                     assignment = chest + 1
                     break
         state = (cell * (1 << bits) + beliefs) * slots + assignment
-        _write_observation(state, maps[n], decoded, k, bits, slots, offsets, position_codes, view_static, view_chest)
+        _write_observation(state, maps[n], decoded, (k, bits, slots, offsets, position_codes, view_static, view_chest))
         differ = 0
         for d in range(len(row)):
             differ += decoded[d] != row[d]
@@ -229,18 +220,7 @@ def _encode(
 
 
 @kernel
-def _decode(
-    ids: np.ndarray,
-    map_index: int,
-    out: np.ndarray,
-    k: int,
-    bits: int,
-    slots: int,
-    offsets: np.ndarray,
-    position_codes: np.ndarray,
-    view_static: np.ndarray,
-    view_chest: np.ndarray,
-) -> None:
+def _decode(ids: np.ndarray, map_index: int, out: np.ndarray, tables: tuple) -> None:
     """:meth:`ObservationCode.decode` into ``out [N, D]``."""
     for n in range(len(ids)):
-        _write_observation(ids[n], map_index, out[n], k, bits, slots, offsets, position_codes, view_static, view_chest)
+        _write_observation(ids[n], map_index, out[n], tables)
