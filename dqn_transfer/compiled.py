@@ -1,16 +1,21 @@
 """Compiled kernels: numba's ``njit`` with its on-disk cache where one can be written.
 
-A kernel is compiled the first time a process calls it (a few seconds for the game's rules) and, with
-the cache, loaded from disk by every later process. numba keeps the cache in the package's
-``__pycache__`` or, where that is read-only (an installed package), in the user's cache directory
-(``NUMBA_CACHE_DIR`` overrides both). Where none of them can be written, kernels are compiled in every
-process instead, after one notice.
+A kernel is compiled the first time a process calls it (about 10 s for the game's rules, 13 s with the
+tabular learners', on 2 cores) and, with the cache, loaded from disk by every later process (a second).
+The cache lives in ``kernels-<fingerprint>`` under ``NUMBA_CACHE_DIR`` if it is set, else under the
+package's ``__pycache__``, else (a read-only install) under the user's cache directory. The fingerprint
+is a hash of every package file that holds a kernel: numba checks only the calling kernel's own file
+for changes, while a kernel's compiled code includes the kernels it calls from other files, so any
+change to one of them starts a new cache (and older ones are removed). Where no directory can be
+written, kernels are compiled in every process instead, after one notice.
 """
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
+import shutil
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -22,6 +27,7 @@ from numba.misc.appdirs import AppDirs
 log = logging.getLogger(__name__)
 
 F = TypeVar("F", bound=Callable[..., Any])
+PACKAGE = Path(__file__).parent
 
 
 def _writable(directory: Path) -> bool:
@@ -34,23 +40,44 @@ def _writable(directory: Path) -> bool:
         return False
 
 
+def kernels_fingerprint() -> str:
+    """A hash of the package's files that hold kernels (their paths and contents)."""
+    digest = hashlib.sha256()
+    for path in sorted(PACKAGE.rglob("*.py")):
+        text = path.read_bytes()
+        if b"@kernel" in text:
+            digest.update(path.relative_to(PACKAGE).as_posix().encode() + b"\0" + text)
+    return digest.hexdigest()[:16]
+
+
 def cache_directory() -> Path | None:
-    """Where numba will write this package's compiled kernels (None: nowhere writable)."""
+    """Where this package's compiled kernels are kept (None: nowhere writable); older caches beside it
+    are removed."""
     configured = os.environ.get("NUMBA_CACHE_DIR")
-    candidates = (
+    bases = (
         [Path(configured)]
         if configured
-        else [Path(__file__).parent / "__pycache__", Path(AppDirs(appname="numba", appauthor=False).user_cache_dir)]
+        else [PACKAGE / "__pycache__", Path(AppDirs(appname="dqn_transfer", appauthor=False).user_cache_dir)]
     )
-    return next((directory for directory in candidates if _writable(directory)), None)
+    name = f"kernels-{kernels_fingerprint()}"
+    for base in bases:
+        if _writable(base / name):
+            for older in base.glob("kernels-*"):
+                if older.name != name:
+                    shutil.rmtree(older, ignore_errors=True)
+            return base / name
+    return None
 
 
-CACHE = cache_directory() is not None
-if not CACHE:
+CACHE_DIR = cache_directory()
+if CACHE_DIR is None:
     log.warning(
         "no writable cache directory for the compiled kernels (set NUMBA_CACHE_DIR to one): "
-        "they are compiled again in every process, a few seconds at start-up"
+        "they are compiled again in every process, about 10 s at start-up"
     )
+else:
+    numba.config.CACHE_DIR = str(CACHE_DIR)  # type: ignore[attr-defined]  # read whenever numba caches a kernel
+CACHE = CACHE_DIR is not None
 
 
 def kernel(function: F) -> F:

@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from dqn_transfer import compiled
+
 PROGRAM = """
 import numpy as np
 from dqn_transfer.compiled import CACHE, kernel
@@ -45,3 +47,20 @@ def test_with_a_writable_cache_the_kernels_are_kept_there(tmp_path):
     assert done.stdout.split() == ["True", "10"]
     kept = sorted(path.suffix for path in (tmp_path / "cache").rglob("program.total-*"))
     assert kept == [".nbc", ".nbi"]  # numba's index and compiled code
+
+
+def test_a_change_to_any_file_with_a_kernel_starts_a_new_cache_and_removes_the_old(tmp_path, monkeypatch):
+    """numba checks only a kernel's own file, yet a kernel's compiled code holds the kernels it calls from
+    other files: the cache directory is named by a hash of all the files that hold kernels."""
+    package = tmp_path / "package"
+    package.mkdir()
+    (package / "rules.py").write_text("@kernel\ndef step(): pass\n")
+    (package / "docs.py").write_text("def describe(): pass\n")
+    monkeypatch.setattr(compiled, "PACKAGE", package)
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
+    first = compiled.cache_directory()
+    (package / "docs.py").write_text("def describe(): return 'no kernel here'\n")
+    assert compiled.cache_directory() == first
+    (package / "rules.py").write_text("@kernel\ndef step(): return 1\n")
+    second = compiled.cache_directory()
+    assert second != first and second.is_dir() and not first.exists()

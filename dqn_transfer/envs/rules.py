@@ -159,6 +159,8 @@ def build_tables(
         view_chest=view_chest,
         segments=segments,
     )
+    # C-contiguous whatever the indexing made them: one compiled version of each kernel serves every batch.
+    tables = Tables(*(np.ascontiguousarray(array) for array in tables))
     for array in tables:
         array.flags.writeable = False
     return tables
@@ -282,9 +284,14 @@ def best_assignment(cost):
     num_rows, num_cols = cost.shape
     none_left = max(num_rows - num_cols, 0)  # how many agents go without a chest
     options = num_cols + (1 if none_left > 0 else 0)
-    order = np.empty((num_rows, num_cols), dtype=np.int64)
+    order = np.empty((num_rows, num_cols), dtype=np.int64)  # each row's columns by cost, then column
     for i in range(num_rows):
-        order[i] = np.argsort(cost[i], kind="mergesort")  # stable: equal costs by column
+        for j in range(num_cols):  # insertion sort: stable, and a few lines to compile (argsort's are seconds)
+            at = j
+            while at > 0 and cost[i, order[i, at - 1]] > cost[i, j]:
+                order[i, at] = order[i, at - 1]
+                at -= 1
+            order[i, at] = j
     lower_bound = np.zeros(num_rows + 1, dtype=np.int64)  # the least cost rows i.. could still add
     for i in range(num_rows - 1, -1, -1):
         lower_bound[i] = lower_bound[i + 1] + (0 if none_left > 0 else cost[i, order[i, 0]])
