@@ -362,7 +362,7 @@ def test_learning_from_team_mates_is_one_update_per_transition_in_order(algorith
         learn_from_one_at_a_time(tables[1], 5, experience)
     fast, reference = tables
     assert np.array_equal(fast.q.view(np.uint32), reference.q.view(np.uint32))  # bit for bit
-    assert np.array_equal(fast.entry_order, reference.entry_order) and fast._entries == reference._entries
+    assert np.array_equal(fast.entry_order, reference.entry_order) and fast.num_entries == reference.num_entries
     assert np.array_equal(fast.index.num_states, reference.index.num_states)
     assert np.array_equal(fast.index.state_keys, reference.index.state_keys)
     assert fast.counters["learn_from"].tolist() == reference.counters["learn_from"].tolist() == [0, 600]

@@ -172,7 +172,7 @@ class TabularLearner(Learner, KnowledgeExchange, VisitExchange):
         self.q = np.zeros((rows, states, num_actions), dtype=np.float32)
         # Entry order: when the agent first updated it (-1: not in its table, the value is a start value).
         self.entry_order = np.full((rows, states), -1, dtype=np.int32)
-        self._entries = 0  # entries entered so far, all rows together (the next entry's order)
+        self.num_entries = 0  # entries entered so far, all rows together (the next entry's order)
         # Visits: how many of its own transitions each agent has learned from in each state (what the
         # exchanges by visit counts weigh, agents/visit_exchange.py); team-mates' transitions do not count.
         self.visits = np.zeros((rows, states), dtype=np.int64)
@@ -275,8 +275,8 @@ class TabularLearner(Learner, KnowledgeExchange, VisitExchange):
         if new.any():
             # One running number across all rows keeps each row's entries in the order they came.
             count = int(new.sum())
-            self.entry_order[rows[new], states[new]] = self._entries + np.arange(count)
-            self._entries += count
+            self.entry_order[rows[new], states[new]] = self.num_entries + np.arange(count)
+            self.num_entries += count
 
     # ---------------------------------------------------------------------------------- acting
 

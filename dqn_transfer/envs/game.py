@@ -279,7 +279,7 @@ class TreasureHunts(GameBatch):
         self._fresh_arrays()
         status = self._step(actions, ties_drawn=False)
         if status == rules.NEEDS_TIE_DRAWS:
-            self._draw_ties()
+            self.draw_ties()
             status = self._step(actions, ties_drawn=True)
         if status == rules.BAD_ACTION:
             played = np.unique(actions[self.state.live]).tolist()
@@ -287,15 +287,23 @@ class TreasureHunts(GameBatch):
         return self._out
 
     def _step(self, actions: np.ndarray, ties_drawn: bool) -> int:
-        return int(
-            rules.step_arrays(
-                actions, ties_drawn, self._rewards, self.max_steps, self._team, self._announce, *self._row
-            )
-        )
+        return int(rules.step_arrays(actions, ties_drawn, *self.rule_constants, *self._row))
 
-    def _draw_ties(self) -> None:
-        """The winner of every chest several agents entered while full: replica r draws from
-        ``rngs[r]``, its chests in the order of their lowest-index contender."""
+    @property
+    def rule_constants(self) -> tuple[np.ndarray, int, bool, bool]:
+        """What :func:`~dqn_transfer.envs.rules.step` takes besides the arrays: the rewards (step, trap,
+        treasure, float32), ``max_steps``, team rewards, announced chests (every mode but competitive)."""
+        return self._rewards, self.max_steps, self._team, self._announce
+
+    def kernel_arrays(self) -> tuple[np.ndarray, ...]:
+        """The row of arrays the rules' kernels take (:func:`~dqn_transfer.envs.rules.arrays`), with new
+        ``obs`` and ``live`` arrays for them to change: a kernel that steps these games takes it."""
+        self._fresh_arrays()
+        return self._row
+
+    def draw_ties(self) -> None:
+        """The winner of every chest several agents entered while full, after a step that stopped for
+        them: replica r draws from ``rngs[r]``, its chests in the order of their lowest-index contender."""
         out = self._out
         for r in np.flatnonzero((out.contenders > 1).any(axis=1)).tolist():
             drawn: set[int] = set()
@@ -311,6 +319,12 @@ class TreasureHunts(GameBatch):
         if which.any():
             self._fresh_arrays()
             rules.reset_arrays(which, *self._row)
+
+    def end(self, which: np.ndarray) -> None:
+        """End the episodes of the replicas of the mask ``which [R] bool`` where they stand (no agent is
+        live any more): stepping leaves them as they are."""
+        self._fresh_arrays()
+        self.state.live[np.asarray(which, dtype=bool)] = False
 
     # ------------------------------------------------------------------ one replica's episode
     def state_dict(self, replica: int) -> dict[str, Any]:

@@ -100,7 +100,7 @@ class ObservationCode:
         # Each replica's map (as an index into the distinct maps' view windows).
         layouts = [game.map.layout for game in games]
         distinct = list(dict.fromkeys(layouts))
-        self._replica_map = np.array([distinct.index(layout) for layout in layouts], dtype=np.int64)
+        self.replica_map = np.array([distinct.index(layout) for layout in layouts], dtype=np.int64)
         if "view" in offsets:
             windows = [_view_planes(games[layouts.index(layout)]) for layout in distinct]
             self._view_static = np.stack([static for static, _ in windows])
@@ -113,15 +113,19 @@ class ObservationCode:
         """``int64 [N]``: the id of each observation ``obs [N, D]`` of replica ``replicas[n]``'s game,
         ``-1`` for a vector that is no observation of it."""
         obs = np.ascontiguousarray(obs, dtype=np.float32)
-        maps = self._replica_map[np.asarray(replicas, dtype=np.int64)]
-        return _encode(obs, maps, self._size, self._onehot, *self._tables())
+        maps = self.replica_map[np.asarray(replicas, dtype=np.int64)]
+        return encode_rows(obs, maps, *self.kernel_arguments())
 
     def decode(self, replica: int, ids: np.ndarray) -> np.ndarray:
         """``float32 [N, D]``: the observations of replica ``replica``'s game whose ids are ``ids [N]``."""
         ids = np.asarray(ids, dtype=np.int64)
         out = np.empty((len(ids), self.obs_dim), dtype=np.float32)
-        _decode(ids, int(self._replica_map[replica]), out, self._tables())
+        _decode(ids, int(self.replica_map[replica]), out, self._tables())
         return out
+
+    def kernel_arguments(self) -> tuple:
+        """What :func:`encode_rows` takes after the observations and their maps."""
+        return (self._size, self._onehot, *self._tables())
 
     def _tables(self) -> tuple:
         """What the kernels read to write an observation."""
@@ -161,7 +165,7 @@ def _write_observation(state: int, map_index: int, out: np.ndarray, tables: tupl
 
 
 @kernel
-def _encode(
+def encode_rows(
     obs: np.ndarray,
     maps: np.ndarray,
     size: int,

@@ -112,7 +112,7 @@ def _play_episodes(
     ties = [rng.spawn(1)[0] for rng in rngs]  # a child: the parent's stream stays the chest ties'
     hunts = TreasureHunts([games[r].map for _, r in slots], rngs, **games[0].settings())
     skipped = np.array([e == 0 and skip_first[r] for e, r in slots])
-    hunts.state.live[skipped] = False  # not played: a finished episode stays as it is
+    hunts.end(skipped)  # not played here
     count = len(slots)
     team_return, return_after_clear = np.zeros(count), np.zeros(count)
     length, trapped = np.zeros(count, dtype=np.int64), np.zeros(count, dtype=np.int64)

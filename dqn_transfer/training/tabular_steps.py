@@ -31,7 +31,7 @@ from dqn_transfer.enums import Algorithm, Exchange, RewardMode
 from dqn_transfer.envs import rules
 from dqn_transfer.envs.game import TreasureHunts
 from dqn_transfer.envs.game_batch import GameBatch
-from dqn_transfer.envs.observation_code import _encode
+from dqn_transfer.envs.observation_code import encode_rows
 
 # How a call of :func:`_run` ended: at the boundary, for the chest ties' draws, or with its record of
 # ended episodes full.
@@ -95,8 +95,8 @@ class TabularSteps:
         self.actions = np.zeros((games.num_replicas, games.num_agents), dtype=np.int64)
         self.entries = np.zeros(1, dtype=np.int64)
         self.draws = np.zeros(DRAWS_PER_AGENT_STEP)
-        self.row_maps = code._replica_map[learner.row_replica]
-        self.code = (code._size, code._onehot, *code._tables())
+        self.row_maps = code.replica_map[learner.row_replica]
+        self.code = code.kernel_arguments()
         self.sarsa = learner.algorithm == Algorithm.sarsa.value
         self.team = games.reward_mode is RewardMode.team
         self.learning = (np.float32(learner.gamma), np.float32(learner.lr))
@@ -114,9 +114,8 @@ class TabularSteps:
         episodes: list[tuple[int, int, np.ndarray]] = []
         resume = False
         while step < last:
-            self.entries[0] = learner._entries
+            self.entries[0] = learner.num_entries
             self.num_ended[0] = 0
-            games._fresh_arrays()  # new obs and live arrays: callers may hold the old ones
             status, step = _run(
                 step,
                 last,
@@ -153,17 +152,14 @@ class TabularSteps:
                 self.learning,
                 self.row_maps,
                 self.code,
-                games._rewards,
-                games.max_steps,
-                games._team,
-                games._announce,
-                games._row,
+                *games.rule_constants,
+                games.kernel_arrays(),
             )
-            learner._entries = int(self.entries[0])
+            learner.num_entries = int(self.entries[0])
             episodes += [(int(row[0]), int(row[1]), row[2:].copy()) for row in self.ended[: self.num_ended[0]]]
             resume = status == NEEDS_TIE_DRAWS
             if resume:
-                games._draw_ties()
+                games.draw_ties()
         return episodes
 
 
@@ -224,7 +220,7 @@ def _run(
             return RECORD_FULL, step
         if not resume:
             # 1. act (TabularLearner.act): epsilon-greedy on the ids of the observations, or SARSA's cached action
-            state_ids[:] = _encode(
+            state_ids[:] = encode_rows(
                 obs, row_maps, size, onehot, chests, bits, slots, offsets, position_codes, view_static, view_chest
             )
             for row in range(rows):
@@ -249,7 +245,7 @@ def _run(
         resume = False
         step += 1
         # 3. learn (TabularLearner.update) and the update window
-        next_ids = _encode(
+        next_ids = encode_rows(
             obs, row_maps, size, onehot, chests, bits, slots, offsets, position_codes, view_static, view_chest
         )
         first = window_steps[0] == 0
