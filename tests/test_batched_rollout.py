@@ -12,6 +12,7 @@ from dqn_transfer.enums import Algorithm, Engine
 from dqn_transfer.envs.game import TreasureHuntGame
 from dqn_transfer.envs.game_batch import LoopedGames
 from dqn_transfer.envs.maps import generate_layout, parse_layout
+from dqn_transfer.envs.observation_code import observation_code
 from dqn_transfer.evaluation import batched_rollout
 from dqn_transfer.evaluation.batched_rollout import GAMES_PER_BATCH, evaluate_replicas
 from dqn_transfer.evaluation.rollout import EvaluationStopped, evaluate, evaluation_rng, greedy_policy, play_episode
@@ -23,7 +24,9 @@ def trained(algorithm: Algorithm, games: list[TreasureHuntGame], steps: int):
     """A batched learner after ``steps`` epsilon-greedy joint steps on ``games`` (one replica each): tables
     that know some states and tie on the rest; networks that moved off their initial weights."""
     hp = AgentConfig(algorithm=algorithm, engine=Engine.numpy, hidden=[16], learning_starts=20, batch_size=8)
-    learner = make_replicas(hp, games[0].num_agents, games[0].obs_layout(), games[0].num_actions, seeds=SEEDS)
+    layout, actions = games[0].obs_layout(), games[0].num_actions
+    # Tables numbered by the game's observation code: the evaluation's compiled choice (evaluation/greedy_steps.py).
+    learner = make_replicas(hp, games[0].num_agents, layout, actions, seeds=SEEDS, code=observation_code(games))
     rngs = [np.random.default_rng(s) for s in SEEDS]
     for game, rng in zip(games, rngs):
         game.reset(rng)
@@ -40,20 +43,21 @@ def trained(algorithm: Algorithm, games: list[TreasureHuntGame], steps: int):
 
 
 @pytest.mark.parametrize(
-    "algorithm, rules",
+    "algorithm, rules, chests",
     [
-        (Algorithm.sarsa, dict(mode="competitive")),
-        (Algorithm.qlearning, dict(mode="cooperative", reward_mode="team")),
-        (Algorithm.sarsa, dict(mode="deliberative", max_steps=15)),
-        (Algorithm.dqn, dict(mode="cooperative")),
+        (Algorithm.sarsa, dict(mode="competitive"), 3),
+        (Algorithm.qlearning, dict(mode="cooperative", reward_mode="team"), 3),
+        (Algorithm.sarsa, dict(mode="deliberative", max_steps=15), 3),
+        (Algorithm.sarsa, dict(mode="cooperative", step_reward=-0.3), 2),  # an agent plays on after the last chest
+        (Algorithm.dqn, dict(mode="cooperative"), 3),
     ],
 )
 @pytest.mark.parametrize("games_per_batch", [GAMES_PER_BATCH, 7, 2])  # 1 batch; 3 of 2 episodes; 6 of 1
 def test_one_batch_of_all_replicas_evaluations_equals_evaluating_them_one_by_one(
-    algorithm, rules, games_per_batch, monkeypatch
+    algorithm, rules, chests, games_per_batch, monkeypatch
 ):
     monkeypatch.setattr(batched_rollout, "GAMES_PER_BATCH", games_per_batch)
-    layouts = [generate_layout(6, 3, 2, 3, 0.1, seed) for seed in (1, 2, 3)]
+    layouts = [generate_layout(6, chests, 2, 3, 0.1, seed) for seed in (1, 2, 3)]
     games = [TreasureHuntGame(parse_layout(layout), **rules) for layout in layouts]
     learner = trained(algorithm, games, steps=400)
     teams = [learner.replica(r) for r in range(3)]
@@ -70,6 +74,8 @@ def test_one_batch_of_all_replicas_evaluations_equals_evaluating_them_one_by_one
     ]
     assert batched == one_by_one  # every float bit for bit
     assert len({record["team_return"] for record in batched}) > 1  # not vacuous: the replicas differ
+    if chests == 2:
+        assert any(record["return_after_clear"] != 0 for record in batched)
 
 
 def test_without_the_batched_learner_each_replica_is_evaluated_through_its_team():

@@ -19,9 +19,13 @@ from typing import Any
 import numpy as np
 
 from dqn_transfer.agents.base import Learner, Team
+from dqn_transfer.agents.state_index import DenseIndex
+from dqn_transfer.agents.tabular import TabularLearner
 from dqn_transfer.enums import RewardMode
 from dqn_transfer.envs import Game
 from dqn_transfer.envs.game import TreasureHuntGame, TreasureHunts, fit_one_batch
+from dqn_transfer.envs.rules import NEEDS_TIE_DRAWS
+from dqn_transfer.evaluation import greedy_steps
 from dqn_transfer.evaluation.rollout import (
     EpisodeResult,
     EvaluationStopped,
@@ -29,7 +33,6 @@ from dqn_transfer.evaluation.rollout import (
     evaluation_rng,
     never,
     summarize,
-    team_returns_of,
 )
 
 
@@ -109,42 +112,46 @@ def _play_episodes(
     chests, reward_mode = games[0].num_treasures, RewardMode(games[0].reward_mode)
     slots = [(e, r) for e in numbers for r in range(replicas)]  # game g = (e - numbers.start) * R + r
     rngs = [evaluation_rng(seeds[r], steps[r], e) for e, r in slots]
-    ties = [rng.spawn(1)[0] for rng in rngs]  # a child: the parent's stream stays the chest ties'
+    tie_rngs = [rng.spawn(1)[0] for rng in rngs]  # a child: the parent's stream stays the chest ties'
     hunts = TreasureHunts([games[r].map for _, r in slots], rngs, **games[0].settings())
     skipped = np.array([e == 0 and skip_first[r] for e, r in slots])
     hunts.end(skipped)  # not played here
     count = len(slots)
-    team_return, return_after_clear = np.zeros(count), np.zeros(count)
-    length, trapped = np.zeros(count, dtype=np.int64), np.zeros(count, dtype=np.int64)
-    agent_returns = np.zeros((count, agents))
-    cleared_at = np.full(count, -1, dtype=np.int64)  # the joint step that emptied the last full chest
-    collected = np.zeros(count, dtype=np.int64)
+    rows = count * agents  # row n: agent n % K of game n // K, the learner's row (n // K % R) * K + n % K
+    learner_rows = np.tile(np.arange(replicas * agents), episodes)
+    dense = isinstance(learner, TabularLearner) and isinstance(learner.index, DenseIndex)
+    q = learner.q if dense else np.zeros((1, 1, hunts.num_actions), dtype=np.float32)  # type: ignore[attr-defined]
+    code = learner.index.code if dense else None  # type: ignore[attr-defined]
+    row_maps = code.replica_map[learner_rows // agents] if code is not None else learner_rows
+    code_arguments = code.kernel_arguments() if code is not None else ()
+    ids, actions = np.zeros(rows, dtype=np.int64), np.zeros(rows, dtype=np.int64)
+    ties, picks = np.zeros(rows, dtype=np.int64), np.zeros(rows, dtype=np.int64)
+    sums = np.zeros((count, 5 + agents))  # greedy_steps.step's: returns, length, traps, chests, agents' returns
+    cleared_at = np.full(count, -1, dtype=np.int64)  # the length when the last full chest was emptied
     while hunts.live.any():
         if stopped():
             raise EvaluationStopped
-        live = hunts.live
-        obs = hunts.obs.reshape(episodes, replicas * agents, -1)
-        best = learner.best_actions_stacked(obs).reshape(count * agents, -1)  # [G * K, A]
-        actions = np.where(live.reshape(-1), best.argmax(axis=1), 0).astype(np.int64)
-        counts = best.sum(axis=1)
-        tied = np.flatnonzero(live.reshape(-1) & (counts > 1))
-        if tied.size:  # each tie drawn as break_ties draws it: the k-th of the best actions
-            picks = [
-                int(ties[row // agents].integers(count)) for row, count in zip(tied.tolist(), counts[tied].tolist())
-            ]
-            actions[tied] = np.argmax(np.cumsum(best[tied], axis=1) > np.array(picks)[:, None], axis=1)
-        outcome = hunts.step(actions.reshape(count, agents))
-        collected = outcome.episode_treasures
-        active = live.any(axis=1)
-        step_return = team_returns_of(outcome.rewards, live, reward_mode)
-        team_return[active] += step_return[active]
-        agent_returns += outcome.rewards  # 0 for agents that are done
-        trapped += outcome.trap.sum(axis=1)
-        length += active
-        after = active & (cleared_at >= 0)
-        return_after_clear[after] += step_return[after]
-        newly = active & (cleared_at < 0) & (collected == chests)
-        cleared_at[newly] = length[newly]
+        live = hunts.live.reshape(-1)
+        if code is not None:
+            obs = hunts.obs.reshape(rows, -1)
+            greedy_steps.choose(q, learner_rows, row_maps, code_arguments, obs, live, ids, actions, ties)
+        else:
+            best = learner.best_actions_stacked(hunts.obs.reshape(episodes, replicas * agents, -1)).reshape(rows, -1)
+            actions[:] = np.where(live, best.argmax(axis=1), 0)
+            ties[:] = np.where(live & (best.sum(axis=1) > 1), best.sum(axis=1), 0)
+        for n in np.flatnonzero(ties).tolist():  # each tie drawn as break_ties draws it: the k-th best action
+            picks[n] = tie_rngs[n // agents].integers(ties[n])
+        if code is None and ties.any():
+            tied = np.flatnonzero(ties)
+            actions[tied] = np.argmax(np.cumsum(best[tied], axis=1) > picks[tied, None], axis=1)
+            ties[:] = 0
+        arguments = (q, learner_rows, ids, actions, ties, picks)
+        constants = (reward_mode is RewardMode.team, chests, sums, cleared_at, *hunts.rule_constants)
+        if greedy_steps.step(*arguments, False, *constants, hunts.kernel_arrays()) == NEEDS_TIE_DRAWS:
+            hunts.draw_ties()
+            greedy_steps.step(*arguments, True, *constants, hunts.kernel_arrays())
+    team_return, return_after_clear, length, trapped, collected = (sums[:, column] for column in range(5))
+    agent_returns = sums[:, 5:]
     results: list[list[EpisodeResult]] = [[] for _ in range(replicas)]
     for g, (_, r) in enumerate(slots):
         results[r].append(
@@ -154,7 +161,7 @@ def _play_episodes(
                 int(collected[g]),
                 int(collected[g]) / chests,
                 int(trapped[g]) / agents,
-                int(length[g] - cleared_at[g]) if cleared_at[g] >= 0 else 0,
+                int(length[g]) - int(cleared_at[g]) if cleared_at[g] >= 0 else 0,
                 float(return_after_clear[g]),
                 tuple(float(value) for value in agent_returns[g]),
             )
