@@ -97,7 +97,18 @@ def build_tables(
     layout: Sequence[tuple[str, int]],
 ) -> Tables:
     """The :class:`Tables` of ``grid_maps`` (one per replica; one size, at least ``num_agents`` starts and
-    the same chest count) for the first ``num_agents`` agents."""
+    the same chest count) for the first ``num_agents`` agents. Each distinct map's tables are computed
+    once (an evaluation's R x E games are R maps)."""
+    first_of: dict[str, int] = {}
+    which = np.array([first_of.setdefault(m.layout, len(first_of)) for m in grid_maps])
+    if len(first_of) < len(grid_maps):
+        distinct = [grid_maps[int(np.argmax(which == d))] for d in range(len(first_of))]
+        tables = build_tables(distinct, num_agents, mode, obs_encoding, view_radius, layout)
+        shared = {"position_code", "segments"}
+        gathered = Tables(*(a if name in shared else a[which] for name, a in zip(Tables._fields, tables)))
+        for array in gathered:
+            array.flags.writeable = False
+        return gathered
     n, k, replicas = grid_maps[0].size, grid_maps[0].num_treasures, len(grid_maps)
     cells = n * n
     obstacle = np.zeros((replicas, cells), dtype=bool)
