@@ -249,7 +249,9 @@ class RunLogger:
     def evaluation_views(self, picture: np.ndarray, q_values: Sequence[np.ndarray], step: int) -> None:
         """An evaluation's picture (``[H, W, 3]`` uint8) and each agent's Q-values (agents with none skipped)."""
         png = io.BytesIO()
-        Image.fromarray(picture).save(png, format="PNG")
+        Image.fromarray(picture).save(
+            png, format="PNG", compress_level=1
+        )  # written at every evaluation: fast over small
         height, width, channels = picture.shape
         image = Summary.Image(height=height, width=width, colorspace=channels, encoded_image_string=png.getvalue())
         self._add(Summary(value=[Summary.Value(tag="eval/episode", image=image)]), step)
