@@ -516,6 +516,26 @@ def step(tables, state, actions, out, ties_drawn, rewards, max_steps, team, anno
     return DONE
 
 
+@kernel
+def team_step_return(out, r, team):
+    """Replica ``r``'s team return of the step ``out`` records, as an episode's sums count it: the float32
+    sum of the rewards of the agents that acted, in agent order (with ``team`` rewards, their shared
+    reward, counted once), as float64; 0.0 when no agent acted."""
+    total = np.float32(0.0)
+    best = np.float32(-np.inf)
+    acted = False
+    for a in range(out.rewards.shape[1]):
+        if out.acted[r, a]:
+            acted = True
+            total += out.rewards[r, a]
+            best = max(best, out.rewards[r, a])
+        else:
+            total += np.float32(0.0)  # as numpy's sum of the masked row: -0.0 + 0.0 is 0.0
+    if not acted:
+        return 0.0
+    return np.float64(best) if team else np.float64(total)
+
+
 # numba unboxes plain array arguments about twice as fast as NamedTuples of them (2.9 against 5.7 us a
 # step of one game): the game passes its tables, state and outcome as one row of arrays to these.
 _TABLES = len(Tables._fields)

@@ -84,23 +84,12 @@ def step(
     if status != rules.DONE:
         return status
     for g in range(games):
-        active = False
-        total = np.float32(0.0)
-        best = np.float32(-np.inf)
         for a in range(agents):
-            reward = out.rewards[g, a]
-            sums[g, 5 + a] += np.float64(reward)
-            if out.acted[g, a]:
-                active = True
-                total += reward
-                best = max(best, reward)
-            else:
-                total += np.float32(0.0)
-            if out.trap[g, a]:
-                sums[g, 3] += 1
-        if not active:
+            sums[g, 5 + a] += np.float64(out.rewards[g, a])
+            sums[g, 3] += out.trap[g, a]
+        if not out.acted[g].any():
             continue
-        step_return = np.float64(best) if team else np.float64(total)
+        step_return = rules.team_step_return(out, g, team)
         sums[g, 0] += step_return
         sums[g, 2] += 1
         if cleared_at[g] >= 0:

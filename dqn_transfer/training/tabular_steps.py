@@ -287,22 +287,11 @@ def _run(
             next_counters[r] += 1
         # 4. the episodes' sums (EpisodeSums.add); an ended one recorded (EpisodeSums.ended_values) and restarted
         for r in range(replicas):
-            acted = False
-            total = np.float32(0.0)
-            best = np.float32(-np.inf)
             for a in range(agents):
-                reward = out.rewards[r, a]
-                returns[r, a] += np.float64(reward)
-                if out.acted[r, a]:
-                    acted = True
-                    lengths[r, a] += 1
-                    total += reward
-                    best = max(best, reward)
-                else:
-                    total += np.float32(0.0)
-                if out.trap[r, a]:
-                    traps[r] += 1
-            team_return[r] += (np.float64(best) if team else np.float64(total)) if acted else 0.0
+                returns[r, a] += np.float64(out.rewards[r, a])
+                lengths[r, a] += out.acted[r, a]
+                traps[r] += out.trap[r, a]
+            team_return[r] += rules.team_step_return(out, r, team)
             if not out.ended[r]:
                 continue
             record = ended[num_ended[0]]
