@@ -116,10 +116,11 @@ def test_changing_one_replicas_data_leaves_the_others_updates_bit_identical():
     assert not np.array_equal(a["q.layers.0.weight"], b["q.layers.0.weight"])
 
 
-def test_replicas_resume_exactly_from_a_mid_episode_checkpoint(tmp_path, monkeypatch):
+@pytest.mark.parametrize("agent", [DQN, SARSA], ids=["dqn", "sarsa_compiled_steps"])
+def test_replicas_resume_exactly_from_a_mid_episode_checkpoint(tmp_path, monkeypatch, agent):
     """Killed right after its first checkpoint (step 100, in the middle of episodes) and resumed, a
     batch of replicas ends exactly where the uninterrupted batch does."""
-    Trainer(plan_run(config(seeds=2, maps=1)), tmp_path / "reference").run()
+    Trainer(plan_run(config(agent, seeds=2, maps=1)), tmp_path / "reference").run()
     original = Trainer.save_checkpoint
 
     def save_then_die(self):
@@ -129,11 +130,11 @@ def test_replicas_resume_exactly_from_a_mid_episode_checkpoint(tmp_path, monkeyp
 
     monkeypatch.setattr(Trainer, "save_checkpoint", save_then_die)
     with pytest.raises(KeyboardInterrupt):
-        Trainer(plan_run(config(seeds=2)), tmp_path / "killed").run()
+        Trainer(plan_run(config(agent, seeds=2)), tmp_path / "killed").run()
     monkeypatch.setattr(Trainer, "save_checkpoint", original)
     state = agent_meta(tmp_path / "killed" / "seed_4" / "checkpoints" / "training_state.safetensors")
     assert state["counters"]["step"] == 100 and state["episode"] is not None  # mid-episode
-    Trainer(plan_run(config(seeds=2, resume=True)), tmp_path / "killed").run()
+    Trainer(plan_run(config(agent, seeds=2, resume=True)), tmp_path / "killed").run()
     for name in ("seed_4", "seed_5"):
         assert_same_run(tmp_path / "killed" / name, tmp_path / "reference" / name)
 
