@@ -1,6 +1,6 @@
 """Compiled kernels: numba's ``njit`` with its on-disk cache where one can be written.
 
-A kernel is compiled the first time a process calls it (about 10 s for the game's rules, 13 s with the
+A kernel is compiled the first time a process calls it (about 10 s for the game's rules, 16 s with the
 tabular learners', on 2 cores) and, with the cache, loaded from disk by every later process (a second).
 The cache lives in ``kernels-<fingerprint>`` under ``NUMBA_CACHE_DIR`` if it is set, else under the
 package's ``__pycache__``, else (a read-only install) under the user's cache directory. The fingerprint
@@ -73,11 +73,13 @@ CACHE_DIR = cache_directory()
 if CACHE_DIR is None:
     log.warning(
         "no writable cache directory for the compiled kernels (set NUMBA_CACHE_DIR to one): "
-        "they are compiled again in every process, about 10 s at start-up"
+        "they are compiled again in every process, 10-16 s at start-up"
     )
 else:
     numba.config.CACHE_DIR = str(CACHE_DIR)  # type: ignore[attr-defined]  # read whenever numba caches a kernel
 CACHE = CACHE_DIR is not None
+# Nothing compiled yet for this code: the first run compiles (what the trainer says before it does).
+FIRST_COMPILE = CACHE_DIR is None or not any(CACHE_DIR.rglob("*.nbi"))
 
 
 def kernel(function: F) -> F:

@@ -41,6 +41,7 @@ from hydra.types import RunMode
 from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
+from dqn_transfer import compiled as compiled_kernels
 from dqn_transfer.agents import ExperienceSharing, Learner, Transition, UpdateStats, make_replicas, require
 from dqn_transfer.config import ConfigError, TrainConfig, plain_yaml, to_plain
 from dqn_transfer.enums import Algorithm, Exchange, Logger
@@ -222,6 +223,10 @@ class Trainer:
             if rep.transfer_info is not None and not config.resume:
                 rep.logger.text("transfer/source", json.dumps(rep.transfer_info, indent=2))
                 rep.logger.text("transfer/lineage", lineage_table(rep.transfer_info))
+        if compiled_kernels.FIRST_COMPILE:
+            log.info(
+                "compiling the game's kernels (the first run of this code only: later runs load them from the disk)"
+            )
         if config.total_steps == 0:
             self.save_checkpoint()
             log.info("total_steps=0: wrote the initial checkpoints to %s", self._where()[0])
