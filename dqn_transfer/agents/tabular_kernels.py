@@ -16,7 +16,7 @@ from dqn_transfer.compiled import kernel
 
 
 @kernel
-def _choose(values: np.ndarray, epsilon: float, draws: np.ndarray) -> int:
+def choose_action(values: np.ndarray, epsilon: float, draws: np.ndarray) -> int:
     """One epsilon-greedy choice on ``values [A]``: a uniformly random action if ``draws[0] < epsilon``
     (``floor(draws[1] * A)``), else the ``floor(draws[2] * ties)``-th of the tied best actions."""
     num_actions = len(values)
@@ -43,12 +43,12 @@ def epsilon_greedy_rows(q: np.ndarray, epsilon: np.ndarray, draws: np.ndarray) -
     per choice, always all three)."""
     actions = np.empty(len(q), dtype=np.int64)
     for n in range(len(q)):
-        actions[n] = _choose(q[n], epsilon[n], draws[n])
+        actions[n] = choose_action(q[n], epsilon[n], draws[n])
     return actions
 
 
 @kernel
-def _update_entry(
+def update_entry(
     q: np.ndarray,
     row: int,
     state: int,
@@ -84,12 +84,12 @@ def update_rows(
     gamma: np.float32,
     lr: np.float32,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """One update of each of the distinct ``rows`` of ``q [rows, S, A]`` (:func:`_update_entry`, with
+    """One update of each of the distinct ``rows`` of ``q [rows, S, A]`` (:func:`update_entry`, with
     ``next_actions[n] < 0`` for Q-learning's max); returns ``Q(s, a)`` before and the TD errors."""
     q_sa = np.empty(len(rows), dtype=np.float32)
     td_error = np.empty(len(rows), dtype=np.float32)
     for n in range(len(rows)):
-        q_sa[n], td_error[n] = _update_entry(
+        q_sa[n], td_error[n] = update_entry(
             q, rows[n], states[n], actions[n], rewards[n], next_states[n], terminated[n], next_actions[n], gamma, lr
         )
     return q_sa, td_error
@@ -113,5 +113,5 @@ def update_in_order(
     """N updates of row ``row`` of ``q [rows, S, A]``, one after another, each reading the values the
     ones before wrote; SARSA's ``a'`` is chosen epsilon-greedily at its update from ``draws [N, 3]``."""
     for n in range(len(states)):
-        next_action = _choose(q[row, next_states[n]], epsilon, draws[n]) if sarsa else -1
-        _update_entry(q, row, states[n], actions[n], rewards[n], next_states[n], terminated[n], next_action, gamma, lr)
+        next_action = choose_action(q[row, next_states[n]], epsilon, draws[n]) if sarsa else -1
+        update_entry(q, row, states[n], actions[n], rewards[n], next_states[n], terminated[n], next_action, gamma, lr)

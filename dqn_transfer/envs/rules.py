@@ -538,8 +538,8 @@ def team_step_return(out, r, team):
 
 # numba unboxes plain array arguments about twice as fast as NamedTuples of them (2.9 against 5.7 us a
 # step of one game): the game passes its tables, state and outcome as one row of arrays to these.
-_TABLES = len(Tables._fields)
-_STATE_END = _TABLES + len(State._fields)
+TABLES_END = len(Tables._fields)  # where a row's State begins, and where its Outcome begins:
+STATE_END = TABLES_END + len(State._fields)
 
 
 def arrays(tables: Tables, state: State, out: Outcome) -> tuple[np.ndarray, ...]:
@@ -550,13 +550,13 @@ def arrays(tables: Tables, state: State, out: Outcome) -> tuple[np.ndarray, ...]
 @kernel
 def step_arrays(actions, ties_drawn, rewards, max_steps, team, announce, *row):
     """:func:`step` on the :func:`arrays` of a Tables, a State and an Outcome."""
-    tables = Tables(*row[:_TABLES])
-    state = State(*row[_TABLES:_STATE_END])
-    out = Outcome(*row[_STATE_END:])
+    tables = Tables(*row[:TABLES_END])
+    state = State(*row[TABLES_END:STATE_END])
+    out = Outcome(*row[STATE_END:])
     return step(tables, state, actions, out, ties_drawn, rewards, max_steps, team, announce)
 
 
 @kernel
 def reset_arrays(which, *row):
     """:func:`reset` on the :func:`arrays` of a Tables, a State and an Outcome."""
-    reset(Tables(*row[:_TABLES]), State(*row[_TABLES:_STATE_END]), which)
+    reset(Tables(*row[:TABLES_END]), State(*row[TABLES_END:STATE_END]), which)

@@ -65,9 +65,9 @@ def step(
     collected, each agent's return; ``cleared_at [G]``: the length when the last chest was emptied, -1
     before). Returns :data:`~dqn_transfer.envs.rules.NEEDS_TIE_DRAWS` (nothing else changed: draw the chest
     ties, call again with ``resume``) or :data:`~dqn_transfer.envs.rules.DONE`."""
-    tables = rules.Tables(*game[: rules._TABLES])
-    state = rules.State(*game[rules._TABLES : rules._STATE_END])
-    out = rules.Outcome(*game[rules._STATE_END :])
+    tables = rules.Tables(*game[: rules.TABLES_END])
+    state = rules.State(*game[rules.TABLES_END : rules.STATE_END])
+    out = rules.Outcome(*game[rules.STATE_END :])
     games, agents = state.pos.shape
     for n in range(len(actions)):
         if ties[n] > 0:

@@ -25,7 +25,7 @@ import numpy as np
 from dqn_transfer.agents.random_streams import draw_uniforms
 from dqn_transfer.agents.state_index import DenseIndex
 from dqn_transfer.agents.tabular import DRAWS_PER_AGENT_STEP, TabularLearner
-from dqn_transfer.agents.tabular_kernels import _choose, _update_entry
+from dqn_transfer.agents.tabular_kernels import choose_action, update_entry
 from dqn_transfer.compiled import kernel
 from dqn_transfer.enums import Algorithm, Exchange, RewardMode
 from dqn_transfer.envs import rules
@@ -208,7 +208,7 @@ def _run(
 ):
     """The steps of :meth:`TabularSteps.run` (see the module docstring); ``resume``: the step's actions
     are taken and its chest ties drawn, go on with the game's step."""
-    tables, state, out = game[: rules._TABLES], game[rules._TABLES : rules._STATE_END], game[rules._STATE_END :]
+    tables, state, out = game[: rules.TABLES_END], game[rules.TABLES_END : rules.STATE_END], game[rules.STATE_END :]
     tables, state, out = rules.Tables(*tables), rules.State(*state), rules.Outcome(*out)
     replicas, agents = state.pos.shape
     rows = replicas * agents
@@ -229,7 +229,7 @@ def _run(
                 epsilon[row] = eps_start[row] + fraction * (eps_end[row] - eps_start[row])
                 r, a = row // agents, row % agents
                 draw_uniforms(act_keys[row], act_counters[r], draws)
-                chosen = _choose(q[row, state_ids[row]], epsilon[row], draws)
+                chosen = choose_action(q[row, state_ids[row]], epsilon[row], draws)
                 live = state.live[r, a]
                 if live and next_action[row] >= 0 and next_state[row] == state_ids[row]:
                     chosen = next_action[row]
@@ -262,11 +262,11 @@ def _run(
             next_action[row] = -1
             bootstrap = -1
             if sarsa:
-                bootstrap = _choose(q[row, there], epsilon[row], draws)
+                bootstrap = choose_action(q[row, there], epsilon[row], draws)
                 if not out.truncated[r, a] and not out.terminated[r, a]:
                     next_action[row] = bootstrap
                     next_state[row] = there
-            q_sa, td_error = _update_entry(
+            q_sa, td_error = update_entry(
                 q, row, here, actions[r, a], out.rewards[r, a], there, out.terminated[r, a], bootstrap, gamma, lr
             )
             if entry_order[row, here] < 0:
