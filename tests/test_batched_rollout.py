@@ -15,7 +15,8 @@ from dqn_transfer.envs.maps import generate_layout, parse_layout
 from dqn_transfer.envs.observation_code import observation_code
 from dqn_transfer.evaluation import batched_rollout
 from dqn_transfer.evaluation.batched_rollout import GAMES_PER_BATCH, evaluate_replicas
-from dqn_transfer.evaluation.rollout import EvaluationStopped, evaluate, evaluation_rng, greedy_policy, play_episode
+from dqn_transfer.evaluation.rollout import EvaluationStopped, evaluate, evaluation_rng, greedy_policy
+from dqn_transfer.evaluation.watch import RecordedEpisode, record_episode
 
 SEEDS = [4, 7, 9]
 
@@ -63,27 +64,42 @@ def test_one_batch_of_all_replicas_evaluations_equals_evaluating_them_one_by_one
     teams = [learner.replica(r) for r in range(3)]
     eval_games = [game.replica() for game in games]
     steps = [0, 300, 500]  # each replica's evaluation step
-    # Replica 1's episode 0 already played by the caller (as for an evaluation picture).
-    rng = evaluation_rng(SEEDS[1], steps[1], 0)
-    first = play_episode(eval_games[1], greedy_policy(teams[1], rng), rng)
-    firsts = [None, first, None]
-    batched = evaluate_replicas(learner, teams, eval_games, 6, SEEDS, steps, firsts)
-    one_by_one = [
-        evaluate(team, game, 6, seed, step, first=f)
-        for team, game, seed, step, f in zip(teams, eval_games, SEEDS, steps, firsts)
-    ]
+    pictured = [False, True, False]  # replica 1's episode 0 recorded frame by frame (an evaluation picture)
+    evaluations = evaluate_replicas(learner, teams, eval_games, 6, SEEDS, steps, pictured)
+    batched = [evaluation.record for evaluation in evaluations]
+    one_by_one = [evaluate(team, game, 6, seed, step) for team, game, seed, step in zip(teams, eval_games, SEEDS, steps)]
     assert batched == one_by_one  # every float bit for bit
+    assert [evaluation.pictured is None for evaluation in evaluations] == [True, False, True]
+    rng = evaluation_rng(SEEDS[1], steps[1], 0)
+    assert_same_episode(evaluations[1].pictured, record_episode(eval_games[1], greedy_policy(teams[1], rng), rng))
     assert len({record["team_return"] for record in batched}) > 1  # not vacuous: the replicas differ
     if chests == 2:
         assert any(record["return_after_clear"] != 0 for record in batched)
+
+
+def assert_same_episode(got: RecordedEpisode, expected: RecordedEpisode) -> None:
+    """The same frames, observations and result, array for array."""
+    assert got.result == expected.result and len(got.frames) == len(expected.frames) == got.result.length + 1
+    for mine, theirs in zip(got.frames, expected.frames):
+        assert mine.step == theirs.step and mine.team_return == theirs.team_return
+        for field in ("positions", "live", "chest_full"):
+            np.testing.assert_array_equal(getattr(mine, field), getattr(theirs, field))
+    assert len(got.observations) == len(expected.observations)
+    for (obs, live), (expected_obs, expected_live) in zip(got.observations, expected.observations):
+        np.testing.assert_array_equal(obs, expected_obs)
+        np.testing.assert_array_equal(live, expected_live)
 
 
 def test_without_the_batched_learner_each_replica_is_evaluated_through_its_team():
     games = [TreasureHuntGame(parse_layout(generate_layout(6, 2, 2, 2, 0.1, seed))) for seed in (1, 2, 3)]
     learner = trained(Algorithm.qlearning, games, steps=200)
     teams = [learner.replica(r) for r in range(3)]
-    got = evaluate_replicas(None, teams, games, 3, SEEDS, [100, 100, 100], [None] * 3)
-    assert got == [evaluate(team, game, 3, seed, 100) for team, game, seed in zip(teams, games, SEEDS)]
+    got = evaluate_replicas(None, teams, games, 3, SEEDS, [100, 100, 100], [False, False, True])
+    assert [evaluation.record for evaluation in got] == [
+        evaluate(team, game, 3, seed, 100) for team, game, seed in zip(teams, games, SEEDS)
+    ]
+    rng = evaluation_rng(SEEDS[2], 100, 0)
+    assert_same_episode(got[2].pictured, record_episode(games[2], greedy_policy(teams[2], rng), rng))
 
 
 @pytest.mark.parametrize("batched", [True, False])
@@ -100,6 +116,6 @@ def test_a_stop_asked_for_ends_an_evaluation_unfinished(batched):
         return len(calls) > 3
 
     with pytest.raises(EvaluationStopped):
-        evaluate_replicas(learner if batched else None, teams, games, 1000, SEEDS, [0] * 3, [None] * 3, stopped)
+        evaluate_replicas(learner if batched else None, teams, games, 1000, SEEDS, [0] * 3, [False] * 3, stopped)
     assert len(calls) == 4
-    assert len(evaluate_replicas(learner if batched else None, teams, games, 2, SEEDS, [0] * 3, [None] * 3)) == 3
+    assert len(evaluate_replicas(learner if batched else None, teams, games, 2, SEEDS, [0] * 3, [False] * 3)) == 3

@@ -9,12 +9,16 @@ one call, ``best_actions_stacked``), stepped until every episode has ended; each
 generators in the same order as when played alone, so every record is the one
 :func:`~dqn_transfer.evaluation.rollout.evaluate` gives (``tests/test_batched_rollout.py``). Games
 that cannot share a batch (another game) are evaluated replica by replica.
+
+The episode 0 of a replica whose evaluation is pictured (TensorBoard's picture, :mod:`~dqn_transfer.evaluation.watch`)
+is recorded frame by frame as it is played in the batch, as :func:`~dqn_transfer.evaluation.watch.record_episode`
+records it on its own.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -31,9 +35,19 @@ from dqn_transfer.evaluation.rollout import (
     EvaluationStopped,
     evaluate,
     evaluation_rng,
+    greedy_policy,
     never,
     summarize,
 )
+from dqn_transfer.evaluation.watch import EpisodeRecorder, RecordedEpisode, record_episode
+
+
+class Evaluation(NamedTuple):
+    """One replica's greedy evaluation: its record (:func:`~dqn_transfer.evaluation.rollout.summarize`),
+    and its episode 0 frame by frame where it was asked for (a picture), else None."""
+
+    record: dict[str, Any]
+    pictured: RecordedEpisode | None
 
 
 def evaluate_replicas(
@@ -43,9 +57,9 @@ def evaluate_replicas(
     episodes: int,
     seeds: Sequence[int],
     steps: Sequence[int],
-    firsts: Sequence[EpisodeResult | None],
+    pictured: Sequence[bool],
     stopped: Callable[[], bool] = never,
-) -> list[dict[str, Any]]:
+) -> list[Evaluation]:
     """Each replica's evaluation record, as :func:`~dqn_transfer.evaluation.rollout.evaluate` gives it.
 
     :param learner: the batched learner whose replicas these are, all of them (rows ``r * K + k``); None:
@@ -55,18 +69,30 @@ def evaluate_replicas(
     :param episodes: E, the greedy episodes of an evaluation
     :param seeds: replica r's seed, and ``steps``: the training step its evaluation is made at (together
         they seed the episodes)
-    :param firsts: replica r's episode 0 as the caller already played it (for a picture), or None
+    :param pictured: whether replica r's episode 0 is recorded frame by frame (a treasure hunt's only)
     :param stopped: whether a stop was asked for: then :class:`~dqn_transfer.evaluation.rollout.EvaluationStopped`
         is raised within a joint step (or an episode, replica by replica)
     """
     if learner is None or not fit_one_batch(games):
         return [
-            evaluate(team, game, episodes, seed, step, first, stopped)
-            for team, game, seed, step, first in zip(teams, games, seeds, steps, firsts)
+            _evaluate_alone(team, game, episodes, seed, step, picture, stopped)
+            for team, game, seed, step, picture in zip(teams, games, seeds, steps, pictured)
         ]
-    skip_first = [f is not None for f in firsts]
-    played = play_greedy_batch(learner, games, episodes, seeds, steps, skip_first, stopped)
-    return [summarize(own if first is None else [first, *own[1:]]) for own, first in zip(played, firsts)]
+    played, recorded = play_greedy_batch(learner, games, episodes, seeds, steps, pictured, stopped)
+    return [Evaluation(summarize(own), episode) for own, episode in zip(played, recorded)]
+
+
+def _evaluate_alone(
+    team: Team, game: Game, episodes: int, seed: int, step: int, pictured: bool, stopped: Callable[[], bool]
+) -> Evaluation:
+    """One replica's evaluation, its episodes played one after another."""
+    if not pictured or not isinstance(game, TreasureHuntGame):
+        return Evaluation(evaluate(team, game, episodes, seed, step, stopped=stopped), None)
+    if stopped():
+        raise EvaluationStopped
+    rng = evaluation_rng(seed, step, 0)
+    episode = record_episode(game, greedy_policy(team, rng), rng)
+    return Evaluation(evaluate(team, game, episodes, seed, step, episode.result, stopped), episode)
 
 
 # The most games one batch of an evaluation plays: its setup (maps, generators) is then a fraction of a second,
@@ -80,22 +106,23 @@ def play_greedy_batch(
     episodes: int,
     seeds: Sequence[int],
     steps: Sequence[int],
-    skip_first: Sequence[bool],
+    pictured: Sequence[bool],
     stopped: Callable[[], bool] = never,
-) -> list[list[EpisodeResult]]:
-    """Replica r's greedy episodes ``0..episodes-1`` (episode 0 a placeholder where ``skip_first[r]``),
-    played in batches of at most :data:`GAMES_PER_BATCH` games (every replica's episodes
-    ``e0..e1-1``); :class:`~dqn_transfer.evaluation.rollout.EvaluationStopped` between two joint steps once
-    ``stopped()``."""
+) -> tuple[list[list[EpisodeResult]], list[RecordedEpisode | None]]:
+    """Replica r's greedy episodes ``0..episodes-1``, played in batches of at most :data:`GAMES_PER_BATCH`
+    games (every replica's episodes ``e0..e1-1``), and its episode 0 recorded where ``pictured[r]``;
+    :class:`~dqn_transfer.evaluation.rollout.EvaluationStopped` between two joint steps once ``stopped()``."""
     per_batch = max(1, GAMES_PER_BATCH // len(games))
     results: list[list[EpisodeResult]] = [[] for _ in games]
+    recorded: list[RecordedEpisode | None] = [None] * len(games)
     for first in range(0, episodes, per_batch):
-        played = _play_episodes(
-            learner, games, range(first, min(first + per_batch, episodes)), seeds, steps, skip_first, stopped
-        )
+        numbers = range(first, min(first + per_batch, episodes))
+        played, recorders = _play_episodes(learner, games, numbers, seeds, steps, pictured, stopped)
         for own, new in zip(results, played):
             own.extend(new)
-    return results
+        for r, recorder in recorders.items():
+            recorded[r] = recorder.episode(results[r][0])
+    return results, recorded
 
 
 def _play_episodes(
@@ -104,18 +131,20 @@ def _play_episodes(
     numbers: range,
     seeds: Sequence[int],
     steps: Sequence[int],
-    skip_first: Sequence[bool],
+    pictured: Sequence[bool],
     stopped: Callable[[], bool],
-) -> list[list[EpisodeResult]]:
-    """Replica r's greedy episodes ``numbers``, all played in one batch (:func:`play_greedy_batch`)."""
+) -> tuple[list[list[EpisodeResult]], dict[int, EpisodeRecorder]]:
+    """Replica r's greedy episodes ``numbers``, all played in one batch (:func:`play_greedy_batch`), and
+    the recorders of the pictured replicas' episode 0 (by replica) if it is among them."""
     replicas, agents, episodes = len(games), games[0].num_agents, len(numbers)
     chests, reward_mode = games[0].num_treasures, RewardMode(games[0].reward_mode)
     slots = [(e, r) for e in numbers for r in range(replicas)]  # game g = (e - numbers.start) * R + r
     rngs = [evaluation_rng(seeds[r], steps[r], e) for e, r in slots]
     tie_rngs = [rng.spawn(1)[0] for rng in rngs]  # a child: the parent's stream stays the chest ties'
     hunts = TreasureHunts([games[r].map for _, r in slots], rngs, **games[0].settings())
-    skipped = np.array([e == 0 and skip_first[r] for e, r in slots])
-    hunts.end(skipped)  # not played here
+    recorders = {g: EpisodeRecorder(games[r]) for g, (e, r) in enumerate(slots) if e == 0 and pictured[r]}
+    for g, recorder in recorders.items():
+        recorder.snapshot(hunts, g, 0.0)
     count = len(slots)
     rows = count * agents  # row n: agent n % K of game n // K, the learner's row (n // K % R) * K + n % K
     learner_rows = np.tile(np.arange(replicas * agents), episodes)
@@ -139,6 +168,10 @@ def _play_episodes(
             best = learner.best_actions_stacked(hunts.obs.reshape(episodes, replicas * agents, -1)).reshape(rows, -1)
             actions[:] = np.where(live, best.argmax(axis=1), 0)
             ties[:] = np.where(live & (best.sum(axis=1) > 1), best.sum(axis=1), 0)
+        playing = hunts.live.any(axis=1)
+        for g, recorder in recorders.items():
+            if playing[g]:
+                recorder.observe(hunts, g)
         for n in np.flatnonzero(ties).tolist():  # each tie drawn as break_ties draws it: the k-th best action
             picks[n] = tie_rngs[n // agents].integers(ties[n])
         if code is None and ties.any():
@@ -150,6 +183,9 @@ def _play_episodes(
         if greedy_steps.step(*arguments, False, *constants, hunts.kernel_arrays()) == NEEDS_TIE_DRAWS:
             hunts.draw_ties()
             greedy_steps.step(*arguments, True, *constants, hunts.kernel_arrays())
+        for g, recorder in recorders.items():
+            if playing[g]:
+                recorder.snapshot(hunts, g, float(sums[g, 0]))
     team_return, return_after_clear, length, trapped, collected = (sums[:, column] for column in range(5))
     agent_returns = sums[:, 5:]
     results: list[list[EpisodeResult]] = [[] for _ in range(replicas)]
@@ -166,4 +202,4 @@ def _play_episodes(
                 tuple(float(value) for value in agent_returns[g]),
             )
         )
-    return results
+    return results, {slots[g][1]: recorder for g, recorder in recorders.items()}

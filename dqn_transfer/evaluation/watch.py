@@ -26,12 +26,11 @@ from PIL import Image
 from dqn_transfer.agents.base import Team
 from dqn_transfer.enums import RewardMode
 from dqn_transfer.envs import Game, PettingZooGame
-from dqn_transfer.envs.game import COLOURS, TreasureHuntGame, text_grid
+from dqn_transfer.envs.game import COLOURS, TreasureHuntGame, TreasureHunts, text_grid
 from dqn_transfer.envs.pictures import agent_colour, captioned, draw_state
 from dqn_transfer.evaluation.rollout import (
     EpisodeResult,
     Policy,
-    evaluation_rng,
     greedy_policy,
     play_episode,
     team_return_of,
@@ -85,6 +84,34 @@ def record_episode(game: TreasureHuntGame, policy: Policy, rng: np.random.Genera
 
     result = play_episode(game, policy, rng, on_step=on_step, on_reset=lambda: snapshot(0.0))
     return RecordedEpisode(game, frames, observations, result)
+
+
+class EpisodeRecorder:
+    """Records one game of a batch (:class:`~dqn_transfer.envs.game.TreasureHunts`) as it is played, as
+    :func:`record_episode` records a game played alone: :meth:`snapshot` after the reset and after each
+    step the game played, :meth:`observe` before it."""
+
+    def __init__(self, game: TreasureHuntGame) -> None:
+        """:param game: the game the batch's game ``g`` plays (its map and rules, for the pictures)."""
+        self.game = game
+        self.frames: list[Frame] = []
+        self.observations: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def snapshot(self, hunts: TreasureHunts, g: int, team_return: float) -> None:
+        """A frame of game ``g`` as it stands, with the team return so far."""
+        state = hunts.state
+        positions = np.stack(np.divmod(state.pos[g], hunts.size), axis=1)
+        self.frames.append(
+            Frame(int(state.t[g]), positions, state.live[g].copy(), state.chest_full[g].copy(), team_return)
+        )
+
+    def observe(self, hunts: TreasureHunts, g: int) -> None:
+        """What game ``g``'s agents act on in the coming step."""
+        self.observations.append((hunts.obs[g].copy(), hunts.live[g].copy()))
+
+    def episode(self, result: EpisodeResult) -> RecordedEpisode:
+        """The recorded episode, which ended with ``result``."""
+        return RecordedEpisode(self.game, self.frames, self.observations, result)
 
 
 @dataclass
@@ -284,21 +311,18 @@ def replay_in_terminal(episodes: Sequence[RecordedEpisode], stream: TextIO | Non
 # ------------------------------------------------------------------------------------ TensorBoard
 
 
-# An evaluation's first episode as TensorBoard shows it: its picture, each agent's Q-values there, its result.
-EvaluationViews = tuple[np.ndarray, list[np.ndarray], EpisodeResult]
+# An evaluation's first episode as TensorBoard shows it: its last frame with every trail, each agent's Q-values there.
+EvaluationViews = tuple[np.ndarray, list[np.ndarray]]
 
 
-def evaluation_views(learner: Team, game: TreasureHuntGame, seed: int, step: int) -> EvaluationViews:
-    """What TensorBoard shows of the evaluation at training step ``step``: its first episode, played here
-    from the evaluation's own generator, as its last frame with every trail, ``[H, W, 3]`` uint8, and per
-    agent the Q-values of every observation it acted on in that episode; and the episode's result, for
-    :func:`~dqn_transfer.evaluation.rollout.evaluate` (which then does not play it again)."""
-    rng = evaluation_rng(seed, step, 0)
-    episode = record_episode(game, greedy_policy(learner, rng), rng)
+def evaluation_views(learner: Team, episode: RecordedEpisode) -> EvaluationViews:
+    """What TensorBoard shows of an evaluation: its first episode (recorded as it was played) as its last
+    frame with every trail, ``[H, W, 3]`` uint8, and per agent the Q-values of every observation it acted
+    on in that episode."""
     picture = frame_picture(episode, len(episode.frames) - 1, cell_px=TENSORBOARD_CELL_PX)
-    q_values: list[list[np.ndarray]] = [[] for _ in range(game.num_agents)]
+    q_values: list[list[np.ndarray]] = [[] for _ in range(episode.game.num_agents)]
     for obs, live in episode.observations:
         values = learner.q_values(obs)
         for agent in np.flatnonzero(live):
             q_values[agent].append(values[agent])
-    return np.asarray(picture), [np.concatenate(q) if q else np.zeros(0) for q in q_values], episode.result
+    return np.asarray(picture), [np.concatenate(q) if q else np.zeros(0) for q in q_values]

@@ -27,7 +27,7 @@ from dqn_transfer.config import TrainConfig, to_plain
 from dqn_transfer.enums import Exchange, RewardMode
 from dqn_transfer.envs import Game, TreasureHuntGame
 from dqn_transfer.evaluation.rollout import team_returns_of
-from dqn_transfer.evaluation.watch import EvaluationViews, evaluation_views
+from dqn_transfer.evaluation.watch import RecordedEpisode, evaluation_views
 from dqn_transfer.storage.run_dir import RunDir
 from dqn_transfer.training.loggers import RunLoggers
 from dqn_transfer.transfer.exchange import exchange_best, exchange_replay
@@ -306,17 +306,10 @@ class Replica:
         logger.flush()
 
     # ------------------------------------------------------------------ evaluation
-    def evaluation_views(self) -> EvaluationViews | None:
-        """If :attr:`pictures`: the coming evaluation's first episode, played here, as TensorBoard shows
-        it (a picture and the agents' Q-values there) and its result (the evaluation's episode 0)."""
-        if not self.pictures or not isinstance(self.eval_game, TreasureHuntGame):  # other games draw none
-            return None
-        return evaluation_views(self.learner, self.eval_game, self.config.seed, self.counters.step)
-
-    def record_evaluation(self, result: dict[str, Any], views: EvaluationViews | None) -> None:
+    def record_evaluation(self, result: dict[str, Any], pictured: RecordedEpisode | None) -> None:
         """Write a greedy evaluation's record (:func:`~dqn_transfer.evaluation.rollout.summarize` of its
         episodes) to ``metrics.jsonl`` and the logs (the game's headline metrics), with
-        :meth:`evaluation_views`' picture and Q-values if any. The console line is the batch's
+        the picture and Q-values of its first episode if it was recorded (:attr:`pictures`). The console line is the batch's
         (:func:`evaluation_line`)."""
         step = self.counters.step
         self.counters.evaluations += 1
@@ -335,9 +328,8 @@ class Replica:
             stream.write(json.dumps(record) + "\n")
         metrics = self.game.headline_metrics
         self.logger.scalars([(f"eval/{key}", result[key]) for key in metrics], step)  # one event
-        if views is not None:
-            picture, q_values, _ = views
-            self.logger.evaluation_views(picture, q_values, step)
+        if pictured is not None:
+            self.logger.evaluation_views(*evaluation_views(self.learner, pictured), step)
 
 
 def metric_text(key: str, value: float) -> str:

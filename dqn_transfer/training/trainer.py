@@ -380,24 +380,24 @@ class Trainer:
         """Greedy evaluation of ``replicas`` at their current step, all played as one batch; False when a stop
         was asked for before it finished (then nothing is recorded: a resumed run plays it again, whole)."""
         with self.evaluation_time:
-            views = [rep.evaluation_views() for rep in replicas]
             try:
-                results = evaluate_replicas(
+                evaluations = evaluate_replicas(
                     self.learner if len(replicas) == len(self.replicas) else None,  # its rows are all replicas'
                     [rep.learner for rep in replicas],
                     [rep.eval_game for rep in replicas],
                     self.config.eval_episodes,
                     [rep.config.seed for rep in replicas],
                     [rep.counters.step for rep in replicas],
-                    [None if view is None else view[2] for view in views],
+                    [rep.pictures for rep in replicas],
                     stop.asked,
                 )
             except EvaluationStopped:
                 log.warning("the evaluation at step %d was stopped unfinished; a resumed run plays it again", self.step)
                 return False
-            for rep, result, view in zip(replicas, results, views):
-                rep.record_evaluation(result, view)
-            log.info(evaluation_line(self.step, results, replicas[0].game.headline_metrics))
+            for rep, evaluation in zip(replicas, evaluations):
+                rep.record_evaluation(*evaluation)
+            records = [evaluation.record for evaluation in evaluations]
+            log.info(evaluation_line(self.step, records, replicas[0].game.headline_metrics))
         return True
 
     def _stop_here(self, stop: StopRequest) -> NoReturn:
