@@ -67,7 +67,9 @@ def test_one_batch_of_all_replicas_evaluations_equals_evaluating_them_one_by_one
     pictured = [False, True, False]  # replica 1's episode 0 recorded frame by frame (an evaluation picture)
     evaluations = evaluate_replicas(learner, teams, eval_games, 6, SEEDS, steps, pictured)
     batched = [evaluation.record for evaluation in evaluations]
-    one_by_one = [evaluate(team, game, 6, seed, step) for team, game, seed, step in zip(teams, eval_games, SEEDS, steps)]
+    one_by_one = [
+        evaluate(team, game, 6, seed, step) for team, game, seed, step in zip(teams, eval_games, SEEDS, steps)
+    ]
     assert batched == one_by_one  # every float bit for bit
     assert [evaluation.pictured is None for evaluation in evaluations] == [True, False, True]
     rng = evaluation_rng(SEEDS[1], steps[1], 0)

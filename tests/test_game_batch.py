@@ -84,8 +84,8 @@ def test_one_batch_and_the_loop_agree_step_by_step_and_across_a_saved_episode(mo
             batch = TreasureHunts.of_games(*started(games_of(LAYOUTS, **rules), seed=5))
             looped = LoopedGames(*started(games_of(LAYOUTS, **rules), seed=5))
             for r in range(3):
-                batch.rngs[r].bit_generator.state = rngs[r].bit_generator.state
                 looped.rngs[r].bit_generator.state = rngs[r].bit_generator.state
+                batch.use_generator(r, rngs[r])  # handed over: its state is copied for the kernels
                 batch.load_state_dict(r, saved[r])
                 looped.load_state_dict(r, saved[r])
             assert [batch.state_dict(r) for r in range(3)] == saved

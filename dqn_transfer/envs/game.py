@@ -31,6 +31,7 @@ from typing import Any, NamedTuple, TypeGuard
 import numpy as np
 
 import dqn_transfer.envs.rules as rules
+import dqn_transfer.envs.tie_draws as tie_draws
 from dqn_transfer.enums import Mode, ObsEncoding, RewardMode, check_choice, check_enum
 from dqn_transfer.envs.batch import BatchStep, GameBatch
 from dqn_transfer.envs.maps import GridMap, resolve_map
@@ -138,6 +139,10 @@ class TreasureHunts(GameBatch):
     Its arrays (:attr:`obs`, :attr:`live`, a :class:`~dqn_transfer.envs.batch.BatchStep`'s) are new at
     every step and reset, so a caller may keep them. A replica whose episode is over stays as it is when
     stepped, until it is reset.
+
+    The kernels draw the chest ties from a copy of each generator's state (``state.tie_rng``), made when
+    the generator is handed over (here, :meth:`use_generator`) and written back after every step that
+    drew (:meth:`keep_draws`): the generators are the games' while they play, drawn from nowhere else.
     """
 
     def __init__(
@@ -213,6 +218,8 @@ class TreasureHunts(GameBatch):
         if len(self.rngs) != self.num_replicas:
             raise ValueError(f"{len(self.rngs)} generators for {self.num_replicas} games")
         self.state = rules.State.empty(self.num_replicas, self.num_agents, self.num_treasures, self.obs_dim)
+        for r, rng in enumerate(self.rngs):
+            tie_draws.pack(rng, self.state.tie_rng[r])
         self._out = rules.Outcome.empty(self.num_replicas, self.num_agents, self.num_treasures)
         self._row = rules.arrays(self.tables, self.state, self._out)
         self.reset(np.ones(self.num_replicas, dtype=bool))
@@ -248,9 +255,7 @@ class TreasureHunts(GameBatch):
     def _fresh_arrays(self) -> None:
         """New ``obs`` and ``live`` arrays for the kernels to change (a caller may hold the old ones)."""
         s = self.state
-        self.state = rules.State(
-            s.pos, s.live.copy(), s.chest_full, s.belief, s.assigned, s.t, s.treasures_collected, s.obs.copy()
-        )
+        self.state = s._replace(live=s.live.copy(), obs=s.obs.copy())
         self._row = rules.arrays(self.tables, self.state, self._out)
 
     def step(self, actions: np.ndarray) -> BatchStep:
@@ -277,17 +282,12 @@ class TreasureHunts(GameBatch):
     def advance(self, actions: np.ndarray) -> rules.Outcome:
         """The joint step of ``actions [R, K] int64``; the outcome's arrays are overwritten by the next one."""
         self._fresh_arrays()
-        status = self._step(actions, ties_drawn=False)
-        if status == rules.NEEDS_TIE_DRAWS:
-            self.draw_ties()
-            status = self._step(actions, ties_drawn=True)
+        status = rules.step_arrays(actions, *self.rule_constants, *self._row)
+        self.keep_draws()
         if status == rules.BAD_ACTION:
             played = np.unique(actions[self.state.live]).tolist()
             raise ValueError(f"actions must be in 0..{self.num_actions - 1}, got {played}")
         return self._out
-
-    def _step(self, actions: np.ndarray, ties_drawn: bool) -> int:
-        return int(rules.step_arrays(actions, ties_drawn, *self.rule_constants, *self._row))
 
     @property
     def rule_constants(self) -> tuple[np.ndarray, int, bool, bool]:
@@ -297,21 +297,23 @@ class TreasureHunts(GameBatch):
 
     def kernel_arrays(self) -> tuple[np.ndarray, ...]:
         """The row of arrays the rules' kernels take (:func:`~dqn_transfer.envs.rules.arrays`), with new
-        ``obs`` and ``live`` arrays for them to change: a kernel that steps these games takes it."""
+        ``obs`` and ``live`` arrays for them to change: a kernel that steps these games takes it (and
+        :meth:`keep_draws` follows it)."""
         self._fresh_arrays()
         return self._row
 
-    def draw_ties(self) -> None:
-        """The winner of every chest several agents entered while full, after a step that stopped for
-        them: replica r draws from ``rngs[r]``, its chests in the order of their lowest-index contender."""
-        out = self._out
-        for r in np.flatnonzero((out.contenders > 1).any(axis=1)).tolist():
-            drawn: set[int] = set()
-            for chest in out.entered[r].tolist():
-                count = int(out.contenders[r, chest]) if chest >= 0 else 0
-                if count > 1 and chest not in drawn:
-                    drawn.add(chest)
-                    out.winner[r, chest] = int(self.rngs[r].integers(count))
+    def use_generator(self, replica: int, rng: np.random.Generator) -> None:
+        """Replica ``replica`` draws its chest ties from ``rng`` from now on."""
+        tie_draws.pack(rng, self.state.tie_rng[replica])
+        self.rngs[replica] = rng
+
+    def keep_draws(self) -> None:
+        """Write the tie draws the kernels made back into the generators (call it after a kernel that
+        stepped these games)."""
+        drawn = self.state.tie_drawn
+        for r in np.flatnonzero(drawn).tolist():
+            tie_draws.unpack(self.state.tie_rng[r], self.rngs[r])
+        drawn[:] = False
 
     def reset(self, which: np.ndarray) -> None:
         """Start a new episode in the replicas of the mask ``which [R] bool``."""
@@ -531,13 +533,13 @@ class TreasureHuntGame:
         draws the later ties, as in :meth:`reset`. A state that does not fit this game (another map or
         rules) raises ``ValueError`` and leaves the game as it was."""
         self._games.load_state_dict(0, state)
-        self._games.rngs[0] = rng
+        self._games.use_generator(0, rng)
         return self._games.state.obs[0].copy()
 
     # ------------------------------------------------------------------ dynamics
     def reset(self, rng: np.random.Generator) -> np.ndarray:
         """Agents to their starts, every chest full; ``rng`` draws the winners of chest ties."""
-        self._games.rngs[0] = rng
+        self._games.use_generator(0, rng)
         self._games.reset(self._first)
         return self._games.state.obs[0].copy()
 

@@ -10,8 +10,9 @@ A joint step of replica r, agent by agent in index order (:func:`step`):
 1. every live agent moves: off the grid it stays, into an obstacle it goes back to its own start;
    each pays ``step_reward``; an agent entering a trap gets ``trap_reward`` and ends;
 2. agents entering a full chest contend for it: a lone one takes it, several draw the winner from the
-   replica's generator (the only draw of the game, made by the caller between the two passes of
-   :func:`step`: chests in the order of their lowest-index contender, ``rng.integers(contenders)``);
+   replica's generator (the only draw of the game: chests in the order of their lowest-index contender,
+   ``rng.integers(contenders)``, drawn in the kernel from the generator's packed state,
+   :mod:`~dqn_transfer.envs.tie_draws`);
    the winner gets ``treasure_reward`` and ends, the others pay the step and play on. Whoever entered a
    chest now believes it empty; outside ``competitive`` mode an emptied chest is announced to all;
 3. agents still live at ``max_steps`` are truncated; in ``deliberative`` mode the coordinator assigns
@@ -27,6 +28,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+import dqn_transfer.envs.tie_draws as tie_draws
 from dqn_transfer.compiled import kernel
 from dqn_transfer.enums import Mode, ObsEncoding
 from dqn_transfer.envs.maps import GridMap
@@ -35,7 +37,7 @@ ACTION_MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))  # 0 up, 1 down, 2 left, 3 rig
 FREE, CHEST, TRAP = 0, 1, 2  # what a cell holds, besides obstacles
 NO_CHEST = -1  # ``entered``: the agent did not enter a chest
 # Step status (what :func:`step` returns).
-DONE, NEEDS_TIE_DRAWS, BAD_ACTION = 0, 1, 2
+DONE, BAD_ACTION = 0, 2
 
 
 class Tables(NamedTuple):
@@ -186,6 +188,9 @@ class State(NamedTuple):
     the coordinator's chest for each agent (``-1``: none; deliberative mode). ``t [R] int64``: joint
     steps of the episode. ``treasures_collected [R] int64``: chests emptied in the episode.
     ``obs [R, K, obs_dim] float32``: every agent's observation (a non-live agent's stays its last).
+    ``tie_rng [R, 6] uint64``: each replica's generator of chest ties, packed
+    (:func:`~dqn_transfer.envs.tie_draws.pack`); ``tie_drawn [R] bool``: it drew since it was last
+    unpacked into the generator.
     """
 
     pos: np.ndarray
@@ -196,6 +201,8 @@ class State(NamedTuple):
     t: np.ndarray
     treasures_collected: np.ndarray
     obs: np.ndarray
+    tie_rng: np.ndarray
+    tie_drawn: np.ndarray
 
     @staticmethod
     def empty(replicas: int, agents: int, chests: int, obs_dim: int) -> State:
@@ -208,6 +215,8 @@ class State(NamedTuple):
             t=np.zeros(replicas, dtype=np.int64),
             treasures_collected=np.zeros(replicas, dtype=np.int64),
             obs=np.zeros((replicas, agents, obs_dim), dtype=np.float32),
+            tie_rng=np.zeros((replicas, tie_draws.WORDS), dtype=np.uint64),
+            tie_drawn=np.zeros(replicas, dtype=bool),
         )
 
 
@@ -217,10 +226,10 @@ class Outcome(NamedTuple):
     ``rewards [R, K] float32``; ``terminated [R, K] bool``: ended in a chest or a trap; ``truncated
     [R, K] bool``: still live at ``max_steps``; ``trap [R, K] bool``; ``bounced [R, K] bool``: moved into
     an obstacle; ``acted [R, K] bool``: was live before the step; ``collected [R] int64``: chests
-    emptied by the step; ``ended [R] bool``: no agent of the replica is live any more. Scratch for
-    the tie draws: ``entered [R, K] int64``, the chest an agent entered (``-1``: none); ``contenders
+    emptied by the step; ``ended [R] bool``: no agent of the replica is live any more. The chests'
+    contests: ``entered [R, K] int64``, the chest an agent entered (``-1``: none); ``contenders
     [R, k] int64``, how many agents entered each chest while it was full; ``winner [R, k] int64``,
-    which of them (in agent order) takes it.
+    which of them (in agent order) takes it (``-1``: not drawn).
     """
 
     rewards: np.ndarray
@@ -407,22 +416,21 @@ def reset(tables, state, which):
 
 
 @kernel
-def step(tables, state, actions, out, ties_drawn, rewards, max_steps, team, announce):
+def step(tables, state, actions, out, rewards, max_steps, team, announce):
     """One joint step of every replica (the module docstring's rules), in place on ``state`` and ``out``.
 
     ``actions [R, K]`` (those of non-live agents are ignored); ``rewards`` (step, trap, treasure) as
     float32; ``team``: team rewards; ``announce``: an emptied chest is announced to all (not
-    competitive). Returns BAD_ACTION (nothing changed) if a live agent's action is not in 0..3;
-    NEEDS_TIE_DRAWS (nothing changed but ``out.entered`` and ``out.contenders``) when agents contend for
-    a chest and ``ties_drawn`` is False: fill ``out.winner`` and call again with ``ties_drawn``; else DONE.
+    competitive). Returns BAD_ACTION (nothing changed but the contests' scratch) if a live agent's
+    action is not in 0..3, else DONE.
     """
     replicas, agents = state.pos.shape
     chests = state.chest_full.shape[1]
     step_reward, trap_reward, treasure_reward = rewards[0], rewards[1], rewards[2]
-    contested = False
     for r in range(replicas):
         for c in range(chests):
             out.contenders[r, c] = 0
+            out.winner[r, c] = -1
         for a in range(agents):
             out.entered[r, a] = NO_CHEST
             if not state.live[r, a]:
@@ -436,9 +444,13 @@ def step(tables, state, actions, out, ties_drawn, rewards, max_steps, team, anno
                 out.entered[r, a] = c
                 if state.chest_full[r, c]:
                     out.contenders[r, c] += 1
-                    contested = contested or out.contenders[r, c] > 1
-    if contested and not ties_drawn:
-        return NEEDS_TIE_DRAWS
+    # The contested chests' winners, in the order of their lowest-index contender.
+    for r in range(replicas):
+        for a in range(agents):
+            c = out.entered[r, a]
+            if c != NO_CHEST and out.contenders[r, c] > 1 and out.winner[r, c] < 0:
+                out.winner[r, c] = tie_draws.integers(state.tie_rng[r], out.contenders[r, c])
+                state.tie_drawn[r] = True
 
     for r in range(replicas):
         out.collected[r] = 0
@@ -548,12 +560,12 @@ def arrays(tables: Tables, state: State, out: Outcome) -> tuple[np.ndarray, ...]
 
 
 @kernel
-def step_arrays(actions, ties_drawn, rewards, max_steps, team, announce, *row):
+def step_arrays(actions, rewards, max_steps, team, announce, *row):
     """:func:`step` on the :func:`arrays` of a Tables, a State and an Outcome."""
     tables = Tables(*row[:TABLES_END])
     state = State(*row[TABLES_END:STATE_END])
     out = Outcome(*row[STATE_END:])
-    return step(tables, state, actions, out, ties_drawn, rewards, max_steps, team, announce)
+    return step(tables, state, actions, out, rewards, max_steps, team, announce)
 
 
 @kernel

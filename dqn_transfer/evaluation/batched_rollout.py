@@ -18,7 +18,7 @@ records it on its own.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 import numpy as np
 
@@ -26,9 +26,8 @@ from dqn_transfer.agents.base import Learner, Team
 from dqn_transfer.agents.state_index import DenseIndex
 from dqn_transfer.agents.tabular import TabularLearner
 from dqn_transfer.enums import RewardMode
-from dqn_transfer.envs import Game
+from dqn_transfer.envs import Game, tie_draws
 from dqn_transfer.envs.game import TreasureHuntGame, TreasureHunts, fit_one_batch
-from dqn_transfer.envs.rules import NEEDS_TIE_DRAWS
 from dqn_transfer.evaluation import greedy_steps
 from dqn_transfer.evaluation.rollout import (
     EpisodeResult,
@@ -140,7 +139,11 @@ def _play_episodes(
     chests, reward_mode = games[0].num_treasures, RewardMode(games[0].reward_mode)
     slots = [(e, r) for e in numbers for r in range(replicas)]  # game g = (e - numbers.start) * R + r
     rngs = [evaluation_rng(seeds[r], steps[r], e) for e, r in slots]
-    tie_rngs = [rng.spawn(1)[0] for rng in rngs]  # a child: the parent's stream stays the chest ties'
+    # Each game's greedy ties are drawn from a child of its generator (the parent's stream stays the chest
+    # ties'), packed for the kernels; the children are not used after the evaluation.
+    tie_rng = np.zeros((len(slots), tie_draws.WORDS), dtype=np.uint64)
+    for g, rng in enumerate(rngs):
+        tie_draws.pack(rng.spawn(1)[0], tie_rng[g])
     hunts = TreasureHunts([games[r].map for _, r in slots], rngs, **games[0].settings())
     recorders = {g: EpisodeRecorder(games[r]) for g, (e, r) in enumerate(slots) if e == 0 and pictured[r]}
     for g, recorder in recorders.items():
@@ -149,40 +152,30 @@ def _play_episodes(
     rows = count * agents  # row n: agent n % K of game n // K, the learner's row (n // K % R) * K + n % K
     learner_rows = np.tile(np.arange(replicas * agents), episodes)
     dense = isinstance(learner, TabularLearner) and isinstance(learner.index, DenseIndex)
-    q = learner.q if dense else np.zeros((1, 1, hunts.num_actions), dtype=np.float32)  # type: ignore[attr-defined]
-    code = learner.index.code if dense else None  # type: ignore[attr-defined]
+    tables = cast(TabularLearner, learner) if dense else None  # dense tables: the compiled choice
+    code = tables.index.code if tables is not None else None  # type: ignore[attr-defined]
     row_maps = code.replica_map[learner_rows // agents] if code is not None else learner_rows
     code_arguments = code.kernel_arguments() if code is not None else ()
     ids, actions = np.zeros(rows, dtype=np.int64), np.zeros(rows, dtype=np.int64)
-    ties, picks = np.zeros(rows, dtype=np.int64), np.zeros(rows, dtype=np.int64)
     sums = np.zeros((count, 5 + agents))  # greedy_steps.step's: returns, length, traps, chests, agents' returns
     cleared_at = np.full(count, -1, dtype=np.int64)  # the length when the last full chest was emptied
     while hunts.live.any():
         if stopped():
             raise EvaluationStopped
         live = hunts.live.reshape(-1)
-        if code is not None:
+        if tables is not None:
             obs = hunts.obs.reshape(rows, -1)
-            greedy_steps.choose(q, learner_rows, row_maps, code_arguments, obs, live, ids, actions, ties)
+            greedy_steps.choose(tables.q, learner_rows, row_maps, code_arguments, obs, live, ids, actions, tie_rng)
         else:
             best = learner.best_actions_stacked(hunts.obs.reshape(episodes, replicas * agents, -1)).reshape(rows, -1)
-            actions[:] = np.where(live, best.argmax(axis=1), 0)
-            ties[:] = np.where(live & (best.sum(axis=1) > 1), best.sum(axis=1), 0)
-        playing = hunts.live.any(axis=1)
+            greedy_steps.choose_among(best, live, actions, tie_rng)
+        playing = np.any(hunts.live, axis=1)
         for g, recorder in recorders.items():
             if playing[g]:
                 recorder.observe(hunts, g)
-        for n in np.flatnonzero(ties).tolist():  # each tie drawn as break_ties draws it: the k-th best action
-            picks[n] = tie_rngs[n // agents].integers(ties[n])
-        if code is None and ties.any():
-            tied = np.flatnonzero(ties)
-            actions[tied] = np.argmax(np.cumsum(best[tied], axis=1) > picks[tied, None], axis=1)
-            ties[:] = 0
-        arguments = (q, learner_rows, ids, actions, ties, picks)
         constants = (reward_mode is RewardMode.team, chests, sums, cleared_at, *hunts.rule_constants)
-        if greedy_steps.step(*arguments, False, *constants, hunts.kernel_arrays()) == NEEDS_TIE_DRAWS:
-            hunts.draw_ties()
-            greedy_steps.step(*arguments, True, *constants, hunts.kernel_arrays())
+        greedy_steps.step(actions, *constants, hunts.kernel_arrays())
+        hunts.keep_draws()
         for g, recorder in recorders.items():
             if playing[g]:
                 recorder.snapshot(hunts, g, float(sums[g, 0]))

@@ -308,9 +308,9 @@ class Replica:
     # ------------------------------------------------------------------ evaluation
     def record_evaluation(self, result: dict[str, Any], pictured: RecordedEpisode | None) -> None:
         """Write a greedy evaluation's record (:func:`~dqn_transfer.evaluation.rollout.summarize` of its
-        episodes) to ``metrics.jsonl`` and the logs (the game's headline metrics), with
-        the picture and Q-values of its first episode if it was recorded (:attr:`pictures`). The console line is the batch's
-        (:func:`evaluation_line`)."""
+        episodes) to ``metrics.jsonl`` and the logs (the game's headline metrics), with the picture and
+        Q-values of its first episode if it was recorded (:attr:`pictures`). The console line is the
+        batch's (:func:`evaluation_line`)."""
         step = self.counters.step
         self.counters.evaluations += 1
         self.last_eval = {k: v for k, v in result.items() if k != "agent_returns"}  # team means (checkpoint meta)

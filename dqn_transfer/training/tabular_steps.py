@@ -33,9 +33,6 @@ from dqn_transfer.envs.game import TreasureHunts
 from dqn_transfer.envs.game_batch import GameBatch
 from dqn_transfer.envs.observation_code import encode_rows
 
-# How a call of :func:`_run` ended: at the boundary, for the chest ties' draws, or with its record of
-# ended episodes full.
-REACHED, NEEDS_TIE_DRAWS, RECORD_FULL = 0, 1, 2
 EPISODES_PER_CALL = 4096  # the most ended episodes one call records before the caller logs them
 
 
@@ -112,14 +109,12 @@ class TabularSteps:
         ``(step, replica, values)`` (:meth:`EpisodeSums.ended_values`' row). Its game was restarted."""
         learner, games = self.learner, self.games
         episodes: list[tuple[int, int, np.ndarray]] = []
-        resume = False
         while step < last:
             self.entries[0] = learner.num_entries
             self.num_ended[0] = 0
-            status, step = _run(
+            step = _run(
                 step,
                 last,
-                resume,
                 self.state_ids,
                 self.actions,
                 learner.q,
@@ -155,11 +150,9 @@ class TabularSteps:
                 *games.rule_constants,
                 games.kernel_arrays(),
             )
+            games.keep_draws()
             learner.num_entries = int(self.entries[0])
             episodes += [(int(row[0]), int(row[1]), row[2:].copy()) for row in self.ended[: self.num_ended[0]]]
-            resume = status == NEEDS_TIE_DRAWS
-            if resume:
-                games.draw_ties()
         return episodes
 
 
@@ -167,7 +160,6 @@ class TabularSteps:
 def _run(
     step,
     last,
-    resume,
     state_ids,
     actions,
     q,
@@ -206,8 +198,8 @@ def _run(
     announce,
     game,
 ):
-    """The steps of :meth:`TabularSteps.run` (see the module docstring); ``resume``: the step's actions
-    are taken and its chest ties drawn, go on with the game's step."""
+    """The steps of :meth:`TabularSteps.run` (see the module docstring) from ``step`` to ``last``, or
+    until the record of ended episodes is full; returns the step reached."""
     tables, state, out = game[: rules.TABLES_END], game[rules.TABLES_END : rules.STATE_END], game[rules.STATE_END :]
     tables, state, out = rules.Tables(*tables), rules.State(*state), rules.Outcome(*out)
     replicas, agents = state.pos.shape
@@ -217,32 +209,28 @@ def _run(
     obs = state.obs.reshape(rows, -1)
     while step < last:
         if num_ended[0] + replicas > ended.shape[0]:
-            return RECORD_FULL, step
-        if not resume:
-            # 1. act (TabularLearner.act): epsilon-greedy on the ids of the observations, or SARSA's cached action
-            state_ids[:] = encode_rows(
-                obs, row_maps, size, onehot, chests, bits, slots, offsets, position_codes, view_static, view_chest
-            )
-            for row in range(rows):
-                duration = eps_duration[row]
-                fraction = min(max(step / duration, 0.0), 1.0) if duration > 0 else 1.0
-                epsilon[row] = eps_start[row] + fraction * (eps_end[row] - eps_start[row])
-                r, a = row // agents, row % agents
-                draw_uniforms(act_keys[row], act_counters[r], draws)
-                chosen = choose_action(q[row, state_ids[row]], epsilon[row], draws)
-                live = state.live[r, a]
-                if live and next_action[row] >= 0 and next_state[row] == state_ids[row]:
-                    chosen = next_action[row]
-                if live:
-                    next_action[row] = -1
-                actions[r, a] = chosen if live else 0
-            for r in range(replicas):
-                act_counters[r] += 1
-        # 2. the games' step (the caller draws the chest ties, then resumes here)
-        status = rules.step(tables, state, actions, out, resume, rewards, max_steps, team_rewards, announce)
-        if status == rules.NEEDS_TIE_DRAWS:
-            return NEEDS_TIE_DRAWS, step
-        resume = False
+            return step
+        # 1. act (TabularLearner.act): epsilon-greedy on the ids of the observations, or SARSA's cached action
+        state_ids[:] = encode_rows(
+            obs, row_maps, size, onehot, chests, bits, slots, offsets, position_codes, view_static, view_chest
+        )
+        for row in range(rows):
+            duration = eps_duration[row]
+            fraction = min(max(step / duration, 0.0), 1.0) if duration > 0 else 1.0
+            epsilon[row] = eps_start[row] + fraction * (eps_end[row] - eps_start[row])
+            r, a = row // agents, row % agents
+            draw_uniforms(act_keys[row], act_counters[r], draws)
+            chosen = choose_action(q[row, state_ids[row]], epsilon[row], draws)
+            live = state.live[r, a]
+            if live and next_action[row] >= 0 and next_state[row] == state_ids[row]:
+                chosen = next_action[row]
+            if live:
+                next_action[row] = -1
+            actions[r, a] = chosen if live else 0
+        for r in range(replicas):
+            act_counters[r] += 1
+        # 2. the games' step
+        rules.step(tables, state, actions, out, rewards, max_steps, team_rewards, announce)
         step += 1
         # 3. learn (TabularLearner.update) and the update window
         next_ids = encode_rows(
@@ -308,4 +296,4 @@ def _run(
             team_return[r] = 0.0
             traps[r] = 0
             rules.reset_replica(tables, state, r)
-    return REACHED, step
+    return step

@@ -1,0 +1,39 @@
+"""The compiled tie draws are numpy's own: the same numbers and the same generator state afterwards."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dqn_transfer.compiled import kernel
+from dqn_transfer.envs import tie_draws
+
+
+@kernel
+def _draw_all(words, bounds, out):
+    for i in range(len(bounds)):
+        out[i] = tie_draws.integers(words, bounds[i])
+
+
+@pytest.mark.parametrize("seed", [0, 12345, [4, 1_000_003, 500, 2]])
+@pytest.mark.parametrize("odd_start", [False, True])  # numpy holds half of a 64-bit output, or none
+def test_compiled_draws_are_numpys_draws_and_leave_the_same_state(seed, odd_start):
+    numpy_rng, compiled_rng = np.random.default_rng(seed), np.random.default_rng(seed)
+    if odd_start:
+        numpy_rng.integers(3), compiled_rng.integers(3)
+    bounds = np.random.default_rng(7).integers(2, 9, size=20_000)
+    bounds[::97] = 2**31 + 11  # wide ranges: Lemire's rejection loop runs (about half the time)
+    expected = np.array([numpy_rng.integers(int(n)) for n in bounds])
+    words = np.zeros(tie_draws.WORDS, dtype=np.uint64)
+    tie_draws.pack(compiled_rng, words)
+    drawn = np.zeros(len(bounds), dtype=np.int64)
+    _draw_all(words, bounds, drawn)
+    tie_draws.unpack(words, compiled_rng)
+    np.testing.assert_array_equal(drawn, expected)
+    assert compiled_rng.bit_generator.state == numpy_rng.bit_generator.state
+    assert compiled_rng.random() == numpy_rng.random()
+
+
+def test_a_generator_other_than_pcg64_is_refused():
+    with pytest.raises(ValueError, match="PCG64"):
+        tie_draws.pack(np.random.Generator(np.random.Philox(0)), np.zeros(tie_draws.WORDS, dtype=np.uint64))
