@@ -73,7 +73,12 @@ def test_one_batch_of_all_replicas_evaluations_equals_evaluating_them_one_by_one
     assert batched == one_by_one  # every float bit for bit
     assert [evaluation.pictured is None for evaluation in evaluations] == [True, False, True]
     rng = evaluation_rng(SEEDS[1], steps[1], 0)
-    assert_same_episode(evaluations[1].pictured, record_episode(eval_games[1], greedy_policy(teams[1], rng), rng))
+    episode = evaluations[1].pictured
+    assert_same_episode(episode, record_episode(eval_games[1], greedy_policy(teams[1], rng), rng))
+    if algorithm is Algorithm.dqn:
+        assert episode.q_values is None  # a network's values are asked for when the picture is drawn
+    else:  # a table's were kept as the episode was played
+        np.testing.assert_array_equal(episode.q_values, [teams[1].q_values(obs) for obs, _ in episode.observations])
     assert len({record["team_return"] for record in batched}) > 1  # not vacuous: the replicas differ
     if chests == 2:
         assert any(record["return_after_clear"] != 0 for record in batched)
@@ -106,8 +111,9 @@ def test_without_the_batched_learner_each_replica_is_evaluated_through_its_team(
 
 @pytest.mark.parametrize("batched", [True, False])
 def test_a_stop_asked_for_ends_an_evaluation_unfinished(batched):
-    """Asked after the third call (a joint step of the batch, or an episode replica by replica), the
-    evaluation raises instead of playing on to its end; without a stop, it ends with its records."""
+    """Asked after the first look (the batch looks between calls of its kernels, of at most
+    STEPS_PER_CALL joint steps; replica by replica, between episodes), the evaluation raises instead of
+    playing on to its end; without a stop, it ends with its records."""
     games = [TreasureHuntGame(parse_layout(generate_layout(6, 2, 2, 2, 0.1, seed))) for seed in (1, 2, 3)]
     learner = trained(Algorithm.qlearning, games, steps=200)
     teams = [learner.replica(r) for r in range(3)]
@@ -115,9 +121,9 @@ def test_a_stop_asked_for_ends_an_evaluation_unfinished(batched):
 
     def stopped() -> bool:
         calls.append(None)
-        return len(calls) > 3
+        return len(calls) > 1
 
     with pytest.raises(EvaluationStopped):
         evaluate_replicas(learner if batched else None, teams, games, 1000, SEEDS, [0] * 3, [False] * 3, stopped)
-    assert len(calls) == 4
+    assert len(calls) == 2
     assert len(evaluate_replicas(learner if batched else None, teams, games, 2, SEEDS, [0] * 3, [False] * 3)) == 3

@@ -255,7 +255,18 @@ class TreasureHunts(GameBatch):
     def _fresh_arrays(self) -> None:
         """New ``obs`` and ``live`` arrays for the kernels to change (a caller may hold the old ones)."""
         s = self.state
-        self.state = s._replace(live=s.live.copy(), obs=s.obs.copy())
+        self.state = rules.State(
+            s.pos,
+            s.live.copy(),
+            s.chest_full,
+            s.belief,
+            s.assigned,
+            s.t,
+            s.treasures_collected,
+            s.obs.copy(),
+            s.tie_rng,
+            s.tie_drawn,
+        )
         self._row = rules.arrays(self.tables, self.state, self._out)
 
     def step(self, actions: np.ndarray) -> BatchStep:
@@ -283,8 +294,9 @@ class TreasureHunts(GameBatch):
         """The joint step of ``actions [R, K] int64``; the outcome's arrays are overwritten by the next one."""
         self._fresh_arrays()
         status = rules.step_arrays(actions, *self.rule_constants, *self._row)
-        self.keep_draws()
-        if status == rules.BAD_ACTION:
+        if status == rules.TIES_DRAWN:
+            self.keep_draws()
+        elif status == rules.BAD_ACTION:
             played = np.unique(actions[self.state.live]).tolist()
             raise ValueError(f"actions must be in 0..{self.num_actions - 1}, got {played}")
         return self._out

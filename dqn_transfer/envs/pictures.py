@@ -131,10 +131,11 @@ def _draw_trail(draw: ImageDraw.ImageDraw, trail: np.ndarray, agent: int, team: 
     """Segments between consecutive cells, shifted a little per agent so that shared paths stay apart.
     A jump (an obstacle sent the agent back to its start) and a stay draw nothing."""
     shift = (agent - (team - 1) / 2) * cell_px / 8
-    centre = lambda rc: (rc[1] * cell_px + cell_px / 2 + shift, rc[0] * cell_px + cell_px / 2 + shift)  # noqa: E731
-    for before, after in zip(trail[:-1], trail[1:]):
-        if np.abs(after - before).sum() == 1:
-            draw.line((*centre(before), *centre(after)), fill=agent_colour(agent), width=max(2, cell_px // 10))
+    centres = (trail[:, ::-1] * cell_px + (cell_px / 2 + shift)).tolist()  # (x, y) of each cell's centre
+    moves = (np.abs(np.diff(trail, axis=0)).sum(axis=1) == 1).tolist()  # to a neighbouring cell
+    colour, width = agent_colour(agent), max(2, cell_px // 10)
+    for i in np.flatnonzero(moves).tolist():
+        draw.line((*centres[i], *centres[i + 1]), fill=colour, width=width)
 
 
 def _draw_agents(draw: ImageDraw.ImageDraw, positions: np.ndarray, live: np.ndarray, cell_px: int) -> None:

@@ -37,7 +37,7 @@ ACTION_MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))  # 0 up, 1 down, 2 left, 3 rig
 FREE, CHEST, TRAP = 0, 1, 2  # what a cell holds, besides obstacles
 NO_CHEST = -1  # ``entered``: the agent did not enter a chest
 # Step status (what :func:`step` returns).
-DONE, BAD_ACTION = 0, 2
+DONE, TIES_DRAWN, BAD_ACTION = 0, 1, 2
 
 
 class Tables(NamedTuple):
@@ -422,7 +422,8 @@ def step(tables, state, actions, out, rewards, max_steps, team, announce):
     ``actions [R, K]`` (those of non-live agents are ignored); ``rewards`` (step, trap, treasure) as
     float32; ``team``: team rewards; ``announce``: an emptied chest is announced to all (not
     competitive). Returns BAD_ACTION (nothing changed but the contests' scratch) if a live agent's
-    action is not in 0..3, else DONE.
+    action is not in 0..3, else TIES_DRAWN if a replica drew a chest's winner (``state.tie_drawn``),
+    else DONE.
     """
     replicas, agents = state.pos.shape
     chests = state.chest_full.shape[1]
@@ -445,12 +446,14 @@ def step(tables, state, actions, out, rewards, max_steps, team, announce):
                 if state.chest_full[r, c]:
                     out.contenders[r, c] += 1
     # The contested chests' winners, in the order of their lowest-index contender.
+    status = DONE
     for r in range(replicas):
         for a in range(agents):
             c = out.entered[r, a]
             if c != NO_CHEST and out.contenders[r, c] > 1 and out.winner[r, c] < 0:
                 out.winner[r, c] = tie_draws.integers(state.tie_rng[r], out.contenders[r, c])
                 state.tie_drawn[r] = True
+                status = TIES_DRAWN
 
     for r in range(replicas):
         out.collected[r] = 0
@@ -525,7 +528,7 @@ def step(tables, state, actions, out, rewards, max_steps, team, announce):
         for a in range(agents):
             if out.acted[r, a]:
                 observe(tables, state, r, a)
-    return DONE
+    return status
 
 
 @kernel

@@ -38,7 +38,7 @@ from dqn_transfer.evaluation.rollout import (
     never,
     summarize,
 )
-from dqn_transfer.evaluation.watch import EpisodeRecorder, RecordedEpisode, record_episode
+from dqn_transfer.evaluation.watch import Frame, RecordedEpisode, record_episode
 
 
 class Evaluation(NamedTuple):
@@ -94,6 +94,10 @@ def _evaluate_alone(
     return Evaluation(evaluate(team, game, episodes, seed, step, episode.result, stopped), episode)
 
 
+# The joint steps of dense tables' episodes one kernel call plays before a stop asked for is looked at.
+STEPS_PER_CALL = 16
+NO_TABLES = np.zeros((1, 1, 1), dtype=np.float32)  # greedy_steps.step's tables where it records no values
+
 # The most games one batch of an evaluation plays: its setup (maps, generators) is then a fraction of a second,
 # so a stop asked for during an evaluation of many episodes ends it within seconds, and its memory is bounded.
 GAMES_PER_BATCH = 4096
@@ -116,12 +120,32 @@ def play_greedy_batch(
     recorded: list[RecordedEpisode | None] = [None] * len(games)
     for first in range(0, episodes, per_batch):
         numbers = range(first, min(first + per_batch, episodes))
-        played, recorders = _play_episodes(learner, games, numbers, seeds, steps, pictured, stopped)
+        played, frames = _play_episodes(learner, games, numbers, seeds, steps, pictured, stopped)
         for own, new in zip(results, played):
             own.extend(new)
-        for r, recorder in recorders.items():
-            recorded[r] = recorder.episode(results[r][0])
+        for p, g in enumerate(frames.games.tolist()):  # episode 0 of replica g (game g of the first batch)
+            recorded[g] = _recorded_episode(games[g], frames, p, results[g][0])
     return results, recorded
+
+
+def _recorded_episode(
+    game: TreasureHuntGame, frames: greedy_steps.Frames, p: int, result: EpisodeResult
+) -> RecordedEpisode:
+    """Pictured game ``p`` of ``frames`` as :func:`~dqn_transfer.evaluation.watch.record_episode` records it."""
+    count = int(frames.num_frames[p])
+    episode = [
+        Frame(
+            int(frames.t[p, i]),
+            np.stack(np.divmod(frames.pos[p, i], game.size), axis=1),
+            frames.live[p, i].copy(),
+            frames.chest_full[p, i].copy(),
+            float(frames.team_return[p, i]),
+        )
+        for i in range(count)
+    ]
+    observations = [(frames.obs[p, i].copy(), frames.acting[p, i].copy()) for i in range(count - 1)]
+    values = frames.values[p, : count - 1].copy() if frames.values.shape[1] else None
+    return RecordedEpisode(game, episode, observations, result, values)
 
 
 def _play_episodes(
@@ -132,9 +156,9 @@ def _play_episodes(
     steps: Sequence[int],
     pictured: Sequence[bool],
     stopped: Callable[[], bool],
-) -> tuple[list[list[EpisodeResult]], dict[int, EpisodeRecorder]]:
+) -> tuple[list[list[EpisodeResult]], greedy_steps.Frames]:
     """Replica r's greedy episodes ``numbers``, all played in one batch (:func:`play_greedy_batch`), and
-    the recorders of the pictured replicas' episode 0 (by replica) if it is among them."""
+    the frames of the pictured replicas' episode 0 if it is among them (game g: replica g)."""
     replicas, agents, episodes = len(games), games[0].num_agents, len(numbers)
     chests, reward_mode = games[0].num_treasures, RewardMode(games[0].reward_mode)
     slots = [(e, r) for e in numbers for r in range(replicas)]  # game g = (e - numbers.start) * R + r
@@ -145,9 +169,6 @@ def _play_episodes(
     for g, rng in enumerate(rngs):
         tie_draws.pack(rng.spawn(1)[0], tie_rng[g])
     hunts = TreasureHunts([games[r].map for _, r in slots], rngs, **games[0].settings())
-    recorders = {g: EpisodeRecorder(games[r]) for g, (e, r) in enumerate(slots) if e == 0 and pictured[r]}
-    for g, recorder in recorders.items():
-        recorder.snapshot(hunts, g, 0.0)
     count = len(slots)
     rows = count * agents  # row n: agent n % K of game n // K, the learner's row (n // K % R) * K + n % K
     learner_rows = np.tile(np.arange(replicas * agents), episodes)
@@ -159,26 +180,23 @@ def _play_episodes(
     ids, actions = np.zeros(rows, dtype=np.int64), np.zeros(rows, dtype=np.int64)
     sums = np.zeros((count, 5 + agents))  # greedy_steps.step's: returns, length, traps, chests, agents' returns
     cleared_at = np.full(count, -1, dtype=np.int64)  # the length when the last full chest was emptied
-    while hunts.live.any():
+    pictured_games = np.array([g for g, (e, r) in enumerate(slots) if e == 0 and pictured[r]], dtype=np.int64)
+    frames = greedy_steps.Frames.empty(pictured_games, hunts.max_steps, hunts.state, hunts.num_actions, dense)
+    greedy_steps.record_frames(frames, hunts.state, sums, np.ones(count, dtype=bool))
+    constants = (reward_mode is RewardMode.team, chests, sums, cleared_at, *hunts.rule_constants)
+    playing = True
+    while playing:
         if stopped():
             raise EvaluationStopped
-        live = hunts.live.reshape(-1)
         if tables is not None:
-            obs = hunts.obs.reshape(rows, -1)
-            greedy_steps.choose(tables.q, learner_rows, row_maps, code_arguments, obs, live, ids, actions, tie_rng)
+            arguments = (tables.q, learner_rows, row_maps, code_arguments, tie_rng, ids, actions, frames)
+            playing = greedy_steps.play(*arguments, STEPS_PER_CALL, *constants, hunts.kernel_arrays())
         else:
             best = learner.best_actions_stacked(hunts.obs.reshape(episodes, replicas * agents, -1)).reshape(rows, -1)
-            greedy_steps.choose_among(best, live, actions, tie_rng)
-        playing = np.any(hunts.live, axis=1)
-        for g, recorder in recorders.items():
-            if playing[g]:
-                recorder.observe(hunts, g)
-        constants = (reward_mode is RewardMode.team, chests, sums, cleared_at, *hunts.rule_constants)
-        greedy_steps.step(actions, *constants, hunts.kernel_arrays())
+            greedy_steps.choose_among(best, hunts.live.reshape(-1), actions, tie_rng)
+            greedy_steps.step(NO_TABLES, learner_rows, ids, actions, frames, *constants, hunts.kernel_arrays())
+            playing = bool(hunts.live.any())
         hunts.keep_draws()
-        for g, recorder in recorders.items():
-            if playing[g]:
-                recorder.snapshot(hunts, g, float(sums[g, 0]))
     team_return, return_after_clear, length, trapped, collected = (sums[:, column] for column in range(5))
     agent_returns = sums[:, 5:]
     results: list[list[EpisodeResult]] = [[] for _ in range(replicas)]
@@ -195,4 +213,4 @@ def _play_episodes(
                 tuple(float(value) for value in agent_returns[g]),
             )
         )
-    return results, {slots[g][1]: recorder for g, recorder in recorders.items()}
+    return results, frames

@@ -11,6 +11,8 @@ same order and the same floats as an episode played alone (``tests/test_batched_
 
 from __future__ import annotations
 
+from typing import Any, NamedTuple
+
 import numpy as np
 
 from dqn_transfer.compiled import kernel
@@ -54,22 +56,105 @@ def choose_among(best, live, actions, tie_rng):
         actions[n] = pick_best(best[n], tie_rng[n // agents]) if live[n] else 0
 
 
+class Frames(NamedTuple):
+    """The pictured games' episodes, frame by frame as the kernels play them (P games of a batch, episodes
+    of at most T steps, K agents, k chests): a frame after the reset and after every step a game played.
+
+    ``games [P] int64``: the batch's game of each; ``num_frames [P] int64``: its frames so far. Frame i:
+    ``t [P, T + 1]``, ``pos [P, T + 1, K]`` (cells), ``live [P, T + 1, K]``, ``chest_full [P, T + 1, k]``,
+    ``team_return [P, T + 1]`` (so far). Step i: ``obs [P, T, K, D]`` what the agents acted on, ``acting
+    [P, T, K]`` who acted, ``values [P, T, K, A]`` their Q-values there (a table's; ``[P, 0, K, A]``: not
+    recorded).
+    """
+
+    games: np.ndarray
+    num_frames: np.ndarray
+    t: np.ndarray
+    pos: np.ndarray
+    live: np.ndarray
+    chest_full: np.ndarray
+    team_return: np.ndarray
+    obs: np.ndarray
+    acting: np.ndarray
+    values: np.ndarray
+
+    @staticmethod
+    def empty(games: np.ndarray, steps: int, state: Any, actions: int, values: bool) -> Frames:
+        """Room for the episodes of ``games`` (the batch's, ``state`` its :class:`~dqn_transfer.envs.rules.State`)."""
+        p, (_, agents, dim), chests = len(games), state.obs.shape, state.chest_full.shape[1]
+        return Frames(
+            games=np.asarray(games, dtype=np.int64),
+            num_frames=np.zeros(p, dtype=np.int64),
+            t=np.zeros((p, steps + 1), dtype=np.int64),
+            pos=np.zeros((p, steps + 1, agents), dtype=np.int64),
+            live=np.zeros((p, steps + 1, agents), dtype=bool),
+            chest_full=np.zeros((p, steps + 1, chests), dtype=bool),
+            team_return=np.zeros((p, steps + 1)),
+            obs=np.zeros((p, steps, agents, dim), dtype=np.float32),
+            acting=np.zeros((p, steps, agents), dtype=bool),
+            values=np.zeros((p, steps if values else 0, agents, actions), dtype=np.float32),
+        )
+
+
 @kernel
-def step(actions, team, chests, sums, cleared_at, rewards, max_steps, team_rewards, announce, game):
-    """The games' step with ``actions [G * K]`` and the episodes' sums ``sums [G, 5 + K]`` (team return,
-    return after the chests were cleared, length, traps, chests collected, each agent's return;
-    ``cleared_at [G]``: the length when the last chest was emptied, -1 before)."""
+def record_frames(frames, state, sums, played):
+    """A frame of each pictured game that ``played [G]`` (or of all, after their reset: ``played`` all True)."""
+    for p in range(len(frames.games)):
+        g, i = frames.games[p], frames.num_frames[p]
+        if not played[g]:
+            continue
+        frames.t[p, i] = state.t[g]
+        frames.pos[p, i] = state.pos[g]
+        frames.live[p, i] = state.live[g]
+        frames.chest_full[p, i] = state.chest_full[g]
+        frames.team_return[p, i] = sums[g, 0]
+        frames.num_frames[p] = i + 1
+
+
+@kernel
+def step(
+    q,
+    learner_rows,
+    ids,
+    actions,
+    frames,
+    team,
+    chests,
+    sums,
+    cleared_at,
+    rewards,
+    max_steps,
+    team_rewards,
+    announce,
+    game,
+):
+    """The games' step with ``actions [G * K]``, recorded in ``frames`` (with the tables ``q`` at the
+    learner rows ``learner_rows`` and state ids ``ids`` of the rows, where it records values), and the
+    episodes' sums ``sums [G, 5 + K]`` (team return, return after the chests were cleared, length, traps,
+    chests collected, each agent's return; ``cleared_at [G]``: the length when the last chest was emptied,
+    -1 before)."""
     tables = rules.Tables(*game[: rules.TABLES_END])
     state = rules.State(*game[rules.TABLES_END : rules.STATE_END])
     out = rules.Outcome(*game[rules.STATE_END :])
     games, agents = state.pos.shape
+    for p in range(len(frames.games)):
+        g, i = frames.games[p], frames.num_frames[p] - 1
+        if not state.live[g].any():
+            continue
+        frames.obs[p, i] = state.obs[g]
+        frames.acting[p, i] = state.live[g]
+        if frames.values.shape[1] > 0:
+            for a in range(agents):
+                frames.values[p, i, a] = q[learner_rows[g * agents + a], ids[g * agents + a]]
     rules.step(tables, state, actions.reshape(games, agents), out, rewards, max_steps, team_rewards, announce)
+    played = np.zeros(games, dtype=np.bool_)
     for g in range(games):
         for a in range(agents):
             sums[g, 5 + a] += np.float64(out.rewards[g, a])
             sums[g, 3] += out.trap[g, a]
         if not out.acted[g].any():
             continue
+        played[g] = True
         step_return = rules.team_step_return(out, g, team)
         sums[g, 0] += step_return
         sums[g, 2] += 1
@@ -78,3 +163,54 @@ def step(actions, team, chests, sums, cleared_at, rewards, max_steps, team_rewar
         sums[g, 4] = state.treasures_collected[g]
         if cleared_at[g] < 0 and state.treasures_collected[g] == chests:
             cleared_at[g] = sums[g, 2]
+    record_frames(frames, state, sums, played)
+
+
+@kernel
+def play(
+    q,
+    learner_rows,
+    row_maps,
+    code,
+    tie_rng,
+    ids,
+    actions,
+    frames,
+    steps,
+    team,
+    chests,
+    sums,
+    cleared_at,
+    rewards,
+    max_steps,
+    team_rewards,
+    announce,
+    game,
+):
+    """Up to ``steps`` joint steps of a dense table's greedy episodes (:func:`choose`, then :func:`step`);
+    returns whether a game is still playing."""
+    state = rules.State(*game[rules.TABLES_END : rules.STATE_END])
+    rows = actions.shape[0]
+    obs = state.obs.reshape(rows, -1)
+    for _ in range(steps):
+        live = state.live.reshape(rows)
+        if not live.any():
+            return False
+        choose(q, learner_rows, row_maps, code, obs, live, ids, actions, tie_rng)
+        step(
+            q,
+            learner_rows,
+            ids,
+            actions,
+            frames,
+            team,
+            chests,
+            sums,
+            cleared_at,
+            rewards,
+            max_steps,
+            team_rewards,
+            announce,
+            game,
+        )
+    return state.live.any()

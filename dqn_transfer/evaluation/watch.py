@@ -26,7 +26,7 @@ from PIL import Image
 from dqn_transfer.agents.base import Team
 from dqn_transfer.enums import RewardMode
 from dqn_transfer.envs import Game, PettingZooGame
-from dqn_transfer.envs.game import COLOURS, TreasureHuntGame, TreasureHunts, text_grid
+from dqn_transfer.envs.game import COLOURS, TreasureHuntGame, text_grid
 from dqn_transfer.envs.pictures import agent_colour, captioned, draw_state
 from dqn_transfer.evaluation.rollout import (
     EpisodeResult,
@@ -61,6 +61,7 @@ class RecordedEpisode:
     frames: list[Frame]
     observations: list[tuple[np.ndarray, np.ndarray]]  # per step: (obs [K, D], live [K]) the policy acted on
     result: EpisodeResult
+    q_values: np.ndarray | None = None  # [T, K, A] the agents' Q-values there, where the player recorded them
 
     def trails(self, upto: int) -> list[np.ndarray]:
         """Per agent, the cells it stood on in frames 0..``upto`` (``[upto + 1, 2]``)."""
@@ -84,34 +85,6 @@ def record_episode(game: TreasureHuntGame, policy: Policy, rng: np.random.Genera
 
     result = play_episode(game, policy, rng, on_step=on_step, on_reset=lambda: snapshot(0.0))
     return RecordedEpisode(game, frames, observations, result)
-
-
-class EpisodeRecorder:
-    """Records one game of a batch (:class:`~dqn_transfer.envs.game.TreasureHunts`) as it is played, as
-    :func:`record_episode` records a game played alone: :meth:`snapshot` after the reset and after each
-    step the game played, :meth:`observe` before it."""
-
-    def __init__(self, game: TreasureHuntGame) -> None:
-        """:param game: the game the batch's game ``g`` plays (its map and rules, for the pictures)."""
-        self.game = game
-        self.frames: list[Frame] = []
-        self.observations: list[tuple[np.ndarray, np.ndarray]] = []
-
-    def snapshot(self, hunts: TreasureHunts, g: int, team_return: float) -> None:
-        """A frame of game ``g`` as it stands, with the team return so far."""
-        state = hunts.state
-        positions = np.stack(np.divmod(state.pos[g], hunts.size), axis=1)
-        self.frames.append(
-            Frame(int(state.t[g]), positions, state.live[g].copy(), state.chest_full[g].copy(), team_return)
-        )
-
-    def observe(self, hunts: TreasureHunts, g: int) -> None:
-        """What game ``g``'s agents act on in the coming step."""
-        self.observations.append((hunts.obs[g].copy(), hunts.live[g].copy()))
-
-    def episode(self, result: EpisodeResult) -> RecordedEpisode:
-        """The recorded episode, which ended with ``result``."""
-        return RecordedEpisode(self.game, self.frames, self.observations, result)
 
 
 @dataclass
@@ -321,8 +294,8 @@ def evaluation_views(learner: Team, episode: RecordedEpisode) -> EvaluationViews
     on in that episode."""
     picture = frame_picture(episode, len(episode.frames) - 1, cell_px=TENSORBOARD_CELL_PX)
     q_values: list[list[np.ndarray]] = [[] for _ in range(episode.game.num_agents)]
-    for obs, live in episode.observations:
-        values = learner.q_values(obs)
+    for step, (obs, live) in enumerate(episode.observations):
+        values = learner.q_values(obs) if episode.q_values is None else episode.q_values[step]
         for agent in np.flatnonzero(live):
             q_values[agent].append(values[agent])
     return np.asarray(picture), [np.concatenate(q) if q else np.zeros(0) for q in q_values]
