@@ -190,7 +190,7 @@ def _play_episodes(
             raise EvaluationStopped
         if tables is not None:
             arguments = (tables.q, learner_rows, row_maps, code_arguments, tie_rng, ids, actions, frames)
-            playing = greedy_steps.play(*arguments, STEPS_PER_CALL, *constants, hunts.kernel_arrays())
+            playing = greedy_steps.play(*arguments, STEPS_PER_CALL, constants, hunts.kernel_arrays())
         else:
             best = learner.best_actions_stacked(hunts.obs.reshape(episodes, replicas * agents, -1)).reshape(rows, -1)
             greedy_steps.choose_among(best, hunts.live.reshape(-1), actions, tie_rng)

@@ -167,28 +167,10 @@ def step(
 
 
 @kernel
-def play(
-    q,
-    learner_rows,
-    row_maps,
-    code,
-    tie_rng,
-    ids,
-    actions,
-    frames,
-    steps,
-    team,
-    chests,
-    sums,
-    cleared_at,
-    rewards,
-    max_steps,
-    team_rewards,
-    announce,
-    game,
-):
-    """Up to ``steps`` joint steps of a dense table's greedy episodes (:func:`choose`, then :func:`step`);
-    returns whether a game is still playing."""
+def play(q, learner_rows, row_maps, code, tie_rng, ids, actions, frames, steps, episodes, game):
+    """Up to ``steps`` joint steps of a dense table's greedy episodes (:func:`choose`, then :func:`step`,
+    whose arguments from ``team`` to ``announce`` are ``episodes``); returns whether a game is still
+    playing."""
     state = rules.State(*game[rules.TABLES_END : rules.STATE_END])
     rows = actions.shape[0]
     obs = state.obs.reshape(rows, -1)
@@ -197,20 +179,5 @@ def play(
         if not live.any():
             return False
         choose(q, learner_rows, row_maps, code, obs, live, ids, actions, tie_rng)
-        step(
-            q,
-            learner_rows,
-            ids,
-            actions,
-            frames,
-            team,
-            chests,
-            sums,
-            cleared_at,
-            rewards,
-            max_steps,
-            team_rewards,
-            announce,
-            game,
-        )
+        step(q, learner_rows, ids, actions, frames, *episodes, game)  # type: ignore[call-arg]  # a tuple of 8
     return state.live.any()
