@@ -334,12 +334,6 @@ class TreasureHunts(GameBatch):
             self._fresh_arrays()
             rules.reset_arrays(which, *self._row)
 
-    def end(self, which: np.ndarray) -> None:
-        """End the episodes of the replicas of the mask ``which [R] bool`` where they stand (no agent is
-        live any more): stepping leaves them as they are."""
-        self._fresh_arrays()
-        self.state.live[np.asarray(which, dtype=bool)] = False
-
     # ------------------------------------------------------------------ one replica's episode
     def state_dict(self, replica: int) -> dict[str, Any]:
         """Replica ``replica``'s episode in progress as JSON-able plain values (its generator is the
