@@ -182,7 +182,7 @@ def _play_episodes(
     cleared_at = np.full(count, -1, dtype=np.int64)  # the length when the last full chest was emptied
     pictured_games = np.array([g for g, (e, r) in enumerate(slots) if e == 0 and pictured[r]], dtype=np.int64)
     frames = greedy_steps.Frames.empty(pictured_games, hunts.max_steps, hunts.state, hunts.num_actions, dense)
-    greedy_steps.record_frames(frames, hunts.state, sums, np.ones(count, dtype=bool))
+    greedy_steps.record_first_frames(frames, hunts.state, sums)
     constants = (reward_mode is RewardMode.team, chests, sums, cleared_at, *hunts.rule_constants)
     playing = True
     while playing:

@@ -11,7 +11,7 @@ same order and the same floats as an episode played alone (``tests/test_batched_
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
@@ -79,7 +79,7 @@ class Frames(NamedTuple):
     values: np.ndarray
 
     @staticmethod
-    def empty(games: np.ndarray, steps: int, state: Any, actions: int, values: bool) -> Frames:
+    def empty(games: np.ndarray, steps: int, state: rules.State, actions: int, values: bool) -> Frames:
         """Room for the episodes of ``games`` (the batch's, ``state`` its :class:`~dqn_transfer.envs.rules.State`)."""
         p, (_, agents, dim), chests = len(games), state.obs.shape, state.chest_full.shape[1]
         return Frames(
@@ -97,18 +97,22 @@ class Frames(NamedTuple):
 
 
 @kernel
-def record_frames(frames, state, sums, played):
-    """A frame of each pictured game that ``played [G]`` (or of all, after their reset: ``played`` all True)."""
+def record_first_frames(frames, state, sums):
+    """The frame of each pictured game after its reset."""
     for p in range(len(frames.games)):
-        g, i = frames.games[p], frames.num_frames[p]
-        if not played[g]:
-            continue
-        frames.t[p, i] = state.t[g]
-        frames.pos[p, i] = state.pos[g]
-        frames.live[p, i] = state.live[g]
-        frames.chest_full[p, i] = state.chest_full[g]
-        frames.team_return[p, i] = sums[g, 0]
-        frames.num_frames[p] = i + 1
+        record_frame(frames, p, state, sums)
+
+
+@kernel
+def record_frame(frames, p, state, sums):
+    """A frame of pictured game ``p`` as it stands."""
+    g, i = frames.games[p], frames.num_frames[p]
+    frames.t[p, i] = state.t[g]
+    frames.pos[p, i] = state.pos[g]
+    frames.live[p, i] = state.live[g]
+    frames.chest_full[p, i] = state.chest_full[g]
+    frames.team_return[p, i] = sums[g, 0]
+    frames.num_frames[p] = i + 1
 
 
 @kernel
@@ -147,14 +151,12 @@ def step(
             for a in range(agents):
                 frames.values[p, i, a] = q[learner_rows[g * agents + a], ids[g * agents + a]]
     rules.step(tables, state, actions.reshape(games, agents), out, rewards, max_steps, team_rewards, announce)
-    played = np.zeros(games, dtype=np.bool_)
     for g in range(games):
         for a in range(agents):
             sums[g, 5 + a] += np.float64(out.rewards[g, a])
             sums[g, 3] += out.trap[g, a]
         if not out.acted[g].any():
             continue
-        played[g] = True
         step_return = rules.team_step_return(out, g, team)
         sums[g, 0] += step_return
         sums[g, 2] += 1
@@ -163,7 +165,9 @@ def step(
         sums[g, 4] = state.treasures_collected[g]
         if cleared_at[g] < 0 and state.treasures_collected[g] == chests:
             cleared_at[g] = sums[g, 2]
-    record_frames(frames, state, sums, played)
+    for p in range(len(frames.games)):
+        if out.acted[frames.games[p]].any():
+            record_frame(frames, p, state, sums)
 
 
 @kernel
