@@ -37,7 +37,7 @@ from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.storage.run_dir import RunDir
 from dqn_transfer.training.loggers import RunLoggers
 from dqn_transfer.training.plan import plan_run
-from dqn_transfer.training.tensorboard import EventFile, RunLogger, event_record
+from dqn_transfer.training.tensorboard import EventFile, RunLogger, event_record, png_bytes
 from dqn_transfer.training.trainer import train
 
 CELL = 32  # TensorBoard's cell size in pixels
@@ -294,3 +294,14 @@ def test_the_layout_and_hparams_metrics_are_the_tags_the_game_records(tmp_path, 
     assert sorted(layout_tags) == sorted(written)
     assert metric_tags == eval_tags
     assert {tag for tag in written if tag.startswith("eval/")} == set(eval_tags)
+
+
+@pytest.mark.parametrize("height, width", [(1, 1), (3, 5), (292, 256)])
+def test_png_bytes_decode_to_the_picture_pixel_for_pixel(height, width):
+    """The evaluation picture's PNG (written without Pillow) is a valid file Pillow reads back exactly."""
+    picture = np.random.default_rng(height).integers(0, 256, size=(height, width, 3), dtype=np.uint8)
+    picture[: height // 2] = (250, 250, 250)  # a flat band, as drawn pictures are mostly
+    decoded = Image.open(io.BytesIO(png_bytes(picture)))
+    decoded.load()  # checks every chunk's CRC and the deflate stream
+    assert decoded.mode == "RGB" and decoded.size == (width, height)
+    assert np.array_equal(np.asarray(decoded), picture)

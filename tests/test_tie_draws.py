@@ -37,3 +37,28 @@ def test_compiled_draws_are_numpys_draws_and_leave_the_same_state(seed, odd_star
 def test_a_generator_other_than_pcg64_is_refused():
     with pytest.raises(ValueError, match="PCG64"):
         tie_draws.pack(np.random.Generator(np.random.Philox(0)), np.zeros(tie_draws.WORDS, dtype=np.uint64))
+
+
+@pytest.mark.parametrize(
+    "key",
+    [[0], [1, 2], [4, 1_000_003, 500, 2], [2**32, 7], [2**70 + 3, 1, 2, 3, 4, 5, 6], [123456789, 1_000_003, 0, 9]],
+)
+def test_compiled_seeding_makes_numpys_generator_and_its_first_child(key):
+    """A generator made from its entropy in the kernels is ``default_rng(key)`` and ``spawn(1)[0]`` of it
+    (short keys, keys longer than the pool of 4 words, ints wider than 32 bits)."""
+    words = tie_draws.entropy_words(key)
+    entropy = np.zeros((2, len(words) + 3), dtype=np.uint64)  # row 1: the same key in a wider row
+    entropy[:, : len(words)] = words
+    parents, children = (np.zeros((2, tie_draws.WORDS), dtype=np.uint64) for _ in range(2))
+    tie_draws.seed_with_children(entropy, np.array([len(words)] * 2), parents, children)
+    expected_parent, expected_child = (np.zeros(tie_draws.WORDS, dtype=np.uint64) for _ in range(2))
+    tie_draws.pack(np.random.default_rng(key), expected_parent)
+    tie_draws.pack(np.random.default_rng(key).spawn(1)[0], expected_child)
+    for row in range(2):
+        np.testing.assert_array_equal(parents[row], expected_parent)
+        np.testing.assert_array_equal(children[row], expected_child)
+
+
+def test_a_negative_seed_is_refused():
+    with pytest.raises(ValueError, match="non-negative"):
+        tie_draws.entropy_words([3, -1])

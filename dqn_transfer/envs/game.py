@@ -319,12 +319,22 @@ class TreasureHunts(GameBatch):
         tie_draws.pack(rng, self.state.tie_rng[replica])
         self.rngs[replica] = rng
 
+    def restart(self, tie_rng: np.ndarray) -> None:
+        """Start a new episode in every replica, replica r drawing its chest ties from the packed
+        generator state ``tie_rng[r]`` (:mod:`~dqn_transfer.envs.tie_draws`) of no ``Generator``: the
+        draws stay in :attr:`state` (:meth:`keep_draws` has nowhere to write them)."""
+        self.state.tie_rng[:] = tie_rng
+        self.state.tie_drawn[:] = False
+        self.rngs = []
+        self.reset(np.ones(self.num_replicas, dtype=bool))
+
     def keep_draws(self) -> None:
         """Write the tie draws the kernels made back into the generators (call it after a kernel that
         stepped these games)."""
         drawn = self.state.tie_drawn
-        for r in np.flatnonzero(drawn).tolist():
-            tie_draws.unpack(self.state.tie_rng[r], self.rngs[r])
+        if self.rngs:  # else restarted from packed states only
+            for r in np.flatnonzero(drawn).tolist():
+                tie_draws.unpack(self.state.tie_rng[r], self.rngs[r])
         drawn[:] = False
 
     def reset(self, which: np.ndarray) -> None:

@@ -18,6 +18,7 @@ records it on its own.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from functools import lru_cache
 from typing import Any, NamedTuple, cast
 
 import numpy as np
@@ -33,6 +34,7 @@ from dqn_transfer.evaluation.rollout import (
     EpisodeResult,
     EvaluationStopped,
     evaluate,
+    evaluation_key,
     evaluation_rng,
     greedy_policy,
     never,
@@ -133,19 +135,20 @@ def _recorded_episode(
 ) -> RecordedEpisode:
     """Pictured game ``p`` of ``frames`` as :func:`~dqn_transfer.evaluation.watch.record_episode` records it."""
     count = int(frames.num_frames[p])
-    episode = [
-        Frame(
-            int(frames.t[p, i]),
-            np.stack(np.divmod(frames.pos[p, i], game.size), axis=1),
-            frames.live[p, i].copy(),
-            frames.chest_full[p, i].copy(),
-            float(frames.team_return[p, i]),
-        )
-        for i in range(count)
-    ]
-    observations = [(frames.obs[p, i].copy(), frames.acting[p, i].copy()) for i in range(count - 1)]
+    cells = np.stack(np.divmod(frames.pos[p, :count], game.size), axis=-1)  # [frames, K, (row, col)]
+    live, chest_full = frames.live[p, :count].copy(), frames.chest_full[p, :count].copy()
+    times, returns = frames.t[p, :count].tolist(), frames.team_return[p, :count].tolist()
+    episode = [Frame(times[i], cells[i], live[i], chest_full[i], returns[i]) for i in range(count)]
+    observations = list(zip(frames.obs[p, : count - 1].copy(), frames.acting[p, : count - 1].copy()))
     values = frames.values[p, : count - 1].copy() if frames.values.shape[1] else None
     return RecordedEpisode(game, episode, observations, result, values)
+
+
+@lru_cache(maxsize=4)
+def _evaluation_hunts(games: tuple[TreasureHuntGame, ...], episodes: int) -> TreasureHunts:
+    """The batch of ``episodes`` episodes of each of ``games`` (game ``e * R + r``), built once for the
+    evaluations of a run (its rule tables take longer to build than a lone run's evaluation to play)."""
+    return TreasureHunts([game.map for _ in range(episodes) for game in games], **games[0].settings())
 
 
 def _play_episodes(
@@ -162,13 +165,16 @@ def _play_episodes(
     replicas, agents, episodes = len(games), games[0].num_agents, len(numbers)
     chests, reward_mode = games[0].num_treasures, RewardMode(games[0].reward_mode)
     slots = [(e, r) for e in numbers for r in range(replicas)]  # game g = (e - numbers.start) * R + r
-    rngs = [evaluation_rng(seeds[r], steps[r], e) for e, r in slots]
-    # Each game's greedy ties are drawn from a child of its generator (the parent's stream stays the chest
-    # ties'), packed for the kernels; the children are not used after the evaluation.
-    tie_rng = np.zeros((len(slots), tie_draws.WORDS), dtype=np.uint64)
-    for g, rng in enumerate(rngs):
-        tie_draws.pack(rng.spawn(1)[0], tie_rng[g])
-    hunts = TreasureHunts([games[r].map for _, r in slots], rngs, **games[0].settings())
+    # Game g's generator (evaluation_rng: its chest ties) and a child of it (its greedy ties), packed
+    # for the kernels: made there from their entropy, as numpy makes them (no Generator is kept).
+    keys = [tie_draws.entropy_words(evaluation_key(seeds[r], steps[r], e)) for e, r in slots]
+    entropy = np.zeros((len(slots), max(map(len, keys))), dtype=np.uint64)
+    for g, key in enumerate(keys):
+        entropy[g, : len(key)] = key
+    chest_rng, tie_rng = (np.zeros((len(slots), tie_draws.WORDS), dtype=np.uint64) for _ in range(2))
+    tie_draws.seed_with_children(entropy, np.array([len(key) for key in keys]), chest_rng, tie_rng)
+    hunts = _evaluation_hunts(tuple(games), episodes)
+    hunts.restart(chest_rng)
     count = len(slots)
     rows = count * agents  # row n: agent n % K of game n // K, the learner's row (n // K % R) * K + n % K
     learner_rows = np.tile(np.arange(replicas * agents), episodes)
@@ -196,7 +202,6 @@ def _play_episodes(
             greedy_steps.choose_among(best, hunts.live.reshape(-1), actions, tie_rng)
             greedy_steps.step(NO_TABLES, learner_rows, ids, actions, frames, *constants, hunts.kernel_arrays())
             playing = bool(hunts.live.any())
-        hunts.keep_draws()
     team_return, return_after_clear, length, trapped, collected = (sums[:, column] for column in range(5))
     agent_returns = sums[:, 5:]
     results: list[list[EpisodeResult]] = [[] for _ in range(replicas)]

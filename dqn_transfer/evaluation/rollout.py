@@ -126,7 +126,12 @@ def evaluation_rng(seed: int, step: int, episode: int) -> np.random.Generator:
     """The generator of one evaluation episode: from (run seed, training step of the evaluation,
     episode) alone, so independent of training history, of how many evaluations came before (the
     evaluation at step N is the same for every ``eval_every`` that reaches N) and of a resume."""
-    return np.random.default_rng([seed, EVALUATION_STREAM, step, episode])
+    return np.random.default_rng(evaluation_key(seed, step, episode))
+
+
+def evaluation_key(seed: int, step: int, episode: int) -> list[int]:
+    """The entropy of :func:`evaluation_rng`."""
+    return [seed, EVALUATION_STREAM, step, episode]
 
 
 def evaluate(

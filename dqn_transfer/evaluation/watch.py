@@ -293,9 +293,10 @@ def evaluation_views(learner: Team, episode: RecordedEpisode) -> EvaluationViews
     frame with every trail, ``[H, W, 3]`` uint8, and per agent the Q-values of every observation it acted
     on in that episode."""
     picture = frame_picture(episode, len(episode.frames) - 1, cell_px=TENSORBOARD_CELL_PX)
-    q_values: list[list[np.ndarray]] = [[] for _ in range(episode.game.num_agents)]
-    for step, (obs, live) in enumerate(episode.observations):
-        values = learner.q_values(obs) if episode.q_values is None else episode.q_values[step]
-        for agent in np.flatnonzero(live):
-            q_values[agent].append(values[agent])
-    return np.asarray(picture), [np.concatenate(q) if q else np.zeros(0) for q in q_values]
+    if not episode.observations:
+        return np.asarray(picture), [np.zeros(0)] * episode.game.num_agents
+    acting = np.stack([live for _, live in episode.observations])  # [T, K]
+    values = episode.q_values
+    if values is None:
+        values = np.stack([learner.q_values(obs) for obs, _ in episode.observations])  # [T, K, A]
+    return np.asarray(picture), [values[acting[:, agent], agent].ravel() for agent in range(acting.shape[1])]

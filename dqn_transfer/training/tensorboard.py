@@ -15,7 +15,6 @@ sweep can be compared in its table, by the game's evaluation tags) and, as YAML,
 
 from __future__ import annotations
 
-import io
 import itertools
 import json
 import math
@@ -23,13 +22,13 @@ import os
 import socket
 import struct
 import time
+import zlib
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import google_crc32c
 import numpy as np
-from PIL import Image
 
 # TensorBoard's own summary builders and event writer: no torch (or TensorFlow) needed to write logs.
 from tensorboard.compat.proto.event_pb2 import Event, SessionLog
@@ -83,6 +82,25 @@ def histogram(values: np.ndarray, bins: int = 30) -> HistogramProto:
         bucket_limit=edges[1:].tolist(),
         bucket=counts.tolist(),
     )
+
+
+def png_bytes(picture: np.ndarray) -> bytes:
+    """``picture [H, W, 3]`` uint8 as a PNG file: its rows unfiltered, deflated at level 1.
+
+    Pillow chooses a filter for every row, which flat-coloured pictures do not need: for TensorBoard's
+    evaluation picture (256 x 292), written at every evaluation, this takes 0.31 ms and Pillow 1.1 ms
+    (``compress_level=1``) for a file 12% larger.
+    """
+    height, width, _ = picture.shape
+    rows = np.zeros((height, 1 + width * 3), dtype=np.uint8)  # each row: its filter type (0, none), its pixels
+    rows[:, 1:] = picture.reshape(height, -1)
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)  # 8-bit RGB, deflate, no interlace
+    idat = zlib.compress(rows.tobytes(), 1)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", idat) + chunk(b"IEND", b"")
 
 
 def masked_crc32c(data: bytes) -> int:
@@ -248,12 +266,8 @@ class RunLogger:
 
     def evaluation_views(self, picture: np.ndarray, q_values: Sequence[np.ndarray], step: int) -> None:
         """An evaluation's picture (``[H, W, 3]`` uint8) and each agent's Q-values (agents with none skipped)."""
-        png = io.BytesIO()
-        Image.fromarray(picture).save(
-            png, format="PNG", compress_level=1
-        )  # written at every evaluation: fast over small
         height, width, channels = picture.shape
-        image = Summary.Image(height=height, width=width, colorspace=channels, encoded_image_string=png.getvalue())
+        image = Summary.Image(height=height, width=width, colorspace=channels, encoded_image_string=png_bytes(picture))
         self._add(Summary(value=[Summary.Value(tag="eval/episode", image=image)]), step)
         for i, values in enumerate(q_values):
             if values.size:
