@@ -236,7 +236,7 @@ def test_the_second_editions_conditions_have_names_of_their_own():
 
 def test_each_experiment_of_the_second_edition_is_an_environment_named_after_its_game(tmp_path):
     # The replication on Level-Based Foraging is not a treasure hunt: its environment says so.
-    v2 = ROOT / "results" / "data"
+    v2 = ROOT / "results" / "v2" / "data"
     out = tmp_path / "v2.json"
     data = [str(v2 / "claim1.jsonl"), str(v2 / "lbf_hypothesis.jsonl")]
     assert main(["marl-eval", "--data", *data, "--out", str(out)]) == 0

@@ -106,7 +106,7 @@ def test_the_quick_pilot_and_full_stages_run_end_to_end(tmp_path):
 def test_the_committed_budgets_come_from_the_committed_pilot_data_and_one_experiments_pilot_keeps_the_rest(tmp_path):
     # `pilot --report-only --only claim1` recomputes the budgets from every experiment's pilot data in OUT, not
     # from claim 1's alone: the other experiments' budgets stay, and all equal the committed ones.
-    results = Path(__file__).resolve().parents[1] / "results"
+    results = Path(__file__).resolve().parents[1] / "results" / "v2"
     shutil.copytree(results / "pilot" / "data", tmp_path / "pilot" / "data")
     assert cli.main(["pilot", "--out", str(tmp_path), "--report-only", "--only", "claim1"]) == 0
     assert (tmp_path / "budgets.md").read_text() == (results / "budgets.md").read_text()

@@ -207,9 +207,9 @@ def test_transfer_aware_runs_without_the_transfer_runs_report_what_there_is(tmp_
 
 
 def test_the_committed_second_edition_report_is_regenerated_from_the_committed_data(tmp_path, capsys):
-    # results/REPORT.md is what `dqn-transfer-report results` writes from results/data/, results/budgets.md and
-    # results/tuning/ alone, byte for byte.
-    results = Path(__file__).resolve().parents[1] / "results"
+    # results/v2/REPORT.md is what `dqn-transfer-report results/v2` writes from results/v2/data/,
+    # results/v2/budgets.md and results/v2/tuning/ alone, byte for byte.
+    results = Path(__file__).resolve().parents[1] / "results" / "v2"
     study = tmp_path / "study"
     for part in ("data", "tuning"):
         shutil.copytree(results / part, study / part, ignore=shutil.ignore_patterns("runs", "logs"))

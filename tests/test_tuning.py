@@ -279,8 +279,8 @@ def test_apply_writes_each_searchs_chosen_values_as_the_methods_tuned_option(tmp
 
 
 def test_the_studys_methods_compose_the_committed_tuned_values():
-    """results/tuning/tuned.yaml (stage 2, committed) is what every method of the second edition runs with."""
-    tuned = yaml.safe_load((ROOT / "results" / "tuning" / "tuned.yaml").read_text())
+    """results/v2/tuning/tuned.yaml (stage 2, committed) is what every method of the second edition runs with."""
+    tuned = yaml.safe_load((ROOT / "results" / "v2" / "tuning" / "tuned.yaml").read_text())
     for learner, methods in tuned.items():
         for method, params in methods.items():
             config = compose_config("experiment=v2/hypothesis", f"method={learner}_{method}")
