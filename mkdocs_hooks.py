@@ -3,7 +3,7 @@
 Nothing here is a second copy of a page: every page is made at build time from its one source.
 
 - Home: the repository's ``README.md``; the guide's overview page (``guide.md``): ``docs/README.md``
-  (a ``README.md`` would otherwise be the site's home); the study: ``results/VERDICT_RULES.md``,
+  (a ``README.md`` would otherwise be the site's home); the study: ``results/v2/VERDICT_RULES.md``,
   each edition's report, rules and figures (``results/v1/``); ``CHANGELOG.md``. Files outside ``docs/`` keep their
   repository path on the site, so the links to them hold.
 - Relative links are written for the repository (``docs/game.md`` from the README,

@@ -1,17 +1,15 @@
 #!/usr/bin/env python
-"""The study's first edition: run its sweeps, keep their raw data in ``OUT/data/``, write ``OUT/REPORT.md`` and figures.
+"""The first edition's runs, their data and report (the command its committed report names).
 
-    python scripts/reproduce.py --profile quick --out /tmp/study     # smoke run: about a minute, NOT evidence
     python scripts/reproduce.py --profile full --out results/v1      # the evidence, 9 min on 2 cores
-    python scripts/reproduce.py results/v1 --out /tmp/report          # the report again from its data/
 
-``--help`` lists every option. The code is :mod:`dqn_transfer.cli.report` (also
-``python -m dqn_transfer.cli.report``), :mod:`dqn_transfer.experiments` and :mod:`dqn_transfer.analysis`.
+The same as ``python -m dqn_transfer.cli.study full --edition v1 ...`` (:mod:`dqn_transfer.cli.study`, which
+runs every edition: ``conf/edition/``).
 """
 
 import sys
 
-from dqn_transfer.cli.report import main
+from dqn_transfer.cli.study import main
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main(["full", "--edition", "v1", *sys.argv[1:]]))

@@ -63,5 +63,5 @@ def test_mkdocs_build_strict(tmp_path: Path) -> None:
         assert f"usage: {script}" in page, script  # its own --help, under its own name
     for name in ["dqn_transfer", *subpackages()]:
         assert (site / "api" / name / "index.html").is_file(), name
-    assert (site / "results" / "VERDICT_RULES" / "index.html").is_file()
+    assert (site / "results" / "v2" / "VERDICT_RULES" / "index.html").is_file()  # the second edition
     assert (site / "results" / "v1" / "REPORT" / "index.html").is_file()  # the first edition

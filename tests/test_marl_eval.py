@@ -28,9 +28,9 @@ from dqn_transfer.enums import Algorithm, Logger
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.experiments.claims import exchange_condition
 from dqn_transfer.experiments.export import agent_returns
+from dqn_transfer.experiments.pipeline import sweep_jobs
 from dqn_transfer.experiments.raw_data import RunData, read_data
 from dqn_transfer.experiments.scoring import FINAL_TAIL, by_map, final_score, learner, mode
-from dqn_transfer.experiments.second_edition import sweep_jobs
 from dqn_transfer.training.plan import plan_run
 from dqn_transfer.training.trainer import train
 
@@ -218,25 +218,25 @@ def test_bad_input_is_one_error_line_and_nothing_written(tmp_path, capsys, case)
 
 
 def test_the_second_editions_conditions_have_names_of_their_own():
-    hypothesis = {job.values["method"]: job.config for job in sweep_jobs("hypothesis")}
+    hypothesis = {job.values["method"]: job.config for job in sweep_jobs("v2/hypothesis")}
     assert algorithm_name(hypothesis["double_dqn_shared_id"]) == "double_dqn+shared+id"
     assert algorithm_name(hypothesis["double_dqn_vdn"]) == "double_dqn+vdn"
     assert algorithm_name(hypothesis["sarsa_advice"]) == "sarsa+exchange_advice"
     transfer = {
         job.values["condition"]: job.config
-        for job in sweep_jobs("transfer") + sweep_jobs("transfer_aware")
+        for job in sweep_jobs("v2/transfer") + sweep_jobs("v2/transfer_aware")
         if job.values["method"] == "sarsa_none"
     }
     assert algorithm_name(transfer["same_map"]) == "sarsa+transfer"
     assert algorithm_name(transfer["same_map_own"]) == "sarsa+transfer_own"
     assert algorithm_name(transfer["same_map_own_aware"]) == "sarsa+transfer_own+chest_aware"
-    (lbf, *_) = [job.config for job in sweep_jobs("lbf_hypothesis")]
+    (lbf, *_) = [job.config for job in sweep_jobs("v2/lbf_hypothesis")]
     assert task_name(lbf) == "lbf-map0"  # another game: its module and instance, not the treasure map's keys
 
 
 def test_each_experiment_of_the_second_edition_is_an_environment_named_after_its_game(tmp_path):
     # The replication on Level-Based Foraging is not a treasure hunt: its environment says so.
-    v2 = ROOT / "results" / "data"
+    v2 = ROOT / "results" / "v2" / "data"
     out = tmp_path / "v2.json"
     data = [str(v2 / "claim1.jsonl"), str(v2 / "lbf_hypothesis.jsonl")]
     assert main(["marl-eval", "--data", *data, "--out", str(out)]) == 0

@@ -22,7 +22,7 @@ TESTS = Path(__file__).resolve().parent
 FLOAT_SENSITIVE = [
     f"{TESTS / 'test_vdn.py'}::test_each_engines_vdn_step_is_autograd_of_the_summed_loss",
     str(TESTS / "test_budget.py"),
-    f"{TESTS / 'test_second_edition.py'}::"
+    f"{TESTS / 'test_study.py'}::"
     "test_the_committed_budgets_come_from_the_committed_pilot_data_and_one_experiments_pilot_keeps_the_rest",
 ]
 

@@ -15,26 +15,27 @@ from omegaconf import OmegaConf
 
 from dqn_transfer.analysis.plots import group_runs
 from dqn_transfer.analysis.runs import find_run_dirs
-from dqn_transfer.cli import plot, report
+from dqn_transfer.cli import plot, report, study
 from dqn_transfer.config import CONFIG_DIR, register_configs, validate
 from dqn_transfer.enums import Algorithm, Mode
 from dqn_transfer.enums import values as enum_values
-from dqn_transfer.experiments import claims, scoring, sweeps
+from dqn_transfer.experiments import claims, pipeline, scoring, sweeps
+from dqn_transfer.experiments.edition import load_edition
 from dqn_transfer.experiments.raw_data import RunData, export_sweep, read_data, write_data, write_manifest
 from dqn_transfer.experiments.render import Context, render
-from dqn_transfer.experiments.report import write_report
 from dqn_transfer.experiments.scoring import slope
 from dqn_transfer.experiments.sweeps import (
-    EXPERIMENTS,
     ReproduceError,
+    chosen_experiments,
     count_jobs,
     installed_launchers,
     launcher_overrides,
-    sweep_overrides,
 )
 from dqn_transfer.storage.run_dir import RunDir
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+V1 = load_edition("v1")  # conf/edition/v1.yaml: the first edition
+EXPERIMENTS = V1.experiments
 COMPETITIVE, COOPERATIVE, DELIBERATIVE = enum_values(Mode)
 register_configs()
 
@@ -263,6 +264,7 @@ def _study_data(
     write_manifest(
         data,
         {
+            "edition": "v1",
             "profile": profile,
             "commit": "abc1234",
             "rules_commit": "def5678 2026-12-02",
@@ -281,7 +283,7 @@ def _verdicts(text: str) -> dict[str, str]:
 
 def test_the_report_states_the_verdicts_known_by_construction(tmp_path):
     _study_data(tmp_path / "data", exchange_gain=20.0, coop_gain=0.0, trend=3.0, transfer_gain=15.0)
-    text = write_report(tmp_path / "data", tmp_path).read_text()
+    text = pipeline.write_report(V1, tmp_path).read_text()
     assert _verdicts(text) == {
         "Main hypothesis": "**SUPPORTED**",  # best beats none on every map: P = 1
         "Claim 1": "**SUPPORTED**",  # coop - comp within +-1 return unit, margin +5
@@ -308,7 +310,7 @@ def test_the_report_states_the_verdicts_known_by_construction(tmp_path):
 
 def test_the_report_says_when_the_data_contradict_or_do_not_support_a_claim(tmp_path):
     _study_data(tmp_path / "data", exchange_gain=-20.0, coop_gain=30.0, trend=-3.0, transfer_gain=0.0, profile="quick")
-    text = write_report(tmp_path / "data", tmp_path).read_text()
+    text = pipeline.write_report(V1, tmp_path).read_text()
     assert _verdicts(text) == {
         "Main hypothesis": "**CONTRADICTED**",  # exchange hurts on every map
         "Claim 1": "**NOT SUPPORTED**",  # cooperation is 30 better, far above +5
@@ -366,7 +368,12 @@ def test_the_report_is_regenerated_from_its_data_byte_for_byte(tmp_path):
 def test_report_without_data_is_a_clear_error(tmp_path, capsys):
     assert report.main([str(tmp_path)]) == 1
     assert capsys.readouterr().err.splitlines() == [f"error: {tmp_path} has no data/ directory of run data"]
-    assert report.main(["--out", str(tmp_path), "--report-only"]) == 1
+    (tmp_path / "data").mkdir()  # data, but no manifest naming their edition
+    assert report.main([str(tmp_path)]) == 1
+    assert capsys.readouterr().err.splitlines() == [
+        f"error: {tmp_path}/data/manifest.json names no edition: pass --edition (v1, v2)"
+    ]
+    assert study.main(["full", "--edition", "v1", "--out", str(tmp_path), "--report-only"]) == 1
     assert capsys.readouterr().err.splitlines() == [
         f"error: {tmp_path.resolve()}/runs holds no runs of {', '.join(EXPERIMENTS)}: run the experiments first"
     ]
@@ -516,7 +523,7 @@ def test_the_export_skips_unusable_runs_and_says_why(tmp_path, capsys):
     no_config = sweep / "11"  # evaluations, but which condition is it?
     no_config.mkdir()
     RunDir(no_config).metrics.write_text('{"step": 0, "team_return": 1000.0}\n')
-    assert report.main(["--out", str(tmp_path), "--report-only"]) == 0
+    assert study.main(["full", "--edition", "v1", "--out", str(tmp_path), "--report-only"]) == 0
     assert capsys.readouterr().err.splitlines() == [
         _stub_line(stub),
         f"skipped {no_config}: no readable .hydra/config.yaml (cannot tell its condition)",
@@ -531,20 +538,26 @@ def test_the_export_skips_unusable_runs_and_says_why(tmp_path, capsys):
 
 @pytest.fixture
 def no_sweeps(monkeypatch, tmp_path):
-    """report.main with the sweeps and the report replaced by recorders: [(experiment, launcher)]."""
+    """The first edition's runs stage with the runs and the report replaced by recorders: [(experiment, launcher)]."""
     calls = []
     monkeypatch.setattr(
-        report, "run_experiment", lambda name, profile, out, launcher, *rest: calls.append((name, launcher))
+        study,
+        "run_full",
+        lambda edition, names, profile, out, launcher, *rest: calls.extend((n, launcher) for n in names),
     )
     (tmp_path / "REPORT.md").write_text("# report\n")
-    monkeypatch.setattr(report, "export_data", lambda out: tmp_path / "data")
-    monkeypatch.setattr(report, "write_report", lambda data, out: tmp_path / "REPORT.md")
+    monkeypatch.setattr(study, "write_report", lambda edition, out: tmp_path / "REPORT.md")
     return calls
+
+
+def full_v1(*args: str) -> int:
+    """``python -m dqn_transfer.cli.study full --edition v1 ARGS``."""
+    return study.main(["full", "--edition", "v1", *args])
 
 
 def test_without_the_sweep_extra_the_sweeps_run_one_at_a_time(monkeypatch, tmp_path, capsys, no_sweeps):
     monkeypatch.setattr(sweeps, "installed_launchers", lambda: ["basic"])  # the dev extra only
-    assert report.main(["--out", str(tmp_path)]) == 0
+    assert full_v1("--out", str(tmp_path)) == 0
     lines = capsys.readouterr().out.splitlines()
     assert lines[0] == (
         "the joblib launcher is not installed: running one job at a time with Hydra's basic "
@@ -556,7 +569,7 @@ def test_without_the_sweep_extra_the_sweeps_run_one_at_a_time(monkeypatch, tmp_p
 
 def test_with_the_sweep_extra_the_default_is_joblib(monkeypatch, tmp_path, capsys, no_sweeps):
     monkeypatch.setattr(sweeps, "installed_launchers", lambda: ["basic", "joblib"])
-    assert report.main(["--out", str(tmp_path), "--n-jobs", "3"]) == 0
+    assert full_v1("--out", str(tmp_path), "--n-jobs", "3") == 0
     assert "not installed" not in capsys.readouterr().out
     assert no_sweeps == [(name, "joblib") for name in EXPERIMENTS]
     assert launcher_overrides("joblib", 3) == ["hydra/launcher=joblib", "hydra.launcher.n_jobs=3"]
@@ -574,7 +587,7 @@ def test_a_launcher_not_installed_is_one_error_before_anything_runs(
     monkeypatch, tmp_path, capsys, no_sweeps, launcher, message
 ):
     monkeypatch.setattr(sweeps, "installed_launchers", lambda: ["basic"])
-    assert report.main(["--out", str(tmp_path / "out"), "--launcher", launcher]) == 1
+    assert full_v1("--out", str(tmp_path / "out"), "--launcher", launcher) == 1
     captured = capsys.readouterr()
     assert captured.err.splitlines() == [f"error: --launcher {launcher}: {message}"]
     assert captured.out == "" and no_sweeps == [] and not (tmp_path / "out").exists()
@@ -636,8 +649,13 @@ def test_the_transfer_conditions_differ_only_in_what_they_name():
     assert job("team_member").transfer.source_task.value == "team"
 
 
+def _overrides(name: str, profile: str, out: Path) -> list[str]:
+    """The overrides of a first-edition experiment's multirun: its caches in ``out``, then the profile's."""
+    return [*pipeline.cache_overrides(V1, name, out), *V1.profile(profile).run_overrides(name)]
+
+
 def test_profiles_and_job_counts(tmp_path):
-    assert {name: count_jobs(name, sweep_overrides(name, "full", tmp_path)) for name in EXPERIMENTS} == {
+    assert {name: count_jobs(name, _overrides(name, "full", tmp_path)) for name in EXPERIMENTS} == {
         "hypothesis": 3 * 2 * 2,
         "hypothesis_shared": 2,
         "claim1": 2,
@@ -645,10 +663,10 @@ def test_profiles_and_job_counts(tmp_path):
         "transfer": 6 * 2,
         "curriculum": 2 * 2,
     }
-    assert count_jobs("claim2", sweep_overrides("claim2", "quick", tmp_path)) == 2 * 3 * 2  # two team sizes
-    assert f"transfer.cache_dir='{tmp_path / 'pretrained'}'" in sweep_overrides("transfer", "full", tmp_path)
+    assert count_jobs("claim2", _overrides("claim2", "quick", tmp_path)) == 2 * 3 * 2  # two team sizes
+    assert f"transfer.cache_dir='{tmp_path / 'pretrained'}'" in _overrides("transfer", "full", tmp_path)
     with pytest.raises(ReproduceError, match="unknown experiment"):
-        sweep_overrides("fig1", "full", tmp_path)
+        chosen_experiments("fig1", EXPERIMENTS, 2)
 
 
 REPO = Path(__file__).resolve().parents[1]
@@ -660,20 +678,24 @@ def test_the_committed_report_is_regenerated_from_the_committed_data(tmp_path):
     first_edition = REPO / "results" / "v1"
     assert report.main([str(first_edition), "--out", str(tmp_path)]) == 0
     assert (tmp_path / "REPORT.md").read_text() == (first_edition / "REPORT.md").read_text()
+    figures = sorted(p.name for p in first_edition.glob("*.png"))
+    assert sorted(p.name for p in tmp_path.glob("*.png")) == figures and len(figures) == 8
+    for figure in figures:
+        assert (tmp_path / figure).read_bytes() == (first_edition / figure).read_bytes(), figure
     assert sum(p.stat().st_size for p in (first_edition / "data").iterdir()) < 20 * 2**20  # compact
 
 
 @pytest.mark.slow
 def test_the_quick_study_runs_end_to_end_from_the_command_line(tmp_path, capsys):
     # Real sweeps (Hydra multirun subprocess, Hydra's basic launcher), the export and the report.
-    assert report.main(["--profile", "quick", "--out", str(tmp_path), "--only", "claim1", "--launcher", "basic"]) == 0
+    assert full_v1("--profile", "quick", "--out", str(tmp_path), "--only", "claim1", "--launcher", "basic") == 0
     runs = read_data(tmp_path / "data" / "claim1.jsonl")
     assert len(runs) == 2 * 3  # 2 modes x 3 maps x 1 seed, each a replica of its mode's job
     assert {r.unit for r in runs} == {(m, 0) for m in range(3)}
     assert {"after_clear_rate", "return_after_clear"} <= set(runs[0].metrics) and runs[0].steps[-1] == 600
     text = (tmp_path / "REPORT.md").read_text()
     assert "SMOKE RUN" in text and "## Claim 1" in text and "with the `quick` profile" in text
-    assert report.main(["--profile", "quick", "--out", str(tmp_path), "--only", "claim1", "--launcher", "basic"]) == 0
+    assert full_v1("--profile", "quick", "--out", str(tmp_path), "--only", "claim1", "--launcher", "basic") == 0
     assert "[claim1] reusing the 2 complete runs" in capsys.readouterr().out  # a finished sweep is not rerun
 
 

@@ -1,4 +1,4 @@
-"""The second edition's sweeps compose as results/VERDICT_RULES.md registers them: each method option is its
+"""The second edition's sweeps compose as results/v2/VERDICT_RULES.md registers them: each method option is its
 learner with its exchange, 3 seeds a map for SARSA and 1 for Double DQN, on evaluation maps 0..M-1."""
 
 import pytest

@@ -16,11 +16,18 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from dqn_transfer.analysis.tuning import TuningError
-from dqn_transfer.cli import tune
+from dqn_transfer.cli import study
 from dqn_transfer.config import CONFIG_DIR, register_configs
 from dqn_transfer.experiments.tuning import apply_tuned
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def tune(*args: str) -> int:
+    """``python -m dqn_transfer.cli.study tune --edition v2 ARGS``: the tuning into ``OUT/tuning/``."""
+    return study.main(["tune", "--edition", "v2", *args])
+
+
 EVALUATION_MAPS = range(100)  # the study evaluates on map seeds 0 .. N-1, N up to ~100
 # The protocol's search spaces, written out from the brief: each learner's step size plus its method's own keys.
 STRENGTH_KEYS = {
@@ -112,7 +119,7 @@ def objective_of(trial_dir: Path) -> tuple[float, dict[int, float]]:
 def test_a_quick_tuning_writes_its_trials_the_best_values_and_the_figure(optuna_sweeper, tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)  # a relative --out: the runs land under it, not under a copy of it inside it
     out = tmp_path / "tuning"
-    assert tune.main(["--out", "tuning", "--profile", "quick", "--only", "sarsa_best"]) == 0
+    assert tune("--out", ".", "--profile", "quick", "--only", "sarsa_best") == 0
     assert not (out / "tuning").exists()
     trial_dirs = sorted((out / "runs" / "sarsa_best").glob("[0-9]*"))
     assert [d.name for d in trial_dirs] == ["0", "1"]
@@ -139,7 +146,7 @@ def test_a_quick_tuning_writes_its_trials_the_best_values_and_the_figure(optuna_
     assert (out / "tuning_sensitivity.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "| sarsa | best |" in (out / "tuning.md").read_text()
     capsys.readouterr()
-    assert tune.main(["--out", str(out), "--profile", "quick", "--only", "sarsa_best"]) == 0  # finished: reused
+    assert tune("--out", str(tmp_path), "--profile", "quick", "--only", "sarsa_best") == 0  # finished: reused
     assert "[sarsa_best] reusing the 2 complete runs" in capsys.readouterr().out
 
 
@@ -201,23 +208,24 @@ def hand_written_trials() -> list[dict]:
 
 
 def write_jsonl(out: Path, records: list[dict], extra: str = "") -> None:
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "tuning.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records) + extra)
+    """``OUT/tuning/tuning.jsonl``, as the tuning stage writes it."""
+    (out / "tuning").mkdir(parents=True, exist_ok=True)
+    (out / "tuning" / "tuning.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records) + extra)
 
 
 def test_the_analysis_picks_each_searchs_best_trial_from_the_jsonl_alone(tmp_path, capsys):
     write_jsonl(tmp_path, hand_written_trials())
-    assert tune.main(["--out", str(tmp_path), "--report-only"]) == 0
-    tuned = yaml.safe_load((tmp_path / "tuned.yaml").read_text())
+    assert tune("--out", str(tmp_path), "--report-only") == 0
+    tuned = yaml.safe_load((tmp_path / "tuning" / "tuned.yaml").read_text())
     assert tuned == {
         "sarsa": {"best": {"agent.lr": 0.3, "transfer.exchange_tau": 0.2, "transfer.exchange_every": 7}},
         "double_dqn": {"none": {"agent.lr": 0.002}},
     }
-    table = (tmp_path / "tuning.md").read_text()
+    table = (tmp_path / "tuning" / "tuning.md").read_text()
     assert "| sarsa | best | 2 | 50.0 | 10.0 | -5.0 .. 50.0 |" in table
     assert "| double_dqn | none | 0 | 30.0 | 30.0 | -80.0 .. 30.0 |" in table
     assert "2 tuning maps (map seeds 1000..1001); each search 3 trials" in table
-    assert (tmp_path / "tuning_sensitivity.png").stat().st_size > 0
+    assert (tmp_path / "tuning" / "tuning_sensitivity.png").stat().st_size > 0
     assert capsys.readouterr().err == ""
 
 
@@ -249,16 +257,16 @@ def _replace(index: int, **changes):
 )
 def test_bad_trials_are_refused_in_one_line_and_nothing_is_written(tmp_path, capsys, edit, extra, message):
     write_jsonl(tmp_path, edit(hand_written_trials()), extra)
-    assert tune.main(["--out", str(tmp_path), "--report-only"]) == 1
+    assert tune("--out", str(tmp_path), "--report-only") == 1
     err = capsys.readouterr().err
     assert err.startswith("error: ") and message in err and err.count("\n") == 1, err
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["tuning.jsonl"]
+    assert sorted(p.name for p in (tmp_path / "tuning").iterdir()) == ["tuning.jsonl"]
 
 
 def test_a_missing_jsonl_and_an_unknown_search_are_one_line(tmp_path, capsys):
-    assert tune.main(["--out", str(tmp_path / "none"), "--report-only"]) == 1
-    assert capsys.readouterr().err.startswith(f"error: {tmp_path / 'none' / 'tuning.jsonl'}: cannot read it")
-    assert tune.main(["--out", str(tmp_path), "--only", "sarsa_experience"]) == 1
+    assert tune("--out", str(tmp_path / "none"), "--report-only") == 1
+    assert capsys.readouterr().err.startswith(f"error: {tmp_path / 'none' / 'tuning' / 'tuning.jsonl'}: cannot read it")
+    assert tune("--out", str(tmp_path), "--only", "sarsa_experience") == 1
     err = capsys.readouterr().err
     assert err.startswith("error: unknown search 'sarsa_experience' (choose from sarsa_none,") and err.count("\n") == 1
     assert list(tmp_path.iterdir()) == []
@@ -279,8 +287,8 @@ def test_apply_writes_each_searchs_chosen_values_as_the_methods_tuned_option(tmp
 
 
 def test_the_studys_methods_compose_the_committed_tuned_values():
-    """results/tuning/tuned.yaml (stage 2, committed) is what every method of the second edition runs with."""
-    tuned = yaml.safe_load((ROOT / "results" / "tuning" / "tuned.yaml").read_text())
+    """results/v2/tuning/tuned.yaml (stage 2, committed) is what every method of the second edition runs with."""
+    tuned = yaml.safe_load((ROOT / "results" / "v2" / "tuning" / "tuned.yaml").read_text())
     for learner, methods in tuned.items():
         for method, params in methods.items():
             config = compose_config("experiment=v2/hypothesis", f"method={learner}_{method}")

@@ -11,6 +11,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
 
+from dqn_transfer.analysis.tuning import TuningError
 from dqn_transfer.experiments.raw_data import DataError
 from dqn_transfer.experiments.sweeps import ReproduceError
 
@@ -63,7 +64,7 @@ def run_study_command(body: Callable[[], Path]) -> int:
     start = time.perf_counter()
     try:
         written = body()
-    except (ReproduceError, DataError) as err:
+    except (ReproduceError, DataError, TuningError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
@@ -71,3 +72,10 @@ def run_study_command(body: Callable[[], Path]) -> int:
         return 130
     print(f"wrote {written} ({time.perf_counter() - start:.0f} s in total)")
     return 0
+
+
+def print_verdicts(report: Path) -> None:
+    """The report's summary rows that carry a verdict (in bold), indented, on stdout."""
+    for line in report.read_text().splitlines():
+        if line.startswith("| ") and "**" in line:
+            print("  " + line)

@@ -71,7 +71,7 @@ def run_dirs_tree(
 
 
 def data_tree(files: Sequence[Path], final_tail: float = FINAL_TAIL) -> dict[str, Any]:
-    """marl-eval's dictionary of the study's raw data files (``results/data/<experiment>.jsonl``): one
+    """marl-eval's dictionary of the study's raw data files (``results/v2/data/<experiment>.jsonl``): one
     environment per experiment, ``<game>_<experiment>`` (``treasurehunt_hypothesis``, ``lbf_lbf_hypothesis``),
     since marl-eval compares the algorithms of an environment over all its tasks and the experiments ask
     different questions."""

@@ -4,10 +4,10 @@
 in the sweep (``<job>/<replica>``), its composed config, every evaluation step with the metrics the
 report uses, the env steps spent before its step 0 on what it warm-started from, and its map's optimal
 team return (:func:`~dqn_transfer.envs.maps.optimal_team_return`; none for another game, ``env.factory``).
-``OUT/data/manifest.json`` says how the data were made (profile, code commit, the commit of the verdict rules,
-machine, wall times).
+``OUT/data/manifest.json`` says how the data were made (the edition, the commit of its verdict rules, and per
+experiment the profile, code commit, machine, date, wall time and runs).
 
-The report (:mod:`dqn_transfer.experiments.report`) reads these files and nothing else, so the
+The report (:func:`dqn_transfer.experiments.pipeline.write_report`) reads these files and nothing else, so the
 committed report can be regenerated, and every number in it recomputed, without the run directories
 (checkpoints, TensorBoard logs), which stay out of the repository.
 """
@@ -42,6 +42,7 @@ DATA_SOURCE = (
 )
 REPO_DIR = Path(__file__).resolve().parents[2]  # the checkout the package runs from
 MANIFEST = "manifest.json"
+SMOKE_MARK = "SMOKE RUN - not evidence"  # a report's figures' watermark when any of its data is not the full profile's
 # The evaluation metrics kept per step (metrics.jsonl has more: episode lengths, wall times, epsilon).
 METRICS = ("team_return", "success_rate", "trap_rate", "after_clear_rate", "return_after_clear")
 CACHE_DIRS = ("transfer", "curriculum")  # the config sections whose cache_dir a record names, not locates
@@ -252,3 +253,21 @@ def read_manifest(data_dir: Path) -> dict[str, Any]:
 def write_manifest(data_dir: Path, manifest: dict[str, Any]) -> None:
     data_dir.mkdir(parents=True, exist_ok=True)
     (data_dir / MANIFEST).write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
+
+
+def experiment_records(manifest: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """Each experiment's record in a manifest (profile, commit, machine, date, wall_seconds, runs); the first
+    edition's committed manifest holds one profile, commit, machine and date for all of them."""
+    if "experiments" in manifest:
+        return manifest["experiments"]
+    shared: dict[str, Any] = {key: manifest[key] for key in ("profile", "commit", "machine", "date") if key in manifest}
+    walls = manifest.get("wall_seconds", {})
+    return {
+        name: {**shared, "runs": runs, "wall_seconds": walls.get(name)}
+        for name, runs in manifest.get("runs", {}).items()
+    }
+
+
+def is_smoke(records: dict[str, dict[str, Any]]) -> bool:
+    """Whether data of these records are not evidence: none, or any not made with the full profile."""
+    return not records or any(record.get("profile") != "full" for record in records.values())

@@ -1,11 +1,10 @@
-"""Running the study's experiments: one Hydra multirun per experiment, into ``OUT/runs/<name>/``.
+"""Running Hydra multiruns of the study's experiments (:class:`Multirun`), each into its own directory.
 
-Each experiment is ``python -m dqn_transfer.cli.train -m experiment=<name>`` (``conf/experiment/``)
-in a subprocess, with the profile's overrides: one job per condition, its seeds batched inside the
-job as replicas (``replicas.seeds``, one run directory each); ``--launcher joblib`` (the default, from
-the ``sweep`` extra; without it, Hydra's basic launcher) runs ``--n-jobs`` jobs at a time,
-``submitit_slurm`` one SLURM job per condition. The ``full`` profile uses the experiment files' own
-step counts; ``quick`` shrinks them and the seeds.
+A multirun is ``python -m dqn_transfer.cli.train -m experiment=<name>`` (``conf/experiment/``) in a
+subprocess, with a stage's overrides: one job per condition, its seeds batched inside the job as replicas
+(``replicas.seeds``, one run directory each); ``--launcher joblib`` (the default, from the ``sweep`` extra;
+without it, Hydra's basic launcher) runs ``--n-jobs`` jobs at a time, ``submitit_slurm`` one SLURM job per
+condition. Which multiruns a study makes is :mod:`~dqn_transfer.experiments.pipeline`'s.
 
 A sweep directory already complete for the same settings is reused (so a failed report or a second
 ``--only`` does not rerun it); one holding other or unfinished runs is an error, never overwritten.
@@ -23,7 +22,7 @@ import sys
 import time
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import yaml
@@ -35,7 +34,6 @@ from dqn_transfer.analysis.runs import EvaluationError, load_config, read_metric
 from dqn_transfer.config import CONFIG_DIR, register_configs
 from dqn_transfer.storage.run_dir import RunDir
 
-EXPERIMENTS = ("hypothesis", "hypothesis_shared", "claim1", "claim2", "transfer", "curriculum")
 RUNS_DIR = "runs"  # OUT/runs/<experiment>/: the sweeps' run directories (checkpoints, logs; not committed)
 STAMP_FILE = "reproduce.json"  # in OUT/<name>/: the settings the sweep ran with, and its wall time
 DEFAULT_LAUNCHER = "joblib"
@@ -47,53 +45,12 @@ class ReproduceError(Exception):
     """A failed sweep or unusable results; the message is for the user, the CLI exits 1."""
 
 
-@dataclass(frozen=True)
-class Profile:
-    """Overrides of each experiment file's settings (none: the file's own)."""
-
-    overrides: dict[str, list[str]] = field(default_factory=dict)
-    description: str = ""
-
-
-_SHORT = ["agent.learning_starts=200", "replicas.seeds=1", "replicas.maps=2"]
-PROFILES = {
-    "quick": Profile(
-        overrides={
-            "hypothesis": ["total_steps=1500", "eval_every=500", *_SHORT],
-            "hypothesis_shared": ["total_steps=1500", "eval_every=500", *_SHORT],
-            "claim1": ["total_steps=600", "eval_every=100", "replicas.seeds=1", "replicas.maps=3"],
-            "claim2": ["env=study/m2,study/m3", "total_steps=1500", "eval_every=500", *_SHORT],
-            "transfer": ["total_steps=1500", "eval_every=250", "transfer.pretrain_steps=1000", *_SHORT],
-            "curriculum": ["total_steps=1500", "eval_every=250", "agent.learning_starts=200", "replicas.seeds=2"],
-        },
-        description="SMOKE RUN: 2-3 maps, one seed and 1,500 steps per run, claim 2 at two team sizes; it checks "
-        "that the pipeline works end to end and is NOT evidence for or against any claim.",
-    ),
-    "full": Profile(
-        description="the evidence: the maps, seeds and step counts of conf/experiment/*.yaml "
-        "(10 to 20 runs per condition)."
-    ),
-}
-
-
 def quoted_path(value: str | Path) -> str:
     """A path as a Hydra override value (quoted: spaces, '=' and ',' are grammar)."""
     text = str(value)
     if "'" in text:
         raise ReproduceError(f"{text}: paths with a single quote cannot be passed to Hydra; choose another --out")
     return f"'{text}'"
-
-
-def sweep_overrides(name: str, profile: str, out: Path) -> list[str]:
-    """The command-line overrides of one experiment's multirun (a swept key replaces the file's sweep)."""
-    if name not in EXPERIMENTS:
-        raise ReproduceError(f"unknown experiment {name!r} (choose from {', '.join(EXPERIMENTS)})")
-    # Sources and stages cached once for every job of the sweep, inside OUT.
-    shared = {
-        "transfer": [f"transfer.cache_dir={quoted_path(out / 'pretrained')}"],
-        "curriculum": [f"curriculum.cache_dir={quoted_path(out / 'curriculum_stages')}"],
-    }.get(name, [])
-    return shared + PROFILES[profile].overrides.get(name, [])
 
 
 def count_jobs(name: str, overrides: Sequence[str]) -> int:
@@ -234,17 +191,6 @@ class Multirun:
     sweep_dir: Path
     jobs: int  # the job directories a finished multirun holds
     stamp: dict  # the settings it runs with: a directory finished with the same ones is reused
-
-
-def run_experiment(
-    name: str, profile: str, out: Path, launcher: str, n_jobs: int, extra: Sequence[str] = (), poll_seconds: float = 2.0
-) -> float:
-    """One Hydra multirun into ``OUT/runs/<name>``; returns its wall time (0 when reused)."""
-    overrides = sweep_overrides(name, profile, out)
-    expected = count_jobs(name, overrides)
-    stamp = {"experiment": name, "profile": profile, "overrides": overrides, "jobs": expected}
-    multirun = Multirun(name, name, tuple(overrides), out / RUNS_DIR / name, expected, stamp)
-    return run_multirun(multirun, out, launcher, n_jobs, extra, poll_seconds)
 
 
 def run_multirun(

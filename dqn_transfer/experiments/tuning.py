@@ -221,7 +221,7 @@ def tuned_options(tuned: dict[str, dict[str, dict[str, Any]]]) -> dict[str, str]
             options[f"{learner}_{method}"] = (
                 "# @package _global_\n"
                 f"# {learner} x {method}: the values the tuning chose (the study's second edition, stage 2:\n"
-                "# results/tuning/tuned.yaml, written here by python -m dqn_transfer.cli.tune --apply).\n"
+                "# results/v2/tuning/tuned.yaml, written here by cli.study tune --apply).\n"
                 + yaml.safe_dump(tree, sort_keys=True)
             )
     return options

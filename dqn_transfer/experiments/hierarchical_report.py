@@ -1,8 +1,8 @@
-"""The second edition's ``REPORT.md`` and figures, from its committed data alone (``results/``).
+"""The registered hierarchical analysis's ``REPORT.md`` and figures (the second edition's), from its data alone.
 
 It reads ``data/<experiment>.jsonl`` and ``data/manifest.json`` (the full runs), ``budgets.md`` (the pilot's
 budgets) and ``tuning/tuning.md`` (the tuning's chosen values), answers each question by
-:mod:`dqn_transfer.experiments.second_edition_analysis` with its own seeded random stream (:func:`stream`), and
+:mod:`dqn_transfer.experiments.hierarchical_claims` with its own seeded random stream (:func:`stream`), and
 writes the report beside them (or into another directory, with copies of the figures it links to); nothing else
 is read (no clock, no checkout), so the same data give the same bytes.
 """
@@ -20,10 +20,8 @@ import numpy as np
 from dqn_transfer.analysis.hierarchical import MeanDifference
 from dqn_transfer.analysis.plots import dot_whisker_figure, errorbar_figure
 from dqn_transfer.analysis.stats import Estimate
-from dqn_transfer.experiments.raw_data import DATA_DIR, DATA_SOURCE, DataError, RunData, read_data, read_manifest
-from dqn_transfer.experiments.render import COLORS
-from dqn_transfer.experiments.second_edition import BUDGETS_TABLE, EXPERIMENTS
-from dqn_transfer.experiments.second_edition_analysis import (
+from dqn_transfer.experiments.edition import BUDGETS_TABLE, TUNING_DIR, Edition
+from dqn_transfer.experiments.hierarchical_claims import (
     ALPHA,
     CLAIM1_MARGIN,
     FAILURE_BELOW,
@@ -43,12 +41,21 @@ from dqn_transfer.experiments.second_edition_analysis import (
     mode,
     replicated,
 )
+from dqn_transfer.experiments.raw_data import (
+    DATA_DIR,
+    DATA_SOURCE,
+    SMOKE_MARK,
+    DataError,
+    RunData,
+    experiment_records,
+    is_smoke,
+    read_data,
+    read_manifest,
+)
+from dqn_transfer.experiments.render import COLORS
 
-RULES = "results/VERDICT_RULES.md"
-TAG = "study-v2-rules"
-TUNING_TABLE = Path("tuning") / "tuning.md"
-TUNING_FIGURE = Path("tuning") / "tuning_sensitivity.png"
-SMOKE = "SMOKE RUN - not evidence"
+TUNING_TABLE = Path(TUNING_DIR) / "tuning.md"
+TUNING_FIGURE = Path(TUNING_DIR) / "tuning_sensitivity.png"
 GREEDY = "greedy, "  # the label prefix of a mode's greedy team in claim 2's figure
 
 
@@ -295,10 +302,10 @@ def _include(path: Path) -> list[str]:
     return path.read_text().rstrip("\n").splitlines() + [""] if path.exists() else [f"({path.name} is missing)", ""]
 
 
-def stream(question: str) -> np.random.Generator:
-    """A question's own random stream, seeded by its experiment's place in :data:`EXPERIMENTS`: its digits do
-    not change when another question's data arrive."""
-    return np.random.default_rng([0, EXPERIMENTS.index(question)])
+def stream(edition: Edition, question: str) -> np.random.Generator:
+    """A question's own random stream, seeded by its experiment's place in the edition's experiments: its digits
+    do not change when another question's data arrive."""
+    return np.random.default_rng([0, edition.experiments.index(question)])
 
 
 def _carry_tuning_figure(results: Path, out: Path) -> bool:
@@ -313,24 +320,22 @@ def _carry_tuning_figure(results: Path, out: Path) -> bool:
     return True
 
 
-def write_report(results: Path, out: Path | None = None) -> Path:
-    """``OUT/REPORT.md`` and its figures (``OUT`` = ``results`` by default) from ``results/data/`` and the
-    budgets and tuning beside it."""
-    out = results if out is None else out
+def write_report(edition: Edition, results: Path, out: Path) -> Path:
+    """``OUT/REPORT.md`` and its figures from ``RESULTS/data/`` and the budgets and tuning beside it."""
     data = results / DATA_DIR
-    runs = {name: _read(data, name) for name in EXPERIMENTS}
+    runs = {name: _read(data, name) for name in edition.experiments}
     if not any(runs.values()):
-        raise DataError(f"{data} holds no data of {', '.join(EXPERIMENTS)}")
+        raise DataError(f"{data} holds no data of {', '.join(edition.experiments)}")
     out.mkdir(parents=True, exist_ok=True)  # after the data are read: bad input leaves no directory behind
     manifest = read_manifest(data)
-    made = manifest.get("experiments", {})
-    smoke = any(record.get("profile") != "full" for record in made.values()) or not made
-    watermark = SMOKE if smoke else None
+    made = experiment_records(manifest)
+    smoke = is_smoke(made)
+    watermark = SMOKE_MARK if smoke else None
     summary: list[tuple[str, str]] = []
     body: list[str] = []
     treasure = None
     if runs["hypothesis"]:
-        treasure = hypothesis(runs["hypothesis"], stream("hypothesis"))
+        treasure = hypothesis(runs["hypothesis"], stream(edition, "hypothesis"))
         hypothesis_figure(treasure, out / "hypothesis.png", watermark)
         body += hypothesis_section(
             treasure, "Main hypothesis: a group that exchanges knowledge learns better", "hypothesis.png"
@@ -338,7 +343,9 @@ def write_report(results: Path, out: Path | None = None) -> Path:
         summary.append(("Main hypothesis (SARSA, cooperative)", treasure.verdict))
         summary.append(("Main hypothesis, secondary (Double DQN, cooperative)", treasure.secondary_verdict))
     if runs["lbf_hypothesis"]:
-        lbf = hypothesis(runs["lbf_hypothesis"], stream("lbf_hypothesis"), primary_mode=mode(runs["lbf_hypothesis"][0]))
+        lbf = hypothesis(
+            runs["lbf_hypothesis"], stream(edition, "lbf_hypothesis"), primary_mode=mode(runs["lbf_hypothesis"][0])
+        )
         hypothesis_figure(lbf, out / "lbf_hypothesis.png", watermark)
         body += hypothesis_section(
             lbf,
@@ -351,24 +358,24 @@ def write_report(results: Path, out: Path | None = None) -> Path:
         if treasure is not None:
             summary.append(("Replication", replicated(treasure, lbf)))
     if runs["claim1"]:
-        result1 = claim1(runs["claim1"], stream("claim1"))
+        result1 = claim1(runs["claim1"], stream(edition, "claim1"))
         body += claim1_section(result1)
         summary.append(("Claim 1", result1.verdict))
     if runs["claim2"]:
-        result2 = claim2(runs["claim2"], stream("claim2"))
+        result2 = claim2(runs["claim2"], stream(edition, "claim2"))
         claim2_figure(result2, out / "claim2.png", watermark)
         body += claim2_section(result2, "claim2.png")
         summary.append(("Claim 2", result2.verdict))
     if runs["transfer"]:  # claim 3's control (scratch_matched) is among them: transfer_aware's wait for it
-        result3 = claim3(runs["transfer"] + runs["transfer_aware"], stream("transfer"))
+        result3 = claim3(runs["transfer"] + runs["transfer_aware"], stream(edition, "transfer"))
         body += claim3_section(result3)
         summary.append(("Claim 3", result3.verdict))
-    missing = [name for name in EXPERIMENTS if not runs[name]]
+    missing = [name for name in edition.experiments if not runs[name]]
     header = [
-        "# The study, second edition: knowledge exchange, cooperation and transfer",
+        f"# {edition.title}",
         "",
         *(
-            [f"> **{SMOKE}**: the quick profile checks the pipeline; its numbers are not evidence.", ""]
+            [f"> **{SMOKE_MARK}**: the quick profile checks the pipeline; its numbers are not evidence.", ""]
             if smoke
             else []
         ),
@@ -378,7 +385,7 @@ def write_report(results: Path, out: Path | None = None) -> Path:
             if runs["transfer_aware"] and not runs["transfer"]
             else []
         ),
-        f"Data: {DATA_SOURCE}. Verdict rules: `{RULES}`, tagged `{TAG}` at "
+        f"Data: {DATA_SOURCE}. Verdict rules: `{edition.rules}`, tagged `{edition.rules_tag}` at "
         f"{manifest.get('rules_commit', '?')}, before any of these runs. Intervals are 95% hierarchical-bootstrap "
         f"intervals over maps (maps, then runs within maps); p-values are two-sided bootstrap p; a family's are "
         f"Holm-adjusted at {ALPHA:g}.",

@@ -1,21 +1,20 @@
-"""The study's second edition (``results/VERDICT_RULES.md``): its sweeps, the budget pilots, and the full runs
-at each comparison's budget.
+"""The study's one pipeline, for any edition (:mod:`~dqn_transfer.experiments.edition`): tune -> pilot ->
+budgets -> runs -> analysis -> report, each stage into ``OUT``; an edition runs the stages it lists.
 
-The stages after tuning (:mod:`dqn_transfer.experiments.tuning`), each into ``OUT``:
+1. **tune** (:mod:`dqn_transfer.experiments.tuning`): the searches into ``OUT/tuning/``;
+2. **pilot** (:func:`run_pilots`): every experiment's sweep with the profile's pilot overrides (maps apart)
+   into ``OUT/pilot/runs/<name>/``, its raw data into ``OUT/pilot/data/<name>.jsonl``; then the **budgets**
+   (:func:`pilot_budgets`): the edition's rule on each job's pilot runs and, for each comparison group (the
+   conditions compared with each other), the largest of its jobs' budgets; ``OUT/budgets.json`` and
+   ``OUT/budgets.md``, from the pilot's raw data alone;
+3. **full** (:func:`run_full`): each experiment's runs, into ``OUT/runs/<name>/``: with a pilot stage, each
+   comparison group as one Hydra multirun at its budget (``OUT/runs/<name>/<group>/``), else the experiment
+   file's own sweep; every run's raw data into ``OUT/data/<name>.jsonl``, with the manifest;
+4. **report** (:func:`write_report`): ``REPORT.md`` and its figures from ``OUT``'s data alone, by the
+   edition's analysis.
 
-1. **pilot** (:func:`run_pilots`): every experiment of :data:`EXPERIMENTS` (``experiment=v2/<name>``) on the
-   pilot maps (map seeds 2000.., one seed) for the budget rule's cap, into ``OUT/pilot/runs/<name>/``; its
-   raw data into ``OUT/pilot/data/<name>.jsonl``;
-2. **budgets** (:func:`pilot_budgets`): the registered :data:`RULE` on each job's pilot runs, and for each
-   comparison group (the conditions compared with each other, :data:`COMPARISONS`) the largest of its jobs'
-   budgets, so that conditions compared share a budget; ``OUT/budgets.json`` and ``OUT/budgets.md``,
-   computed from the pilot's raw data alone;
-3. **full** (:func:`run_full`): each comparison group as one Hydra multirun at its budget, into
-   ``OUT/runs/<name>/<group>/``; every run's raw data into ``OUT/data/<name>.jsonl``.
-
-A group is a set of an experiment's jobs (one per combination of its sweep's values) that share a budget;
-it must be a product of values of the swept keys (so one multirun runs it), which :func:`sweep_groups`
-checks.
+A group is a set of an experiment's jobs (one per combination of its sweep's values) that share a budget; it
+must be a product of values of the swept keys (so one multirun runs it), which :func:`sweep_groups` checks.
 """
 
 from __future__ import annotations
@@ -24,7 +23,7 @@ import dataclasses
 import datetime as _dt
 import itertools
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
@@ -37,6 +36,8 @@ from dqn_transfer.analysis.budget import Budget, BudgetRule, budgets_per_cell
 from dqn_transfer.analysis.plots import flatten
 from dqn_transfer.analysis.transfer_metrics import Curve
 from dqn_transfer.config import CONFIG_DIR, register_configs, to_plain
+from dqn_transfer.experiments import hierarchical_report, paired_report
+from dqn_transfer.experiments.edition import BUDGETS_FILE, BUDGETS_TABLE, PILOT_DIR, Edition, Profile
 from dqn_transfer.experiments.raw_data import (
     DATA_DIR,
     DataError,
@@ -50,81 +51,25 @@ from dqn_transfer.experiments.raw_data import (
     write_data,
     write_manifest,
 )
-from dqn_transfer.experiments.sweeps import RUNS_DIR, Multirun, ReproduceError, quoted_path, run_multirun
+from dqn_transfer.experiments.sweeps import (
+    RUNS_DIR,
+    Multirun,
+    ReproduceError,
+    count_jobs,
+    quoted_path,
+    read_stamp,
+    run_multirun,
+)
 
-GROUP = "v2"  # conf/experiment/v2/
-EXPERIMENTS = ("hypothesis", "lbf_hypothesis", "claim1", "claim2", "transfer", "transfer_aware")
-PILOT_DIR, BUDGETS_FILE, BUDGETS_TABLE = "pilot", "budgets.json", "budgets.md"
-RULES_TAG = "study-v2-rules"  # results/VERDICT_RULES.md as registered before the runs
-
-# The registered budget rule: the median run's slope over its last half of evaluations below 1% of the
-# optimal return per 1,000 steps, 1.5 x that step, at most 32,000 steps.
-RULE = BudgetRule(threshold=0.01, safety=1.5, cap=32_000, round_to=1_000, fraction=0.5, min_points=4)
-PILOT_MAP_SEED = 2000  # the pilot maps 2000..2009: apart from the evaluation (0..) and tuning (1000..) maps
 CHEST_REWARD = 100.0  # claim 1's maps have no optimum: its curves are counted in chests for the rule
+REPORTS = {"paired": paired_report.write_report, "hierarchical": hierarchical_report.write_report}
 
 
-@dataclass(frozen=True)
-class Profile:
-    """A stage's settings: the pilot's overrides and rule, the full runs' extra overrides."""
-
-    pilot: tuple[str, ...]
-    rule: BudgetRule
-    full: tuple[str, ...]
-    description: str
-
-
-PROFILES = {
-    "full": Profile(
-        pilot=(
-            f"env.map_seed={PILOT_MAP_SEED}",
-            "replicas.maps=10",
-            "replicas.seeds=1",
-            f"total_steps={RULE.cap}",
-            "eval_every=500",
-        ),
-        rule=RULE,
-        full=(),
-        description="the evidence: the registered design (results/VERDICT_RULES.md)",
-    ),
-    "quick": Profile(
-        pilot=(
-            f"env.map_seed={PILOT_MAP_SEED}",
-            "replicas.maps=2",
-            "replicas.seeds=1",
-            "total_steps=2000",
-            "eval_every=250",
-            "agent.learning_starts=200",
-            "transfer.pretrain_steps=500",
-        ),
-        rule=dataclasses.replace(RULE, cap=2000),
-        full=("replicas.maps=2", "replicas.seeds=1", "agent.learning_starts=200", "transfer.pretrain_steps=500"),
-        description="SMOKE RUN: 2 maps, one seed, budgets of at most 2,000 steps; it checks the pipeline, "
-        "it is NOT evidence",
-    ),
-}
-
-
-@dataclass(frozen=True)
-class Comparison:
-    """Which of an experiment's jobs share a budget: those with the same :attr:`key` of their config."""
-
-    name: str  # the comparison (transfer and transfer_aware are one: their conditions are compared)
-    key: Callable[[dict[str, Any]], tuple[Any, ...]]  # e.g. (learner, mode) for the hypothesis
-
-
-def _learner(config: dict[str, Any]) -> tuple[Any, ...]:
-    return (config["agent"]["algorithm"],)
-
-
-COMPARISONS = {
-    "hypothesis": Comparison("hypothesis", lambda c: (*_learner(c), c["env"]["mode"])),
-    "lbf_hypothesis": Comparison("lbf_hypothesis", _learner),
-    "claim1": Comparison("claim1", lambda c: ()),
-    "claim2": Comparison("claim2", lambda c: (c["env"]["num_agents"], c["env"]["contention"])),  # m, contention
-    "transfer": Comparison("transfer", _learner),
-    "transfer_aware": Comparison("transfer", _learner),
-}
+def rules_commit(edition: Edition) -> str:
+    """The commit that registered the edition's rules: its tag's, else the rules file's last one."""
+    if edition.rules_tag:
+        return git_output("log", "-1", "--format=%h %cs", edition.rules_tag) or "not tagged"
+    return git_output("log", "-1", "--format=%h %cs", "--", edition.rules) or "not committed"
 
 
 def group_label(values: tuple[Any, ...]) -> str:
@@ -150,11 +95,10 @@ def _composed(experiment: str, overrides: Sequence[str] = (), hydra_config: bool
 
 
 @cache
-def sweep_jobs(name: str) -> tuple[Job, ...]:
-    """The jobs of ``experiment=v2/<name>``'s sweep, numbered as Hydra's basic sweeper numbers them (the
+def sweep_jobs(experiment: str) -> tuple[Job, ...]:
+    """The jobs of ``experiment=<experiment>``'s sweep, numbered as Hydra's basic sweeper numbers them (the
     product of the swept values, the last key varying fastest); composed once per process (a config is
     composed in about 0.2 s)."""
-    experiment = f"{GROUP}/{name}"
     sweeper = _composed(experiment, hydra_config=True).hydra.sweeper
     params = {key: str(value) for key, value in (sweeper.params or {}).items()}
     parser = OverridesParser.create()
@@ -173,18 +117,18 @@ def sweep_jobs(name: str) -> tuple[Job, ...]:
     return tuple(jobs)
 
 
-def sweep_groups(name: str) -> dict[tuple[Any, ...], list[Job]]:
+def sweep_groups(edition: Edition, name: str) -> dict[tuple[Any, ...], list[Job]]:
     """An experiment's jobs by comparison group; a ValueError if a group is not a product of swept values
     (one multirun could not run it alone)."""
     groups: dict[tuple[Any, ...], list[Job]] = {}
-    for job in sweep_jobs(name):
-        groups.setdefault(COMPARISONS[name].key(job.config), []).append(job)
+    for job in sweep_jobs(edition.experiment(name)):
+        groups.setdefault(edition.comparisons[name].key(job.config), []).append(job)
     for key, jobs in groups.items():
         size = 1
         for values in _group_values(jobs).values():
             size *= len(values)
         if size != len(jobs):
-            raise ValueError(f"v2/{name}: group {group_label(key)} is not a product of swept values")
+            raise ValueError(f"{edition.experiment(name)}: group {group_label(key)} is not a product of swept values")
     return groups
 
 
@@ -203,30 +147,38 @@ def group_overrides(jobs: Sequence[Job]) -> list[str]:
     return [f"{key}={','.join(values)}" for key, values in _group_values(jobs).items()]
 
 
-def _cache_overrides(name: str, out: Path) -> list[str]:
-    """The transfer sources, pretrained once for every job that needs them, inside ``OUT``."""
-    return [f"transfer.cache_dir={quoted_path(out / 'pretrained')}"] if name.startswith("transfer") else []
+def cache_overrides(edition: Edition, name: str, out: Path) -> list[str]:
+    """The sources or stages an experiment's jobs need, made once for every job inside ``OUT``."""
+    if name not in edition.caches:
+        return []
+    key, subdir = edition.caches[name]
+    return [f"{key}={quoted_path(out / subdir)}"]
 
 
-def _expected_jobs(name: str) -> int:
-    return len(sweep_jobs(name))
+# ------------------------------------------------------------------------------------------- pilot, budgets
 
 
-def run_pilots(names: Sequence[str], profile: str, out: Path, launcher: str, n_jobs: int) -> Path:
-    """Stage 2: each experiment's sweep on the pilot maps for the cap, then its raw data; returns
+def run_pilots(
+    edition: Edition,
+    names: Sequence[str],
+    profile: str,
+    out: Path,
+    launcher: str,
+    n_jobs: int,
+    extra: Sequence[str] = (),
+) -> Path:
+    """Each experiment's sweep with the profile's pilot overrides, then its raw data; returns
     ``OUT/pilot/data``."""
-    settings = PROFILES[profile]
+    settings = edition.profile(profile)
     data_dir = out / PILOT_DIR / DATA_DIR
     for name in names:
-        overrides = (*_cache_overrides(name, out / PILOT_DIR), *settings.pilot)
+        experiment = edition.experiment(name)
+        overrides = (*cache_overrides(edition, name, out / PILOT_DIR), *settings.pilot)
         sweep_dir = out / PILOT_DIR / RUNS_DIR / name
-        stamp = {"experiment": f"{GROUP}/{name}", "stage": "pilot", "profile": profile, "overrides": list(overrides)}
-        run_multirun(
-            Multirun(f"pilot-{name}", f"{GROUP}/{name}", overrides, sweep_dir, _expected_jobs(name), stamp),
-            out,
-            launcher,
-            n_jobs,
-        )
+        stamp = {"experiment": experiment, "stage": "pilot", "profile": profile, "overrides": list(overrides)}
+        jobs = len(sweep_jobs(experiment))
+        multirun = Multirun(f"pilot-{name}", experiment, overrides, sweep_dir, jobs, stamp)
+        run_multirun(multirun, out, launcher, n_jobs, extra)
         write_data(data_dir / f"{name}.jsonl", export_sweep(sweep_dir, name))
     return data_dir
 
@@ -275,21 +227,28 @@ def _job_of(run: RunData, jobs: Sequence[Job], overridden: set[str]) -> Job:
     return matches[0]
 
 
-def pilot_budgets(pilot_data: Path, names: Sequence[str], profile: Profile) -> list[GroupBudget]:
-    """Stage 3 from the pilot's raw data alone: each job's budget by the profile's rule, grouped by
-    comparison."""
+def pilot_rule(edition: Edition, profile: Profile) -> BudgetRule:
+    """The edition's budget rule, with the profile's cap."""
+    if edition.rule is None:
+        raise ReproduceError(f"edition {edition.name} has no budget rule")
+    return edition.rule if profile.rule_cap is None else dataclasses.replace(edition.rule, cap=profile.rule_cap)
+
+
+def pilot_budgets(edition: Edition, pilot_data: Path, names: Sequence[str], profile: Profile) -> list[GroupBudget]:
+    """The budgets from the pilot's raw data alone: each job's by the profile's rule, grouped by comparison."""
     overridden = {override.split("=", 1)[0] for override in profile.pilot}
+    rule = pilot_rule(edition, profile)
     groups: dict[tuple[str, tuple[Any, ...]], list[CellBudget]] = {}
     for name in names:
-        jobs = sweep_jobs(name)
+        jobs = sweep_jobs(edition.experiment(name))
         by_job: dict[int, list[RunData]] = {}
         for run in read_data(pilot_data / f"{name}.jsonl"):
             by_job.setdefault(_job_of(run, jobs, overridden).number, []).append(run)
         missing = [job.values for job in jobs if job.number not in by_job]
         if missing:
-            raise DataError(f"the pilot of v2/{name} has no runs of {missing}")
-        budgets = budgets_per_cell({n: [_rule_curve(r) for r in runs] for n, runs in by_job.items()}, profile.rule)
-        comparison = COMPARISONS[name]
+            raise DataError(f"the pilot of {edition.experiment(name)} has no runs of {missing}")
+        budgets = budgets_per_cell({n: [_rule_curve(r) for r in runs] for n, runs in by_job.items()}, rule)
+        comparison = edition.comparisons[name]
         for job in jobs:
             cell = CellBudget(name, job.values, len(by_job[job.number]), budgets[job.number])
             groups.setdefault((comparison.name, comparison.key(job.config)), []).append(cell)
@@ -356,49 +315,85 @@ def read_budgets(path: Path) -> dict[tuple[str, tuple[Any, ...]], int]:
         raise ReproduceError(f"{path}: not a budgets file of the pilot stage ({err})") from err
 
 
-def run_full(names: Sequence[str], profile: str, out: Path, budgets_file: Path, launcher: str, n_jobs: int) -> Path:
-    """Stage 4: each comparison group as one multirun at its budget, then each experiment's raw data and its
-    record in the manifest (profile, code commit, machine, date, wall time, runs; beside the rules' tag commit);
-    returns ``OUT/data``."""
-    budgets = read_budgets(budgets_file)
-    settings = PROFILES[profile]
+# ------------------------------------------------------------------------------------------- the runs
+
+
+def _multiruns(
+    edition: Edition, name: str, profile: str, out: Path, budgets: dict[tuple[str, tuple[Any, ...]], int] | None
+) -> list[Multirun]:
+    """An experiment's multiruns: each comparison group at its budget, or (no budgets) its file's sweep."""
+    experiment = edition.experiment(name)
+    settings = (*cache_overrides(edition, name, out), *edition.profile(profile).run_overrides(name))
+    if budgets is None:
+        count = count_jobs(experiment, settings)
+        stamp = {"experiment": experiment, "profile": profile, "overrides": list(settings), "jobs": count}
+        return [Multirun(name, experiment, settings, out / RUNS_DIR / name, count, stamp)]
+    multiruns = []
+    for key, jobs in sweep_groups(edition, name).items():
+        comparison = edition.comparisons[name].name
+        if (comparison, key) not in budgets:
+            raise ReproduceError(f"the budgets file has no budget for {comparison} {group_label(key)}")
+        overrides = (*group_overrides(jobs), f"total_steps={budgets[(comparison, key)]}", *settings)
+        stamp = {"experiment": experiment, "stage": "full", "profile": profile, "overrides": list(overrides)}
+        sweep_dir = out / RUNS_DIR / name / group_label(key)
+        multiruns.append(Multirun(f"{name}-{group_label(key)}", experiment, overrides, sweep_dir, len(jobs), stamp))
+    return multiruns
+
+
+def run_full(
+    edition: Edition,
+    names: Sequence[str],
+    profile: str,
+    out: Path,
+    launcher: str | None,
+    n_jobs: int,
+    budgets_file: Path | None = None,
+    extra: Sequence[str] = (),
+) -> Path:
+    """Each experiment's multiruns (none with ``launcher`` None: what ``OUT/runs/`` holds is exported), then
+    its raw data and its record in the manifest (profile, code commit, machine, date, wall time, runs; beside
+    the edition and its rules' commit); returns ``OUT/data``."""
+    budgets = read_budgets(budgets_file or out / BUDGETS_FILE) if "pilot" in edition.stages else None
     data_dir = out / DATA_DIR
     made: dict[str, dict[str, Any]] = {}
     for name in names:
         runs: list[RunData] = []
-        wall = 0.0
-        for key, jobs in sweep_groups(name).items():
-            comparison = COMPARISONS[name].name
-            if (comparison, key) not in budgets:
-                raise ReproduceError(f"{budgets_file} has no budget for {comparison} {group_label(key)}")
-            overrides = (
-                *group_overrides(jobs),
-                f"total_steps={budgets[(comparison, key)]}",
-                *_cache_overrides(name, out),
-                *settings.full,
-            )
-            sweep_dir = out / RUNS_DIR / name / group_label(key)
-            stamp = {"experiment": f"{GROUP}/{name}", "stage": "full", "profile": profile, "overrides": list(overrides)}
-            multirun = Multirun(f"{name}-{group_label(key)}", f"{GROUP}/{name}", overrides, sweep_dir, len(jobs), stamp)
-            wall += run_multirun(multirun, out, launcher, n_jobs)
-            runs += [
-                dataclasses.replace(run, name=f"{group_label(key)}/{run.name}") for run in export_sweep(sweep_dir, name)
-            ]
-        write_data(data_dir / f"{name}.jsonl", runs)
-        made[name] = {
-            "profile": profile,
-            "commit": code_commit(),
-            "machine": machine(),
-            "date": _dt.date.today().isoformat(),
-            "wall_seconds": round(wall, 1),
-            "runs": len(runs),
-        }
+        wall, profiles = 0.0, set()
+        for multirun in _multiruns(edition, name, profile, out, budgets):
+            if launcher is not None:
+                run_multirun(multirun, out, launcher, n_jobs, extra)
+            elif not multirun.sweep_dir.is_dir():
+                continue
+            stamp = read_stamp(multirun.sweep_dir) or {}  # what the runs were made with, even if not by this call
+            wall += float(stamp.get("wall_seconds", 0.0))
+            profiles.add(str(stamp.get("profile", "unknown")))
+            prefix = f"{multirun.sweep_dir.name}/" if budgets is not None else ""
+            runs += [dataclasses.replace(r, name=prefix + r.name) for r in export_sweep(multirun.sweep_dir, name)]
+        if runs:
+            write_data(data_dir / f"{name}.jsonl", runs)
+            made[name] = {
+                "profile": "/".join(sorted(profiles)),
+                "commit": code_commit(),
+                "machine": machine(),
+                "date": _dt.date.today().isoformat(),
+                "wall_seconds": round(wall, 1),
+                "runs": len(runs),
+            }
+    if not made:
+        raise ReproduceError(f"{out / RUNS_DIR} holds no runs of {', '.join(names)}: run the experiments first")
     previous = read_manifest(data_dir)  # experiments run before (--only, another session) keep their record
     write_manifest(
         data_dir,
         {
-            "rules_commit": git_output("log", "-1", "--format=%h %cs", RULES_TAG) or "not tagged",
+            "edition": edition.name,
+            "rules_commit": rules_commit(edition),
             "experiments": {**previous.get("experiments", {}), **made},
         },
     )
     return data_dir
+
+
+def write_report(edition: Edition, results: Path, out: Path | None = None) -> Path:
+    """``OUT/REPORT.md`` and its figures (``OUT`` = ``results`` by default) from ``results``' data alone, by
+    the edition's analysis."""
+    return REPORTS[edition.analysis](edition, results, results if out is None else out)
