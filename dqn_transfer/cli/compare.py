@@ -14,6 +14,7 @@ import sys
 
 from dqn_transfer.analysis.compare import compare_runs, format_table
 from dqn_transfer.analysis.runs import EvaluationError, skipped_runs_on_stderr
+from dqn_transfer.cli.console import error_line
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -33,14 +34,14 @@ def main(argv: list[str] | None = None) -> int:
         "earlier stages): their curves are shifted by it, to compare at equal total steps",
     )
     args = parser.parse_args(argv)
-    try:
-        with skipped_runs_on_stderr():
-            results = compare_runs(
-                args.transfer, args.baseline, args.metric, args.threshold, args.seed, args.transfer_offset
-            )
-    except (EvaluationError, ValueError, OSError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 1
+    return error_line(lambda: _compare(args), (EvaluationError, ValueError, OSError), 1)
+
+
+def _compare(args: argparse.Namespace) -> int:
+    with skipped_runs_on_stderr():
+        results = compare_runs(
+            args.transfer, args.baseline, args.metric, args.threshold, args.seed, args.transfer_offset
+        )
     print(format_table(results))
     return 0
 

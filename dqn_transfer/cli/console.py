@@ -35,6 +35,20 @@ class OneLineErrors(argparse.ArgumentParser):
         sys.exit(2)
 
 
+def error_line(body: Callable[[], int], errors: tuple[type[Exception], ...], code: int) -> int:
+    """``body()``'s exit code; ``code`` and one ``error:`` line on stderr when it raises one of ``errors``.
+
+    :param body: the command's work, returning its exit code
+    :param errors: the exceptions that are bad input, whose message is the line
+    :param code: the exit code of bad input
+    """
+    try:
+        return body()
+    except errors as err:
+        print(f"error: {err}", file=sys.stderr)
+        return code
+
+
 def docstring_parser(doc: str, prog: str | None = None) -> OneLineErrors:
     """A :class:`OneLineErrors` parser that a command module's docstring describes: its first paragraph above
     the options, the rest below them as written.
