@@ -213,6 +213,13 @@ def bootstrap_p_value(resampled: np.ndarray, null: float = 0.0) -> float:
     return float(min(1.0, 2.0 * min(below, above)))
 
 
+def _difference(point: float, resampled: np.ndarray | None, confidence: float, n_maps: int) -> MeanDifference:
+    """A difference with its interval and p-value from its resamples (None: one map, neither)."""
+    if resampled is None:
+        return MeanDifference(no_interval(point, n_maps), math.nan)
+    return MeanDifference(percentile_estimate(point, resampled, confidence, n_maps), bootstrap_p_value(resampled))
+
+
 def paired_mean_difference(
     differences_by_map: ValuesByMap,
     rng: np.random.Generator,
@@ -228,11 +235,7 @@ def paired_mean_difference(
     :param confidence: the interval's coverage, in (0, 1).
     """
     point, resampled = _resampled(differences_by_map, mean_of_runs, rng, n_resamples)
-    if resampled is None:
-        return MeanDifference(no_interval(point, len(differences_by_map)), math.nan)
-    return MeanDifference(
-        percentile_estimate(point, resampled, confidence, len(differences_by_map)), bootstrap_p_value(resampled)
-    )
+    return _difference(point, resampled, confidence, len(differences_by_map))
 
 
 def independent_mean_difference(
@@ -252,11 +255,8 @@ def independent_mean_difference(
     :param confidence: the interval's coverage, in (0, 1).
     """
     (x, x_resampled), (y, y_resampled) = (_resampled(v, mean_of_runs, rng, n_resamples) for v in (x_by_map, y_by_map))
-    n_maps = len(x_by_map) + len(y_by_map)
-    if x_resampled is None or y_resampled is None:
-        return MeanDifference(no_interval(x - y, n_maps), math.nan)
-    resampled = x_resampled - y_resampled
-    return MeanDifference(percentile_estimate(x - y, resampled, confidence, n_maps), bootstrap_p_value(resampled))
+    resampled = None if x_resampled is None or y_resampled is None else x_resampled - y_resampled
+    return _difference(x - y, resampled, confidence, len(x_by_map) + len(y_by_map))
 
 
 def paired_slope(
@@ -283,12 +283,10 @@ def paired_slope(
     point = float(centred @ np.array([mean for mean, _ in drawn]) / (centred @ centred))
     n_maps = sum(len(differences_by_size[int(m)]) for m in sizes)
     if any(resampled is None for _, resampled in drawn):
-        return MeanDifference(no_interval(point, n_maps), math.nan)
+        return _difference(point, None, confidence, n_maps)
     means = np.stack([resampled for _, resampled in drawn if resampled is not None], axis=1)  # [resamples, m]
-    resampled_slopes = (means - means.mean(axis=1, keepdims=True)) @ centred / (centred @ centred)
-    return MeanDifference(
-        percentile_estimate(point, resampled_slopes, confidence, n_maps), bootstrap_p_value(resampled_slopes)
-    )
+    slopes = (means - means.mean(axis=1, keepdims=True)) @ centred / (centred @ centred)
+    return _difference(point, slopes, confidence, n_maps)
 
 
 def mean_difference(
@@ -319,14 +317,12 @@ def mean_difference(
     (x, x_counts), (y, y_counts) = _padded(x_by_map), _padded(y_by_map)
     point = float(np.nanmean(x) - np.nanmean(y))
     if len(x_counts) < 2:
-        return MeanDifference(no_interval(point, len(x_counts)), math.nan)
+        return _difference(point, None, confidence, len(x_counts))
     maps = _draw_maps(len(x_counts), rng, n_resamples)
     x_resampled = _pooled(_take(x, maps, _draw_runs(x_counts, maps, rng)))
     y_resampled = _pooled(_take(y, maps, _draw_runs(y_counts, maps, rng)))
     resampled = mean_of_runs(x_resampled) - mean_of_runs(y_resampled)
-    return MeanDifference(
-        percentile_estimate(point, resampled, confidence, len(x_counts)), bootstrap_p_value(resampled)
-    )
+    return _difference(point, resampled, confidence, len(x_counts))
 
 
 def probability_of_improvement(

@@ -34,7 +34,7 @@ from enum import Enum
 from pathlib import Path
 from typing import Any
 
-from dqn_transfer.benchmark.config import LONE_AGENT, LONE_MAP, TEAM_MAP
+from dqn_transfer.benchmark.config import LONE_AGENT, LONE_MAP, TEAM_MAP, rates
 from dqn_transfer.config import SB3_NAMES, AgentConfig
 from dqn_transfer.enums import Engine
 from dqn_transfer.storage.checkpoint import verify_checkpoint
@@ -229,12 +229,8 @@ def _figures(steps: int, timing: dict[str, Any], learners: int = 1) -> dict[str,
     """Wall and CPU seconds of a run of ``learners`` x ``steps`` learner-steps, and the rates."""
     wall, cpu = timing["seconds"], timing["cpu_seconds"]
     return {
-        "steps": steps,
+        **rates(steps, wall, cpu),
         "learners": learners,
-        "seconds": wall,
-        "cpu_seconds": cpu,
-        "steps_per_s": steps / wall,
-        "steps_per_cpu_s": steps / cpu,
         "learner_steps_per_s": learners * steps / wall,
         "learner_steps_per_cpu_s": learners * steps / cpu,
         "max_rss_mb": max(p["max_rss_mb"] for p in timing["processes"]),

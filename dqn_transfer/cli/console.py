@@ -11,6 +11,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
 
+from dqn_transfer.analysis.runs import EvaluationError, skipped_runs_on_stderr
 from dqn_transfer.analysis.tuning import TuningError
 from dqn_transfer.experiments.raw_data import DataError
 from dqn_transfer.experiments.sweeps import ReproduceError
@@ -47,6 +48,16 @@ def error_line(body: Callable[[], int], errors: tuple[type[Exception], ...], cod
     except errors as err:
         print(f"error: {err}", file=sys.stderr)
         return code
+
+
+def reading_runs(body: Callable[[], int]) -> int:
+    """:func:`error_line` for the commands that read run directories: each one skipped is a line on stderr
+    (:func:`~dqn_transfer.analysis.runs.skipped_runs_on_stderr`), one that cannot be read ends in exit code 1.
+
+    :param body: the command's work, returning its exit code
+    """
+    with skipped_runs_on_stderr():
+        return error_line(body, (EvaluationError, ValueError, OSError), 1)
 
 
 def docstring_parser(doc: str, prog: str | None = None) -> OneLineErrors:
