@@ -4,14 +4,9 @@ Sections 2-4 time loops inside one Python process and subtract what is not train
 subtracted: imports, building the networks, replay filling, the trainer's evaluations, TensorBoard
 logging and checkpoint writes all count, as they do for whoever runs the command.
 
-5. ``lone``: one DQN learner on ``LONE_MAP`` with ``LONE_AGENT``'s hyperparameters, four programs:
-   ``ours`` = ``python -m dqn_transfer.cli.train agent.engine=numpy`` (the Hydra app, ``train.py``, with
-   the engine for small networks, whose process never imports torch), ``ours_torch`` = the same with the
-   default torch engine, ``sb3`` and ``bare`` = :mod:`dqn_transfer.benchmark.processes` (SB3's
-   ``DQN.learn`` and a CleanRL-style bare-PyTorch loop).
-6. ``replicas``: sweep throughput. ``ours``: R replicas of a 4-agent cooperative team on ``BENCH_MAP``
-   in ONE process (``replicas.seeds=R``, one batched learner, every core's torch threads). ``sb3``: the
-   same learners the way SB3 trains them, one per process, one process per core started together.
+Section 5 (``lone``) runs one DQN learner on ``LONE_MAP`` as each of ``LONE_CONTENDERS`` (ours with either
+engine, and the reference programs of :mod:`~dqn_transfer.benchmark.processes`); section 6 (``replicas``)
+runs R replicas of a team on ``TEAM_MAP`` in ONE process of ours against one SB3 process per core.
 
 Each child's wall time runs from just before it is spawned to the moment ``os.wait4`` reaps it; its CPU
 time (user + system, all its threads) and peak resident memory are what ``os.wait4`` reports for it.
