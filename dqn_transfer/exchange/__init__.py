@@ -36,7 +36,7 @@ def exchange_method(config: TrainConfig) -> type[ExchangeMethod]:
 def check_exchange(config: TrainConfig) -> None:
     """Refuse, in one line (``ConfigError``), what a method ``config`` runs cannot run (at plan time)."""
     for method in (exchange_method(config), *TEAM_METHODS):
-        if method.applies(config):
+        if method.asked_by(config) is not None:
             method.check(config)
 
 

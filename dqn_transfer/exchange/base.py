@@ -43,14 +43,9 @@ class ExchangeMethod:
         self.transfer = transfer
 
     @classmethod
-    def applies(cls, config: TrainConfig) -> bool:
-        """Whether ``config`` runs this method."""
-        return Exchange(config.transfer.exchange).value == cls.name
-
-    @classmethod
-    def setting(cls, config: TrainConfig) -> str:
-        """The setting that asks for it, as a refusal names it."""
-        return f"transfer.exchange={cls.name}"
+    def asked_by(cls, config: TrainConfig) -> str | None:
+        """The setting of ``config`` that runs this method, as a refusal names it; None if it does not."""
+        return f"transfer.exchange={cls.name}" if Exchange(config.transfer.exchange).value == cls.name else None
 
     # ------------------------------------------------------------------------------------------ the hooks
     @classmethod
@@ -59,11 +54,11 @@ class ExchangeMethod:
         algorithm = Algorithm(config.agent.algorithm)
         if cls.family is not None and algorithm.family != cls.family:
             raise ConfigError(
-                f"{cls.setting(config)} {cls.needs}: it needs {LEARNERS[cls.family]}, not agent={algorithm.value}"
+                f"{cls.asked_by(config)} {cls.needs}: it needs {LEARNERS[cls.family]}, not agent={algorithm.value}"
             )
         if cls.moves_transitions and Mixer(config.agent.mixer) is Mixer.vdn:
             raise ConfigError(
-                f"{cls.setting(config)} moves transitions between the agents' replays; agent.mixer=vdn trains on "
+                f"{cls.asked_by(config)} moves transitions between the agents' replays; agent.mixer=vdn trains on "
                 "the team's aligned joint steps: use transfer.exchange=none or best"
             )
 

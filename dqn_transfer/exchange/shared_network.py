@@ -12,15 +12,13 @@ from dqn_transfer.exchange.base import ExchangeMethod
 class SharedNetwork(ExchangeMethod):
     name = "shared_network"
     family, needs = "dqn", "applies to a shared network"
-    in_loop = False
 
     @classmethod
-    def applies(cls, config: TrainConfig) -> bool:
-        return config.agent.share_parameters or config.agent.agent_id_input
-
-    @classmethod
-    def setting(cls, config: TrainConfig) -> str:
-        return f"agent.{'share_parameters' if config.agent.share_parameters else 'agent_id_input'}=true"
+    def asked_by(cls, config: TrainConfig) -> str | None:
+        agent = config.agent
+        if not (agent.share_parameters or agent.agent_id_input):
+            return None
+        return f"agent.{'share_parameters' if agent.share_parameters else 'agent_id_input'}=true"
 
     @classmethod
     def check(cls, config: TrainConfig) -> None:

@@ -15,15 +15,10 @@ from dqn_transfer.exchange.base import ExchangeMethod
 class TeamLoss(ExchangeMethod):
     name = "vdn"
     family, needs = "dqn", "sums the agents' Q-networks"
-    in_loop = False
 
     @classmethod
-    def applies(cls, config: TrainConfig) -> bool:
-        return Mixer(config.agent.mixer) is Mixer.vdn
-
-    @classmethod
-    def setting(cls, config: TrainConfig) -> str:
-        return "agent.mixer=vdn"
+    def asked_by(cls, config: TrainConfig) -> str | None:
+        return "agent.mixer=vdn" if Mixer(config.agent.mixer) is Mixer.vdn else None
 
     @classmethod
     def check(cls, config: TrainConfig) -> None:
