@@ -70,11 +70,6 @@ class Exchange(Enum):
     confidence = "confidence"  # tables: merge a team-mate's values on the states it visited more (Tan 1993)
     advice = "advice"  # tables: a rarely-visited state's action comes from the most experienced team-mate
 
-    @property
-    def reads_visits(self) -> bool:
-        """Whether it weighs the agents' visit counts of table entries (the tabular learners' only)."""
-        return self in (Exchange.confidence, Exchange.advice)
-
 
 class Mixer(Enum):
     """How the DQN learners combine the agents' Q-values into what is trained (``agent.mixer``)."""

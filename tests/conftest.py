@@ -23,9 +23,10 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 from safetensors import safe_open
 
-from dqn_transfer.config import CONFIG_DIR, AgentConfig, TrainConfig, TransferConfig, register_configs
+from dqn_transfer.config import CONFIG_DIR, AgentConfig, TrainConfig, TransferConfig, register_configs, validate
 from dqn_transfer.enums import Algorithm, Engine
 from dqn_transfer.envs.settings import EnvConfig
+from dqn_transfer.exchange import check_exchange
 
 REPO = Path(__file__).resolve().parent.parent
 TRAIN_PY = REPO / "train.py"
@@ -49,6 +50,12 @@ def compose_config(*overrides: str) -> TrainConfig:
     register_configs()
     with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
         return OmegaConf.to_object(compose(config_name="config", overrides=list(overrides)))  # type: ignore[return-value]
+
+
+def checked(config: TrainConfig) -> None:
+    """What the run plan checks of ``config`` before any map: the schema, then every exchange method it runs."""
+    validate(config)
+    check_exchange(config)
 
 
 def train_command(run_dir: Path, overrides: Iterable[str]) -> list[str]:

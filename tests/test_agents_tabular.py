@@ -12,7 +12,8 @@ from dqn_transfer.enums import Algorithm, Mode
 from dqn_transfer.envs.game import make_game
 from dqn_transfer.envs.observation_code import observation_code
 from dqn_transfer.evaluation.rollout import evaluate
-from dqn_transfer.transfer.exchange import exchange_best, exchange_replay
+from dqn_transfer.exchange.best import exchange_best
+from dqn_transfer.exchange.shared_replay import exchange_replay
 
 LAYOUT = [("position", 2)]
 S0 = np.array([1.0, 0.0], dtype=np.float32)

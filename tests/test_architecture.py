@@ -74,7 +74,8 @@ ALLOWED = {
     "storage": LEAVES,  # checkpoint files and the run directory's names
     "evaluation": LEAVES | {"envs", "agents"},  # greedy episodes of a game and a policy
     "transfer": LEAVES | {"envs", "config", "agents", "storage"},
-    "training": LEAVES | {"envs", "config", "agents", "storage", "evaluation", "transfer"},
+    "exchange": LEAVES | {"config", "agents"},  # knowledge exchange inside a team: the protocol and its methods
+    "training": LEAVES | {"envs", "config", "agents", "storage", "evaluation", "transfer", "exchange"},
     "sources": LEAVES | {"envs", "config", "storage", "transfer", "training"},
     "sharing": LEAVES | {"envs", "config", "agents", "storage", "evaluation"},
     "analysis": LEAVES | {"storage"},  # reads run directories, never live objects
@@ -89,7 +90,7 @@ FORBIDDEN_INSIDE = {
     "dqn_transfer.sources.run_cache": ("dqn_transfer.sources.resolve", "dqn_transfer.sources.curriculum"),
     "dqn_transfer.sources.resolve": ("dqn_transfer.sources.curriculum",),
     "dqn_transfer.config.schema": ("dqn_transfer.config.help",),
-    "dqn_transfer.transfer.mapping": ("dqn_transfer.transfer.warm_start", "dqn_transfer.transfer.exchange"),
+    "dqn_transfer.transfer.mapping": ("dqn_transfer.transfer.warm_start",),
 }
 # Entry points: the command-line modules, and `python -m dqn_transfer.play` (dqn-transfer-play's short name).
 ENTRY_POINTS = ("dqn_transfer.cli", "dqn_transfer.play")

@@ -20,10 +20,12 @@ from dqn_transfer.agents import (
     make_replicas,
     require,
 )
-from dqn_transfer.config import AgentConfig, ConfigError, TrainConfig, TransferConfig
+from dqn_transfer.config import AgentConfig, ConfigError, TransferConfig
 from dqn_transfer.enums import Algorithm, Engine, Exchange
-from dqn_transfer.transfer.capabilities import check_capabilities
-from dqn_transfer.transfer.exchange import exchange_best, exchange_replay
+from dqn_transfer.exchange import EXCHANGES
+from dqn_transfer.exchange.best import exchange_best
+from dqn_transfer.exchange.shared_replay import exchange_replay
+from dqn_transfer.transfer.warm_start import check_warm_start
 
 LAYOUT = [("position", 4)]
 A = 3
@@ -169,14 +171,30 @@ class ActingOnly(Team):
         pass
 
 
+@pytest.mark.parametrize(
+    ("exchange", "capability"),
+    [
+        (Exchange.best, "KnowledgeExchange"),
+        (Exchange.shared_replay, "KnowledgeExchange"),
+        (Exchange.experience, "ExperienceSharing"),
+        (Exchange.confidence, "VisitExchange"),
+        (Exchange.advice, "VisitExchange"),
+    ],
+)
+def test_a_learner_without_an_exchanges_capability_is_refused_when_the_run_starts(exchange, capability):
+    method = EXCHANGES[exchange](TransferConfig(exchange=exchange), 1)
+    refusal = f"^transfer.exchange={exchange.value} needs a learner capable of {capability}; scripted is not$"
+    with pytest.raises(ConfigError, match=refusal):
+        method.start(ActingOnly())
+    EXCHANGES[Exchange.none](TransferConfig(), 1).start(ActingOnly())  # no exchange asks nothing of the learner
+
+
 def test_a_learner_without_a_capability_is_refused_when_the_run_is_configured():
-    config = TrainConfig(transfer=TransferConfig(exchange=Exchange.best))
-    with pytest.raises(ConfigError, match="transfer.exchange=best needs a learner capable of KnowledgeExchange"):
-        check_capabilities(config, ActingOnly(), warm_start=False)
     with pytest.raises(ConfigError, match="KnowledgeExchange"):
         exchange_best(ActingOnly(), np.zeros((1, 2)), 0.5)
     tabular = make_learner(TABULAR, 2, LAYOUT, A, seed=0)
-    config = TrainConfig(transfer=TransferConfig(enabled=True, reset_optimizer=False))
     with pytest.raises(ConfigError, match="reset_optimizer=false"):
-        check_capabilities(config, tabular, warm_start=True)
-    check_capabilities(config, tabular, warm_start=False)  # a source task's own run does not warm start
+        check_warm_start(tabular, TransferConfig(enabled=True, reset_optimizer=False))
+    with pytest.raises(ConfigError, match="transfer.freeze"):
+        check_warm_start(tabular, TransferConfig(enabled=True, freeze=[0]))
+    check_warm_start(tabular, TransferConfig(enabled=True))  # nothing a table lacks

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
-from conftest import agent_meta
+from conftest import agent_meta, checked
 from dqn_reference import reference_update
 from test_dqn_update import ENGINES, Learner, learner_rows_per_member, sequential, stacked_grad
 from test_train_cli import MAP, kill_and_resume
@@ -19,7 +19,7 @@ from dqn_transfer.agents import ReplayBatch, Transition
 from dqn_transfer.agents.agent_id import AGENT_ID, agent_id_rows, append_agent_id
 from dqn_transfer.agents.dqn_update import double_dqn_targets
 from dqn_transfer.agents.shared_experience import batch_sources
-from dqn_transfer.config import AgentConfig, ConfigError, TrainConfig, TransferConfig, validate
+from dqn_transfer.config import AgentConfig, ConfigError, TrainConfig, TransferConfig
 from dqn_transfer.enums import Algorithm, Exchange
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.transfer.mapping import plan_segment_mapping, transfer_dqn_tensors
@@ -227,20 +227,20 @@ def test_the_agent_id_segment_maps_by_index_and_a_source_without_it_reads_no_id(
     ("agent", "transfer", "message"),
     [
         (dict(agent_id_input=True), {}, "agent_id_input=true .* needs agent.share_parameters=true"),
-        (dict(algorithm=Algorithm.qlearning, lr=0.1, agent_id_input=True), {}, "agent_id_input applies to the DQN"),
-        (dict(algorithm=Algorithm.sarsa, lr=0.1), dict(exchange=Exchange.experience), "applies to the DQN learners"),
+        (dict(algorithm=Algorithm.qlearning, lr=0.1, agent_id_input=True), {}, "agent_id_input=true .* a DQN learner"),
+        (dict(algorithm=Algorithm.sarsa, lr=0.1), dict(exchange=Exchange.experience), "it needs a DQN learner"),
         ({}, dict(experience_lambda=0.5), "experience_lambda=0.5 .* needs transfer.exchange=experience"),
         ({}, dict(exchange=Exchange.experience, experience_lambda=-1.0), "must be >= 0 and finite"),
     ],
 )
 def test_refused_settings(agent, transfer, message):
     with pytest.raises(ConfigError, match=message):
-        validate(TrainConfig(agent=AgentConfig(**agent), transfer=TransferConfig(**transfer)))
+        checked(TrainConfig(agent=AgentConfig(**agent), transfer=TransferConfig(**transfer)))
 
 
 def test_accepted_settings():
-    validate(TrainConfig(agent=AgentConfig(share_parameters=True, agent_id_input=True)))
-    validate(TrainConfig(transfer=TransferConfig(exchange=Exchange.experience, experience_lambda=0.0)))
+    checked(TrainConfig(agent=AgentConfig(share_parameters=True, agent_id_input=True)))
+    checked(TrainConfig(transfer=TransferConfig(exchange=Exchange.experience, experience_lambda=0.0)))
 
 
 # ---------------------------------------------------------------------------------------------- resume

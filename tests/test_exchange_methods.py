@@ -5,17 +5,17 @@ import dataclasses
 
 import numpy as np
 import pytest
-from conftest import agent_meta, read_metrics, without_timing
+from conftest import agent_meta, checked, read_metrics, without_timing
 from test_train_cli import MAP, kill_and_resume
 
 from dqn_transfer.agents import AdviceRules, TabularLearner, Transition
-from dqn_transfer.config import AgentConfig, ConfigError, TrainConfig, TransferConfig, validate
+from dqn_transfer.config import AgentConfig, ConfigError, TrainConfig, TransferConfig
 from dqn_transfer.enums import Algorithm, Exchange
 from dqn_transfer.envs.settings import EnvConfig
+from dqn_transfer.exchange.confidence import Confidence
+from dqn_transfer.exchange.shared_replay import exchange_replay
 from dqn_transfer.training.plan import plan_run
 from dqn_transfer.training.trainer import Trainer
-from dqn_transfer.transfer.exchange import exchange_replay
-from dqn_transfer.transfer.visit_exchange import exchange_confidence
 
 S0, S1, S2 = np.eye(3, dtype=np.float32)
 
@@ -28,6 +28,11 @@ def tables(num_agents: int = 2, algorithm: Algorithm = Algorithm.qlearning, seed
 def state(learner: TabularLearner, obs: np.ndarray, row: int = 0) -> int:
     """The id of ``obs`` in the index of ``row``'s replica."""
     return int(learner.state_ids(obs[None], np.array([row]))[0])
+
+
+def exchange_confidence(team, weight: float) -> None:
+    """The ``confidence`` method's exchange in ``team`` (it reads no returns)."""
+    Confidence(TransferConfig(exchange=Exchange.confidence, confidence_weight=weight), 1).exchange(0, team, np.zeros(0))
 
 
 def give(learner: TabularLearner, row: int, values: dict[int, list[float]], visits: dict[int, int]) -> None:
@@ -235,4 +240,4 @@ def test_bad_settings_are_refused_in_one_line(change, message):
     agent = AgentConfig(algorithm=Algorithm.sarsa if tabular else Algorithm.double_dqn)
     config = dataclasses.replace(config, agent=agent, transfer=dataclasses.replace(config.transfer, **change))
     with pytest.raises(ConfigError, match=message):
-        validate(config)
+        checked(config)

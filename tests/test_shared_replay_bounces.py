@@ -18,11 +18,11 @@ from dqn_transfer.enums import Algorithm, Engine, Exchange
 from dqn_transfer.envs.game import TreasureHuntGame, TreasureHunts
 from dqn_transfer.envs.maps import parse_layout
 from dqn_transfer.envs.settings import EnvConfig
+from dqn_transfer.exchange.shared_replay import exchange_replay
 from dqn_transfer.storage.checkpoint import encode_training_state, load_training_state
 from dqn_transfer.storage.run_dir import RunDir
 from dqn_transfer.training.plan import plan_run
 from dqn_transfer.training.trainer import Trainer
-from dqn_transfer.transfer.exchange import exchange_replay
 
 UP, DOWN, LEFT, RIGHT = 0, 1, 2, 3
 # Agent 0 starts on (0,0), agent 1 on (1,0), the obstacle is (1,1).
@@ -109,14 +109,14 @@ def shared_replay_run(seeds: int = 1) -> TrainConfig:
 @pytest.mark.filterwarnings("ignore:a layout fixes the map")
 @pytest.mark.parametrize("seeds", [1, 4])
 def test_the_loop_hands_the_exchange_the_games_bounces(tmp_path, monkeypatch, seeds):
-    import dqn_transfer.training.replica as replica_module
+    import dqn_transfer.exchange.shared_replay as shared_replay_module
 
     windows = []
 
     def spy(team, transitions, bounced):
         windows.append((list(transitions), np.stack(bounced)))
 
-    monkeypatch.setattr(replica_module, "exchange_replay", spy)
+    monkeypatch.setattr(shared_replay_module, "exchange_replay", spy)
     trainer = Trainer(plan_run(shared_replay_run(seeds)), tmp_path / "run")
     trainer.run()
     assert isinstance(trainer.games, TreasureHunts)
@@ -131,7 +131,7 @@ def test_a_checkpoint_without_the_windows_bounces_resumes_it_as_it_was_shared_be
     """A checkpoint written before bounces were recorded: its pending window counts as bounce-free."""
     trainer = Trainer(plan_run(shared_replay_run()), tmp_path)
     trainer.run()
-    pending = len(trainer.replicas[0].shared_transitions)
+    pending = len(trainer.exchange.transitions[0])
     assert pending > 0  # the run ended inside a window
     path = RunDir(tmp_path).training_state
     arrays, meta = load_training_state(path)
@@ -139,4 +139,4 @@ def test_a_checkpoint_without_the_windows_bounces_resumes_it_as_it_was_shared_be
     path.write_bytes(encode_training_state(arrays, meta))
     resumed = Trainer(plan_run(dataclasses.replace(shared_replay_run(), resume=True)), tmp_path)
     resumed.prepare()
-    assert [b.tolist() for b in resumed.replicas[0].shared_bounced] == [[False, False]] * pending
+    assert [b.tolist() for b in resumed.exchange.bounced[0]] == [[False, False]] * pending

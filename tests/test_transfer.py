@@ -551,9 +551,9 @@ def _flat(weights: dict[str, np.ndarray]) -> np.ndarray:
 
 
 def test_exchange_best_moves_others_towards_the_best(work, dqn_source, monkeypatch):
-    import dqn_transfer.training.replica as replica_module
+    import dqn_transfer.exchange.best as best_module
 
-    real = replica_module.exchange_best
+    real = best_module.exchange_best
     calls = []
 
     def spy(team, window_returns, tau):
@@ -564,7 +564,7 @@ def test_exchange_best_moves_others_towards_the_best(work, dqn_source, monkeypat
         calls.append((np.array(window_returns), tau, best, before, after))
         return best
 
-    monkeypatch.setattr(replica_module, "exchange_best", spy)
+    monkeypatch.setattr(best_module, "exchange_best", spy)
     # Only agent 0 is transferred, so the two networks differ from the start.
     transfer = TransferConfig(
         enabled=True, source=str(dqn_source), targets=[0], exchange=Exchange.best, exchange_every=3, exchange_tau=0.25
@@ -583,9 +583,9 @@ def test_exchange_best_moves_others_towards_the_best(work, dqn_source, monkeypat
 
 
 def test_shared_replay_gives_each_agent_its_teammates_transitions(work, dqn_source, monkeypatch):
-    import dqn_transfer.training.replica as replica_module
+    import dqn_transfer.exchange.shared_replay as shared_replay_module
 
-    real = replica_module.exchange_replay
+    real = shared_replay_module.exchange_replay
     calls = []
 
     def spy(team, transitions, bounced):
@@ -603,7 +603,7 @@ def test_shared_replay_gives_each_agent_its_teammates_transitions(work, dqn_sour
             )
         )
 
-    monkeypatch.setattr(replica_module, "exchange_replay", spy)
+    monkeypatch.setattr(shared_replay_module, "exchange_replay", spy)
     transfer = TransferConfig(enabled=True, source=str(dqn_source), exchange=Exchange.shared_replay, exchange_every=2)
     trainer = make_trainer(make_config(TEAM_MAP, DQN_AGENT, total_steps=300, transfer=transfer), work / "shared", work)
     trainer.run()

@@ -8,14 +8,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from conftest import agent_meta, read_metrics, run_many
+from conftest import agent_meta, checked, read_metrics, run_many
 from dqn_reference import reference_vdn_update
 from safetensors.numpy import load_file
 from test_dqn_update import ENGINES, Learner, linear_layers, sequential, stacked_grad
 from test_train_cli import MAP, kill_and_resume
 
 from dqn_transfer.agents import ReplayBatch, ReplayBuffer, Transition
-from dqn_transfer.config import AgentConfig, ConfigError, TrainConfig, TransferConfig, validate
+from dqn_transfer.config import AgentConfig, ConfigError, TrainConfig, TransferConfig
 from dqn_transfer.enums import Algorithm, Exchange, Mixer, Mode, RewardMode
 from dqn_transfer.envs.settings import EnvConfig
 
@@ -238,7 +238,10 @@ def vdn_config(**changes) -> TrainConfig:
 @pytest.mark.parametrize(
     ("config", "message"),
     [
-        (vdn_config(agent={"algorithm": Algorithm.sarsa}), "it needs agent=dqn or agent=double_dqn, not agent=sarsa"),
+        (
+            vdn_config(agent={"algorithm": Algorithm.sarsa}),
+            r"agent.mixer=vdn sums the agents' Q-networks: it needs a DQN learner \(agent=dqn .*\), not agent=sarsa",
+        ),
         (vdn_config(env=EnvConfig()), "use mode=cooperative or mode=deliberative, not mode=competitive"),
         (
             vdn_config(env=EnvConfig(mode=Mode.cooperative, reward_mode=RewardMode.team)),
@@ -251,13 +254,13 @@ def vdn_config(**changes) -> TrainConfig:
 )
 def test_vdn_refusals(config, message):
     with pytest.raises(ConfigError, match=message):
-        validate(config)
+        checked(config)
 
 
 def test_accepted_vdn_settings():
-    validate(vdn_config(env=EnvConfig(mode=Mode.deliberative), agent={"share_parameters": True}))
-    validate(vdn_config(transfer=TransferConfig(exchange=Exchange.best), agent={"engine": "torch"}))
-    validate(vdn_config(env=EnvConfig(factory="dqn_transfer.envs.lbf:parallel_env")))  # another game's own rewards
+    checked(vdn_config(env=EnvConfig(mode=Mode.deliberative), agent={"share_parameters": True}))
+    checked(vdn_config(transfer=TransferConfig(exchange=Exchange.best), agent={"engine": "torch"}))
+    checked(vdn_config(env=EnvConfig(factory="dqn_transfer.envs.lbf:parallel_env")))  # another game's own rewards
 
 
 # ------------------------------------------------------------------------------------------ resume

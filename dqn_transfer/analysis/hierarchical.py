@@ -11,19 +11,6 @@ runs). A statistic sees the pooled runs of a resample, as a ``[..., runs]`` arra
 a resample holds fewer runs than the widest (so statistics here ignore ``nan``, and run values must be
 finite).
 
-What is here:
-
-- :func:`hierarchical_bootstrap`: a statistic of the pooled runs (:func:`mean_of_runs`,
-  :func:`iqm_of_runs`, :func:`fraction_below`) with its percentile interval; :func:`failure_rate` is the
-  fraction of runs below a threshold, to report beside the IQM.
-- :func:`mean_difference` (:func:`paired_mean_difference` where the design pairs runs by seed): two
-  conditions on the same maps, the interval of mean(X - Y) and a two-sided bootstrap p-value of "no
-  difference" (:func:`bootstrap_p_value`).
-- :func:`probability_of_improvement`: P(X > Y) as rliable defines it, within each map and averaged over maps.
-- :func:`holm`: Holm's (1979) step-down adjustment of a family of p-values.
-- Power from pilot data: :func:`variance_components` (one-way random effects, method of moments),
-  :func:`power` and :func:`maps_for_power`.
-
 The two-stage bootstrap errs two ways. It counts run noise twice: a map's mean already carries its runs'
 noise, and redrawing the runs adds it again, so the bootstrap variance of a mean is about ``sigma_map^2 / M
 + (2 - 1/S) sigma_run^2 / (M S)`` for ``M`` maps of ``S`` runs, against the true ``sigma_map^2 / M +
@@ -41,11 +28,12 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import partial
+from typing import Any
 
 import numpy as np
 import scipy.stats
 
-from dqn_transfer.analysis.stats import N_RESAMPLES, Estimate
+from dqn_transfer.analysis.stats import N_RESAMPLES, Estimate, improvement_by_task, no_interval, percentile_estimate
 
 IQM_TRIM = 0.25  # rliable's IQM: scipy.stats.trim_mean(scores, 0.25), the mean of the middle 50%
 POWER_SIMULATIONS = 20_000  # simulated studies per power: a power of 0.8 to within +-0.006 (2 s.e.)
@@ -165,18 +153,6 @@ def _resampled(
     return point, statistic(_pooled(_take(values, maps, _draw_runs(counts, maps, rng))))
 
 
-def _interval(point: float, resampled: np.ndarray, confidence: float, n_maps: int) -> Estimate:
-    if not 0.0 < confidence < 1.0:
-        raise ValueError(f"confidence must be in (0, 1), got {confidence}")
-    low, high = np.quantile(resampled, [(1.0 - confidence) / 2.0, (1.0 + confidence) / 2.0])
-    return Estimate(point, float(low), float(high), n_maps)
-
-
-def _no_interval(point: float, n_maps: int) -> Estimate:
-    """One map: no population of maps to resample, so no interval (not a falsely certain one)."""
-    return Estimate(point, math.nan, math.nan, n_maps)
-
-
 def hierarchical_bootstrap(
     values_by_map: ValuesByMap,
     statistic: Statistic,
@@ -197,28 +173,20 @@ def hierarchical_bootstrap(
     """
     point, resampled = _resampled(values_by_map, statistic, rng, n_resamples)
     if resampled is None:
-        return _no_interval(point, len(values_by_map))
-    return _interval(point, resampled, confidence, len(values_by_map))
+        return no_interval(point, len(values_by_map))
+    return percentile_estimate(point, resampled, confidence, len(values_by_map))
 
 
-def failure_rate(
-    values_by_map: ValuesByMap,
-    threshold: float,
-    rng: np.random.Generator,
-    n_resamples: int = N_RESAMPLES,
-    confidence: float = 0.95,
-) -> Estimate:
-    """The fraction of runs below ``threshold``, with its hierarchical interval: the IQM drops its worst
-    quarter of runs by design, so how many runs failed is reported beside it.
+def failure_rate(values_by_map: ValuesByMap, threshold: float, rng: np.random.Generator, **bootstrap: Any) -> Estimate:
+    """The fraction of runs below ``threshold`` with its hierarchical interval, to report beside the IQM (which
+    drops its worst quarter of runs by design).
 
     :param values_by_map: one 1-D array of finite run values per map.
     :param threshold: a run below it failed (e.g. a final success rate of 0: a small positive threshold).
     :param rng: the resampling stream.
-    :param n_resamples: bootstrap resamples.
-    :param confidence: the interval's coverage, in (0, 1).
+    :param bootstrap: ``n_resamples`` and ``confidence``, as :func:`hierarchical_bootstrap` takes them.
     """
-    below = partial(fraction_below, threshold=threshold)
-    return hierarchical_bootstrap(values_by_map, below, rng, n_resamples, confidence)
+    return hierarchical_bootstrap(values_by_map, partial(fraction_below, threshold=threshold), rng, **bootstrap)
 
 
 # --------------------------------------------------------------------------------- two conditions
@@ -245,6 +213,13 @@ def bootstrap_p_value(resampled: np.ndarray, null: float = 0.0) -> float:
     return float(min(1.0, 2.0 * min(below, above)))
 
 
+def _difference(point: float, resampled: np.ndarray | None, confidence: float, n_maps: int) -> MeanDifference:
+    """A difference with its interval and p-value from its resamples (None: one map, neither)."""
+    if resampled is None:
+        return MeanDifference(no_interval(point, n_maps), math.nan)
+    return MeanDifference(percentile_estimate(point, resampled, confidence, n_maps), bootstrap_p_value(resampled))
+
+
 def paired_mean_difference(
     differences_by_map: ValuesByMap,
     rng: np.random.Generator,
@@ -260,11 +235,7 @@ def paired_mean_difference(
     :param confidence: the interval's coverage, in (0, 1).
     """
     point, resampled = _resampled(differences_by_map, mean_of_runs, rng, n_resamples)
-    if resampled is None:
-        return MeanDifference(_no_interval(point, len(differences_by_map)), math.nan)
-    return MeanDifference(
-        _interval(point, resampled, confidence, len(differences_by_map)), bootstrap_p_value(resampled)
-    )
+    return _difference(point, resampled, confidence, len(differences_by_map))
 
 
 def independent_mean_difference(
@@ -284,11 +255,8 @@ def independent_mean_difference(
     :param confidence: the interval's coverage, in (0, 1).
     """
     (x, x_resampled), (y, y_resampled) = (_resampled(v, mean_of_runs, rng, n_resamples) for v in (x_by_map, y_by_map))
-    n_maps = len(x_by_map) + len(y_by_map)
-    if x_resampled is None or y_resampled is None:
-        return MeanDifference(_no_interval(x - y, n_maps), math.nan)
-    resampled = x_resampled - y_resampled
-    return MeanDifference(_interval(x - y, resampled, confidence, n_maps), bootstrap_p_value(resampled))
+    resampled = None if x_resampled is None or y_resampled is None else x_resampled - y_resampled
+    return _difference(x - y, resampled, confidence, len(x_by_map) + len(y_by_map))
 
 
 def paired_slope(
@@ -315,10 +283,10 @@ def paired_slope(
     point = float(centred @ np.array([mean for mean, _ in drawn]) / (centred @ centred))
     n_maps = sum(len(differences_by_size[int(m)]) for m in sizes)
     if any(resampled is None for _, resampled in drawn):
-        return MeanDifference(_no_interval(point, n_maps), math.nan)
+        return _difference(point, None, confidence, n_maps)
     means = np.stack([resampled for _, resampled in drawn if resampled is not None], axis=1)  # [resamples, m]
-    resampled_slopes = (means - means.mean(axis=1, keepdims=True)) @ centred / (centred @ centred)
-    return MeanDifference(_interval(point, resampled_slopes, confidence, n_maps), bootstrap_p_value(resampled_slopes))
+    slopes = (means - means.mean(axis=1, keepdims=True)) @ centred / (centred @ centred)
+    return _difference(point, slopes, confidence, n_maps)
 
 
 def mean_difference(
@@ -349,21 +317,12 @@ def mean_difference(
     (x, x_counts), (y, y_counts) = _padded(x_by_map), _padded(y_by_map)
     point = float(np.nanmean(x) - np.nanmean(y))
     if len(x_counts) < 2:
-        return MeanDifference(_no_interval(point, len(x_counts)), math.nan)
+        return _difference(point, None, confidence, len(x_counts))
     maps = _draw_maps(len(x_counts), rng, n_resamples)
     x_resampled = _pooled(_take(x, maps, _draw_runs(x_counts, maps, rng)))
     y_resampled = _pooled(_take(y, maps, _draw_runs(y_counts, maps, rng)))
     resampled = mean_of_runs(x_resampled) - mean_of_runs(y_resampled)
-    return MeanDifference(_interval(point, resampled, confidence, len(x_counts)), bootstrap_p_value(resampled))
-
-
-def _improvement_by_map(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """``[..., maps]``: P(X > Y) within each map from runs ``x [..., maps, n_x]`` and ``y [..., maps, n_y]``
-    (``nan``: no run), a tie counting one half: the Mann-Whitney U statistic over the pairs present."""
-    xs, ys = x[..., :, None], y[..., None, :]
-    present = ~np.isnan(xs) & ~np.isnan(ys)
-    wins = np.where(present, (xs > ys) + 0.5 * (xs == ys), 0.0)
-    return wins.sum(axis=(-2, -1)) / present.sum(axis=(-2, -1))
+    return _difference(point, resampled, confidence, len(x_counts))
 
 
 def probability_of_improvement(
@@ -396,14 +355,14 @@ def probability_of_improvement(
     """
     _same_maps(x_by_map, y_by_map, paired_seeds)
     (x, x_counts), (y, y_counts) = _padded(x_by_map), _padded(y_by_map)
-    point = float(_improvement_by_map(x, y).mean())
+    point = float(improvement_by_task(x, y).mean())
     if len(x_counts) < 2:
-        return _no_interval(point, len(x_counts))
+        return no_interval(point, len(x_counts))
     maps = _draw_maps(len(x_counts), rng, n_resamples)
     x_runs = _draw_runs(x_counts, maps, rng)
     y_runs = x_runs if paired_seeds else _draw_runs(y_counts, maps, rng)
-    resampled = _improvement_by_map(_take(x, maps, x_runs), _take(y, maps, y_runs)).mean(axis=-1)
-    return _interval(point, resampled, confidence, len(x_counts))
+    resampled = improvement_by_task(_take(x, maps, x_runs), _take(y, maps, y_runs)).mean(axis=-1)
+    return percentile_estimate(point, resampled, confidence, len(x_counts))
 
 
 def holm(p_values: Sequence[float] | np.ndarray) -> np.ndarray:

@@ -149,9 +149,23 @@ def _stratified_resample(scores: np.ndarray, rng: np.random.Generator) -> np.nda
     return np.take_along_axis(np.broadcast_to(scores, (RLIABLE_RESAMPLES, runs, tasks)), indices, axis=1)
 
 
-def _percentile_estimate(point: float, resampled: np.ndarray, confidence: float, n: int) -> Estimate:
+def percentile_estimate(point: float, resampled: np.ndarray, confidence: float, n: int) -> Estimate:
+    """``point`` with the percentile interval of its bootstrap ``resampled`` values.
+
+    :param point: the statistic of the data.
+    :param resampled: its value on each resample ``[resamples]``.
+    :param confidence: the interval's coverage, in (0, 1).
+    :param n: how many units the estimate rests on.
+    """
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence must be in (0, 1), got {confidence}")
     low, high = _percentiles(resampled, confidence)
     return Estimate(point, float(low), float(high), n)
+
+
+def no_interval(point: float, n: int) -> Estimate:
+    """An estimate without an interval: one unit has no spread to resample (not a falsely certain one)."""
+    return Estimate(point, math.nan, math.nan, n)
 
 
 def iqm(scores: Sequence[float] | np.ndarray, rng: np.random.Generator, confidence: float = 0.95) -> Estimate:
@@ -161,16 +175,18 @@ def iqm(scores: Sequence[float] | np.ndarray, rng: np.random.Generator, confiden
     scores = _as_runs_by_tasks(scores)
     point = float(rliable_metrics.aggregate_iqm(scores))
     if scores.shape[0] < 2:
-        return Estimate(point, math.nan, math.nan, scores.shape[0])
+        return no_interval(point, scores.shape[0])
     resampled = _stratified_resample(scores, rng).reshape(RLIABLE_RESAMPLES, -1)
-    return _percentile_estimate(point, scipy.stats.trim_mean(resampled, 0.25, axis=1), confidence, scores.shape[0])
+    return percentile_estimate(point, scipy.stats.trim_mean(resampled, 0.25, axis=1), confidence, scores.shape[0])
 
 
-def _improvement_per_task(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """``[..., tasks]``: P(X > Y) per task from runs ``x [..., n_x, tasks]`` and ``y [..., n_y, tasks]``, a
-    tie counting one half (the Mann-Whitney U statistic over n_x * n_y)."""
-    xs, ys = x[..., :, None, :], y[..., None, :, :]
-    return ((xs > ys) + 0.5 * (xs == ys)).mean(axis=(-3, -2))
+def improvement_by_task(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``[..., tasks]``: P(X > Y) within each task from runs ``x [..., tasks, n_x]`` and ``y [..., tasks, n_y]``
+    (``nan``: no run), a tie counting one half: the Mann-Whitney U statistic over the pairs present."""
+    xs, ys = x[..., :, None], y[..., None, :]
+    present = ~np.isnan(xs) & ~np.isnan(ys)
+    wins = np.where(present, (xs > ys) + 0.5 * (xs == ys), 0.0)
+    return wins.sum(axis=(-2, -1)) / present.sum(axis=(-2, -1))
 
 
 def improvement_probability(
@@ -195,9 +211,10 @@ def improvement_probability(
         warnings.simplefilter("ignore", RuntimeWarning)  # inf - inf inside scipy's ranks: the ties are right
         point = float(rliable_metrics.probability_of_improvement(x, y))
     if n < 2:
-        return Estimate(point, math.nan, math.nan, n)
-    resampled = _improvement_per_task(_stratified_resample(x, rng), _stratified_resample(y, rng)).mean(axis=-1)
-    return _percentile_estimate(point, resampled, confidence, n)
+        return no_interval(point, n)
+    x_drawn, y_drawn = (np.swapaxes(_stratified_resample(runs, rng), -1, -2) for runs in (x, y))
+    resampled = improvement_by_task(x_drawn, y_drawn).mean(axis=-1)
+    return percentile_estimate(point, resampled, confidence, n)
 
 
 def performance_profile(

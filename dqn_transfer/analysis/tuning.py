@@ -15,7 +15,7 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import yaml
@@ -30,8 +30,7 @@ class TuningError(Exception):
     """Trials that cannot be analysed; the message is one line for the user."""
 
 
-@dataclass(frozen=True)
-class Interval:
+class Interval(NamedTuple):
     """A searched key's range, as its search space gave it (``tag(log, interval(low, high))``)."""
 
     low: float
@@ -66,7 +65,7 @@ class Trial:
             "objective": self.objective,
             "objective_kind": self.objective_kind,
             "per_map": {str(seed): value for seed, value in self.per_map.items()},
-            "space": {key: {"low": b.low, "high": b.high, "log": b.log} for key, b in self.space.items()},
+            "space": {key: bounds._asdict() for key, bounds in self.space.items()},
         }
 
 

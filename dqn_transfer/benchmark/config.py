@@ -55,6 +55,17 @@ def replay_warmup(agent: AgentConfig) -> int:
     return max(agent.learning_starts, 2 * agent.batch_size)
 
 
+def rates(steps: int, wall: float, cpu: float) -> dict[str, float]:
+    """``steps`` done in ``wall`` and ``cpu`` seconds, and the steps per second of each clock."""
+    return {
+        "steps": steps,
+        "seconds": wall,
+        "cpu_seconds": cpu,
+        "steps_per_s": steps / wall,
+        "steps_per_cpu_s": steps / cpu,
+    }
+
+
 def sb3_kwargs(agent: AgentConfig) -> dict[str, Any]:
     """SB3 ``DQN`` keywords matching ``agent`` (its exploration keys are the trainer's schedule)."""
     return {

@@ -59,6 +59,14 @@ def sb3(steps: int, seed: int, agent: AgentConfig, env_kwargs: dict[str, Any]) -
     }
 
 
+def mlp(sizes: list[int]) -> nn.Sequential:
+    """``nn.Sequential`` of Linear layers ``sizes[0] -> ... -> sizes[-1]`` with ReLU between them."""
+    layers: list[nn.Module] = []
+    for fan_in, fan_out in zip(sizes[:-1], sizes[1:]):
+        layers += [nn.Linear(fan_in, fan_out), nn.ReLU()]
+    return nn.Sequential(*layers[:-1])
+
+
 def linear_schedule(start_e: float, end_e: float, duration: float, t: int) -> float:
     """CleanRL's epsilon schedule: linear from ``start_e`` to ``end_e`` over ``duration`` steps, then held."""
     slope = (end_e - start_e) / duration
@@ -82,11 +90,7 @@ def bare(steps: int, seed: int, agent: AgentConfig, env_kwargs: dict[str, Any]) 
     obs_dim, num_actions = flatdim(env.observation_space), flatdim(env.action_space)  # a Box [D], Discrete(4)
 
     # Q-network: Linear/ReLU MLP; the target network starts as a copy.
-    sizes = [obs_dim, *agent.hidden, num_actions]
-    layers: list[nn.Module] = []
-    for fan_in, fan_out in zip(sizes[:-1], sizes[1:]):
-        layers += [nn.Linear(fan_in, fan_out), nn.ReLU()]
-    q_network = nn.Sequential(*layers[:-1])
+    q_network = mlp([obs_dim, *agent.hidden, num_actions])
     target_network = copy.deepcopy(q_network)
     optimizer = torch.optim.Adam(q_network.parameters(), lr=agent.lr)
 

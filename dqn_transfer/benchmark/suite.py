@@ -8,14 +8,9 @@ default-thread figure beside it; the default-thread update timings stop after ``
 per core) and ours one process on one thread: both engines, whose second torch thread measured slower
 here (spin-waiting for a core that SB3's processes, or any other job, hold).
 
-Method. The machine may be shared and noisy, so every figure is the median of ``repeats`` interleaved
-repeats (the contenders of a comparison alternate order within each repeat), and every ratio is the
-median of the per-repeat paired ratios rather than a ratio of medians. Two clocks are read: wall time
-(what a user waits) and process CPU time (what the work costs; much less disturbed by other jobs, so on
-a shared machine the CPU ratios are the ones to trust). Setup (building networks, filling replay before
-``learning_starts``) is never timed in sections 1-4. Sections 5 and 6 time whole processes instead
-(spawn to exit, setup included: :mod:`~dqn_transfer.benchmark.whole_process`); they record the load
-average at their own start and end, since a process-level figure is the most exposed to other jobs.
+Method: :data:`METHOD` (the machine may be shared and noisy: medians of interleaved repeats, paired ratios,
+two clocks); sections 5 and 6 also record the load average at their own start and end, since a
+process-level figure is the most exposed to other jobs.
 :func:`run_benchmark` returns everything, with the raw per-repeat figures and the machine, as a
 :class:`~dqn_transfer.benchmark.records.Benchmark` (its ``to_json()`` is the JSON document);
 :func:`~dqn_transfer.benchmark.tables.render_markdown` makes the table of it.
@@ -85,14 +80,14 @@ DEFAULT_THREADS = torch.get_num_threads()  # torch's own choice on this machine,
 
 @dataclass(frozen=True)
 class Sizes:
-    """How much each measurement does per repeat."""
+    """How much each measurement does per repeat; the defaults are the ``full`` profile."""
 
-    env_steps: int  # section 1: joint steps per path
-    train_steps: int  # section 2: env steps per training run
-    team_steps: int  # section 3: timed joint steps per rig
-    updates: int  # section 4: gradient updates per timing
-    eval_episodes: int  # section 2: greedy episodes after training
-    thread_cap_s: float = 1.0  # section 4: time limit of a default-thread timing
+    env_steps: int = 20_000  # section 1: joint steps per path
+    train_steps: int = 10_000  # section 2: env steps per training run
+    team_steps: int = 400  # section 3: timed joint steps per rig
+    updates: int = 2_000  # section 4: gradient updates per timing
+    eval_episodes: int = 5  # section 2: greedy episodes after training
+    thread_cap_s: float = 3.0  # section 4: time limit of a default-thread timing
     team_learning_starts: int | None = None  # section 3: replay filled before timing (None: the agent's)
     default_thread_timings: bool = True  # section 4: also time bare and ours at torch's default threads
     lone_steps: int = 10_000  # section 5: env steps per process
@@ -105,18 +100,7 @@ class Sizes:
 
 
 PROFILES = {
-    "full": Sizes(
-        env_steps=20_000,
-        train_steps=10_000,
-        team_steps=400,
-        updates=2_000,
-        eval_episodes=5,
-        thread_cap_s=3.0,
-        lone_steps=10_000,
-        replica_steps=3_000,
-        replica_counts=(1, 4, 10, 16, 64),
-        replica_learning_starts=500,
-    ),
+    "full": Sizes(),
     # quick: section 3 fills only 200 steps of replay before timing (the fill level hardly changes the
     # per-step cost) and section 4 skips the default-thread timings; the hyperparameters stay matched.
     # Sections 5 and 6 run so little that process start-up dominates: a smoke run, not a figure.

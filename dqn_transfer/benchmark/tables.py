@@ -61,12 +61,8 @@ def _training_table(res: Benchmark) -> list[str]:
         f"Map: {s.source_map} (one chest, 6 moves from the start). Ours: `Trainer(source_task=True).run()` "
         "(the training loop with its TensorBoard logging; progress bar off; its greedy evaluations and "
         'checkpoint writes timed and subtracted). SB3: `DQN("MlpPolicy", gymnasium.make("TreasureHunt-v0"), '
-        f"...).learn()`. Matched: net_arch {hp.hidden}, lr {hp.lr}, batch {hp.batch_size}, buffer "
-        f"{hp.buffer_size:,}, learning_starts {hp.learning_starts}, train_freq {hp.train_freq}, "
-        f"gradient_steps {hp.gradient_steps}, target_update {hp.target_update} (tau {hp.tau}), "
-        f"gamma {hp.gamma}, epsilon {hp.eps_start} -> {hp.eps_end} over {hp.exploration_fraction} "
-        f"of the run, max_grad_norm {hp.max_grad_norm}, Huber loss, Adam, CPU. Greedy success: fraction of "
-        "greedy episodes reaching the chest after training (same episode loop for both), mean over repeats.",
+        f"...).learn()`. Matched: {_hyperparameters(hp)}. Greedy success: fraction of greedy episodes "
+        "reaching the chest after training (same episode loop for both), mean over repeats.",
         [
             "torch threads",
             "ours steps/s",

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from dqn_transfer.benchmark.config import BENCH_AGENT, SOURCE_MAP, sb3_dqn
+from dqn_transfer.benchmark.config import BENCH_AGENT, SOURCE_MAP, rates, sb3_dqn
 from dqn_transfer.config import AgentConfig, EnvConfig, TrainConfig
 from dqn_transfer.envs import make_game
 from dqn_transfer.evaluation.rollout import Policy, greedy_policy, play_episode
@@ -40,17 +40,6 @@ def greedy_check(policy: Policy, env_kwargs: dict[str, Any], episodes: int, seed
     return {
         "greedy_success": float(np.mean([r.treasures_collected > 0 for r in results])),
         "greedy_return": float(np.mean([r.team_return for r in results])),
-    }
-
-
-def _figures(steps: int, wall: float, cpu: float, gradient_steps: int) -> dict[str, Any]:
-    return {
-        "steps": steps,
-        "seconds": wall,
-        "cpu_seconds": cpu,
-        "steps_per_s": steps / wall,
-        "steps_per_cpu_s": steps / cpu,
-        "gradient_steps": gradient_steps,
     }
 
 
@@ -80,7 +69,8 @@ def measure_ours_training(
     overhead = summary["overhead"]
     learner: Any = trainer.learner  # the DQN family's batched learner
     return {
-        **_figures(steps, run.wall - overhead["wall"], run.cpu - overhead["cpu"], int(learner.num_gradient_steps)),
+        **rates(steps, run.wall - overhead["wall"], run.cpu - overhead["cpu"]),
+        "gradient_steps": int(learner.num_gradient_steps),
         "run_seconds": run.wall,
         "excluded_seconds": overhead["wall"],
         "excluded_cpu_seconds": overhead["cpu"],
@@ -105,6 +95,7 @@ def measure_sb3_training(
         return np.array([int(model.predict(obs[0], deterministic=True)[0])])
 
     return {
-        **_figures(steps, run.wall, run.cpu, int(model._n_updates)),  # SB3 keeps its gradient-step count only here
+        **rates(steps, run.wall, run.cpu),
+        "gradient_steps": int(model._n_updates),  # SB3 keeps its gradient-step count only here
         **greedy_check(policy, env_kwargs, eval_episodes, seed + GREEDY_SEED_OFFSET),
     }

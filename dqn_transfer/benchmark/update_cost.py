@@ -28,20 +28,13 @@ from torch import nn
 
 from dqn_transfer.agents import DQNLearner, ReplayBatch, Transition, dqn_targets
 from dqn_transfer.benchmark.config import BENCH_AGENT, SOURCE_MAP, replay_warmup, sb3_dqn
+from dqn_transfer.benchmark.processes import mlp
 from dqn_transfer.config import AgentConfig
 from dqn_transfer.envs import make_game
 from dqn_transfer.timing import Stopwatch
 
 UPDATE_NAMES = ("bare", "in_memory", "ours", "sample", "sb3")
 THREAD_NAMES = ("bare", "ours")  # also timed at torch's default thread count
-
-
-def mlp(sizes: list[int]) -> nn.Sequential:
-    """``nn.Sequential`` of Linear layers ``sizes[0] -> ... -> sizes[-1]`` with ReLU between them."""
-    layers: list[nn.Module] = []
-    for fan_in, fan_out in zip(sizes[:-1], sizes[1:]):
-        layers += [nn.Linear(fan_in, fan_out), nn.ReLU()]
-    return nn.Sequential(*layers[:-1])
 
 
 def td_update(

@@ -4,14 +4,9 @@ Sections 2-4 time loops inside one Python process and subtract what is not train
 subtracted: imports, building the networks, replay filling, the trainer's evaluations, TensorBoard
 logging and checkpoint writes all count, as they do for whoever runs the command.
 
-5. ``lone``: one DQN learner on ``LONE_MAP`` with ``LONE_AGENT``'s hyperparameters, four programs:
-   ``ours`` = ``python -m dqn_transfer.cli.train agent.engine=numpy`` (the Hydra app, ``train.py``, with
-   the engine for small networks, whose process never imports torch), ``ours_torch`` = the same with the
-   default torch engine, ``sb3`` and ``bare`` = :mod:`dqn_transfer.benchmark.processes` (SB3's
-   ``DQN.learn`` and a CleanRL-style bare-PyTorch loop).
-6. ``replicas``: sweep throughput. ``ours``: R replicas of a 4-agent cooperative team on ``BENCH_MAP``
-   in ONE process (``replicas.seeds=R``, one batched learner, every core's torch threads). ``sb3``: the
-   same learners the way SB3 trains them, one per process, one process per core started together.
+Section 5 (``lone``) runs one DQN learner on ``LONE_MAP`` as each of ``LONE_CONTENDERS`` (ours with either
+engine, and the reference programs of :mod:`~dqn_transfer.benchmark.processes`); section 6 (``replicas``)
+runs R replicas of a team on ``TEAM_MAP`` in ONE process of ours against one SB3 process per core.
 
 Each child's wall time runs from just before it is spawned to the moment ``os.wait4`` reaps it; its CPU
 time (user + system, all its threads) and peak resident memory are what ``os.wait4`` reports for it.
@@ -34,7 +29,7 @@ from enum import Enum
 from pathlib import Path
 from typing import Any
 
-from dqn_transfer.benchmark.config import LONE_AGENT, LONE_MAP, TEAM_MAP
+from dqn_transfer.benchmark.config import LONE_AGENT, LONE_MAP, TEAM_MAP, rates
 from dqn_transfer.config import SB3_NAMES, AgentConfig
 from dqn_transfer.enums import Engine
 from dqn_transfer.storage.checkpoint import verify_checkpoint
@@ -229,12 +224,8 @@ def _figures(steps: int, timing: dict[str, Any], learners: int = 1) -> dict[str,
     """Wall and CPU seconds of a run of ``learners`` x ``steps`` learner-steps, and the rates."""
     wall, cpu = timing["seconds"], timing["cpu_seconds"]
     return {
-        "steps": steps,
+        **rates(steps, wall, cpu),
         "learners": learners,
-        "seconds": wall,
-        "cpu_seconds": cpu,
-        "steps_per_s": steps / wall,
-        "steps_per_cpu_s": steps / cpu,
         "learner_steps_per_s": learners * steps / wall,
         "learner_steps_per_cpu_s": learners * steps / cpu,
         "max_rss_mb": max(p["max_rss_mb"] for p in timing["processes"]),

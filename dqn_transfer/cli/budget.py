@@ -11,11 +11,10 @@ plateau slope at the budget and at the pilot's end. A cell not converged within 
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 from dqn_transfer.analysis.budget import CAP, FRACTION, ROUND_TO, SAFETY, BudgetRule
-from dqn_transfer.cli.console import OneLineErrors, exit_with
+from dqn_transfer.cli.console import OneLineErrors, error_line, exit_with
 from dqn_transfer.experiments.budgets import format_pilot_budgets, pilot_budgets
 from dqn_transfer.experiments.raw_data import DataError, read_data
 
@@ -39,14 +38,13 @@ def main(argv: list[str] | None = None) -> int:
         "--fraction", type=float, default=FRACTION, help=f"the tail of a curve fitted (default {FRACTION})"
     )
     args = parser.parse_args(argv)
-    try:
+
+    def table() -> int:
         rule = BudgetRule(args.threshold, args.safety, args.cap, args.round_to, args.fraction)
-        result = pilot_budgets(read_data(args.pilot), rule)
-    except (DataError, ValueError) as e:  # ValueError: a bad parameter, or too few evaluations for a slope
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    print(format_pilot_budgets(result))
-    return 0
+        print(format_pilot_budgets(pilot_budgets(read_data(args.pilot), rule)))
+        return 0
+
+    return error_line(table, (DataError, ValueError), 2)  # ValueError: a bad parameter, or too few evaluations
 
 
 if __name__ == "__main__":

@@ -13,7 +13,7 @@ import argparse
 import sys
 
 from dqn_transfer.analysis.compare import compare_runs, format_table
-from dqn_transfer.analysis.runs import EvaluationError, skipped_runs_on_stderr
+from dqn_transfer.cli.console import reading_runs
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -22,8 +22,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--transfer", nargs="+", required=True, metavar="DIR", help="transfer run dirs")
     parser.add_argument("--baseline", nargs="+", required=True, metavar="DIR", help="baseline run dirs")
     parser.add_argument("--metric", default="team_return", help="metrics.jsonl key (default: team_return)")
-    parser.add_argument("--threshold", type=float, default=None, help="value for time_to_threshold")
-    parser.add_argument("--seed", type=int, default=0, help="bootstrap RNG seed")
     parser.add_argument(
         "--transfer-offset",
         type=int,
@@ -32,15 +30,14 @@ def main(argv: list[str] | None = None) -> int:
         help="env steps the transfer runs spent before their step 0 (pretraining, a curriculum's "
         "earlier stages): their curves are shifted by it, to compare at equal total steps",
     )
+    parser.add_argument("--threshold", type=float, default=None, help="value for time_to_threshold")
+    parser.add_argument("--seed", type=int, default=0, help="bootstrap RNG seed")
     args = parser.parse_args(argv)
-    try:
-        with skipped_runs_on_stderr():
-            results = compare_runs(
-                args.transfer, args.baseline, args.metric, args.threshold, args.seed, args.transfer_offset
-            )
-    except (EvaluationError, ValueError, OSError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 1
+    return reading_runs(lambda: _print_table(args))
+
+
+def _print_table(args: argparse.Namespace) -> int:
+    results = compare_runs(args.transfer, args.baseline, args.metric, args.threshold, args.seed, args.transfer_offset)
     print(format_table(results))
     return 0
 

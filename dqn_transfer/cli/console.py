@@ -11,6 +11,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
 
+from dqn_transfer.analysis.runs import EvaluationError, skipped_runs_on_stderr
 from dqn_transfer.analysis.tuning import TuningError
 from dqn_transfer.experiments.raw_data import DataError
 from dqn_transfer.experiments.sweeps import ReproduceError
@@ -33,6 +34,30 @@ class OneLineErrors(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
         print(f"error: {message}", file=sys.stderr)
         sys.exit(2)
+
+
+def error_line(body: Callable[[], int], errors: tuple[type[Exception], ...], code: int) -> int:
+    """``body()``'s exit code; ``code`` and one ``error:`` line on stderr when it raises one of ``errors``.
+
+    :param body: the command's work, returning its exit code
+    :param errors: the exceptions that are bad input, whose message is the line
+    :param code: the exit code of bad input
+    """
+    try:
+        return body()
+    except errors as err:
+        print(f"error: {err}", file=sys.stderr)
+        return code
+
+
+def reading_runs(body: Callable[[], int]) -> int:
+    """:func:`error_line` for the commands that read run directories: each one skipped is a line on stderr
+    (:func:`~dqn_transfer.analysis.runs.skipped_runs_on_stderr`), one that cannot be read ends in exit code 1.
+
+    :param body: the command's work, returning its exit code
+    """
+    with skipped_runs_on_stderr():
+        return error_line(body, (EvaluationError, ValueError, OSError), 1)
 
 
 def docstring_parser(doc: str, prog: str | None = None) -> OneLineErrors:

@@ -20,7 +20,8 @@ import sys
 from pathlib import Path
 
 from dqn_transfer.analysis.plots import group_runs, plot_groups
-from dqn_transfer.analysis.runs import EvaluationError, find_run_dirs, skipped_runs_on_stderr
+from dqn_transfer.analysis.runs import find_run_dirs
+from dqn_transfer.cli.console import reading_runs
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -43,14 +44,13 @@ def main(argv: list[str] | None = None) -> int:
         "a curriculum's stages): conditions compare at equal total budgets",
     )
     args = parser.parse_args(argv)
-    try:
-        with skipped_runs_on_stderr():
-            run_dirs = find_run_dirs(args.runs)
-            groups = group_runs(run_dirs)
-            path = plot_groups(groups, args.metric, args.out, args.title, total_steps=args.total_steps)
-    except (EvaluationError, ValueError, OSError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 1
+    return reading_runs(lambda: _plot(args))
+
+
+def _plot(args: argparse.Namespace) -> int:
+    run_dirs = find_run_dirs(args.runs)
+    groups = group_runs(run_dirs)
+    path = plot_groups(groups, args.metric, args.out, args.title, total_steps=args.total_steps)
     sizes = ", ".join(f"{label} ({len(d)})" for label, d in groups.items())
     print(f"wrote {path}: {len(run_dirs)} runs in {len(groups)} group(s): {sizes}")
     return 0

@@ -10,12 +10,11 @@ deviations, and the maps needed for 80% power.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
 
-from dqn_transfer.cli.console import exit_with
+from dqn_transfer.cli.console import error_line, exit_with
 from dqn_transfer.experiments.power import METRICS, format_power_rows, power_rows
 from dqn_transfer.experiments.raw_data import DataError, read_data
 
@@ -31,13 +30,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--seed", type=int, default=0, help="bootstrap and simulation RNG seed")
     args = parser.parse_args(argv)
-    try:
+
+    def table() -> int:
         rows = power_rows(read_data(args.pilot), METRICS[args.metric], np.random.default_rng(args.seed))
-    except (DataError, ValueError) as e:  # ValueError: too few maps or runs to analyse
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    print(format_power_rows(rows, args.metric))
-    return 0
+        print(format_power_rows(rows, args.metric))
+        return 0
+
+    return error_line(table, (DataError, ValueError), 2)  # ValueError: too few maps or runs to analyse
 
 
 if __name__ == "__main__":

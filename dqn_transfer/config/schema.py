@@ -34,9 +34,7 @@ from dqn_transfer.enums import (
     Fill,
     Logger,
     Mixer,
-    Mode,
     Objective,
-    RewardMode,
     SourceTask,
     numpy_implements,
     values,
@@ -341,19 +339,8 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
         f"transfer.freeze={list(transfer.freeze)} keeps transferred layers fixed: it needs transfer=on",
     )
     is_tabular = Algorithm(agent.algorithm).is_tabular
-    _check(
-        is_tabular or not Exchange(transfer.exchange).reads_visits,
-        f"transfer.exchange={Exchange(transfer.exchange).value} works on visit counts of table entries: "
-        f"it needs a tabular learner (agent=sarsa or agent=qlearning), not agent={Algorithm(agent.algorithm).value}",
-    )
     if is_tabular:
         _check(not transfer.freeze, "transfer.freeze applies to network layers; tabular learners have none")
-        _check(not agent.agent_id_input, "agent.agent_id_input applies to the DQN learners only")
-        _check(not agent.share_parameters, "agent.share_parameters applies to the DQN learners only")
-        _check(
-            Exchange(transfer.exchange) is not Exchange.experience,
-            "transfer.exchange=experience samples the team-mates' replay: it applies to the DQN learners only",
-        )
     else:
         # Every batch is drawn from the replay: one smaller than a batch repeats its few transitions in each
         # (SB3 and CleanRL presume buffer_size >= batch_size).
@@ -408,67 +395,20 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
     )
     if transfer.source_agent is not None:  # null: chosen by the source (dqn_transfer.sources.resolve)
         _check_source_agent("transfer.source_agent", transfer.source_agent)
-    _check_team_inputs(cfg)
-    _check_mixer(cfg)
+    _check_experience_lambda(cfg)
     _check_pretraining(cfg)
     _check_chest_aware(cfg)
     _check_curriculum(cfg)
-    if agent.share_parameters:
-        _check(
-            transfer.targets is None,
-            "transfer.targets: with agent.share_parameters=true all agents share one "
-            "network, so all of them are transferred (leave targets unset)",
-        )
-        _check(
-            transfer.exchange != Exchange.best,
-            "transfer.exchange=best: with agent.share_parameters=true there is only one network to exchange",
-        )
 
 
-def _check_team_inputs(cfg: DictConfig | TrainConfig) -> None:
-    """``agent.agent_id_input`` tells the agents of a shared network apart: it needs one;
-    ``transfer.experience_lambda`` weighs shared experience: it needs ``transfer.exchange=experience``."""
-    agent, transfer = cfg.agent, cfg.transfer
-    _check(
-        agent.share_parameters or not agent.agent_id_input,
-        "agent.agent_id_input=true tells the agents of a shared network apart: it needs agent.share_parameters=true",
-    )
-    lam = transfer.experience_lambda
+def _check_experience_lambda(cfg: DictConfig | TrainConfig) -> None:
+    """``transfer.experience_lambda`` weighs shared experience: it needs ``transfer.exchange=experience``.
+    (What each exchange method needs is checked with the plan: :mod:`dqn_transfer.exchange`.)"""
+    lam = cfg.transfer.experience_lambda
     _check(0.0 <= lam < math.inf, f"transfer.experience_lambda must be >= 0 and finite, got {lam}")
     _check(
-        lam == 1.0 or Exchange(transfer.exchange) is Exchange.experience,
+        lam == 1.0 or Exchange(cfg.transfer.exchange) is Exchange.experience,
         f"transfer.experience_lambda={lam} weighs shared experience: it needs transfer.exchange=experience",
-    )
-
-
-def _check_mixer(cfg: DictConfig | TrainConfig) -> None:
-    """``agent.mixer=vdn`` trains a DQN team on the sum of its rewards from aligned joint steps: not for
-    tables, not for agents each after their own return (competitive mode) or already given the team's
-    reward, and not with an exchange that moves transitions between the agents' replays."""
-    env, agent, transfer = cfg.env, cfg.agent, cfg.transfer
-    if Mixer(agent.mixer) is Mixer.none:
-        return
-    _check(
-        not Algorithm(agent.algorithm).is_tabular,
-        f"agent.mixer=vdn sums the agents' Q-networks: it needs agent=dqn or agent=double_dqn, "
-        f"not agent={Algorithm(agent.algorithm).value}",
-    )
-    if env.factory is None:  # the treasure hunt's own keys (another game has its own rewards)
-        _check(
-            Mode(env.mode) is not Mode.competitive,
-            "agent.mixer=vdn trains the team on the sum of its rewards, a cooperative objective: use "
-            "mode=cooperative or mode=deliberative, not mode=competitive (each agent after its own return)",
-        )
-        _check(
-            RewardMode(env.reward_mode) is RewardMode.individual,
-            "agent.mixer=vdn sums the agents' own rewards; env.reward_mode=team already gives each the sum, which "
-            "VDN would count once per agent: use env.reward_mode=individual",
-        )
-    exchange = Exchange(transfer.exchange)
-    _check(
-        exchange not in (Exchange.shared_replay, Exchange.experience),
-        f"transfer.exchange={exchange.value} moves transitions between the agents' replays; agent.mixer=vdn "
-        "trains on the team's aligned joint steps: use transfer.exchange=none or best",
     )
 
 

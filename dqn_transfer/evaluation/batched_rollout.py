@@ -8,7 +8,9 @@ are one batch (game ``e * R + r``, so that the learner's ``R * K`` rows answer e
 one call, ``best_actions_stacked``), stepped until every episode has ended; each game draws from its own
 generators in the same order as when played alone, so every record is the one
 :func:`~dqn_transfer.evaluation.rollout.evaluate` gives (``tests/test_batched_rollout.py``). Games
-that cannot share a batch (another game) are evaluated replica by replica.
+that cannot share a batch (another game) are played side by side through the one episode loop,
+:func:`~dqn_transfer.evaluation.rollout.play_episodes` (:func:`play_looped`); a replica without the
+batched learner, or whose picture is asked of a game outside the batch, replica by replica.
 
 The episode 0 of a replica whose evaluation is pictured (TensorBoard's picture, :mod:`~dqn_transfer.evaluation.watch`)
 is recorded frame by frame as it is played in the batch, as :func:`~dqn_transfer.evaluation.watch.record_episode`
@@ -23,7 +25,7 @@ from typing import Any, NamedTuple, cast
 
 import numpy as np
 
-from dqn_transfer.agents.base import Learner, Team
+from dqn_transfer.agents.base import Learner, Team, break_ties
 from dqn_transfer.agents.state_index import DenseIndex
 from dqn_transfer.agents.tabular import TabularLearner
 from dqn_transfer.enums import RewardMode
@@ -31,6 +33,7 @@ from dqn_transfer.envs import Game, tie_draws
 from dqn_transfer.envs.game import TreasureHuntGame, TreasureHunts, fit_one_batch
 from dqn_transfer.evaluation import greedy_steps
 from dqn_transfer.evaluation.rollout import (
+    BatchPolicy,
     EpisodeResult,
     EvaluationStopped,
     evaluate,
@@ -38,6 +41,7 @@ from dqn_transfer.evaluation.rollout import (
     evaluation_rng,
     greedy_policy,
     never,
+    play_episodes,
     summarize,
 )
 from dqn_transfer.evaluation.watch import Frame, RecordedEpisode, record_episode
@@ -74,13 +78,16 @@ def evaluate_replicas(
     :param stopped: whether a stop was asked for: then :class:`~dqn_transfer.evaluation.rollout.EvaluationStopped`
         is raised within a joint step (or an episode, replica by replica)
     """
-    if learner is None or not fit_one_batch(games):
-        return [
-            _evaluate_alone(team, game, episodes, seed, step, picture, stopped)
-            for team, game, seed, step, picture in zip(teams, games, seeds, steps, pictured)
-        ]
-    played, recorded = play_greedy_batch(learner, games, episodes, seeds, steps, pictured, stopped)
-    return [Evaluation(summarize(own), episode) for own, episode in zip(played, recorded)]
+    if learner is not None and fit_one_batch(games):
+        played, recorded = play_greedy_batch(learner, games, episodes, seeds, steps, pictured, stopped)
+        return [Evaluation(summarize(own), episode) for own, episode in zip(played, recorded)]
+    if learner is not None and not any(pictured):
+        played = play_looped(learner, games, episodes, seeds, steps, stopped)
+        return [Evaluation(summarize(own), None) for own in played]
+    return [
+        _evaluate_alone(team, game, episodes, seed, step, picture, stopped)
+        for team, game, seed, step, picture in zip(teams, games, seeds, steps, pictured)
+    ]
 
 
 def _evaluate_alone(
@@ -94,6 +101,50 @@ def _evaluate_alone(
     rng = evaluation_rng(seed, step, 0)
     episode = record_episode(game, greedy_policy(team, rng), rng)
     return Evaluation(evaluate(team, game, episodes, seed, step, episode.result, stopped), episode)
+
+
+def play_looped(
+    learner: Learner,
+    games: Sequence[Game],
+    episodes: int,
+    seeds: Sequence[int],
+    steps: Sequence[int],
+    stopped: Callable[[], bool] = never,
+) -> list[list[EpisodeResult]]:
+    """Replica r's greedy episodes of games the kernels do not play (another PettingZoo game), every
+    replica's side by side through :func:`~dqn_transfer.evaluation.rollout.play_episodes` (at most
+    :data:`GAMES_PER_BATCH` games at once): the learner chooses for all of them in one pass, each game's
+    ties drawn as :func:`~dqn_transfer.evaluation.rollout.greedy_policy` draws them."""
+    replicas, agents = len(games), games[0].num_agents
+    per_batch = max(1, GAMES_PER_BATCH // replicas)
+    results: list[list[EpisodeResult]] = [[] for _ in games]
+    for first in range(0, episodes, per_batch):
+        numbers = range(first, min(first + per_batch, episodes))
+        slots = [(e, r) for e in numbers for r in range(replicas)]  # game g = (e - first) * R + r
+        rngs = [evaluation_rng(seeds[r], steps[r], e) for e, r in slots]
+        greedy = _greedy_batch(learner, replicas * agents, [rng.spawn(1)[0] for rng in rngs])
+        played = play_episodes(_evaluation_games(tuple(games), len(numbers)), greedy, rngs, stopped=stopped)
+        for (_, r), result in zip(slots, played):
+            results[r].append(result)
+    return results
+
+
+def _greedy_batch(learner: Learner, rows: int, ties: Sequence[np.random.Generator]) -> BatchPolicy:
+    """The learner's greedy actions in games whose agents are, E at a time, its ``rows`` rows (game
+    ``e * R + r``: replica r's), game g's ties drawn from ``ties[g]``."""
+
+    def greedy(obs: np.ndarray, live: np.ndarray) -> np.ndarray:
+        best = learner.best_actions_stacked(obs.reshape(-1, rows, obs.shape[-1])).reshape(*live.shape, -1)
+        return np.stack([break_ties(*game) for game in zip(best, live, ties)])
+
+    return greedy
+
+
+@lru_cache(maxsize=4)
+def _evaluation_games(games: tuple[Game, ...], episodes: int) -> list[Game]:
+    """``episodes`` games of each of ``games`` (game ``e * R + r``: ``games[r]`` itself for e = 0, else a
+    replica of it), made once for the evaluations of a run."""
+    return [game if e == 0 else game.replica() for e in range(episodes) for game in games]
 
 
 # The joint steps of dense tables' episodes one kernel call plays before a stop asked for is looked at.

@@ -1,8 +1,11 @@
-"""One episode loop: a policy plays a game until every agent is done.
+"""One episode loop: games played side by side by a policy until every agent of each is done.
 
-Training-time evaluation, the benchmark's greedy checks and watching a trained team all play
-episodes through :func:`play_episode`; only the training loop itself steps the game on its own,
-since it runs across episode boundaries on a step budget.
+:func:`play_episodes` is the loop; greedy evaluations of games the compiled kernels do not play (another
+PettingZoo game: all replicas' episodes side by side, :mod:`~dqn_transfer.evaluation.batched_rollout`),
+a team's evaluation on its own, the bounds' policies and watching a trained team play through it
+(:func:`play_episode`: one game). The treasure hunt's batched evaluations run the same steps compiled
+(:mod:`~dqn_transfer.evaluation.greedy_steps`); the training loop steps its games on its own, since it
+runs across episode boundaries on a step budget.
 """
 
 from __future__ import annotations
@@ -18,6 +21,9 @@ from dqn_transfer.envs import Game
 
 # (obs [K, D], live [K]) -> actions [K]; actions of agents that are not live are ignored.
 Policy = Callable[[np.ndarray, np.ndarray], np.ndarray]
+# (obs [G, K, D], live [G, K]) -> actions [G, K] of G games played side by side (a game's row is ignored
+# once its episode is over).
+BatchPolicy = Callable[[np.ndarray, np.ndarray], np.ndarray]
 # Called after every step with the joint transition and the game's info dict.
 StepCallback = Callable[[Transition, dict], None]
 EVALUATION_STREAM = 1_000_003  # keeps evaluation episodes' generators apart from every other stream of a seed
@@ -74,6 +80,75 @@ def greedy_policy(learner: Team, episode_rng: np.random.Generator | None = None)
     return lambda obs, live: learner.greedy(obs, live, ties)
 
 
+class EpisodeTally:
+    """One episode's sums as it is played, its :class:`EpisodeResult` at the end."""
+
+    def __init__(self, num_agents: int) -> None:
+        self.team_return, self.length, self.trapped = 0.0, 0, 0
+        self.agent_returns = np.zeros(num_agents)
+        self.cleared_at, self.return_after_clear = -1, 0.0  # the joint step that emptied the last full chest
+
+    def add(self, game: Game, rewards: np.ndarray, live: np.ndarray, trap: np.ndarray) -> None:
+        """The step ``game`` just played: its ``rewards``, who was ``live`` before it, who fell in a trap."""
+        step_return = team_return_of(rewards[live], RewardMode(game.reward_mode))
+        self.team_return += step_return
+        self.agent_returns += rewards
+        self.trapped += int(np.sum(trap))
+        self.length += 1
+        if self.cleared_at >= 0:
+            self.return_after_clear += step_return
+        elif game.num_treasures and game.treasures_collected == game.num_treasures:  # no chests: never cleared
+            self.cleared_at = self.length
+
+    def result(self, game: Game) -> EpisodeResult:
+        chests = game.num_treasures
+        return EpisodeResult(
+            self.team_return,
+            self.length,
+            game.treasures_collected,
+            game.treasures_collected / chests if chests else 0.0,
+            self.trapped / game.num_agents,
+            self.length - self.cleared_at if self.cleared_at >= 0 else 0,
+            self.return_after_clear,
+            tuple(float(r) for r in self.agent_returns),
+        )
+
+
+def play_episodes(
+    games: Sequence[Game],
+    policy: BatchPolicy,
+    rngs: Sequence[np.random.Generator],
+    on_step: Callable[[int, Transition, dict], None] | None = None,
+    on_reset: Callable[[], None] | None = None,
+    stopped: Callable[[], bool] = never,
+) -> list[EpisodeResult]:
+    """Reset game g with ``rngs[g]`` (it draws the winners of chest ties) and play one episode of every
+    game side by side: at each joint step ``policy`` chooses for all of them at once, and each game still
+    playing steps. ``on_reset`` sees the games right after their reset, ``on_step(g, transition, info)``
+    game g after each of its steps; :class:`EvaluationStopped` before a joint step once ``stopped()``."""
+    obs = [game.reset(rng) for game, rng in zip(games, rngs)]
+    if on_reset is not None:
+        on_reset()
+    tallies = [EpisodeTally(game.num_agents) for game in games]
+    while not all(game.done for game in games):
+        if stopped():
+            raise EvaluationStopped
+        live = [game.live for game in games]
+        actions = policy(np.stack(obs), np.stack(live))
+        for g, game in enumerate(games):
+            if game.done:
+                continue
+            outcome = game.step(actions[g])
+            if on_step is not None:
+                transition = Transition(
+                    obs[g], actions[g], outcome.rewards, outcome.obs, outcome.terminated, outcome.truncated, live[g]
+                )
+                on_step(g, transition, outcome.info)
+            tallies[g].add(game, outcome.rewards, live[g], outcome.trap)
+            obs[g] = outcome.obs
+    return [tally.result(game) for tally, game in zip(tallies, games)]
+
+
 def play_episode(
     game: Game,
     policy: Policy,
@@ -81,45 +156,10 @@ def play_episode(
     on_step: StepCallback | None = None,
     on_reset: Callable[[], None] | None = None,
 ) -> EpisodeResult:
-    """Reset ``game`` with ``rng`` (it draws the winners of chest ties) and play one episode;
+    """:func:`play_episodes` of one game: reset it with ``rng`` and play one episode with ``policy``;
     ``on_reset`` sees the game right after the reset, ``on_step`` after every step."""
-    obs = game.reset(rng)
-    if on_reset is not None:
-        on_reset()
-    team_return, length, trapped = 0.0, 0, 0
-    agent_returns = np.zeros(game.num_agents)
-    chests = game.num_treasures
-    cleared_at, return_after_clear = -1, 0.0  # the joint step that emptied the last full chest
-    while not game.done:
-        live = game.live
-        actions = policy(obs, live)
-        outcome = game.step(actions)
-        next_obs, rewards = outcome.obs, outcome.rewards
-        if on_step is not None:
-            on_step(
-                Transition(obs, actions, rewards, next_obs, outcome.terminated, outcome.truncated, live), outcome.info
-            )
-        obs = next_obs
-        step_return = team_return_of(rewards[live], RewardMode(game.reward_mode))
-        team_return += step_return
-        agent_returns += rewards
-        trapped += int(np.sum(outcome.trap))
-        length += 1
-        if cleared_at >= 0:
-            return_after_clear += step_return
-        elif chests and game.treasures_collected == chests:  # a game without chests never clears
-            cleared_at = length
-    steps_after_clear = length - cleared_at if cleared_at >= 0 else 0
-    return EpisodeResult(
-        team_return,
-        length,
-        game.treasures_collected,
-        game.treasures_collected / chests if chests else 0.0,
-        trapped / game.num_agents,
-        steps_after_clear,
-        return_after_clear,
-        tuple(float(r) for r in agent_returns),
-    )
+    step = None if on_step is None else lambda _, transition, info: on_step(transition, info)
+    return play_episodes([game], lambda obs, live: policy(obs[0], live[0])[None], [rng], step, on_reset)[0]
 
 
 def evaluation_rng(seed: int, step: int, episode: int) -> np.random.Generator:

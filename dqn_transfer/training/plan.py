@@ -33,6 +33,7 @@ from dqn_transfer.enums import SourceTask
 from dqn_transfer.envs import Game, GridMap, PettingZooGame, UnsupportedEnv, make_game
 from dqn_transfer.envs.game import game_on
 from dqn_transfer.envs.settings import DEFAULTS, ENV_KEYS, MAP_KEYS, EnvConfig
+from dqn_transfer.exchange import check_exchange
 from dqn_transfer.training.resources import MAX_SIZE, check_memory, check_size
 from dqn_transfer.transfer.warm_start import transfer_targets
 
@@ -123,6 +124,7 @@ def plan_run(config: TrainConfig, *, source_task: bool = False) -> RunPlan:
 
 def _plan(config: TrainConfig, source_task: bool) -> RunPlan:
     validate(config)
+    check_exchange(config)
     if config.env.factory is not None:
         return _plan_other_game(config, source_task)
     check_map_size(config.env)

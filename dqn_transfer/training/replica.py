@@ -21,23 +21,19 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from dqn_transfer.agents import Learner, Transition, UpdateStats
+from dqn_transfer.agents import Learner, UpdateStats
 from dqn_transfer.agents.schedules import linear_schedules
 from dqn_transfer.config import TrainConfig, to_plain
-from dqn_transfer.enums import Exchange, RewardMode
+from dqn_transfer.enums import RewardMode
 from dqn_transfer.envs import Game, TreasureHuntGame
 from dqn_transfer.evaluation.rollout import team_returns_of
 from dqn_transfer.evaluation.watch import RecordedEpisode, evaluation_views
+from dqn_transfer.exchange import ExchangeMethod
 from dqn_transfer.storage.run_dir import RunDir
 from dqn_transfer.training.loggers import RunLoggers
-from dqn_transfer.transfer.exchange import exchange_best, exchange_replay
-from dqn_transfer.transfer.visit_exchange import exchange_confidence
 
 log = logging.getLogger("dqn_transfer.train")
 
-
-# The exchanges made every ``exchange_every`` episodes (advice acts at every step, inside the learner).
-EXCHANGES_AT_EPISODE_ENDS = (Exchange.best, Exchange.shared_replay, Exchange.confidence)
 WHOLE_METRICS = ("team_return", "episode_length", "return_after_clear")  # shown to 0.1 on the console, not 0.01
 
 
@@ -170,6 +166,7 @@ class Replica:
         game: Game,
         learner: Learner,
         source: Path | Sequence[Path] | None,
+        exchange: ExchangeMethod,
         episodes: EpisodeSums,
         pictures: bool = True,
     ) -> None:
@@ -180,6 +177,7 @@ class Replica:
         :param game: its game (the map and rules; the loop's game batch plays the episodes)
         :param learner: its team's view of the batched learner
         :param source: the checkpoint(s) its transfer targets start from
+        :param exchange: the run's knowledge exchange, which keeps every replica's window
         :param episodes: the batch's episode sums, of which row r is its episode in progress
         :param pictures: evaluations draw their first episode and its Q-values for TensorBoard
         """
@@ -187,16 +185,15 @@ class Replica:
         # Evaluations draw their first episode and its Q-values for TensorBoard (the treasure hunt's map only).
         self.pictures = pictures and isinstance(game, TreasureHuntGame)
         self.game, self.eval_game, self.learner, self.source = game, game.replica(), learner, source
+        self.exchange = exchange
         k = game.num_agents
         self.rows = slice(index * k, (index + 1) * k)
         self.counters = Counters(next_checkpoint=config.checkpoint_every, exploration_steps=exploration_steps(config))
         self.transfer_info: dict[str, Any] | None = None
         self.last_eval: dict[str, float] = {}
         self.last_eval_step: int | None = None  # step of the last line in metrics.jsonl
-        # Team knowledge exchange window (saved with checkpoints, so a resumed run exchanges the same):
-        self.window_returns: list[np.ndarray] = []  # per-agent episodic returns since the last exchange
-        self.shared_transitions: list[Transition] = []  # shared_replay: the window's transitions
-        self.shared_bounced: list[np.ndarray] = []  # and who bounced off an obstacle in each (bool [K])
+        # Per-agent episodic returns since the last exchange (saved with checkpoints, as the exchange's window).
+        self.window_returns: list[np.ndarray] = []
         self.episode = EpisodeStats(episodes, index)
         self.env_rng = np.random.default_rng([config.seed, 17])  # the chest ties of its training games
         self.episode_state: dict[str, Any] | None = None  # a mid-episode checkpoint's game, until the loop starts
@@ -263,11 +260,13 @@ class Replica:
     def end_episode(self, values: np.ndarray) -> None:
         """The episode just ended: log its ``values`` (:meth:`EpisodeSums.ended_values`' row) and exchange
         knowledge when due. The loop then starts the next one."""
-        transfer = self.config.transfer
         self.record_episode(self.counters.step, values)
         self.episode.reset()
-        if transfer.exchange in EXCHANGES_AT_EPISODE_ENDS and self.counters.episodes % transfer.exchange_every == 0:
-            self._exchange()
+        if self.exchange.at_interval and self.counters.episodes % self.config.transfer.exchange_every == 0:
+            points = self.exchange.exchange(self.index, self.learner, np.asarray(self.window_returns))
+            if points:
+                self.logger.scalars(points, self.counters.step)
+            self.window_returns.clear()
 
     def record_episode(self, step: int, values: np.ndarray) -> None:
         """Count and log an episode that ended at ``step`` with ``values`` (:meth:`EpisodeSums.ended_values`'
@@ -277,19 +276,6 @@ class Replica:
         self.logger.episode(step, values)
         self.window_returns.append(values[:agents].copy())
         self.episode.recent_team_returns.append(float(values[2 * agents]))
-
-    def _exchange(self) -> None:
-        transfer = self.config.transfer
-        if transfer.exchange is Exchange.best:
-            best = exchange_best(self.learner, np.asarray(self.window_returns), transfer.exchange_tau)
-            self.logger.scalar("team/exchange_best_agent", best, self.counters.step)
-        elif transfer.exchange is Exchange.confidence:
-            exchange_confidence(self.learner, transfer.confidence_weight)
-        elif transfer.exchange is Exchange.shared_replay:
-            exchange_replay(self.learner, self.shared_transitions, self.shared_bounced)
-            self.shared_transitions.clear()
-            self.shared_bounced.clear()
-        self.window_returns.clear()
 
     def log_training(self, sps: float, window_means: UpdateStats | None) -> None:
         """A training-curve point: the mean losses and Q-values of the updates since the last point

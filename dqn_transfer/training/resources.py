@@ -31,7 +31,8 @@ from dataclasses import dataclass
 
 from dqn_transfer.agents.tabular import DENSE_TABLES_MAX_BYTES, table_bytes_per_state
 from dqn_transfer.config import ConfigError, TrainConfig
-from dqn_transfer.enums import Algorithm, Exchange, Mode, ObsEncoding
+from dqn_transfer.enums import Algorithm, Mode, ObsEncoding
+from dqn_transfer.exchange import exchange_method
 
 # The largest map side a run accepts (see the module docstring for why).
 MAX_SIZE = 64
@@ -104,8 +105,7 @@ def estimate(config: TrainConfig, size: int, num_agents: int, num_treasures: int
         seen = min(2 * num_agents * (steps + 1), states)
         per_state = num_agents * per_row + FLOAT * width + INDEX_ENTRY_OVERHEAD
         return Estimate(tables=replicas * 2 * seen * per_state, maps=maps)
-    shared = Exchange(config.transfer.exchange) is Exchange.shared_replay
-    filled = min(agent.buffer_size, steps * (num_agents if shared else 1))
+    filled = min(agent.buffer_size, steps * (num_agents if exchange_method(config).fills_replays else 1))
     replay = replicas * num_agents * filled * (2 * width + 3) * FLOAT
     sizes = [width + (num_agents if agent.agent_id_input else 0), *agent.hidden, NUM_ACTIONS]
     parameters = sum(a * b + b for a, b in zip(sizes, sizes[1:]))

@@ -15,7 +15,6 @@ from typing import Any
 
 import numpy as np
 
-from dqn_transfer.agents import Transition
 from dqn_transfer.enums import Algorithm
 from dqn_transfer.storage.checkpoint import (
     CheckpointError,
@@ -69,10 +68,7 @@ def encode_checkpoint(
     learner_arrays, learner_meta = rep.learner.training_state()
     arrays.update({f"learner/{name}": a for name, a in learner_arrays.items()})
     arrays["exchange/returns"] = np.asarray(rep.window_returns, dtype=np.float64).reshape(-1, rep.game.num_agents)
-    for name, column in zip(Transition._fields, zip(*rep.shared_transitions)):
-        arrays[f"exchange/{name}"] = np.stack(column)
-    if rep.shared_bounced:
-        arrays["exchange/bounced"] = np.stack(rep.shared_bounced)
+    arrays.update({f"exchange/{name}": a for name, a in rep.exchange.state(rep.index).items()})
     meta = {
         "counters": rep.counters.__dict__,
         "learner": learner_meta,
@@ -114,13 +110,8 @@ def load_checkpoint(rep: Replica, algorithm: Algorithm) -> None:
         raise CheckpointError(f"{rep.run_dir.training_state}: {err}") from None
     rep.counters = Counters(**meta["counters"])
     rep.window_returns = list(arrays.get("exchange/returns", []))
-    if "exchange/obs" in arrays:
-        rep.shared_transitions = [
-            Transition(*fields) for fields in zip(*(arrays[f"exchange/{name}"] for name in Transition._fields))
-        ]
-        # A checkpoint written before bounces were recorded: its window is shared whole, as it was then.
-        unrecorded = np.zeros((len(rep.shared_transitions), rep.game.num_agents), dtype=bool)
-        rep.shared_bounced = list(arrays.get("exchange/bounced", unrecorded))
+    window = {k[len("exchange/") :]: v for k, v in arrays.items() if k.startswith("exchange/")}
+    rep.exchange.load_state(rep.index, window, rep.game.num_agents)
     rep.last_eval = meta["last_eval"]
     rep.transfer_info = meta["transfer"]
     rep.episode_state = meta.get("episode")  # None at an episode end (and in older checkpoints)

@@ -27,11 +27,12 @@ from dqn_transfer.agents.state_index import DenseIndex
 from dqn_transfer.agents.tabular import DRAWS_PER_AGENT_STEP, TabularLearner
 from dqn_transfer.agents.tabular_kernels import choose_action, update_entry
 from dqn_transfer.compiled import kernel
-from dqn_transfer.enums import Algorithm, Exchange, RewardMode
+from dqn_transfer.enums import Algorithm, RewardMode
 from dqn_transfer.envs import rules
 from dqn_transfer.envs.game import TreasureHunts
 from dqn_transfer.envs.game_batch import GameBatch
 from dqn_transfer.envs.observation_code import encode_rows
+from dqn_transfer.exchange import ExchangeMethod
 
 EPISODES_PER_CALL = 4096  # the most ended episodes one call records before the caller logs them
 
@@ -69,15 +70,14 @@ class UpdateWindow:
 
 
 def compiled_steps(
-    learner: Any, games: GameBatch, exchange: Exchange, schedule: Any, sums: Any, window: UpdateWindow
+    learner: Any, games: GameBatch, exchange: ExchangeMethod, schedule: Any, sums: Any, window: UpdateWindow
 ) -> TabularSteps | None:
     """The compiled steps of this run, None where they do not cover it: they need a tabular learner with
-    dense tables on treasure hunts stepped as one batch, and no exchange that acts inside a step or at an
-    episode's end."""
+    dense tables on treasure hunts stepped as one batch, and no exchange that acts inside the loop."""
     if not isinstance(learner, TabularLearner) or not isinstance(games, TreasureHunts):
         return None
     covered = isinstance(learner.index, DenseIndex) and learner.advice is None
-    return TabularSteps(learner, games, schedule, sums, window) if covered and exchange is Exchange.none else None
+    return TabularSteps(learner, games, schedule, sums, window) if covered and not exchange.in_loop else None
 
 
 class TabularSteps:

@@ -42,13 +42,14 @@ from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
 from dqn_transfer import compiled as compiled_kernels
-from dqn_transfer.agents import ExperienceSharing, Learner, Transition, UpdateStats, make_replicas, require
+from dqn_transfer.agents import Learner, Transition, UpdateStats, make_replicas
 from dqn_transfer.config import ConfigError, TrainConfig, plain_yaml, to_plain
-from dqn_transfer.enums import Algorithm, Exchange, Logger
+from dqn_transfer.enums import Algorithm, Logger
 from dqn_transfer.envs.game_batch import GameBatch, game_batch
 from dqn_transfer.envs.observation_code import observation_code
 from dqn_transfer.evaluation.batched_rollout import evaluate_replicas
 from dqn_transfer.evaluation.rollout import EvaluationStopped
+from dqn_transfer.exchange import exchange_method
 from dqn_transfer.storage.checkpoint import CheckpointError, atomic_write, atomic_write_all
 from dqn_transfer.storage.run_dir import RunDir, existing_run_message
 from dqn_transfer.timing import Stopwatch
@@ -57,9 +58,7 @@ from dqn_transfer.training.replica import EpisodeSums, EpsilonSchedule, Replica,
 from dqn_transfer.training.run_state import encode_checkpoint, load_checkpoint
 from dqn_transfer.training.stop import Interrupted, StopRequest
 from dqn_transfer.training.tabular_steps import UpdateWindow, compiled_steps
-from dqn_transfer.transfer.capabilities import check_capabilities
-from dqn_transfer.transfer.visit_exchange import start_advice
-from dqn_transfer.transfer.warm_start import apply_transfer, lineage_table
+from dqn_transfer.transfer.warm_start import apply_transfer, check_warm_start, lineage_table
 
 log = logging.getLogger("dqn_transfer.train")
 
@@ -115,12 +114,11 @@ class Trainer:
             threads=config.threads,
             code=observation_code(games),
         )
-        check_capabilities(config, self.learner, warm_start=config.transfer.enabled and not self.source_task)
-        if config.transfer.exchange is Exchange.advice:  # full budgets; a resumed run then loads what was left
-            start_advice(self.learner, config.transfer)
-        if config.transfer.exchange is Exchange.experience:
-            sharing = require(self.learner, ExperienceSharing, "transfer.exchange=experience")
-            sharing.share_experience(config.transfer.experience_lambda)
+        if config.transfer.enabled and not self.source_task:
+            check_warm_start(self.learner, config.transfer)
+        # The run's knowledge exchange (its hooks: dqn_transfer.exchange.base); a resumed run then loads its state.
+        self.exchange = exchange_method(config)(config.transfer, len(plan.replicas))
+        self.exchange.start(self.learner)
         lone = len(plan.replicas) == 1
         # null: someone watches a run started by hand, one replica of it; a sweep's jobs are compared by curves
         pictures = [r == 0 and not in_multirun() for r in range(len(plan.replicas))]
@@ -137,6 +135,7 @@ class Trainer:
                 game,
                 cast(Learner, self.learner.replica(r)),
                 source,
+                self.exchange,
                 self.episodes,
                 pictures=pictures[r],
             )
@@ -245,8 +244,7 @@ class Trainer:
         num_rows = games.num_replicas * games.num_agents
         schedule = EpsilonSchedule.joined([rep.epsilon_schedule() for rep in replicas])
         window = UpdateWindow(num_rows)  # the updates' statistics since the last training-curve point
-        shared_replay = config.transfer.exchange is Exchange.shared_replay
-        compiled = compiled_steps(learner, games, config.transfer.exchange, schedule, self.episodes, window)
+        compiled = compiled_steps(learner, games, self.exchange, schedule, self.episodes, window)
         bar = tqdm(
             total=config.total_steps,
             initial=self.step,
@@ -268,7 +266,7 @@ class Trainer:
                 for rep in replicas:
                     rep.counters.step = step
             else:
-                step = self._step(games, schedule, window, shared_replay)
+                step = self._step(games, schedule, window)
             # 4. evaluation
             if step % config.eval_every == 0:
                 self.run_evaluation(replicas, stop)  # stopped unfinished: the checkpoint below, then out
@@ -319,7 +317,7 @@ class Trainer:
         )
         return self._summary()
 
-    def _step(self, games: GameBatch, schedule: EpsilonSchedule, window: UpdateWindow, shared_replay: bool) -> int:
+    def _step(self, games: GameBatch, schedule: EpsilonSchedule, window: UpdateWindow) -> int:
         """Steps 1-3 of the loop, one joint step: act, step the games, learn, add to the episodes' sums,
         log the ended episodes and restart their games. Returns the step after it."""
         learner, replicas = self.learner, self.replicas
@@ -345,10 +343,7 @@ class Trainer:
         self.episodes.add(outcome.rewards, live.reshape(outcome.rewards.shape), outcome.trap)
         for rep in replicas:
             rep.counters.step = step + 1
-        if shared_replay:
-            for rep in replicas:
-                rep.shared_transitions.append(Transition(*(column[rep.rows] for column in transition)))
-                rep.shared_bounced.append(outcome.bounced[rep.index])
+        self.exchange.after_step(transition, outcome.bounced)
         # 3. where an episode ended: log it, exchange knowledge; then the next episodes
         ended = np.flatnonzero(outcome.episode_end)
         if ended.size:

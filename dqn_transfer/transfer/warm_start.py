@@ -196,6 +196,15 @@ def map_source(config: TrainConfig, game: Game, path: Path, target_layout: Layou
     return MappedSource(path, mapped, meta, plan, embedding, start)
 
 
+def check_warm_start(learner: Team, transfer: TransferConfig) -> None:
+    """Refuse, before any step, a learner without the :class:`~dqn_transfer.agents.WarmStart` capability
+    that ``transfer.freeze`` or ``transfer.reset_optimizer=false`` need."""
+    if transfer.freeze:
+        require(learner, WarmStart, f"transfer.freeze={list(transfer.freeze)}")
+    if not transfer.reset_optimizer:
+        require(learner, WarmStart, "transfer.reset_optimizer=false (an optimizer state to carry over)")
+
+
 def apply_transfer(config: TrainConfig, learner: Team, game: Game, source: Path | Sequence[Path]) -> dict[str, Any]:
     """Load ``source`` (one checkpoint for every target agent, or one per target) into the target
     agents (``load_agent_tensors``); keeping layers fixed and carrying the optimizer state over need

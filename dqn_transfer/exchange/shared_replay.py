@@ -1,0 +1,77 @@
+"""``transfer.exchange=shared_replay``: every ``exchange_every`` episodes, each agent learns from its
+team-mates' transitions of the window, except their obstacle bounces. A DQN agent receives them into
+its replay; a table, which has no replay, is updated on each of them once, by its own rule (SARSA draws
+the next action from its own epsilon-greedy policy). A move into an obstacle sends the mover back to its
+own start, and no two agents of a map share a start cell, so a team-mate's bounce would teach an agent
+that the move leads to somebody else's start (SEQL's experience sharing likewise leaves out the
+agent-specific transition). The window is kept per replica and saved with checkpoints.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from dqn_transfer.agents import Experience, KnowledgeExchange, Team, Transition, require
+from dqn_transfer.config import TransferConfig
+from dqn_transfer.exchange.base import ExchangeMethod
+
+
+def exchange_replay(team: Team, transitions: Sequence[Transition], bounced: Sequence[np.ndarray]) -> None:
+    """Each agent learns from its team-mates' transitions of the window but their obstacle bounces;
+    ``bounced[t]``, ``bool [K]``: who moved into an obstacle on step ``t``."""
+    exchange = require(team, KnowledgeExchange, "transfer.exchange=shared_replay")
+    if not transitions:
+        return
+    window = Transition(*(np.stack(column) for column in zip(*transitions)))  # fields [T, K, ...]
+    bounces = np.stack(bounced)  # [T, K]
+    for giver in range(team.num_agents):
+        taken = window.live[:, giver] & ~bounces[:, giver]  # the giver's moves, but its bounces
+        experience = Experience(
+            *(
+                column[taken, giver]
+                for column in (window.obs, window.actions, window.rewards, window.next_obs, window.terminated)
+            )
+        )
+        for receiver in range(team.num_agents):
+            if receiver != giver:
+                exchange.learn_from(receiver, experience)
+
+
+class SharedReplay(ExchangeMethod):
+    name = "shared_replay"
+    capability = KnowledgeExchange
+    moves_transitions = fills_replays = at_interval = True
+
+    def __init__(self, transfer: TransferConfig, num_replicas: int) -> None:
+        super().__init__(transfer, num_replicas)
+        self.transitions: list[list[Transition]] = [[] for _ in range(num_replicas)]  # each replica's window
+        self.bounced: list[list[np.ndarray]] = [[] for _ in range(num_replicas)]  # who bounced at each step
+
+    def after_step(self, transition: Transition, bounced: np.ndarray) -> None:
+        k = bounced.shape[1]
+        for r, window in enumerate(self.transitions):
+            window.append(Transition(*(column[r * k : (r + 1) * k] for column in transition)))
+            self.bounced[r].append(bounced[r])
+
+    def exchange(self, r: int, team: Team, returns: np.ndarray) -> list[tuple[str, float]]:
+        exchange_replay(team, self.transitions[r], self.bounced[r])
+        self.transitions[r].clear()
+        self.bounced[r].clear()
+        return []
+
+    def state(self, r: int) -> dict[str, np.ndarray]:
+        arrays = {name: np.stack(column) for name, column in zip(Transition._fields, zip(*self.transitions[r]))}
+        if self.bounced[r]:
+            arrays["bounced"] = np.stack(self.bounced[r])
+        return arrays
+
+    def load_state(self, r: int, arrays: dict[str, Any], num_agents: int) -> None:
+        if "obs" not in arrays:
+            return
+        self.transitions[r] = [Transition(*fields) for fields in zip(*(arrays[name] for name in Transition._fields))]
+        # A checkpoint written before bounces were recorded: its window is shared whole, as it was then.
+        unrecorded = np.zeros((len(self.transitions[r]), num_agents), dtype=bool)
+        self.bounced[r] = list(arrays.get("bounced", unrecorded))
