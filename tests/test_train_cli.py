@@ -581,7 +581,7 @@ def test_kill_mid_exchange_window_resumes_exactly(tmp_path, monkeypatch, exchang
 
     def mid_window(trainer) -> bool:  # shared_replay's window also holds an obstacle bounce, saved with it
         rep = trainer.replicas[0]
-        return bool(rep.window_returns) and (exchange != "shared_replay" or bool(np.any(rep.shared_bounced)))
+        return bool(rep.window_returns) and (exchange != "shared_replay" or bool(np.any(rep.exchange.bounced[0])))
 
     resumed, reference = kill_and_resume(tmp_path, monkeypatch, config, dies=mid_window)
     assert resumed == reference
