@@ -118,20 +118,8 @@ def record_into(out: Path) -> None:
     run(TRAIN + SMALL + RESUMED + common + ["hydra.run.dir=runs/resumed_in_one_go"], out, "resumed_in_one_go")
     ckpt = [sys.executable, "-m", "dqn_transfer.cli.ckpt"]
     run(ckpt + ["export", "runs/default", "exported"], out, "export")
-    run(
-        [
-            sys.executable,
-            "-m",
-            "dqn_transfer.cli.play",
-            "runs/replicas_sarsa/seed_1-map_7",
-            "--episodes",
-            "2",
-            "--gif",
-            "played.gif",
-        ],
-        out,
-        "play",
-    )
+    play = [sys.executable, "-m", "dqn_transfer.cli.play", "runs/replicas_sarsa/seed_1-map_7"]
+    run(play + ["--episodes", "2", "--gif", "played.gif"], out, "play")
 
 
 def run(command: list[str], cwd: Path, name: str) -> None:

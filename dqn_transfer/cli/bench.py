@@ -139,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
     total_seconds = time.perf_counter() - start
     table = render_markdown(results)
     print(table)
-    document = {**results.to_json(), "total_seconds": total_seconds, "markdown": table}
+    document = {**results, "total_seconds": total_seconds, "markdown": table}
     try:
         atomic_write(args.out, (json.dumps(document, indent=2) + "\n").encode())
     except CheckpointError as err:  # atomic_write words its failure for checkpoints
