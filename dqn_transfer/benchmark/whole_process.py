@@ -78,23 +78,17 @@ def train_command(
     :param threads: ``threads``, torch's CPU threads
     :param replicas: ``replicas.seeds``
     """
-    return [
-        sys.executable,
-        "-m",
-        "dqn_transfer.cli.train",
-        *(f"env.{key}={_override(value)}" for key, value in env_kwargs.items()),
-        "agent=dqn",
-        *(f"agent.{key}={_override(getattr(agent, key))}" for key in MATCHED_KEYS),
+    env = [f"env.{key}={_override(value)}" for key, value in env_kwargs.items()]
+    hyperparameters = [f"agent.{key}={_override(getattr(agent, key))}" for key in MATCHED_KEYS]
+    run = [
         f"seed={seed}",
         f"total_steps={steps}",
         f"eval_every={steps}",
         "eval_episodes=1",
         f"checkpoint_every={steps}",
-        "progress=false",
-        f"threads={threads}",
-        f"replicas.seeds={replicas}",
-        f"hydra.run.dir={run_dir}",
     ]
+    process = ["progress=false", f"threads={threads}", f"replicas.seeds={replicas}", f"hydra.run.dir={run_dir}"]
+    return [sys.executable, "-m", "dqn_transfer.cli.train", *env, "agent=dqn", *hyperparameters, *run, *process]
 
 
 def reference_command(

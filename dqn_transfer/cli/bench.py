@@ -75,9 +75,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--threads",
         type=positive_int,
         default=1,
-        help="torch threads of sections 1-4 (default 1, fastest for these tiny networks); "
-        "section 4 also times torch's default thread count. Section 5's processes run on "
-        "one thread, section 6's process of ours on every core",
+        help="torch threads of sections 1-4 (default 1, fastest for these tiny networks); section 4 also times "
+        "torch's default thread count. Section 5's processes and section 6's process of ours run on one thread",
     )
     parser.add_argument(
         "--sections",
