@@ -193,9 +193,9 @@ def _ratio(a: Runs, b: Runs, key: str, key_b: str | None = None) -> float:
     return paired_ratio(_series(a, key), _series(b, key_b or key))
 
 
-def _medians(runs: Runs, keys: dict[str, str]) -> dict[str, float]:
-    """The median over repeats of each figure ``keys[name]``, as ``name``."""
-    return {name: median(_series(runs, key)) for name, key in keys.items()}
+def _medians(runs: Runs, *keys: str) -> dict[str, float]:
+    """The median over repeats of each figure of ``keys``."""
+    return {key: median(_series(runs, key)) for key in keys}
 
 
 # ----------------------------------------------------------------------------- the sections
@@ -209,7 +209,7 @@ def env_section(sizes: Sizes, seed: int, repeats: int, progress: ProgressFn) -> 
         {
             "num_agents": k,
             "steps": sizes.env_steps,
-            **_medians(runs, {key: key for key in ("pettingzoo_steps_per_s", "core_steps_per_s")}),
+            **_medians(runs, "pettingzoo_steps_per_s", "core_steps_per_s"),
             "core_over_pettingzoo": _ratio(runs, runs, "core_steps_per_s", "pettingzoo_steps_per_s"),
             "raw": runs,
         }
@@ -220,7 +220,7 @@ def env_section(sizes: Sizes, seed: int, repeats: int, progress: ProgressFn) -> 
 def _contender(runs: Runs) -> dict[str, float]:
     """A trainer's figures at one thread count; the greedy ones are means over repeats."""
     return {
-        **_medians(runs, {key: key for key in ("steps_per_s", "steps_per_cpu_s")}),
+        **_medians(runs, "steps_per_s", "steps_per_cpu_s"),
         **{key: float(np.mean(_series(runs, key))) for key in ("greedy_success", "greedy_return")},
     }
 
@@ -349,9 +349,8 @@ def update_section(
 
 def _process_figures(runs: Runs, rate: str, gradient_steps: int) -> dict[str, Any]:
     """The median over repeats of each whole-process figure; ``rate``: ``steps`` or ``learner_steps``."""
-    keys = {"steps_per_s": f"{rate}_per_s", "steps_per_cpu_s": f"{rate}_per_cpu_s"}
-    figures = _medians(runs, {"seconds": "seconds", "cpu_seconds": "cpu_seconds", **keys, "max_rss_mb": "max_rss_mb"})
-    return {**figures, "gradient_steps": gradient_steps}
+    rates = {f"steps_{per}": median(_series(runs, f"{rate}_{per}")) for per in ("per_s", "per_cpu_s")}
+    return {**_medians(runs, "seconds", "cpu_seconds", "max_rss_mb"), **rates, "gradient_steps": gradient_steps}
 
 
 def lone_section(sizes: Sizes, seed: int, repeats: int, progress: ProgressFn) -> dict[str, Any]:
@@ -474,7 +473,7 @@ def tabular_section(
                     f"tabular, {who}, {mode}, {count} replica(s), repeat {r + 1}/{repeats}: "
                     f"{out['seconds_per_1k_steps']:.2f} s per 1,000 steps"
                 )
-        figures = {who: _medians(runs, {key: key for key in MARGINAL_FIGURES}) for who, runs in raw.items()}
+        figures = {who: _medians(runs, *MARGINAL_FIGURES) for who, runs in raw.items()}
         return {
             "mode": mode,
             "replicas": count,
