@@ -39,9 +39,8 @@ from dqn_transfer.benchmark.config import (
     sb3_kwargs,
 )
 from dqn_transfer.benchmark.env_throughput import measure_env_throughput
-from dqn_transfer.benchmark.records import Load
 from dqn_transfer.benchmark.team_scaling import TeamRig
-from dqn_transfer.benchmark.training import greedy_check, measure_ours_training, measure_sb3_training
+from dqn_transfer.benchmark.training import greedy_check, measure_training
 from dqn_transfer.benchmark.update_cost import SB3UpdateRig, UpdateRig
 from dqn_transfer.cli import bench as cli
 from dqn_transfer.config import CONFIG_DIR, AgentConfig, TrainConfig, register_configs
@@ -151,10 +150,7 @@ def test_env_throughput_plays_the_same_episodes_through_both_paths():
 # ----------------------------------------------------------------------------- 2. training
 @pytest.fixture(scope="module")
 def training_runs():
-    return {
-        measure.__name__: measure(TRAIN_STEPS, 0, TINY, TINY_MAP, eval_episodes=2)
-        for measure in (measure_ours_training, measure_sb3_training)
-    }
+    return {who: measure_training(who, TRAIN_STEPS, 0, TINY, TINY_MAP, eval_episodes=2) for who in ("ours", "sb3")}
 
 
 def test_both_contenders_take_one_gradient_step_per_env_step_after_learning_starts(training_runs):
@@ -165,7 +161,7 @@ def test_both_contenders_take_one_gradient_step_per_env_step_after_learning_star
 
 
 def test_our_training_time_excludes_the_trainers_evaluations_and_checkpoints(training_runs):
-    ours = training_runs["measure_ours_training"]
+    ours = training_runs["ours"]
     assert ours["excluded_seconds"] > 0
     assert 0 < ours["seconds"] < ours["run_seconds"]
     assert ours["seconds"] + ours["excluded_seconds"] == pytest.approx(ours["run_seconds"])
@@ -346,15 +342,10 @@ def test_processes_command_line_prints_what_it_did(capsys):
 
 
 @pytest.fixture(scope="module")
-def process_benchmark():
+def process_document():
     return suite.run_benchmark(
         "quick", 0, 1, 1, sizes=PROCESS_SIZES, sections=("lone", "replicas"), progress=lambda what: None
     )
-
-
-@pytest.fixture(scope="module")
-def process_document(process_benchmark):
-    return process_benchmark.to_json()
 
 
 @pytest.mark.slow
@@ -409,8 +400,8 @@ def test_replicas_section_runs_one_process_of_r_replicas_and_sb3_side_by_side(pr
 
 
 @pytest.mark.slow
-def test_tables_of_the_whole_process_sections(process_benchmark, process_document):
-    table = tables.render_markdown(process_benchmark)
+def test_tables_of_the_whole_process_sections(process_document):
+    table = tables.render_markdown(process_document)
     assert [line.split()[1] for line in table.splitlines() if line.startswith("## ")] == ["5.", "6."]
     assert [row.split(":")[0] for row in table_rows(table, "## 5.")] == [
         "ours",
@@ -428,15 +419,10 @@ def test_tables_of_the_whole_process_sections(process_benchmark, process_documen
 
 # ----------------------------------------------------------------------------- the document and its table
 @pytest.fixture(scope="module")
-def benchmark():
+def document():
     return suite.run_benchmark(
         "quick", 0, 1, 1, sizes=TINY_SIZES, agent=TINY, sections=IN_PROCESS, progress=lambda what: None
     )
-
-
-@pytest.fixture(scope="module")
-def document(benchmark):
-    return benchmark.to_json()
 
 
 def table_rows(table: str, heading: str) -> list[str]:
@@ -465,8 +451,8 @@ def test_document_holds_every_section_and_is_json(document):
     assert json.loads(json.dumps(document)) == document  # plain JSON types throughout
 
 
-def test_table_has_the_four_sections_and_a_row_per_agent_count(benchmark, document):
-    table = tables.render_markdown(benchmark)
+def test_table_has_the_four_sections_and_a_row_per_agent_count(document):
+    table = tables.render_markdown(document)
     headings = [line for line in table.splitlines() if line.startswith("## ")]
     assert [h.split()[1] for h in headings] == ["1.", "2.", "3.", "4."]
     assert table_rows(table, "## 1.") == ["1", "4", "8"]
@@ -604,13 +590,12 @@ def test_the_tabular_section_pairs_each_repeat_and_tables_it(tmp_path, monkeypat
     sizes = dataclasses.replace(TINY_SIZES, tabular_counts=(1, 2), tabular_modes=("cooperative",))
     section = suite.tabular_section(sizes, seed=0, repeats=2, baseline=fake_checkout(tmp_path), progress=print)
     # rows in order R = 1, 2; per row, repeat 0 then 1; ratios baseline / ours by repeat, then the median
-    assert [row.speedup for row in section.rows] == [
+    assert [row["speedup"] for row in section["rows"]] == [
         statistics.median([10 / 2, 9 / 3]),
         statistics.median([8 / 1, 9 / 1.5]),
     ]
-    assert [row.ours.seconds_per_1k_steps for row in section.rows] == [2.5, 1.25]
-    machine = suite.machine_info([1], Load(None, None))
-    document = suite.Benchmark(settings=None, machine=machine, method="", tabular=section)  # type: ignore[arg-type]
+    assert [row["ours"]["seconds_per_1k_steps"] for row in section["rows"]] == [2.5, 1.25]
+    document = {"machine": suite.machine_info([1], None), "tabular": section}
     table = "\n".join(tables._tabular_table(document))
     assert "## 7." in table and "| cooperative | 2 | 1.25 |" in table and "7.00x" in table
 

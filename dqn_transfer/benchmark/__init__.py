@@ -3,5 +3,5 @@
 Seven sections, each a module (env throughput, training against SB3, team scaling, update cost, whole
 processes ``lone`` and ``replicas``, the study's ``tabular`` jobs), driven by
 :mod:`~dqn_transfer.benchmark.suite` and run by ``dqn-transfer-bench``; the matched hyperparameters and
-maps are in :mod:`~dqn_transfer.benchmark.config`, the records and the table in ``records`` and ``tables``.
+maps are in :mod:`~dqn_transfer.benchmark.config`, the table of the suite's JSON document in ``tables``.
 """

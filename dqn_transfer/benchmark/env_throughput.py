@@ -18,11 +18,9 @@ from dqn_transfer.envs.treasure_hunt import parallel_env
 from dqn_transfer.timing import Stopwatch
 
 
-def measure_env_throughput(
-    num_agents: int, steps: int, seed: int, mode: Mode = Mode.competitive, env_kwargs: dict[str, Any] = BENCH_MAP
-) -> dict[str, Any]:
-    """``steps`` joint steps of random play on ``env_kwargs`` generated for ``num_agents`` starts."""
-    env = parallel_env(num_agents=num_agents, mode=mode, **env_kwargs)
+def measure_env_throughput(num_agents: int, steps: int, seed: int) -> dict[str, Any]:
+    """``steps`` joint steps of competitive random play on ``BENCH_MAP`` generated for ``num_agents`` starts."""
+    env = parallel_env(num_agents=num_agents, mode=Mode.competitive, **BENCH_MAP)
     actions = np.random.default_rng(seed).integers(0, env.game.num_actions, size=(steps, num_agents))
     index = {name: i for i, name in enumerate(env.possible_agents)}
     env.reset(seed=seed)
@@ -45,7 +43,7 @@ def measure_env_throughput(
             game.step(row)
     return {
         "num_agents": num_agents,
-        "mode": Mode(mode).value,
+        "mode": Mode.competitive.value,
         "steps": steps,
         "pettingzoo_episodes": api_episodes,
         "core_episodes": core_episodes,

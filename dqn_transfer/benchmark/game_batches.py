@@ -5,7 +5,7 @@ steps them (:class:`~dqn_transfer.envs.game.TreasureHunts`): what batching the r
 Both play the same pre-drawn random actions on the same maps (8x8, 4 agents, 4 chests, complexity 0.1;
 R replicas over 10 generated maps), each replica restarting its episode as it ends, in one process, one
 after the other, ``repeats`` times each; a "joint step" is one step of one replica. Run it with
-``python scripts/bench_batched_core.py``; not a section of ``dqn-transfer-bench`` (the suite's records
+``python scripts/bench_batched_core.py``; not a section of ``dqn-transfer-bench`` (the suite's document
 and tables are built for the learners' sections).
 """
 

@@ -21,59 +21,37 @@ from pathlib import Path
 
 TRAIN = [sys.executable, "-m", "dqn_transfer.cli.train"]
 SMALL = ["total_steps=1200", "eval_every=400", "eval_episodes=3", "checkpoint_every=600", "progress=false"]
-# name: overrides. Together they touch every learner, engine, mode, encoding, transfer path, exchange
-# kind, replicas, a curriculum and a resume.
+# name: its overrides, as on a command line. Together they touch every learner, engine, mode, encoding,
+# transfer path, exchange kind, replicas, a curriculum and a resume.
 RUNS: dict[str, list[str]] = {
-    "default": [],
-    "dqn_numpy_cooperative": ["agent=dqn", "agent.engine=numpy", "mode=cooperative"],
-    "double_dqn_numpy_deliberative": ["agent.engine=numpy", "mode=deliberative", "env=complex"],
-    "dqn_torch_hard_target": ["agent=dqn", "agent.target_update=100", "agent.tau=1.0", "agent.learning_starts=200"],
-    "sarsa_deliberative_complex": ["agent=sarsa", "mode=deliberative", "env=complex", "total_steps=3000"],
-    "qlearning_cooperative_team_reward": ["agent=qlearning", "mode=cooperative", "env.reward_mode=team"],
-    "sarsa_coords": ["agent=sarsa", "env.obs_encoding=coords"],
-    "dqn_view_shared": ["agent=dqn", "env.view_radius=1", "agent.share_parameters=true", "agent.learning_starts=200"],
-    "transfer_pretrained": ["transfer=on", "transfer.pretrain_steps=800"],
-    "transfer_team_numpy": [
-        "transfer=on",
-        "transfer.source_task=team",
-        "transfer.pretrain_steps=800",
-        "agent.engine=numpy",
-        "mode=cooperative",
-    ],
-    "transfer_sarsa_shifted": [
-        "agent=sarsa",
-        "transfer=on",
-        "transfer.source_map_shift=1000",
-        "transfer.pretrain_steps=800",
-    ],
-    "transfer_from_run": ["transfer=on", "transfer.source=runs/default", "transfer.targets=[1]"],
-    "replicas_sarsa": ["agent=sarsa", "replicas.seeds=2", "replicas.maps=2", "mode=cooperative"],
-    "replicas_double_dqn_numpy": ["agent.engine=numpy", "replicas.seeds=2", "agent.learning_starts=200"],
-    "replicas_dqn_torch": ["agent=dqn", "replicas.seeds=2", "agent.learning_starts=200"],
-    # Enough replicas that every game steps in one batch, with chest ties and the coordinator.
-    "replicas_sarsa_deliberative": ["agent=sarsa", "replicas.seeds=6", "mode=deliberative", "env=complex"],
-    "replicas_qlearning_view_competitive": [
-        "agent=qlearning",
-        "replicas.seeds=5",
-        "mode=competitive",
-        "env.view_radius=1",
-        "env.reward_mode=team",
-    ],
-    "exchange_best": [
-        "mode=cooperative",
-        "transfer.exchange=best",
-        "transfer.exchange_every=5",
-        "agent.learning_starts=200",
-    ],
-    "exchange_shared_replay_sarsa": ["agent=sarsa", "transfer.exchange=shared_replay", "transfer.exchange_every=5"],
-    "exchange_best_qlearning": ["agent=qlearning", "transfer.exchange=best", "transfer.exchange_every=5"],
-    "curriculum_nested": [
-        "agent=sarsa",
-        "curriculum=nested",
-        "curriculum.stages.0.steps=600",
-        "curriculum.stages.1.steps=600",
-        "total_steps=1200",
-    ],
+    name: overrides.split()
+    for name, overrides in {
+        "default": "",
+        "dqn_numpy_cooperative": "agent=dqn agent.engine=numpy mode=cooperative",
+        "double_dqn_numpy_deliberative": "agent.engine=numpy mode=deliberative env=complex",
+        "dqn_torch_hard_target": "agent=dqn agent.target_update=100 agent.tau=1.0 agent.learning_starts=200",
+        "sarsa_deliberative_complex": "agent=sarsa mode=deliberative env=complex total_steps=3000",
+        "qlearning_cooperative_team_reward": "agent=qlearning mode=cooperative env.reward_mode=team",
+        "sarsa_coords": "agent=sarsa env.obs_encoding=coords",
+        "dqn_view_shared": "agent=dqn env.view_radius=1 agent.share_parameters=true agent.learning_starts=200",
+        "transfer_pretrained": "transfer=on transfer.pretrain_steps=800",
+        "transfer_team_numpy": "transfer=on transfer.source_task=team transfer.pretrain_steps=800 "
+        "agent.engine=numpy mode=cooperative",
+        "transfer_sarsa_shifted": "agent=sarsa transfer=on transfer.source_map_shift=1000 transfer.pretrain_steps=800",
+        "transfer_from_run": "transfer=on transfer.source=runs/default transfer.targets=[1]",
+        "replicas_sarsa": "agent=sarsa replicas.seeds=2 replicas.maps=2 mode=cooperative",
+        "replicas_double_dqn_numpy": "agent.engine=numpy replicas.seeds=2 agent.learning_starts=200",
+        "replicas_dqn_torch": "agent=dqn replicas.seeds=2 agent.learning_starts=200",
+        # Enough replicas that every game steps in one batch, with chest ties and the coordinator.
+        "replicas_sarsa_deliberative": "agent=sarsa replicas.seeds=6 mode=deliberative env=complex",
+        "replicas_qlearning_view_competitive": "agent=qlearning replicas.seeds=5 mode=competitive "
+        "env.view_radius=1 env.reward_mode=team",
+        "exchange_best": "mode=cooperative transfer.exchange=best transfer.exchange_every=5 agent.learning_starts=200",
+        "exchange_shared_replay_sarsa": "agent=sarsa transfer.exchange=shared_replay transfer.exchange_every=5",
+        "exchange_best_qlearning": "agent=qlearning transfer.exchange=best transfer.exchange_every=5",
+        "curriculum_nested": "agent=sarsa curriculum=nested curriculum.stages.0.steps=600 "
+        "curriculum.stages.1.steps=600 total_steps=1200",
+    }.items()
 }
 # A run stopped at 600 steps, then resumed to 1200: must equal the run made in one go.
 RESUMED = ["agent.learning_starts=200", "mode=cooperative"]
@@ -118,20 +96,8 @@ def record_into(out: Path) -> None:
     run(TRAIN + SMALL + RESUMED + common + ["hydra.run.dir=runs/resumed_in_one_go"], out, "resumed_in_one_go")
     ckpt = [sys.executable, "-m", "dqn_transfer.cli.ckpt"]
     run(ckpt + ["export", "runs/default", "exported"], out, "export")
-    run(
-        [
-            sys.executable,
-            "-m",
-            "dqn_transfer.cli.play",
-            "runs/replicas_sarsa/seed_1-map_7",
-            "--episodes",
-            "2",
-            "--gif",
-            "played.gif",
-        ],
-        out,
-        "play",
-    )
+    play = [sys.executable, "-m", "dqn_transfer.cli.play", "runs/replicas_sarsa/seed_1-map_7"]
+    run(play + ["--episodes", "2", "--gif", "played.gif"], out, "play")
 
 
 def run(command: list[str], cwd: Path, name: str) -> None:

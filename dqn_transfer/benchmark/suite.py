@@ -1,4 +1,4 @@
-"""The driver: the seven measurements, interleaved repeats, paired ratios, summarised as typed records.
+"""The driver: the seven measurements, interleaved repeats, paired ratios, summarised as a JSON document.
 
 Threads. Sections 1-4 run at ``threads`` torch threads (the CLI's default is 1: for networks this
 small, intra-op parallelism costs more in synchronisation than it gains, and on a busy machine a second
@@ -9,16 +9,18 @@ per core) and ours one process on one thread: both engines, whose second torch t
 here (spin-waiting for a core that SB3's processes, or any other job, hold).
 
 Method: :data:`METHOD` (the machine may be shared and noisy: medians of interleaved repeats, paired ratios,
-two clocks); sections 5 and 6 also record the load average at their own start and end, since a
+two clocks); sections 5 to 7 also record the load average at their own start and end, since a
 process-level figure is the most exposed to other jobs.
-:func:`run_benchmark` returns everything, with the raw per-repeat figures and the machine, as a
-:class:`~dqn_transfer.benchmark.records.Benchmark` (its ``to_json()`` is the JSON document);
-:func:`~dqn_transfer.benchmark.tables.render_markdown` makes the table of it.
+:func:`run_benchmark` returns everything, with the raw per-repeat figures and the machine, as the JSON
+document (plain dicts: each figure the median over repeats, each ratio the median of the per-repeat paired
+ratios, ``raw`` what every repeat measured); :func:`~dqn_transfer.benchmark.tables.render_markdown` makes
+the table of it.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import platform
 import statistics
@@ -27,6 +29,7 @@ import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
+from enum import Enum
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
@@ -36,30 +39,9 @@ import torch
 
 from dqn_transfer.benchmark.config import BENCH_AGENT, BENCH_MAP, LONE_AGENT, LONE_MAP, SOURCE_MAP, TEAM_MAP
 from dqn_transfer.benchmark.env_throughput import measure_env_throughput
-from dqn_transfer.benchmark.records import (
-    Benchmark,
-    Contender,
-    EnvRow,
-    Load,
-    LoneContender,
-    LoneSection,
-    Machine,
-    MarginalFigures,
-    ProcessFigures,
-    ReplicaRow,
-    ReplicasSection,
-    Settings,
-    StepCost,
-    TabularRow,
-    TabularSection,
-    TeamRow,
-    TrainingRow,
-    UpdateSection,
-    UpdateTiming,
-)
 from dqn_transfer.benchmark.tabular_batches import TABULAR_AGENTS, TABULAR_ENV, TABULAR_EVAL_EVERY, measure_marginal
 from dqn_transfer.benchmark.team_scaling import TeamRig
-from dqn_transfer.benchmark.training import measure_ours_training, measure_sb3_training
+from dqn_transfer.benchmark.training import measure_training
 from dqn_transfer.benchmark.update_cost import THREAD_NAMES, UPDATE_NAMES, SB3UpdateRig, UpdateRig
 from dqn_transfer.benchmark.whole_process import (
     LONE_CONTENDERS,
@@ -176,88 +158,115 @@ def _loadavg() -> list[float] | None:
     return list(os.getloadavg()) if hasattr(os, "getloadavg") else None
 
 
-def machine_info(threads_used: list[int], load: Load) -> Machine:
-    return Machine(
-        cpu_model=cpu_model(),
-        cpu_count=os.cpu_count(),
-        cpus_available=cpus_available(),
-        platform=platform.platform(),
-        python=platform.python_version(),
-        torch=torch.__version__,
-        numpy=np.__version__,
-        gymnasium=_version("gymnasium"),
-        pettingzoo=_version("pettingzoo"),
-        stable_baselines3=_version("stable-baselines3"),
-        torch_default_threads=DEFAULT_THREADS,
-        torch_threads_used=threads_used,
-        load=load,
-    )
+def _load(start: list[float] | None) -> dict[str, list[float] | None]:
+    """The load average (1, 5, 15 min) at a section's ``start`` and now; None where the OS has none."""
+    return {"start": start, "end": _loadavg()}
 
 
-def _series(runs: Sequence[dict[str, Any]], key: str) -> list[float]:
+def machine_info(threads_used: list[int], loadavg_start: list[float] | None) -> dict[str, Any]:
+    return {
+        "cpu_model": cpu_model(),
+        "cpu_count": os.cpu_count(),
+        "cpus_available": cpus_available(),
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "numpy": np.__version__,
+        "gymnasium": _version("gymnasium"),
+        "pettingzoo": _version("pettingzoo"),
+        "stable_baselines3": _version("stable-baselines3"),
+        "torch_default_threads": DEFAULT_THREADS,
+        "torch_threads_used": threads_used,
+        "load": _load(loadavg_start),
+    }
+
+
+Runs = Sequence[dict[str, Any]]  # one measurement's figures per repeat, as the measuring function reported them
+
+
+def _series(runs: Runs, key: str) -> list[float]:
     return [run[key] for run in runs]
 
 
+def _ratio(a: Runs, b: Runs, key: str, key_b: str | None = None) -> float:
+    """:func:`paired_ratio` of the repeats' ``key`` in ``a`` over ``key_b`` (default ``key``) in ``b``."""
+    return paired_ratio(_series(a, key), _series(b, key_b or key))
+
+
+def _medians(runs: Runs, *keys: str) -> dict[str, float]:
+    """The median over repeats of each figure of ``keys``."""
+    return {key: median(_series(runs, key)) for key in keys}
+
+
 # ----------------------------------------------------------------------------- the sections
-def env_section(sizes: Sizes, seed: int, repeats: int, progress: ProgressFn) -> list[EnvRow]:
+def env_section(sizes: Sizes, seed: int, repeats: int, progress: ProgressFn) -> list[dict[str, Any]]:
     raw: dict[int, list[dict[str, Any]]] = {k: [] for k in ENV_AGENTS}
     for r in range(repeats):
         for k in ENV_AGENTS:
             raw[k].append(measure_env_throughput(k, sizes.env_steps, seed + r))
             progress(f"env throughput, {k} agent(s), repeat {r + 1}/{repeats}")
-    rows = []
-    for k in ENV_AGENTS:
-        api, core = _series(raw[k], "pettingzoo_steps_per_s"), _series(raw[k], "core_steps_per_s")
-        rows.append(EnvRow(k, sizes.env_steps, median(api), median(core), paired_ratio(core, api), raw[k]))
-    return rows
+    return [
+        {
+            "num_agents": k,
+            "steps": sizes.env_steps,
+            **_medians(runs, "pettingzoo_steps_per_s", "core_steps_per_s"),
+            "core_over_pettingzoo": _ratio(runs, runs, "core_steps_per_s", "pettingzoo_steps_per_s"),
+            "raw": runs,
+        }
+        for k, runs in raw.items()
+    ]
 
 
-def _contender(runs: Sequence[dict[str, Any]]) -> Contender:
-    return Contender(
-        median(_series(runs, "steps_per_s")),
-        median(_series(runs, "steps_per_cpu_s")),
-        float(np.mean(_series(runs, "greedy_success"))),
-        float(np.mean(_series(runs, "greedy_return"))),
-    )
+def _contender(runs: Runs) -> dict[str, float]:
+    """A trainer's figures at one thread count; the greedy ones are means over repeats."""
+    return {
+        **_medians(runs, "steps_per_s", "steps_per_cpu_s"),
+        **{key: float(np.mean(_series(runs, key))) for key in ("greedy_success", "greedy_return")},
+    }
 
 
 def training_section(
     sizes: Sizes, seed: int, repeats: int, train_threads: list[int], agent: AgentConfig, progress: ProgressFn
-) -> list[TrainingRow]:
-    measures = {"ours": measure_ours_training, "sb3": measure_sb3_training}
+) -> list[dict[str, Any]]:
     raw: dict[int, dict[str, list[dict[str, Any]]]] = {t: {"ours": [], "sb3": []} for t in train_threads}
     for r in range(repeats):
         for t in train_threads:
             for who in alternate(("ours", "sb3"), r):
                 torch.set_num_threads(t)
-                out = measures[who](sizes.train_steps, seed + r, agent, eval_episodes=sizes.eval_episodes)
+                out = measure_training(who, sizes.train_steps, seed + r, agent, eval_episodes=sizes.eval_episodes)
                 raw[t][who].append(out)
                 progress(
                     f"training {sizes.train_steps} steps, {'ours' if who == 'ours' else 'SB3 DQN'}, "
                     f"{t} thread(s), repeat {r + 1}/{repeats}: {out['steps_per_s']:.0f} steps/s"
                 )
-    rows = []
-    for t in train_threads:
-        ours, sb3 = raw[t]["ours"], raw[t]["sb3"]
-        rows.append(
-            TrainingRow(
-                torch_threads=t,
-                steps=sizes.train_steps,
-                ours=_contender(ours),
-                sb3=_contender(sb3),
-                ours_over_sb3=paired_ratio(_series(ours, "steps_per_s"), _series(sb3, "steps_per_s")),
-                ours_over_sb3_cpu=paired_ratio(_series(ours, "steps_per_cpu_s"), _series(sb3, "steps_per_cpu_s")),
-                raw=raw[t],
-            )
-        )
-    return rows
+    return [
+        {
+            "torch_threads": t,
+            "steps": sizes.train_steps,
+            "ours": _contender(runs["ours"]),
+            "sb3": _contender(runs["sb3"]),
+            "ours_over_sb3": _ratio(runs["ours"], runs["sb3"], "steps_per_s"),
+            "ours_over_sb3_cpu": _ratio(runs["ours"], runs["sb3"], "steps_per_cpu_s"),
+            "raw": runs,
+        }
+        for t, runs in raw.items()
+    ]
 
 
-def _step_cost(wall: list[float], cpu: list[float], k: int) -> StepCost:
-    return StepCost(median(wall), median(wall) / k, median(cpu), wall, cpu)
+def _step_cost(wall: list[float], cpu: list[float], k: int) -> dict[str, Any]:
+    """One learner layout's ms per joint step: wall and CPU, and per repeat."""
+    return {
+        "ms_per_step": median(wall),
+        "ms_per_agent_step": median(wall) / k,
+        "cpu_ms_per_step": median(cpu),
+        "raw_ms": wall,
+        "raw_cpu_ms": cpu,
+    }
 
 
-def team_section(sizes: Sizes, seed: int, repeats: int, agent: AgentConfig, progress: ProgressFn) -> list[TeamRow]:
+def team_section(
+    sizes: Sizes, seed: int, repeats: int, agent: AgentConfig, progress: ProgressFn
+) -> list[dict[str, Any]]:
     rigs = {}
     for k in TEAM_SIZES:
         for separate in (False, True):
@@ -276,16 +285,16 @@ def team_section(sizes: Sizes, seed: int, repeats: int, agent: AgentConfig, prog
                     f"{wall[k, separate][-1]:.2f} ms/step"
                 )
     return [
-        TeamRow(
-            num_agents=k,
-            steps=sizes.team_steps,
-            batched=_step_cost(wall[k, False], cpu[k, False], k),
-            separate=_step_cost(wall[k, True], cpu[k, True], k),
-            separate_over_batched=paired_ratio(wall[k, True], wall[k, False]),
-            separate_over_batched_cpu=paired_ratio(cpu[k, True], cpu[k, False]),
-            batched_over_k1=median(wall[k, False]) / median(wall[1, False]),
-            batched_over_k1_cpu=median(cpu[k, False]) / median(cpu[1, False]),
-        )
+        {
+            "num_agents": k,
+            "steps": sizes.team_steps,
+            "batched": _step_cost(wall[k, False], cpu[k, False], k),
+            "separate": _step_cost(wall[k, True], cpu[k, True], k),
+            "separate_over_batched": paired_ratio(wall[k, True], wall[k, False]),
+            "separate_over_batched_cpu": paired_ratio(cpu[k, True], cpu[k, False]),
+            "batched_over_k1": median(wall[k, False]) / median(wall[1, False]),
+            "batched_over_k1_cpu": median(cpu[k, False]) / median(cpu[1, False]),
+        }
         for k in TEAM_SIZES
     ]
 
@@ -298,9 +307,11 @@ def update_section(
     agent: AgentConfig,
     with_default_threads: bool,
     progress: ProgressFn,
-) -> UpdateSection:
+) -> dict[str, Any]:
+    """Section 4: us per update of each kind (``<name>_default_threads`` at torch's default thread count),
+    and against the bare PyTorch update."""
     rig = UpdateRig(seed, agent)
-    progress("update rig built (DQNLearner K=1, bare nn.Sequential, bare BatchedMLP)")
+    progress("update rig built (DQNLearner K=1, bare nn.Sequential)")
     sb3_rig = SB3UpdateRig(seed, agent)
     progress("SB3 update rig built (replay filled)")
 
@@ -323,33 +334,28 @@ def update_section(
             progress(f"gradient update: {name}, {t} thread(s), repeat {r + 1}/{repeats}: {w:.0f} us")
     torch.set_num_threads(threads)
     timings = {
-        name: UpdateTiming(
-            median(wall[name]),
-            median(cpu[name]),
-            paired_ratio(wall[name], wall["bare"]),
-            paired_ratio(cpu[name], cpu["bare"]),
-            wall[name],
-            cpu[name],
-        )
+        name: {
+            "wall_us": median(wall[name]),
+            "cpu_us": median(cpu[name]),
+            "over_bare": paired_ratio(wall[name], wall["bare"]),
+            "over_bare_cpu": paired_ratio(cpu[name], cpu["bare"]),
+            "raw_us": wall[name],
+            "raw_cpu_us": cpu[name],
+        }
         for name in wall
     }
-    return UpdateSection(sizes.updates, threads, DEFAULT_THREADS, timings)
+    return {"updates": sizes.updates, "threads": threads, "default_threads": DEFAULT_THREADS, "timings": timings}
 
 
-def _process_figures(runs: Sequence[dict[str, Any]], rate: str, gradient_steps: int) -> ProcessFigures:
+def _process_figures(runs: Runs, rate: str, gradient_steps: int) -> dict[str, Any]:
     """The median over repeats of each whole-process figure; ``rate``: ``steps`` or ``learner_steps``."""
-    return ProcessFigures(
-        median(_series(runs, "seconds")),
-        median(_series(runs, "cpu_seconds")),
-        median(_series(runs, f"{rate}_per_s")),
-        median(_series(runs, f"{rate}_per_cpu_s")),
-        median(_series(runs, "max_rss_mb")),
-        gradient_steps,
-    )
+    rates = {f"steps_{per}": median(_series(runs, f"{rate}_{per}")) for per in ("per_s", "per_cpu_s")}
+    return {**_medians(runs, "seconds", "cpu_seconds", "max_rss_mb"), **rates, "gradient_steps": gradient_steps}
 
 
-def lone_section(sizes: Sizes, seed: int, repeats: int, progress: ProgressFn) -> LoneSection:
-    """Section 5: whole processes of ours, SB3 and bare PyTorch, one learner each, interleaved."""
+def lone_section(sizes: Sizes, seed: int, repeats: int, progress: ProgressFn) -> dict[str, Any]:
+    """Section 5: whole processes of ours, SB3 and bare PyTorch, one learner each, interleaved;
+    ``ours_over_this``: ours' rate over each one's, paired by repeat (> 1: ours is faster)."""
     loadavg_start = _loadavg()
     raw: dict[str, list[dict[str, Any]]] = {who: [] for who in LONE_CONTENDERS}
     for r in range(repeats):
@@ -360,26 +366,32 @@ def lone_section(sizes: Sizes, seed: int, repeats: int, progress: ProgressFn) ->
                 f"lone learner, {who}, {sizes.lone_steps} steps, repeat {r + 1}/{repeats}: "
                 f"{out['seconds']:.1f} s, {out['steps_per_s']:.0f} steps/s"
             )
-    ours = raw["ours"]
     contenders = {
-        who: LoneContender(
-            _process_figures(runs, "steps", runs[0]["gradient_steps"]),
-            paired_ratio(_series(ours, "steps_per_s"), _series(runs, "steps_per_s")),
-            paired_ratio(_series(ours, "steps_per_cpu_s"), _series(runs, "steps_per_cpu_s")),
-            runs,
-        )
+        who: {
+            "figures": _process_figures(runs, "steps", runs[0]["gradient_steps"]),
+            "ours_over_this": _ratio(raw["ours"], runs, "steps_per_s"),
+            "ours_over_this_cpu": _ratio(raw["ours"], runs, "steps_per_cpu_s"),
+            "raw": runs,
+        }
         for who, runs in raw.items()
     }
-    return LoneSection(sizes.lone_steps, LONE_MAP, LONE_AGENT, contenders, Load(loadavg_start, _loadavg()))
+    return {
+        "steps": sizes.lone_steps,
+        "map": LONE_MAP,
+        "hyperparameters": LONE_AGENT,
+        "contenders": contenders,
+        "load": _load(loadavg_start),
+    }
 
 
-def replicas_section(sizes: Sizes, seed: int, repeats: int, cores: int, progress: ProgressFn) -> ReplicasSection:
+def replicas_section(sizes: Sizes, seed: int, repeats: int, cores: int, progress: ProgressFn) -> dict[str, Any]:
     """Section 6: learner-steps/s of one process of R replicas (for each R and each engine, one thread)
     against ``cores`` SB3 processes run side by side; the SB3 figure is measured once per repeat and
     paired with every row of that repeat."""
     loadavg_start = _loadavg()
     agent = dataclasses.replace(LONE_AGENT, learning_starts=sizes.replica_learning_starts)
     steps = sizes.replica_steps
+
     ours: dict[tuple[Engine, int], list[dict[str, Any]]] = {
         (engine, count): [] for engine in REPLICA_ENGINES for count in sizes.replica_counts
     }
@@ -401,42 +413,32 @@ def replicas_section(sizes: Sizes, seed: int, repeats: int, cores: int, progress
                 f"replicas, {label}, {steps} steps, repeat {r + 1}/{repeats}: {out['seconds']:.1f} s, "
                 f"{out['learner_steps_per_s']:.0f} learner-steps/s"
             )
-    sb3_rate, sb3_cpu_rate = _series(sb3, "learner_steps_per_s"), _series(sb3, "learner_steps_per_cpu_s")
     team = TEAM_MAP["num_agents"]
     rows = [
-        ReplicaRow(
-            engine=engine.value,
-            replicas=count,
-            learners=count * team,
-            figures=_process_figures(runs, "learner_steps", runs[0]["gradient_steps"]),
-            ours_over_sb3=paired_ratio(_series(runs, "learner_steps_per_s"), sb3_rate),
-            ours_over_sb3_cpu=paired_ratio(_series(runs, "learner_steps_per_cpu_s"), sb3_cpu_rate),
-            raw=runs,
-        )
+        {
+            "engine": engine.value,
+            "replicas": count,
+            "learners": count * team,
+            "figures": _process_figures(runs, "learner_steps", runs[0]["gradient_steps"]),
+            "ours_over_sb3": _ratio(runs, sb3, "learner_steps_per_s"),
+            "ours_over_sb3_cpu": _ratio(runs, sb3, "learner_steps_per_cpu_s"),
+            "raw": runs,
+        }
         for (engine, count), runs in ours.items()
     ]
-    return ReplicasSection(
-        steps=steps,
-        learning_starts=agent.learning_starts,
-        team_agents=team,
-        map=TEAM_MAP,
-        hyperparameters=agent,
-        ours_threads=REPLICA_THREADS,
-        sb3_processes=cores,
-        sb3=_process_figures(sb3, "learner_steps", sb3[0]["gradient_steps"][0]),
-        sb3_raw=sb3,
-        rows=rows,
-        load=Load(loadavg_start, _loadavg()),
-    )
-
-
-def _marginal_figures(runs: Sequence[dict[str, Any]]) -> MarginalFigures:
-    return MarginalFigures(
-        median(_series(runs, "seconds_per_1k_steps")),
-        median(_series(runs, "cpu_seconds_per_1k_steps")),
-        median(_series(runs, "agent_steps_per_s")),
-        median(_series(runs, "max_rss_mb")),
-    )
+    return {
+        "steps": steps,
+        "learning_starts": agent.learning_starts,
+        "team_agents": team,
+        "map": TEAM_MAP,
+        "hyperparameters": agent,
+        "ours_threads": REPLICA_THREADS,
+        "sb3_processes": cores,
+        "sb3": _process_figures(sb3, "learner_steps", sb3[0]["gradient_steps"][0]),  # the processes side by side
+        "sb3_raw": sb3,
+        "rows": rows,
+        "load": _load(loadavg_start),
+    }
 
 
 def _git_commit(checkout: Path) -> str | None:
@@ -447,57 +449,62 @@ def _git_commit(checkout: Path) -> str | None:
     return done.stdout.strip() if done.returncode == 0 else None
 
 
+MARGINAL_FIGURES = ("seconds_per_1k_steps", "cpu_seconds_per_1k_steps", "agent_steps_per_s", "max_rss_mb")
+
+
 def tabular_section(
     sizes: Sizes, seed: int, repeats: int, baseline: Path | None, progress: ProgressFn
-) -> TabularSection:
+) -> dict[str, Any]:
     """Section 7: per mode and R, the marginal cost of this checkout's process of R SARSA replicas and,
-    with ``baseline``, of that checkout's, the two alternating within each repeat."""
+    with ``baseline``, of that checkout's, the two alternating within each repeat; ``speedup``: the
+    baseline's seconds per step over ours', paired by repeat (> 1: ours is faster; None without a baseline)."""
     loadavg_start = _loadavg()
     checkouts = {"ours": None, **({"baseline": baseline} if baseline is not None else {})}
     short, long = sizes.tabular_steps
-    rows = []
-    for mode in sizes.tabular_modes:
-        for count in sizes.tabular_counts:
-            raw: dict[str, list[dict[str, Any]]] = {who: [] for who in checkouts}
-            for r in range(repeats):
-                for who in alternate(list(checkouts), r):
-                    out = measure_marginal(checkouts[who], count, mode, short, long, seed + r)
-                    raw[who].append(out)
-                    progress(
-                        f"tabular, {who}, {mode}, {count} replica(s), repeat {r + 1}/{repeats}: "
-                        f"{out['seconds_per_1k_steps']:.2f} s per 1,000 steps"
-                    )
-            paired = baseline is not None
-            rows.append(
-                TabularRow(
-                    mode=mode,
-                    replicas=count,
-                    ours=_marginal_figures(raw["ours"]),
-                    baseline=_marginal_figures(raw["baseline"]) if paired else None,
-                    speedup=paired_ratio(*(_series(raw[w], "seconds_per_1k_steps") for w in ("baseline", "ours")))
-                    if paired
-                    else None,
-                    speedup_cpu=paired_ratio(
-                        *(_series(raw[w], "cpu_seconds_per_1k_steps") for w in ("baseline", "ours"))
-                    )
-                    if paired
-                    else None,
-                    raw=raw,
+    paired = baseline is not None
+
+    def row(mode: str, count: int) -> dict[str, Any]:
+        raw: dict[str, list[dict[str, Any]]] = {who: [] for who in checkouts}
+        for r in range(repeats):
+            for who in alternate(list(checkouts), r):
+                out = measure_marginal(checkouts[who], count, mode, short, long, seed + r)
+                raw[who].append(out)
+                progress(
+                    f"tabular, {who}, {mode}, {count} replica(s), repeat {r + 1}/{repeats}: "
+                    f"{out['seconds_per_1k_steps']:.2f} s per 1,000 steps"
                 )
-            )
-    return TabularSection(
-        env=TABULAR_ENV,
-        agents=TABULAR_AGENTS,
-        steps=[short, long],
-        eval_every=TABULAR_EVAL_EVERY,
-        baseline=None if baseline is None else str(baseline),
-        baseline_commit=None if baseline is None else _git_commit(baseline),
-        rows=rows,
-        load=Load(loadavg_start, _loadavg()),
-    )
+        figures = {who: _medians(runs, *MARGINAL_FIGURES) for who, runs in raw.items()}
+        return {
+            "mode": mode,
+            "replicas": count,
+            "ours": figures["ours"],
+            "baseline": figures.get("baseline"),
+            "speedup": _ratio(raw["baseline"], raw["ours"], "seconds_per_1k_steps") if paired else None,
+            "speedup_cpu": _ratio(raw["baseline"], raw["ours"], "cpu_seconds_per_1k_steps") if paired else None,
+            "raw": raw,
+        }
+
+    return {
+        "env": TABULAR_ENV,
+        "agents": TABULAR_AGENTS,
+        "steps": [short, long],
+        "eval_every": TABULAR_EVAL_EVERY,
+        "baseline": None if baseline is None else str(baseline),
+        "baseline_commit": None if baseline is None else _git_commit(baseline),
+        "rows": [row(mode, count) for mode in sizes.tabular_modes for count in sizes.tabular_counts],
+        "load": _load(loadavg_start),
+    }
 
 
 # ----------------------------------------------------------------------------- the document
+def _plain(value: Any) -> Any:
+    if isinstance(value, Enum):
+        return value.value
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return dataclasses.asdict(value)
+    raise TypeError(f"{type(value).__name__} is not JSON")
+
+
 def run_benchmark(
     profile: str,
     seed: int,
@@ -509,8 +516,9 @@ def run_benchmark(
     sections: Sequence[str] = SECTIONS,
     progress: ProgressFn | None = None,
     baseline: Path | None = None,
-) -> Benchmark:
-    """The measurements of ``sections`` (all seven by default).
+) -> dict[str, Any]:
+    """The JSON document of the measurements of ``sections`` (all seven by default), in plain JSON types;
+    a section not measured is left out.
 
     ``sizes`` defaults to ``PROFILES[profile]``; ``train_threads`` (torch threads of section 2) to
     ``[threads]``; ``progress`` to numbered lines on stderr; ``baseline``: the earlier checkout section 7
@@ -535,34 +543,34 @@ def run_benchmark(
             "tabular": repeats * len(sizes.tabular_modes) * len(sizes.tabular_counts) * (1 if baseline is None else 2),
         }
         progress = Progress(sum(steps[section] for section in sections))
+    measures: dict[str, Callable[[ProgressFn], Any]] = {  # in table order
+        "env": lambda p: env_section(sizes, seed, repeats, p),
+        "training": lambda p: training_section(sizes, seed, repeats, train_threads, agent, p),
+        "team": lambda p: team_section(sizes, seed, repeats, team_agent, p),
+        "update": lambda p: update_section(sizes, seed, repeats, threads, agent, with_default_threads, p),
+        "lone": lambda p: lone_section(sizes, seed, repeats, p),
+        "replicas": lambda p: replicas_section(sizes, seed, repeats, cpus_available(), p),
+        "tabular": lambda p: tabular_section(sizes, seed, repeats, baseline, p),
+    }
     loadavg_start = _loadavg()
-    torch.set_num_threads(threads)
-    env = env_section(sizes, seed, repeats, progress) if "env" in sections else None
-    training = (
-        training_section(sizes, seed, repeats, train_threads, agent, progress) if "training" in sections else None
-    )
-    torch.set_num_threads(threads)
-    team = team_section(sizes, seed, repeats, team_agent, progress) if "team" in sections else None
-    update = (
-        update_section(sizes, seed, repeats, threads, agent, with_default_threads, progress)
-        if "update" in sections
-        else None
-    )
-    lone = lone_section(sizes, seed, repeats, progress) if "lone" in sections else None
-    replicas = replicas_section(sizes, seed, repeats, cpus_available(), progress) if "replicas" in sections else None
-    tabular = tabular_section(sizes, seed, repeats, baseline, progress) if "tabular" in sections else None
-    settings = Settings(
-        profile=profile,
-        seed=seed,
-        repeats=repeats,
-        threads=threads,
-        train_threads=train_threads,
-        sections=list(sections),
-        sizes=sizes,
-        hyperparameters=agent,
-        team_learning_starts=team_agent.learning_starts,
-        env_map=BENCH_MAP,
-        source_map=SOURCE_MAP,
-    )
-    machine = machine_info(sorted({threads, *train_threads}), Load(loadavg_start, _loadavg()))
-    return Benchmark(settings, machine, METHOD, env, training, team, update, lone, replicas, tabular)
+    measured = {}
+    for section, measure in measures.items():
+        if section in sections:
+            torch.set_num_threads(threads)  # section 2 changes it
+            measured[section] = measure(progress)
+    settings = {
+        "profile": profile,
+        "seed": seed,
+        "repeats": repeats,
+        "threads": threads,
+        "train_threads": train_threads,
+        "sections": list(sections),
+        "sizes": sizes,
+        "hyperparameters": agent,
+        "team_learning_starts": team_agent.learning_starts,
+        "env_map": BENCH_MAP,
+        "source_map": SOURCE_MAP,
+    }
+    machine = machine_info(sorted({threads, *train_threads}), loadavg_start)
+    document = {"settings": settings, "machine": machine, "method": METHOD, **measured}
+    return json.loads(json.dumps(document, default=_plain))  # enums by value, dataclasses as dicts, tuples as lists

@@ -36,20 +36,9 @@ def tabular_command(checkout: Path | None, run_dir: Path, steps: int, replicas: 
     :param seed: the first replica's seed
     """
     program = ["-m", "dqn_transfer.cli.train"] if checkout is None else [str(checkout / "train.py")]
-    return [
-        sys.executable,
-        *program,
-        "agent=sarsa",
-        f"env={TABULAR_ENV}",
-        f"mode={mode}",
-        f"replicas.seeds={replicas}",
-        f"seed={seed}",
-        f"total_steps={steps}",
-        f"eval_every={TABULAR_EVAL_EVERY}",
-        f"checkpoint_every={steps}",
-        "progress=false",
-        f"hydra.run.dir={run_dir}",
-    ]
+    game = ["agent=sarsa", f"env={TABULAR_ENV}", f"mode={mode}", f"replicas.seeds={replicas}", f"seed={seed}"]
+    run = [f"total_steps={steps}", f"eval_every={TABULAR_EVAL_EVERY}", f"checkpoint_every={steps}", "progress=false"]
+    return [sys.executable, *program, *game, *run, f"hydra.run.dir={run_dir}"]
 
 
 def measure_marginal(

@@ -8,8 +8,6 @@ Python loop, each given its own row of the joint transition.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from dqn_transfer.agents import DQNLearner, Transition
@@ -31,16 +29,9 @@ class TeamRig:
     so every timed step trains. ``step_count`` counts the joint env steps played so far.
     """
 
-    def __init__(
-        self,
-        num_agents: int,
-        separate: bool,
-        seed: int,
-        agent: AgentConfig = BENCH_AGENT,
-        env_kwargs: dict[str, Any] = BENCH_MAP,
-    ):
+    def __init__(self, num_agents: int, separate: bool, seed: int, agent: AgentConfig = BENCH_AGENT):
         self.num_agents, self.separate, self.agent = num_agents, separate, agent
-        self.game = make_game(**env_kwargs, num_agents=num_agents)
+        self.game = make_game(**BENCH_MAP, num_agents=num_agents)
         layout, actions = self.game.obs_layout(), self.game.num_actions
         if separate:
             self.learners = [DQNLearner(1, layout, actions, agent, seed=seed + i) for i in range(num_agents)]

@@ -43,14 +43,8 @@ def greedy_check(policy: Policy, env_kwargs: dict[str, Any], episodes: int, seed
     }
 
 
-def measure_ours_training(
-    steps: int,
-    seed: int,
-    agent: AgentConfig = BENCH_AGENT,
-    env_kwargs: dict[str, Any] = SOURCE_MAP,
-    eval_episodes: int = 3,
-) -> dict[str, Any]:
-    """Env steps/s of our trainer on the source task, its evaluations and checkpoints subtracted."""
+def _train_ours(steps: int, seed: int, agent: AgentConfig, env_kwargs: dict[str, Any]) -> tuple[dict, Policy]:
+    """Our trainer on the source task, its evaluations and checkpoints subtracted."""
     config = TrainConfig(
         env=EnvConfig(**env_kwargs),
         agent=agent,
@@ -68,24 +62,18 @@ def measure_ours_training(
             summary = trainer.run()
     overhead = summary["overhead"]
     learner: Any = trainer.learner  # the DQN family's batched learner
-    return {
+    figures = {
         **rates(steps, run.wall - overhead["wall"], run.cpu - overhead["cpu"]),
         "gradient_steps": int(learner.num_gradient_steps),
         "run_seconds": run.wall,
         "excluded_seconds": overhead["wall"],
         "excluded_cpu_seconds": overhead["cpu"],
-        **greedy_check(greedy_policy(learner), env_kwargs, eval_episodes, seed + GREEDY_SEED_OFFSET),
     }
+    return figures, greedy_policy(learner)
 
 
-def measure_sb3_training(
-    steps: int,
-    seed: int,
-    agent: AgentConfig = BENCH_AGENT,
-    env_kwargs: dict[str, Any] = SOURCE_MAP,
-    eval_episodes: int = 3,
-) -> dict[str, Any]:
-    """Env steps/s of SB3's ``DQN.learn(steps)`` with the same hyperparameters."""
+def _train_sb3(steps: int, seed: int, agent: AgentConfig, env_kwargs: dict[str, Any]) -> tuple[dict, Policy]:
+    """SB3's ``DQN.learn(steps)`` with the same hyperparameters."""
     model = sb3_dqn(agent, env_kwargs, seed)
     with Stopwatch() as run:
         model.learn(total_timesteps=steps, progress_bar=False)
@@ -94,8 +82,18 @@ def measure_sb3_training(
     def policy(obs: np.ndarray, live: np.ndarray) -> np.ndarray:
         return np.array([int(model.predict(obs[0], deterministic=True)[0])])
 
-    return {
-        **rates(steps, run.wall, run.cpu),
-        "gradient_steps": int(model._n_updates),  # SB3 keeps its gradient-step count only here
-        **greedy_check(policy, env_kwargs, eval_episodes, seed + GREEDY_SEED_OFFSET),
-    }
+    # SB3 keeps its gradient-step count only in _n_updates
+    return {**rates(steps, run.wall, run.cpu), "gradient_steps": int(model._n_updates)}, policy
+
+
+def measure_training(
+    who: str,
+    steps: int,
+    seed: int,
+    agent: AgentConfig = BENCH_AGENT,
+    env_kwargs: dict[str, Any] = SOURCE_MAP,
+    eval_episodes: int = 3,
+) -> dict[str, Any]:
+    """Env steps/s of ``who``'s training (``ours`` or ``sb3``), then its greedy episodes' figures."""
+    figures, policy = (_train_ours if who == "ours" else _train_sb3)(steps, seed, agent, env_kwargs)
+    return {**figures, **greedy_check(policy, env_kwargs, eval_episodes, seed + GREEDY_SEED_OFFSET)}

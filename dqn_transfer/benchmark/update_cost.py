@@ -37,27 +37,6 @@ UPDATE_NAMES = ("bare", "in_memory", "ours", "sample", "sb3")
 THREAD_NAMES = ("bare", "ours")  # also timed at torch's default thread count
 
 
-def td_update(
-    online: nn.Module,
-    target: nn.Module,
-    optimizer: torch.optim.Optimizer,
-    clip: Callable[[], Any],
-    batch: ReplayBatch,
-    gamma: float,
-) -> None:
-    """One DQN gradient step on a batch in memory, ``[B, ...]`` for an ``nn.Sequential`` or
-    ``[K, B, ...]`` for a ``BatchedMLP``: the Huber loss is averaged over the batch and summed over
-    members, as ``DQNLearner`` does (for ``[B, ...]`` that is the plain batch mean)."""
-    with torch.no_grad():
-        td_target = dqn_targets(batch.rewards, target(batch.next_obs), batch.terminated, gamma)
-    q_taken = online(batch.obs).gather(-1, batch.actions.unsqueeze(-1)).squeeze(-1)  # type: ignore[attr-defined]  # a torch batch here
-    loss = F.smooth_l1_loss(q_taken, td_target, reduction="none").mean(dim=-1).sum()
-    optimizer.zero_grad()
-    loss.backward()
-    clip()
-    optimizer.step()
-
-
 def time_calls(fn: Callable[[], Any], calls: int, max_seconds: float | None = None) -> tuple[float, float]:
     """(wall, CPU) microseconds per call of ``fn``: the mean over ``calls`` calls, or over those done
     within ``max_seconds`` if that comes first. One untimed call first."""
@@ -96,14 +75,16 @@ class UpdateRig:
         self.optimizer = torch.optim.Adam(self.q.parameters(), lr=agent.lr)
 
     def bare_update(self) -> None:
-        td_update(
-            self.q,
-            self.q_target,
-            self.optimizer,
-            lambda: nn.utils.clip_grad_norm_(self.q.parameters(), self.agent.max_grad_norm),
-            self.flat_batch,
-            self.agent.gamma,
-        )
+        """One CleanRL-style DQN gradient step of the ``nn.Sequential`` on the batch in memory."""
+        batch = self.flat_batch
+        with torch.no_grad():
+            td_target = dqn_targets(batch.rewards, self.q_target(batch.next_obs), batch.terminated, self.agent.gamma)
+        q_taken = self.q(batch.obs).gather(-1, batch.actions.unsqueeze(-1)).squeeze(-1)  # type: ignore[attr-defined]  # a torch batch here
+        loss = F.smooth_l1_loss(q_taken, td_target)
+        self.optimizer.zero_grad()
+        loss.backward()
+        nn.utils.clip_grad_norm_(self.q.parameters(), self.agent.max_grad_norm)
+        self.optimizer.step()
 
     def time(self, which: str, updates: int, max_seconds: float | None = None) -> tuple[float, float]:
         """(wall, CPU) microseconds per update of ``which`` in (bare, in_memory, ours, sample)."""

@@ -78,23 +78,17 @@ def train_command(
     :param threads: ``threads``, torch's CPU threads
     :param replicas: ``replicas.seeds``
     """
-    return [
-        sys.executable,
-        "-m",
-        "dqn_transfer.cli.train",
-        *(f"env.{key}={_override(value)}" for key, value in env_kwargs.items()),
-        "agent=dqn",
-        *(f"agent.{key}={_override(getattr(agent, key))}" for key in MATCHED_KEYS),
+    env = [f"env.{key}={_override(value)}" for key, value in env_kwargs.items()]
+    hyperparameters = [f"agent.{key}={_override(getattr(agent, key))}" for key in MATCHED_KEYS]
+    run = [
         f"seed={seed}",
         f"total_steps={steps}",
         f"eval_every={steps}",
         "eval_episodes=1",
         f"checkpoint_every={steps}",
-        "progress=false",
-        f"threads={threads}",
-        f"replicas.seeds={replicas}",
-        f"hydra.run.dir={run_dir}",
     ]
+    process = ["progress=false", f"threads={threads}", f"replicas.seeds={replicas}", f"hydra.run.dir={run_dir}"]
+    return [sys.executable, "-m", "dqn_transfer.cli.train", *env, "agent=dqn", *hyperparameters, *run, *process]
 
 
 def reference_command(
@@ -108,20 +102,8 @@ def reference_command(
     :param map_name: ``lone`` (LONE_MAP) or ``bench`` (BENCH_MAP)
     :param learning_starts: env steps before the first update
     """
-    return [
-        sys.executable,
-        "-m",
-        "dqn_transfer.benchmark.processes",
-        program,
-        "--steps",
-        str(steps),
-        "--seed",
-        str(seed),
-        "--map",
-        map_name,
-        "--learning-starts",
-        str(learning_starts),
-    ]
+    options = ["--steps", str(steps), "--seed", str(seed), "--map", map_name, "--learning-starts", str(learning_starts)]
+    return [sys.executable, "-m", "dqn_transfer.benchmark.processes", program, *options]
 
 
 def run_together(
@@ -245,20 +227,11 @@ def measure_lone(who: str, steps: int, seed: int) -> dict[str, Any]:
         with tempfile.TemporaryDirectory(prefix="dqn_transfer_bench_") as tmp:
             run_dir = Path(tmp) / "run"
             timing = run_together([train_command(run_dir, steps, seed, agent, {**LONE_MAP, "num_agents": 1})])
-            report = trainer_report(run_dir)
-        done = {
-            "gradient_steps": report["gradient_steps"][0],
-            "episodes": report["episodes"][0],
-            "steps_done": report["steps"][0],
-        }
+            report = {key: values[0] for key, values in trainer_report(run_dir).items() if key != "replicas"}
     else:
         timing = run_together([reference_command(who, steps, seed)])
         report = timing["processes"][0]["report"]
-        done = {
-            "gradient_steps": report["gradient_steps"],
-            "episodes": report["episodes"],
-            "steps_done": report["steps"],
-        }
+    done = {"gradient_steps": report["gradient_steps"], "episodes": report["episodes"], "steps_done": report["steps"]}
     return {**_figures(steps, timing), **done}
 
 

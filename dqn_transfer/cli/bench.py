@@ -75,9 +75,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--threads",
         type=positive_int,
         default=1,
-        help="torch threads of sections 1-4 (default 1, fastest for these tiny networks); "
-        "section 4 also times torch's default thread count. Section 5's processes run on "
-        "one thread, section 6's process of ours on every core",
+        help="torch threads of sections 1-4 (default 1, fastest for these tiny networks); section 4 also times "
+        "torch's default thread count. Section 5's processes and section 6's process of ours run on one thread",
     )
     parser.add_argument(
         "--sections",
@@ -139,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
     total_seconds = time.perf_counter() - start
     table = render_markdown(results)
     print(table)
-    document = {**results.to_json(), "total_seconds": total_seconds, "markdown": table}
+    document = {**results, "total_seconds": total_seconds, "markdown": table}
     try:
         atomic_write(args.out, (json.dumps(document, indent=2) + "\n").encode())
     except CheckpointError as err:  # atomic_write words its failure for checkpoints
