@@ -33,13 +33,16 @@ from dqn_transfer.analysis.hierarchical import (
     variance_components,
 )
 from dqn_transfer.analysis.stats import Estimate
-from dqn_transfer.analysis.transfer_metrics import asymptotic_performance, mean_over_training
+from dqn_transfer.analysis.transfer_metrics import asymptotic_performance
 from dqn_transfer.enums import Bound
 from dqn_transfer.envs.game import make_game
 from dqn_transfer.envs.settings import ENV_KEYS
 from dqn_transfer.evaluation.bounds import evaluate_bound
+from dqn_transfer.experiments.claims import margin_verdict, trend_verdict
 from dqn_transfer.experiments.raw_data import RunData
-from dqn_transfer.experiments.scoring import FINAL_TAIL, learner, mode, team_size
+from dqn_transfer.experiments.results import INCONCLUSIVE
+from dqn_transfer.experiments.scoring import FINAL_TAIL, final_score, group, learner, mode, team_size
+from dqn_transfer.experiments.scoring import score as auc_score  # the mean score over training
 
 FAILURE_BELOW = 0.5  # a run fails when its final score is under half the optimal return
 SMALLEST_EFFECT = 0.10  # in final score: the registered smallest effect of interest
@@ -85,20 +88,6 @@ def select(runs: Sequence[RunData], **conditions: Callable[[RunData], object] | 
 # ------------------------------------------------------------------------------------------- run values
 
 
-def final_score(run: RunData, budget: int | None = None) -> float:
-    """The mean score of the last 20% of the run's evaluations at or before ``budget`` (None: all)."""
-    steps, values = run.score_curve()
-    if budget is not None:
-        kept = steps <= budget
-        steps, values = steps[kept], values[kept]
-    return asymptotic_performance((steps, values), FINAL_TAIL)
-
-
-def auc_score(run: RunData) -> float:
-    """The mean score over training (area under the learning curve divided by its steps)."""
-    return mean_over_training(run.score_curve())
-
-
 def final_return(run: RunData) -> float:
     """The final team return in return units (claim 1: its maps have no optimum)."""
     return asymptotic_performance(run.curve(), FINAL_TAIL)
@@ -106,10 +95,8 @@ def final_return(run: RunData) -> float:
 
 def values_by_map(runs: Sequence[RunData], value: RunValue) -> list[np.ndarray]:
     """The runs' values, one array per map (maps in seed order, runs in seed order)."""
-    maps: dict[int, list[RunData]] = {}
-    for run in runs:
-        maps.setdefault(run.map_seed, []).append(run)
-    return [np.array([value(r) for r in sorted(maps[m], key=lambda r: r.seed)]) for m in sorted(maps)]
+    maps = group(runs, lambda r: r.map_seed)
+    return [np.array([value(r) for r in maps[m]]) for m in sorted(maps)]
 
 
 def paired_by_map(x: Sequence[RunData], y: Sequence[RunData], value: RunValue) -> tuple[list[np.ndarray], ...]:
@@ -313,17 +300,11 @@ class Claim1Result:
 def claim1(runs: Sequence[RunData], rng: np.random.Generator) -> Claim1Result:
     comp, coop = select(runs, mode="competitive"), select(runs, mode="cooperative")
     diff = difference("cooperative - competitive", coop, comp, final_return, rng, ALPHA)
-    estimate = diff.difference.estimate
-    if not estimate.has_ci:
-        verdict = "INCONCLUSIVE"
-    elif estimate.high < CLAIM1_MARGIN:
-        verdict = "SUPPORTED"
-    elif estimate.low > CLAIM1_MARGIN:
-        verdict = "NOT SUPPORTED"
-    else:
-        verdict = "INCONCLUSIVE"
     return Claim1Result(
-        summarize(comp, final_return, rng, score=False), summarize(coop, final_return, rng, score=False), diff, verdict
+        summarize(comp, final_return, rng, score=False),
+        summarize(coop, final_return, rng, score=False),
+        diff,
+        margin_verdict(diff.difference.estimate, CLAIM1_MARGIN),
     )
 
 
@@ -399,15 +380,8 @@ def claim2(runs: Sequence[RunData], rng: np.random.Generator) -> Claim2Result:
                 effects[(m, pair)] = independent_mean_difference(
                     _pair_differences(by_cell[("high", m)], pair), _pair_differences(by_cell[("low", m)], pair), rng
                 )
-    primary = [slopes[("high", pair)] for pair in MODE_PAIRS] if "high" in levels else []
-    if not primary or not all(s.estimate.has_ci for s in primary):
-        verdict = "INCONCLUSIVE"
-    elif all(s.estimate.low > 0 for s in primary):
-        verdict = "SUPPORTED"
-    elif any(s.estimate.high < 0 for s in primary):
-        verdict = "CONTRADICTED"
-    else:
-        verdict = "NOT SUPPORTED"
+    primary = [slopes[("high", pair)].estimate for pair in MODE_PAIRS] if "high" in levels else []
+    verdict = trend_verdict(primary) if primary else INCONCLUSIVE
     return Claim2Result(cells, floors, slopes, effects, verdict)
 
 

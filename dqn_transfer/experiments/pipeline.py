@@ -29,13 +29,10 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
-from hydra import compose, initialize_config_dir
-from hydra.core.override_parser.overrides_parser import OverridesParser
-
 from dqn_transfer.analysis.budget import Budget, BudgetRule, budgets_per_cell
 from dqn_transfer.analysis.plots import flatten
 from dqn_transfer.analysis.transfer_metrics import Curve
-from dqn_transfer.config import CONFIG_DIR, register_configs, to_plain
+from dqn_transfer.config import to_plain
 from dqn_transfer.experiments import hierarchical_report, paired_report
 from dqn_transfer.experiments.edition import BUDGETS_FILE, BUDGETS_TABLE, PILOT_DIR, Edition, Profile
 from dqn_transfer.experiments.raw_data import (
@@ -55,10 +52,12 @@ from dqn_transfer.experiments.sweeps import (
     RUNS_DIR,
     Multirun,
     ReproduceError,
+    composed,
     count_jobs,
     quoted_path,
     read_stamp,
     run_multirun,
+    swept_values,
 )
 
 CHEST_REWARD = 100.0  # claim 1's maps have no optimum: its curves are counted in chests for the rule
@@ -86,34 +85,16 @@ class Job:
     config: dict[str, Any]
 
 
-def _composed(experiment: str, overrides: Sequence[str] = (), hydra_config: bool = False) -> Any:
-    register_configs()
-    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-        return compose(
-            config_name="config", overrides=[f"experiment={experiment}", *overrides], return_hydra_config=hydra_config
-        )
-
-
 @cache
 def sweep_jobs(experiment: str) -> tuple[Job, ...]:
     """The jobs of ``experiment=<experiment>``'s sweep, numbered as Hydra's basic sweeper numbers them (the
     product of the swept values, the last key varying fastest); composed once per process (a config is
     composed in about 0.2 s)."""
-    sweeper = _composed(experiment, hydra_config=True).hydra.sweeper
-    params = {key: str(value) for key, value in (sweeper.params or {}).items()}
-    parser = OverridesParser.create()
-    swept = {
-        override.get_key_element(): (
-            list(override.sweep_string_iterator())
-            if override.is_sweep_override()
-            else [override.get_value_element_as_str()]
-        )
-        for override in parser.parse_overrides([f"{k}={v}" for k, v in params.items()])
-    }
+    swept = swept_values(experiment)
     jobs = []
     for number, combination in enumerate(itertools.product(*swept.values())):
         values = dict(zip(swept, combination))
-        jobs.append(Job(number, values, to_plain(_composed(experiment, [f"{k}={v}" for k, v in values.items()]))))
+        jobs.append(Job(number, values, to_plain(composed(experiment, [f"{k}={v}" for k, v in values.items()]))))
     return tuple(jobs)
 
 

@@ -10,6 +10,7 @@ noise: differences are paired by that unit. rliable's IQM and probability of imp
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -52,8 +53,11 @@ def raw_score(run: RunData) -> float:
     return mean_over_training(run.curve())
 
 
-def final_score(run: RunData) -> float:
-    return asymptotic_performance(run.score_curve(), FINAL_TAIL)
+def final_score(run: RunData, budget: int | None = None) -> float:
+    """The mean score of the last 20% of the run's evaluations at or before ``budget`` (None: all)."""
+    steps, values = run.score_curve()
+    kept = steps <= (math.inf if budget is None else budget)
+    return asymptotic_performance((steps[kept], values[kept]), FINAL_TAIL)
 
 
 def on_total_steps(run: RunData) -> tuple[np.ndarray, np.ndarray]:
