@@ -1,12 +1,9 @@
 """The registered questions (the second edition's), answered from the raw data by its rules
 (``results/v2/VERDICT_RULES.md``).
 
-Every interval is the hierarchical bootstrap's (:mod:`dqn_transfer.analysis.hierarchical`: maps drawn with
-replacement, then runs, or paired (map, seed) differences, within each drawn map); every p-value its two-sided
-bootstrap p, adjusted by Holm over a registered family. The functions here take runs
-(:class:`~dqn_transfer.experiments.raw_data.RunData`) and one random stream, and return typed results;
-:mod:`dqn_transfer.experiments.hierarchical_report` renders them. Pure functions of the data: the same
-data and seed give the same digits.
+Every interval is the hierarchical bootstrap's (:mod:`dqn_transfer.analysis.hierarchical`); every p-value its
+two-sided bootstrap p, adjusted by Holm over a registered family. Pure functions of the data and one random
+stream: the same data and seed give the same digits.
 """
 
 from __future__ import annotations

@@ -1,10 +1,7 @@
 """The registered hierarchical analysis's ``REPORT.md`` and figures (the second edition's), from its data alone.
 
-It reads ``data/<experiment>.jsonl`` and ``data/manifest.json`` (the full runs), ``budgets.md`` (the pilot's
-budgets) and ``tuning/tuning.md`` (the tuning's chosen values), answers each question by
-:mod:`dqn_transfer.experiments.hierarchical_claims` with its own seeded random stream (:func:`stream`), and
-writes the report beside them (or into another directory, with copies of the figures it links to); nothing else
-is read (no clock, no checkout), so the same data give the same bytes.
+Each question has its own seeded random stream (:func:`stream`) and nothing else is read (no clock, no
+checkout), so the same data give the same bytes.
 """
 
 from __future__ import annotations

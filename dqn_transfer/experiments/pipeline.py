@@ -1,20 +1,11 @@
 """The study's one pipeline, for any edition (:mod:`~dqn_transfer.experiments.edition`): tune -> pilot ->
-budgets -> runs -> analysis -> report, each stage into ``OUT``; an edition runs the stages it lists.
+budgets -> runs -> report, each stage into ``OUT``; an edition runs the stages it lists.
 
-1. **tune** (:mod:`dqn_transfer.experiments.tuning`): the searches into ``OUT/tuning/``;
-2. **pilot** (:func:`run_pilots`): every experiment's sweep with the profile's pilot overrides (maps apart)
-   into ``OUT/pilot/runs/<name>/``, its raw data into ``OUT/pilot/data/<name>.jsonl``; then the **budgets**
-   (:func:`pilot_budgets`): the edition's rule on each job's pilot runs and, for each comparison group (the
-   conditions compared with each other), the largest of its jobs' budgets; ``OUT/budgets.json`` and
-   ``OUT/budgets.md``, from the pilot's raw data alone;
-3. **full** (:func:`run_full`): each experiment's runs, into ``OUT/runs/<name>/``: with a pilot stage, each
-   comparison group as one Hydra multirun at its budget (``OUT/runs/<name>/<group>/``), else the experiment
-   file's own sweep; every run's raw data into ``OUT/data/<name>.jsonl``, with the manifest;
-4. **report** (:func:`write_report`): ``REPORT.md`` and its figures from ``OUT``'s data alone, by the
-   edition's analysis.
-
-A group is a set of an experiment's jobs (one per combination of its sweep's values) that share a budget; it
-must be a product of values of the swept keys (so one multirun runs it), which :func:`sweep_groups` checks.
+The pilot (:func:`run_pilots`) runs every experiment's sweep with the profile's pilot overrides; the edition's
+budget rule on each job's pilot runs gives its budget, and each comparison group (the conditions compared with
+each other) runs at the largest of its jobs' (:func:`pilot_budgets`). A group must be a product of values of
+the swept keys, so that one multirun runs it (:func:`sweep_groups` checks). The full stage (:func:`run_full`)
+exports every run's raw data with the manifest; the report is written from ``OUT``'s data alone.
 """
 
 from __future__ import annotations

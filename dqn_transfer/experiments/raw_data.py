@@ -1,15 +1,8 @@
-"""The study's raw data: every run's evaluations, compact, one JSON line per run.
+"""The study's raw data: every run's evaluations, compact, one JSON line per run (:class:`RunData`).
 
-``OUT/data/<experiment>.jsonl`` holds one record per run (a replica of a sweep job is a run): its name
-in the sweep (``<job>/<replica>``), its composed config, every evaluation step with the metrics the
-report uses, the env steps spent before its step 0 on what it warm-started from, and its map's optimal
-team return (:func:`~dqn_transfer.envs.maps.optimal_team_return`; none for another game, ``env.factory``).
-``OUT/data/manifest.json`` says how the data were made (the edition, the commit of its verdict rules, and per
-experiment the profile, code commit, machine, date, wall time and runs).
-
-The report (:func:`dqn_transfer.experiments.pipeline.write_report`) reads these files and nothing else, so the
-committed report can be regenerated, and every number in it recomputed, without the run directories
-(checkpoints, TensorBoard logs), which stay out of the repository.
+``OUT/data/<experiment>.jsonl`` holds the runs, ``OUT/data/manifest.json`` how they were made. The report reads
+these files and nothing else, so it can be regenerated, and every number in it recomputed, without the run
+directories (checkpoints, TensorBoard logs), which stay out of the repository.
 """
 
 from __future__ import annotations

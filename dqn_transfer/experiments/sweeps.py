@@ -1,14 +1,7 @@
 """Running Hydra multiruns of the study's experiments (:class:`Multirun`), each into its own directory.
 
-A multirun is ``python -m dqn_transfer.cli.train -m experiment=<name>`` (``conf/experiment/``) in a
-subprocess, with a stage's overrides: one job per condition, its seeds batched inside the job as replicas
-(``replicas.seeds``, one run directory each); ``--launcher joblib`` (the default, from the ``sweep`` extra;
-without it, Hydra's basic launcher) runs ``--n-jobs`` jobs at a time, ``submitit_slurm`` one SLURM job per
-condition. Which multiruns a study makes is :mod:`~dqn_transfer.experiments.pipeline`'s.
-
 A sweep directory already complete for the same settings is reused (so a failed report or a second
 ``--only`` does not rerun it); one holding other or unfinished runs is an error, never overwritten.
-A failed sweep says which runs failed, with the tail of their logs.
 """
 
 from __future__ import annotations

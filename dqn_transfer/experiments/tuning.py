@@ -1,12 +1,8 @@
 """The fair tuning protocol (docs/tuning.md): one Optuna search per learner x knowledge-exchange method.
 
-Each search is the experiment config ``tune/<learner>_<method>`` (``conf/experiment/tune/``,
-every one from ``tune/base``: the same budget, tuning maps, sampler and number of trials), run as one
-Hydra multirun with the Optuna sweeper into ``OUT/runs/<learner>_<method>/`` (:func:`run_multirun`:
-its trials one after another in one process, ``parallel`` searches at once). Its trials are then read
-back from their run directories — the values from each job's ``.hydra/overrides.yaml``, the objective
-from its replicas' ``metrics.jsonl`` — into ``OUT/tuning.jsonl``, from which alone :func:`analyse`
-writes ``tuned.yaml``, ``tuning.md`` and ``tuning_sensitivity.png``.
+Each search (``conf/experiment/tune/<learner>_<method>``) is one Hydra multirun with the Optuna sweeper; its
+trials are read back from their run directories into ``OUT/tuning.jsonl``, from which alone :func:`analyse`
+writes the tuned values, the table and the figure.
 """
 
 from __future__ import annotations
