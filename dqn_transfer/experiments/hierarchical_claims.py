@@ -38,7 +38,7 @@ from dqn_transfer.evaluation.bounds import evaluate_bound
 from dqn_transfer.experiments.claims import margin_verdict, trend_verdict
 from dqn_transfer.experiments.raw_data import RunData
 from dqn_transfer.experiments.results import INCONCLUSIVE
-from dqn_transfer.experiments.scoring import FINAL_TAIL, final_score, group, learner, mode, team_size
+from dqn_transfer.experiments.scoring import FINAL_TAIL, final_score, group, learner, learners, mode, team_size
 from dqn_transfer.experiments.scoring import score as auc_score  # the mean score over training
 
 FAILURE_BELOW = 0.5  # a run fails when its final score is under half the optimal return
@@ -232,7 +232,7 @@ def hypothesis(
     primary: list[Difference] = []
     secondary: list[Difference] = []
     budgets: dict[tuple[str, str], int] = {}
-    for algorithm in sorted({learner(r) for r in runs}, key=lambda a: (a != "sarsa", a)):
+    for algorithm in learners(runs):
         for run_mode in sorted({mode(r) for r in select(runs, learner=algorithm)}):
             cell = select(runs, learner=algorithm, mode=run_mode)
             budget = _budget(cell)
@@ -241,31 +241,19 @@ def hypothesis(
             methods = sorted({method(r) for r in cell}, key=lambda m: (m != "none", m))
             family_methods = PRIMARY_METHODS if algorithm == "sarsa" else SECONDARY_METHODS
             alpha = ALPHA / len(family_methods)
+            at_half = partial(final_score, budget=budget // 2)
+            members = []
             for name in methods:
                 mine = select(cell, method=name)
-                half = budget // 2
-                rows.append(
-                    MethodRow(
-                        algorithm,
-                        run_mode,
-                        name,
-                        summarize(mine, final_score, rng),
-                        summarize(mine, partial(final_score, budget=half), rng),
-                        summarize(mine, auc_score, rng),
-                        None if name == "none" else difference(name, mine, control, final_score, rng, alpha),
-                        None
-                        if name == "none"
-                        else difference(name, mine, control, partial(final_score, budget=half), rng, alpha),
-                    )
-                )
-            if run_mode == primary_mode:
-                members = [
-                    row.against_none
-                    for row in rows
-                    if (row.learner, row.mode) == (algorithm, run_mode)
-                    and row.method in family_methods
-                    and row.against_none is not None
+                summaries = [summarize(mine, value, rng) for value in (final_score, at_half, auc_score)]
+                against = [
+                    None if name == "none" else difference(name, mine, control, value, rng, alpha)
+                    for value in (final_score, at_half)
                 ]
+                rows.append(MethodRow(algorithm, run_mode, name, *summaries, *against))
+                if name in family_methods and against[0] is not None:
+                    members.append(against[0])
+            if run_mode == primary_mode:
                 (primary if algorithm == "sarsa" else secondary).extend(family(members))
     return HypothesisResult(
         rows, primary, secondary, family_verdict(primary), family_verdict(secondary), primary_mode, budgets
@@ -410,31 +398,24 @@ def final_at_total_steps(run: RunData, total: int) -> float:
 
 def claim3(runs: Sequence[RunData], rng: np.random.Generator) -> Claim3Result:
     rows, primary = [], []
-    for algorithm in sorted({learner(r) for r in runs}, key=lambda a: (a != "sarsa", a)):
+    for algorithm in learners(runs):
         cell = select(runs, learner=algorithm)
         control = select(cell, condition="scratch_matched")
         budget = _budget(cell)
         at_total = partial(final_at_total_steps, total=budget)
         conditions = sorted({transfer_condition(r) for r in cell}, key=lambda c: (c != "scratch_matched", c))
         alpha = ALPHA / len(CLAIM3_METHODS)
+        members = []
         for name in conditions:
             mine = select(cell, condition=name)
-            is_control = name == "scratch_matched"
-            rows.append(
-                TransferRow(
-                    algorithm,
-                    name,
-                    summarize(mine, auc_score, rng),
-                    summarize(mine, final_score, rng),
-                    None if is_control else difference(name, mine, control, auc_score, rng, alpha),
-                    None if is_control else difference(name, mine, control, at_total, rng, alpha),
-                )
-            )
-        if algorithm == "sarsa":
-            members = [
-                row.against_control
-                for row in rows
-                if row.learner == "sarsa" and row.condition in CLAIM3_METHODS and row.against_control is not None
+            summaries = [summarize(mine, value, rng) for value in (auc_score, final_score)]
+            against = [
+                None if name == "scratch_matched" else difference(name, mine, control, value, rng, alpha)
+                for value in (auc_score, at_total)
             ]
+            rows.append(TransferRow(algorithm, name, *summaries, *against))
+            if name in CLAIM3_METHODS and against[0] is not None:
+                members.append(against[0])
+        if algorithm == "sarsa":
             primary = family(members)
     return Claim3Result(rows, primary, family_verdict(primary))
