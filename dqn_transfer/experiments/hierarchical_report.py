@@ -10,6 +10,7 @@ import math
 import os
 import shutil
 from collections.abc import Sequence
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +18,7 @@ import numpy as np
 from dqn_transfer.analysis.hierarchical import MeanDifference
 from dqn_transfer.analysis.plots import dot_whisker_figure, errorbar_figure
 from dqn_transfer.analysis.stats import Estimate
+from dqn_transfer.experiments import render
 from dqn_transfer.experiments.edition import BUDGETS_TABLE, TUNING_DIR, Edition
 from dqn_transfer.experiments.hierarchical_claims import (
     ALPHA,
@@ -56,12 +58,7 @@ TUNING_FIGURE = Path(TUNING_DIR) / "tuning_sensitivity.png"
 GREEDY = "greedy, "  # the label prefix of a mode's greedy team in claim 2's figure
 
 
-def fmt(e: Estimate, digits: int = 3) -> str:
-    if not math.isfinite(e.mean):
-        return "n/a"
-    if not e.has_ci:
-        return f"{e.mean:.{digits}g} [no interval]"
-    return f"{e.mean:.{digits}g} [{e.low:.{digits}g}, {e.high:.{digits}g}]"
+fmt = partial(render.fmt, mark_no_spread=False)
 
 
 def signed(e: Estimate, digits: int = 3) -> str:

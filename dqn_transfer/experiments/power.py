@@ -92,15 +92,8 @@ def power_rows(runs: Sequence[RunData], fn: Callable[[RunData], float], rng: np.
         }
         pilot_seeds = round(components.n_runs / components.n_maps)
         size = power_at(0.0, components.sigma_map, components.sigma_run, components.n_maps, pilot_seeds, rng, ALPHA)
-        rows.append(
-            PowerRow(
-                f"{exchange} - {NO_EXCHANGE}",
-                paired_mean_difference(differences, rng),
-                components,
-                needed,
-                size,
-            )
-        )
+        difference = paired_mean_difference(differences, rng)
+        rows.append(PowerRow(f"{exchange} - {NO_EXCHANGE}", difference, components, needed, size))
     return rows
 
 
