@@ -245,14 +245,14 @@ def hypothesis(
             members = []
             for name in methods:
                 mine = select(cell, method=name)
-                summaries = [summarize(mine, value, rng) for value in (final_score, at_half, auc_score)]
-                against = [
+                final, half, auc = [summarize(mine, value, rng) for value in (final_score, at_half, auc_score)]
+                vs, vs_half = [
                     None if name == "none" else difference(name, mine, control, value, rng, alpha)
                     for value in (final_score, at_half)
                 ]
-                rows.append(MethodRow(algorithm, run_mode, name, *summaries, *against))
-                if name in family_methods and against[0] is not None:
-                    members.append(against[0])
+                rows.append(MethodRow(algorithm, run_mode, name, final, half, auc, vs, vs_half))
+                if name in family_methods and vs is not None:
+                    members.append(vs)
             if run_mode == primary_mode:
                 (primary if algorithm == "sarsa" else secondary).extend(family(members))
     return HypothesisResult(
@@ -408,14 +408,14 @@ def claim3(runs: Sequence[RunData], rng: np.random.Generator) -> Claim3Result:
         members = []
         for name in conditions:
             mine = select(cell, condition=name)
-            summaries = [summarize(mine, value, rng) for value in (auc_score, final_score)]
-            against = [
+            auc, final = [summarize(mine, value, rng) for value in (auc_score, final_score)]
+            vs, at_equal_total = [
                 None if name == "scratch_matched" else difference(name, mine, control, value, rng, alpha)
                 for value in (auc_score, at_total)
             ]
-            rows.append(TransferRow(algorithm, name, *summaries, *against))
-            if name in CLAIM3_METHODS and against[0] is not None:
-                members.append(against[0])
+            rows.append(TransferRow(algorithm, name, auc, final, vs, at_equal_total))
+            if name in CLAIM3_METHODS and vs is not None:
+                members.append(vs)
         if algorithm == "sarsa":
             primary = family(members)
     return Claim3Result(rows, primary, family_verdict(primary))

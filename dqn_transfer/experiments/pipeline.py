@@ -14,6 +14,7 @@ import dataclasses
 import datetime as _dt
 import itertools
 import json
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cache
@@ -96,10 +97,7 @@ def sweep_groups(edition: Edition, name: str) -> dict[tuple[Any, ...], list[Job]
     for job in sweep_jobs(edition.experiment(name)):
         groups.setdefault(edition.comparisons[name].key(job.config), []).append(job)
     for key, jobs in groups.items():
-        size = 1
-        for values in _group_values(jobs).values():
-            size *= len(values)
-        if size != len(jobs):
+        if math.prod(len(values) for values in _group_values(jobs).values()) != len(jobs):
             raise ValueError(f"{edition.experiment(name)}: group {group_label(key)} is not a product of swept values")
     return groups
 

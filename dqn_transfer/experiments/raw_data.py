@@ -195,17 +195,9 @@ def read_data(path: Path) -> list[RunData]:
     for number, line in enumerate(lines, start=1):
         try:
             r = json.loads(line)
-            runs.append(
-                RunData(
-                    r["experiment"],
-                    r["name"],
-                    r["config"],
-                    tuple(r["steps"]),
-                    {k: tuple(v) for k, v in r["metrics"].items()},
-                    int(r["steps_before"]),
-                    r["optimal_return"],
-                )
-            )
+            metrics = {k: tuple(v) for k, v in r["metrics"].items()}
+            steps, before, optimum = tuple(r["steps"]), int(r["steps_before"]), r["optimal_return"]
+            runs.append(RunData(r["experiment"], r["name"], r["config"], steps, metrics, before, optimum))
         except (json.JSONDecodeError, KeyError, TypeError, ValueError):
             raise DataError(f"{path}: line {number} is not a run record") from None
     return runs
