@@ -1,13 +1,8 @@
 """The second edition's step budgets per cell, with the first edition's runs as the pilot.
 
-A cell is a condition of an experiment, its runs differing only in map and seed: learner x mode x team size
-``m`` in ``claim2``, learner x mode x exchange in ``hypothesis`` (and ``hypothesis_shared``). Each cell's
-runs' score curves (the study's score, a fraction of the map's optimal return:
-:meth:`~dqn_transfer.experiments.raw_data.RunData.score_curve`) go to the budget rule
-(:func:`dqn_transfer.analysis.budget.budgets_per_cell`), the same rule for every cell.
-
-The first edition ran every run for 8,000 steps, so a cell still improving then is reported as not
-converged within the pilot, its budget the cap: the pilot says nothing of how long it needs.
+A cell is a condition of an experiment, its runs differing only in map and seed (:data:`CELLS`). The first
+edition ran every run for 8,000 steps, so a cell still improving then is reported as not converged within the
+pilot, its budget the cap: the pilot says nothing of how long it needs.
 """
 
 from __future__ import annotations

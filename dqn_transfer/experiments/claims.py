@@ -1,16 +1,8 @@
-"""The study's questions, each computed from its runs' raw data into a typed result (:mod:`results`).
+"""The first edition's questions, each computed from its runs' raw data into a typed result (:mod:`results`).
 
-- the main hypothesis: a group that exchanges knowledge learns better than the same group without
-  (experiments ``hypothesis`` and ``hypothesis_shared``);
-- claim 1, one treasure: cooperation gives no advantage over competition (``claim1``);
-- claim 2, as the team grows: deliberative > cooperative > competitive (``claim2``);
-- claim 3, starting from a trained agent speeds up learning (``transfer``), and a curriculum from a small
-  map to a large one (``curriculum``, exploratory).
-
-Each question names ONE primary comparison, whose verdict follows the first edition's rules
-(``results/v1/VERDICT_RULES.md``); everything else is exploratory. Scores and pairing: :mod:`scoring`. The
-sections draw from one generator in a fixed order (each section's numbers, then its figures, drawn by
-:mod:`render`), so the same data always give the same digits.
+Each question names ONE primary comparison, whose verdict follows ``results/v1/VERDICT_RULES.md``; everything
+else is exploratory. The sections draw from one generator in a fixed order (each section's numbers, then its
+figures, drawn by :mod:`render`), so the same data always give the same digits.
 """
 
 from __future__ import annotations

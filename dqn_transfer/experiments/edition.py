@@ -8,6 +8,7 @@ A results directory records its edition in ``data/manifest.json`` (``edition``),
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import reduce
 from pathlib import Path
 from typing import Any
 
@@ -50,13 +51,7 @@ class Comparison:
 
     def key(self, config: dict[str, Any]) -> tuple[Any, ...]:
         """A job's group: its values of :attr:`keys`."""
-        values = []
-        for dotted in self.keys:
-            value: Any = config
-            for part in dotted.split("."):
-                value = value[part]
-            values.append(value)
-        return tuple(values)
+        return tuple(reduce(lambda node, part: node[part], dotted.split("."), config) for dotted in self.keys)
 
 
 @dataclass(frozen=True)

@@ -1,12 +1,5 @@
 """Runs for other tools: run directories and the study's raw data in marl-eval's JSON layout
-(:mod:`dqn_transfer.analysis.marl_eval` says what each level is).
-
-Each run's metrics are the evaluation means the study keeps (:data:`~dqn_transfer.experiments.raw_data.METRICS`:
-team return, success rate, trap rate, ...) and ``score``, the team return as a fraction of its map's
-optimal team return (the study's score; absent where the map has no clean optimum). A run directory's
-runs also give each agent's mean greedy return, ``agent_<i>_return``, where every evaluation record has
-them (``metrics.jsonl``'s ``agent_returns``; records written before they were kept have none, and the
-study's raw data keep none).
+(:mod:`dqn_transfer.analysis.marl_eval` says what each level is), with ``score`` beside each run's metrics.
 """
 
 from __future__ import annotations

@@ -1,12 +1,9 @@
 """The registered questions (the second edition's), answered from the raw data by its rules
 (``results/v2/VERDICT_RULES.md``).
 
-Every interval is the hierarchical bootstrap's (:mod:`dqn_transfer.analysis.hierarchical`: maps drawn with
-replacement, then runs, or paired (map, seed) differences, within each drawn map); every p-value its two-sided
-bootstrap p, adjusted by Holm over a registered family. The functions here take runs
-(:class:`~dqn_transfer.experiments.raw_data.RunData`) and one random stream, and return typed results;
-:mod:`dqn_transfer.experiments.hierarchical_report` renders them. Pure functions of the data: the same
-data and seed give the same digits.
+Every interval is the hierarchical bootstrap's (:mod:`dqn_transfer.analysis.hierarchical`); every p-value its
+two-sided bootstrap p, adjusted by Holm over a registered family. Pure functions of the data and one random
+stream: the same data and seed give the same digits.
 """
 
 from __future__ import annotations
@@ -33,13 +30,16 @@ from dqn_transfer.analysis.hierarchical import (
     variance_components,
 )
 from dqn_transfer.analysis.stats import Estimate
-from dqn_transfer.analysis.transfer_metrics import asymptotic_performance, mean_over_training
+from dqn_transfer.analysis.transfer_metrics import asymptotic_performance
 from dqn_transfer.enums import Bound
 from dqn_transfer.envs.game import make_game
 from dqn_transfer.envs.settings import ENV_KEYS
 from dqn_transfer.evaluation.bounds import evaluate_bound
+from dqn_transfer.experiments.claims import margin_verdict, trend_verdict
 from dqn_transfer.experiments.raw_data import RunData
-from dqn_transfer.experiments.scoring import FINAL_TAIL, learner, mode, team_size
+from dqn_transfer.experiments.results import INCONCLUSIVE
+from dqn_transfer.experiments.scoring import FINAL_TAIL, final_score, group, learner, learners, mode, team_size
+from dqn_transfer.experiments.scoring import score as auc_score  # the mean score over training
 
 FAILURE_BELOW = 0.5  # a run fails when its final score is under half the optimal return
 SMALLEST_EFFECT = 0.10  # in final score: the registered smallest effect of interest
@@ -85,20 +85,6 @@ def select(runs: Sequence[RunData], **conditions: Callable[[RunData], object] | 
 # ------------------------------------------------------------------------------------------- run values
 
 
-def final_score(run: RunData, budget: int | None = None) -> float:
-    """The mean score of the last 20% of the run's evaluations at or before ``budget`` (None: all)."""
-    steps, values = run.score_curve()
-    if budget is not None:
-        kept = steps <= budget
-        steps, values = steps[kept], values[kept]
-    return asymptotic_performance((steps, values), FINAL_TAIL)
-
-
-def auc_score(run: RunData) -> float:
-    """The mean score over training (area under the learning curve divided by its steps)."""
-    return mean_over_training(run.score_curve())
-
-
 def final_return(run: RunData) -> float:
     """The final team return in return units (claim 1: its maps have no optimum)."""
     return asymptotic_performance(run.curve(), FINAL_TAIL)
@@ -106,10 +92,8 @@ def final_return(run: RunData) -> float:
 
 def values_by_map(runs: Sequence[RunData], value: RunValue) -> list[np.ndarray]:
     """The runs' values, one array per map (maps in seed order, runs in seed order)."""
-    maps: dict[int, list[RunData]] = {}
-    for run in runs:
-        maps.setdefault(run.map_seed, []).append(run)
-    return [np.array([value(r) for r in sorted(maps[m], key=lambda r: r.seed)]) for m in sorted(maps)]
+    maps = group(runs, lambda r: r.map_seed)
+    return [np.array([value(r) for r in maps[m]]) for m in sorted(maps)]
 
 
 def paired_by_map(x: Sequence[RunData], y: Sequence[RunData], value: RunValue) -> tuple[list[np.ndarray], ...]:
@@ -248,7 +232,7 @@ def hypothesis(
     primary: list[Difference] = []
     secondary: list[Difference] = []
     budgets: dict[tuple[str, str], int] = {}
-    for algorithm in sorted({learner(r) for r in runs}, key=lambda a: (a != "sarsa", a)):
+    for algorithm in learners(runs):
         for run_mode in sorted({mode(r) for r in select(runs, learner=algorithm)}):
             cell = select(runs, learner=algorithm, mode=run_mode)
             budget = _budget(cell)
@@ -257,31 +241,19 @@ def hypothesis(
             methods = sorted({method(r) for r in cell}, key=lambda m: (m != "none", m))
             family_methods = PRIMARY_METHODS if algorithm == "sarsa" else SECONDARY_METHODS
             alpha = ALPHA / len(family_methods)
+            at_half = partial(final_score, budget=budget // 2)
+            members = []
             for name in methods:
                 mine = select(cell, method=name)
-                half = budget // 2
-                rows.append(
-                    MethodRow(
-                        algorithm,
-                        run_mode,
-                        name,
-                        summarize(mine, final_score, rng),
-                        summarize(mine, partial(final_score, budget=half), rng),
-                        summarize(mine, auc_score, rng),
-                        None if name == "none" else difference(name, mine, control, final_score, rng, alpha),
-                        None
-                        if name == "none"
-                        else difference(name, mine, control, partial(final_score, budget=half), rng, alpha),
-                    )
-                )
-            if run_mode == primary_mode:
-                members = [
-                    row.against_none
-                    for row in rows
-                    if (row.learner, row.mode) == (algorithm, run_mode)
-                    and row.method in family_methods
-                    and row.against_none is not None
+                final, half, auc = [summarize(mine, value, rng) for value in (final_score, at_half, auc_score)]
+                vs, vs_half = [
+                    None if name == "none" else difference(name, mine, control, value, rng, alpha)
+                    for value in (final_score, at_half)
                 ]
+                rows.append(MethodRow(algorithm, run_mode, name, final, half, auc, vs, vs_half))
+                if name in family_methods and vs is not None:
+                    members.append(vs)
+            if run_mode == primary_mode:
                 (primary if algorithm == "sarsa" else secondary).extend(family(members))
     return HypothesisResult(
         rows, primary, secondary, family_verdict(primary), family_verdict(secondary), primary_mode, budgets
@@ -313,17 +285,11 @@ class Claim1Result:
 def claim1(runs: Sequence[RunData], rng: np.random.Generator) -> Claim1Result:
     comp, coop = select(runs, mode="competitive"), select(runs, mode="cooperative")
     diff = difference("cooperative - competitive", coop, comp, final_return, rng, ALPHA)
-    estimate = diff.difference.estimate
-    if not estimate.has_ci:
-        verdict = "INCONCLUSIVE"
-    elif estimate.high < CLAIM1_MARGIN:
-        verdict = "SUPPORTED"
-    elif estimate.low > CLAIM1_MARGIN:
-        verdict = "NOT SUPPORTED"
-    else:
-        verdict = "INCONCLUSIVE"
     return Claim1Result(
-        summarize(comp, final_return, rng, score=False), summarize(coop, final_return, rng, score=False), diff, verdict
+        summarize(comp, final_return, rng, score=False),
+        summarize(coop, final_return, rng, score=False),
+        diff,
+        margin_verdict(diff.difference.estimate, CLAIM1_MARGIN),
     )
 
 
@@ -399,15 +365,8 @@ def claim2(runs: Sequence[RunData], rng: np.random.Generator) -> Claim2Result:
                 effects[(m, pair)] = independent_mean_difference(
                     _pair_differences(by_cell[("high", m)], pair), _pair_differences(by_cell[("low", m)], pair), rng
                 )
-    primary = [slopes[("high", pair)] for pair in MODE_PAIRS] if "high" in levels else []
-    if not primary or not all(s.estimate.has_ci for s in primary):
-        verdict = "INCONCLUSIVE"
-    elif all(s.estimate.low > 0 for s in primary):
-        verdict = "SUPPORTED"
-    elif any(s.estimate.high < 0 for s in primary):
-        verdict = "CONTRADICTED"
-    else:
-        verdict = "NOT SUPPORTED"
+    primary = [slopes[("high", pair)].estimate for pair in MODE_PAIRS] if "high" in levels else []
+    verdict = trend_verdict(primary) if primary else INCONCLUSIVE
     return Claim2Result(cells, floors, slopes, effects, verdict)
 
 
@@ -439,31 +398,24 @@ def final_at_total_steps(run: RunData, total: int) -> float:
 
 def claim3(runs: Sequence[RunData], rng: np.random.Generator) -> Claim3Result:
     rows, primary = [], []
-    for algorithm in sorted({learner(r) for r in runs}, key=lambda a: (a != "sarsa", a)):
+    for algorithm in learners(runs):
         cell = select(runs, learner=algorithm)
         control = select(cell, condition="scratch_matched")
         budget = _budget(cell)
         at_total = partial(final_at_total_steps, total=budget)
         conditions = sorted({transfer_condition(r) for r in cell}, key=lambda c: (c != "scratch_matched", c))
         alpha = ALPHA / len(CLAIM3_METHODS)
+        members = []
         for name in conditions:
             mine = select(cell, condition=name)
-            is_control = name == "scratch_matched"
-            rows.append(
-                TransferRow(
-                    algorithm,
-                    name,
-                    summarize(mine, auc_score, rng),
-                    summarize(mine, final_score, rng),
-                    None if is_control else difference(name, mine, control, auc_score, rng, alpha),
-                    None if is_control else difference(name, mine, control, at_total, rng, alpha),
-                )
-            )
-        if algorithm == "sarsa":
-            members = [
-                row.against_control
-                for row in rows
-                if row.learner == "sarsa" and row.condition in CLAIM3_METHODS and row.against_control is not None
+            auc, final = [summarize(mine, value, rng) for value in (auc_score, final_score)]
+            vs, at_equal_total = [
+                None if name == "scratch_matched" else difference(name, mine, control, value, rng, alpha)
+                for value in (auc_score, at_total)
             ]
+            rows.append(TransferRow(algorithm, name, auc, final, vs, at_equal_total))
+            if name in CLAIM3_METHODS and vs is not None:
+                members.append(vs)
+        if algorithm == "sarsa":
             primary = family(members)
     return Claim3Result(rows, primary, family_verdict(primary))

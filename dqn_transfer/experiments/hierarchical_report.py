@@ -1,10 +1,7 @@
 """The registered hierarchical analysis's ``REPORT.md`` and figures (the second edition's), from its data alone.
 
-It reads ``data/<experiment>.jsonl`` and ``data/manifest.json`` (the full runs), ``budgets.md`` (the pilot's
-budgets) and ``tuning/tuning.md`` (the tuning's chosen values), answers each question by
-:mod:`dqn_transfer.experiments.hierarchical_claims` with its own seeded random stream (:func:`stream`), and
-writes the report beside them (or into another directory, with copies of the figures it links to); nothing else
-is read (no clock, no checkout), so the same data give the same bytes.
+Each question has its own seeded random stream (:func:`stream`) and nothing else is read (no clock, no
+checkout), so the same data give the same bytes.
 """
 
 from __future__ import annotations
@@ -13,6 +10,7 @@ import math
 import os
 import shutil
 from collections.abc import Sequence
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +18,7 @@ import numpy as np
 from dqn_transfer.analysis.hierarchical import MeanDifference
 from dqn_transfer.analysis.plots import dot_whisker_figure, errorbar_figure
 from dqn_transfer.analysis.stats import Estimate
+from dqn_transfer.experiments import render
 from dqn_transfer.experiments.edition import BUDGETS_TABLE, TUNING_DIR, Edition
 from dqn_transfer.experiments.hierarchical_claims import (
     ALPHA,
@@ -59,12 +58,7 @@ TUNING_FIGURE = Path(TUNING_DIR) / "tuning_sensitivity.png"
 GREEDY = "greedy, "  # the label prefix of a mode's greedy team in claim 2's figure
 
 
-def fmt(e: Estimate, digits: int = 3) -> str:
-    if not math.isfinite(e.mean):
-        return "n/a"
-    if not e.has_ci:
-        return f"{e.mean:.{digits}g} [no interval]"
-    return f"{e.mean:.{digits}g} [{e.low:.{digits}g}, {e.high:.{digits}g}]"
+fmt = partial(render.fmt, mark_no_spread=False)
 
 
 def signed(e: Estimate, digits: int = 3) -> str:

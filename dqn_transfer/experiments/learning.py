@@ -1,16 +1,8 @@
 """How well the shipped commands learn, over seeds, and whether the two DQN engines learn alike.
 
-Three kinds of sweep, each a Hydra multirun into ``OUT/runs/<name>/`` whose runs are exported as raw data to
-``OUT/data/<name>.jsonl`` (:mod:`dqn_transfer.experiments.raw_data`), from which :func:`tables` computes
-every figure of docs/learning.md:
-
-- **reliability**: each of the README's training commands (:data:`EXAMPLES`) as it is written, with 10
-  seeds as replicas (``experiment=learning/reliability``), judged by its game's :class:`Criterion`;
-- **parity**: Double DQN on three 7x7 maps, 10 seeds each, ``agent.engine=numpy`` against ``torch``
-  (``experiment=learning/parity``), judged by :func:`~dqn_transfer.analysis.reliability.parity`;
-- **diagnoses** (:data:`DIAGNOSES`): the parity's numpy runs on its hardest map with one setting changed.
-
-The rules are :mod:`dqn_transfer.analysis.reliability`'s, fixed before the runs.
+Each sweep (:data:`NAMES`: the README's commands, the engines' parity, the hard map's diagnoses) is exported
+as raw data, from which :func:`tables` computes every figure of docs/learning.md by the rules of
+:mod:`dqn_transfer.analysis.reliability`, fixed before the runs.
 """
 
 from __future__ import annotations

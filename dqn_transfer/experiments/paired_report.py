@@ -1,9 +1,7 @@
 """The paired analysis's ``REPORT.md`` and its figures (the first edition's), from its raw data alone.
 
-:func:`write_report` reads ``RESULTS/data/`` and writes the report: a summary of the primary comparisons and
-their verdicts, then one section per question (:mod:`~dqn_transfer.experiments.claims`). The report depends on
-the data and nothing else (no clock, no checkout state), so regenerating it from committed data gives the
-committed file byte for byte.
+The report depends on the data and nothing else (no clock, no checkout state), so regenerating it from
+committed data gives the committed file byte for byte.
 """
 
 from __future__ import annotations

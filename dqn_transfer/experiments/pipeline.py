@@ -1,20 +1,11 @@
 """The study's one pipeline, for any edition (:mod:`~dqn_transfer.experiments.edition`): tune -> pilot ->
-budgets -> runs -> analysis -> report, each stage into ``OUT``; an edition runs the stages it lists.
+budgets -> runs -> report, each stage into ``OUT``; an edition runs the stages it lists.
 
-1. **tune** (:mod:`dqn_transfer.experiments.tuning`): the searches into ``OUT/tuning/``;
-2. **pilot** (:func:`run_pilots`): every experiment's sweep with the profile's pilot overrides (maps apart)
-   into ``OUT/pilot/runs/<name>/``, its raw data into ``OUT/pilot/data/<name>.jsonl``; then the **budgets**
-   (:func:`pilot_budgets`): the edition's rule on each job's pilot runs and, for each comparison group (the
-   conditions compared with each other), the largest of its jobs' budgets; ``OUT/budgets.json`` and
-   ``OUT/budgets.md``, from the pilot's raw data alone;
-3. **full** (:func:`run_full`): each experiment's runs, into ``OUT/runs/<name>/``: with a pilot stage, each
-   comparison group as one Hydra multirun at its budget (``OUT/runs/<name>/<group>/``), else the experiment
-   file's own sweep; every run's raw data into ``OUT/data/<name>.jsonl``, with the manifest;
-4. **report** (:func:`write_report`): ``REPORT.md`` and its figures from ``OUT``'s data alone, by the
-   edition's analysis.
-
-A group is a set of an experiment's jobs (one per combination of its sweep's values) that share a budget; it
-must be a product of values of the swept keys (so one multirun runs it), which :func:`sweep_groups` checks.
+The pilot (:func:`run_pilots`) runs every experiment's sweep with the profile's pilot overrides; the edition's
+budget rule on each job's pilot runs gives its budget, and each comparison group (the conditions compared with
+each other) runs at the largest of its jobs' (:func:`pilot_budgets`). A group must be a product of values of
+the swept keys, so that one multirun runs it (:func:`sweep_groups` checks). The full stage (:func:`run_full`)
+exports every run's raw data with the manifest; the report is written from ``OUT``'s data alone.
 """
 
 from __future__ import annotations
@@ -23,19 +14,17 @@ import dataclasses
 import datetime as _dt
 import itertools
 import json
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
 from typing import Any
 
-from hydra import compose, initialize_config_dir
-from hydra.core.override_parser.overrides_parser import OverridesParser
-
 from dqn_transfer.analysis.budget import Budget, BudgetRule, budgets_per_cell
 from dqn_transfer.analysis.plots import flatten
 from dqn_transfer.analysis.transfer_metrics import Curve
-from dqn_transfer.config import CONFIG_DIR, register_configs, to_plain
+from dqn_transfer.config import to_plain
 from dqn_transfer.experiments import hierarchical_report, paired_report
 from dqn_transfer.experiments.edition import BUDGETS_FILE, BUDGETS_TABLE, PILOT_DIR, Edition, Profile
 from dqn_transfer.experiments.raw_data import (
@@ -55,10 +44,12 @@ from dqn_transfer.experiments.sweeps import (
     RUNS_DIR,
     Multirun,
     ReproduceError,
+    composed,
     count_jobs,
     quoted_path,
     read_stamp,
     run_multirun,
+    swept_values,
 )
 
 CHEST_REWARD = 100.0  # claim 1's maps have no optimum: its curves are counted in chests for the rule
@@ -86,34 +77,16 @@ class Job:
     config: dict[str, Any]
 
 
-def _composed(experiment: str, overrides: Sequence[str] = (), hydra_config: bool = False) -> Any:
-    register_configs()
-    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-        return compose(
-            config_name="config", overrides=[f"experiment={experiment}", *overrides], return_hydra_config=hydra_config
-        )
-
-
 @cache
 def sweep_jobs(experiment: str) -> tuple[Job, ...]:
     """The jobs of ``experiment=<experiment>``'s sweep, numbered as Hydra's basic sweeper numbers them (the
     product of the swept values, the last key varying fastest); composed once per process (a config is
     composed in about 0.2 s)."""
-    sweeper = _composed(experiment, hydra_config=True).hydra.sweeper
-    params = {key: str(value) for key, value in (sweeper.params or {}).items()}
-    parser = OverridesParser.create()
-    swept = {
-        override.get_key_element(): (
-            list(override.sweep_string_iterator())
-            if override.is_sweep_override()
-            else [override.get_value_element_as_str()]
-        )
-        for override in parser.parse_overrides([f"{k}={v}" for k, v in params.items()])
-    }
+    swept = swept_values(experiment)
     jobs = []
     for number, combination in enumerate(itertools.product(*swept.values())):
         values = dict(zip(swept, combination))
-        jobs.append(Job(number, values, to_plain(_composed(experiment, [f"{k}={v}" for k, v in values.items()]))))
+        jobs.append(Job(number, values, to_plain(composed(experiment, [f"{k}={v}" for k, v in values.items()]))))
     return tuple(jobs)
 
 
@@ -124,10 +97,7 @@ def sweep_groups(edition: Edition, name: str) -> dict[tuple[Any, ...], list[Job]
     for job in sweep_jobs(edition.experiment(name)):
         groups.setdefault(edition.comparisons[name].key(job.config), []).append(job)
     for key, jobs in groups.items():
-        size = 1
-        for values in _group_values(jobs).values():
-            size *= len(values)
-        if size != len(jobs):
+        if math.prod(len(values) for values in _group_values(jobs).values()) != len(jobs):
             raise ValueError(f"{edition.experiment(name)}: group {group_label(key)} is not a product of swept values")
     return groups
 

@@ -1,12 +1,7 @@
 """How many maps the second edition needs: a power analysis with the first edition's runs as the pilot.
 
-For each primary comparison (the study's learner, cooperative, an exchange against ``none``) the pilot's
-paired differences (same map and seed) are grouped by map; their map-level and run-level variances
-(:func:`~dqn_transfer.analysis.hierarchical.variance_components`) feed a simulation of the
-hierarchical-bootstrap interval (:func:`~dqn_transfer.analysis.hierarchical.maps_for_power`) for studies of
-``M`` maps x ``S`` seeds. Beside them, the pilot's own mean difference with maps resampled
-(:func:`~dqn_transfer.analysis.hierarchical.paired_mean_difference`), to set against the first edition's
-run-level interval.
+The pilot's paired differences' map-level and run-level variances feed a simulation of the
+hierarchical-bootstrap interval for studies of ``M`` maps x ``S`` seeds.
 """
 
 from __future__ import annotations
@@ -97,15 +92,8 @@ def power_rows(runs: Sequence[RunData], fn: Callable[[RunData], float], rng: np.
         }
         pilot_seeds = round(components.n_runs / components.n_maps)
         size = power_at(0.0, components.sigma_map, components.sigma_run, components.n_maps, pilot_seeds, rng, ALPHA)
-        rows.append(
-            PowerRow(
-                f"{exchange} - {NO_EXCHANGE}",
-                paired_mean_difference(differences, rng),
-                components,
-                needed,
-                size,
-            )
-        )
+        difference = paired_mean_difference(differences, rng)
+        rows.append(PowerRow(f"{exchange} - {NO_EXCHANGE}", difference, components, needed, size))
     return rows
 
 

@@ -1,15 +1,8 @@
-"""The study's raw data: every run's evaluations, compact, one JSON line per run.
+"""The study's raw data: every run's evaluations, compact, one JSON line per run (:class:`RunData`).
 
-``OUT/data/<experiment>.jsonl`` holds one record per run (a replica of a sweep job is a run): its name
-in the sweep (``<job>/<replica>``), its composed config, every evaluation step with the metrics the
-report uses, the env steps spent before its step 0 on what it warm-started from, and its map's optimal
-team return (:func:`~dqn_transfer.envs.maps.optimal_team_return`; none for another game, ``env.factory``).
-``OUT/data/manifest.json`` says how the data were made (the edition, the commit of its verdict rules, and per
-experiment the profile, code commit, machine, date, wall time and runs).
-
-The report (:func:`dqn_transfer.experiments.pipeline.write_report`) reads these files and nothing else, so the
-committed report can be regenerated, and every number in it recomputed, without the run directories
-(checkpoints, TensorBoard logs), which stay out of the repository.
+``OUT/data/<experiment>.jsonl`` holds the runs, ``OUT/data/manifest.json`` how they were made. The report reads
+these files and nothing else, so it can be regenerated, and every number in it recomputed, without the run
+directories (checkpoints, TensorBoard logs), which stay out of the repository.
 """
 
 from __future__ import annotations
@@ -202,17 +195,9 @@ def read_data(path: Path) -> list[RunData]:
     for number, line in enumerate(lines, start=1):
         try:
             r = json.loads(line)
-            runs.append(
-                RunData(
-                    r["experiment"],
-                    r["name"],
-                    r["config"],
-                    tuple(r["steps"]),
-                    {k: tuple(v) for k, v in r["metrics"].items()},
-                    int(r["steps_before"]),
-                    r["optimal_return"],
-                )
-            )
+            metrics = {k: tuple(v) for k, v in r["metrics"].items()}
+            steps, before, optimum = tuple(r["steps"]), int(r["steps_before"]), r["optimal_return"]
+            runs.append(RunData(r["experiment"], r["name"], r["config"], steps, metrics, before, optimum))
         except (json.JSONDecodeError, KeyError, TypeError, ValueError):
             raise DataError(f"{path}: line {number} is not a run record") from None
     return runs

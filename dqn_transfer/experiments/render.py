@@ -83,12 +83,13 @@ class Section:
 # ------------------------------------------------------------------------------------ numbers and settings
 
 
-def fmt(e: Estimate, digits: int = 3) -> str:
+def fmt(e: Estimate, digits: int = 3, mark_no_spread: bool = True) -> str:
+    """An estimate with its interval; the second edition's report prints an interval without spread as it is."""
     if not math.isfinite(e.mean):
         return "n/a"
     if not e.has_ci:
         return f"{e.mean:.{digits}g} [no interval]"
-    if e.low == e.high:
+    if mark_no_spread and e.low == e.high:
         return f"{e.mean:.{digits}g} [no spread]"
     return f"{e.mean:.{digits}g} [{e.low:.{digits}g}, {e.high:.{digits}g}]"
 
@@ -149,14 +150,10 @@ def maps_text(game: Game) -> str:
 # ------------------------------------------------------------------------------------ figures
 
 
-def _curves(panels: list[Panel]) -> tuple[list, dict[str, str]]:
-    """``curves_figure``'s panels, and each series' colour keyed by its label."""
-    colors = {s.label: COLORS[s.condition] for p in panels for s in p.series if s.condition in COLORS}
-    return [(p.metric, {s.label: s.curves for s in p.series}) for p in panels], colors
-
-
 def _curves_figure(ctx: Context, name: str, panels: list[Panel], title: str, **kwargs) -> str:
-    figure_panels, colors = _curves(panels)
+    """``curves_figure`` of the panels, each series coloured by its condition; the figure's file name."""
+    colors = {s.label: COLORS[s.condition] for p in panels for s in p.series if s.condition in COLORS}
+    figure_panels = [(p.metric, {s.label: s.curves for s in p.series}) for p in panels]
     path = curves_figure(
         ctx.out / name, figure_panels, title, ctx.rng, color_of=colors.get, watermark=ctx.watermark, **kwargs
     )

@@ -1,15 +1,13 @@
 """Runs to numbers: what a run is (learner, mode, team size), its scores, and how runs are paired and compared.
 
-A run's **score** is its mean greedy-evaluation team return over training (the area under its learning
-curve divided by its steps), as a fraction of its map's optimal team return where the map has one, so
-maps of different sizes share a scale. A game without a treasure map (``env.factory``) is scored on its
-own team return: Level-Based Foraging normalises its rewards so that it is 1 when all food is loaded.
-Runs of two conditions with the same (map seed, seed) share their map, initial values and exploration
-noise: differences are paired by that unit. rliable's IQM and probability of improvement are stratified by map.
+A run's **score** is its mean greedy-evaluation team return over training as a fraction of its map's optimal
+team return where the map has one, so maps of different sizes share a scale. Runs of two conditions with the
+same (map seed, seed) share their map, initial values and exploration noise: differences are paired by that unit.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -52,8 +50,11 @@ def raw_score(run: RunData) -> float:
     return mean_over_training(run.curve())
 
 
-def final_score(run: RunData) -> float:
-    return asymptotic_performance(run.score_curve(), FINAL_TAIL)
+def final_score(run: RunData, budget: int | None = None) -> float:
+    """The mean score of the last 20% of the run's evaluations at or before ``budget`` (None: all)."""
+    steps, values = run.score_curve()
+    kept = steps <= (math.inf if budget is None else budget)
+    return asymptotic_performance((steps[kept], values[kept]), FINAL_TAIL)
 
 
 def on_total_steps(run: RunData) -> tuple[np.ndarray, np.ndarray]:

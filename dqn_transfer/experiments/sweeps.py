@@ -1,14 +1,7 @@
 """Running Hydra multiruns of the study's experiments (:class:`Multirun`), each into its own directory.
 
-A multirun is ``python -m dqn_transfer.cli.train -m experiment=<name>`` (``conf/experiment/``) in a
-subprocess, with a stage's overrides: one job per condition, its seeds batched inside the job as replicas
-(``replicas.seeds``, one run directory each); ``--launcher joblib`` (the default, from the ``sweep`` extra;
-without it, Hydra's basic launcher) runs ``--n-jobs`` jobs at a time, ``submitit_slurm`` one SLURM job per
-condition. Which multiruns a study makes is :mod:`~dqn_transfer.experiments.pipeline`'s.
-
 A sweep directory already complete for the same settings is reused (so a failed report or a second
 ``--only`` does not rerun it); one holding other or unfinished runs is an error, never overwritten.
-A failed sweep says which runs failed, with the tail of their logs.
 """
 
 from __future__ import annotations
@@ -24,6 +17,7 @@ import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import yaml
 from hydra import compose, initialize_config_dir
@@ -53,20 +47,37 @@ def quoted_path(value: str | Path) -> str:
     return f"'{text}'"
 
 
-def count_jobs(name: str, overrides: Sequence[str]) -> int:
-    """How many jobs the multirun launches: the experiment file's sweep with ``overrides`` applied."""
+def composed(experiment: str, overrides: Sequence[str] = (), hydra_config: bool = False) -> Any:
+    """``experiment=<experiment>``'s config with ``overrides`` (with Hydra's own settings if ``hydra_config``)."""
     register_configs()
     with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-        cfg = compose(config_name="config", overrides=[f"experiment={name}"], return_hydra_config=True)
-    params = {key: str(value) for key, value in (cfg.hydra.sweeper.params or {}).items()}
+        return compose(
+            config_name="config", overrides=[f"experiment={experiment}", *overrides], return_hydra_config=hydra_config
+        )
+
+
+def swept_values(experiment: str, overrides: Sequence[str] = ()) -> dict[str, list[str]]:
+    """Each key of the experiment file's sweep, with ``overrides`` applied (the command line replaces a file's
+    key), and its values in sweep order."""
+    params = {
+        key: str(value) for key, value in (composed(experiment, hydra_config=True).hydra.sweeper.params or {}).items()
+    }
     parser = OverridesParser.create()
     for text, override in zip(overrides, parser.parse_overrides(list(overrides))):
-        params[override.get_key_element()] = text.split("=", 1)[1]  # the command line replaces a file's key
-    total = 1
-    for override in parser.parse_overrides([f"{k}={v}" for k, v in params.items()]):
-        if override.is_sweep_override():
-            total *= len(list(override.sweep_string_iterator()))
-    return total
+        params[override.get_key_element()] = text.split("=", 1)[1]
+    return {
+        override.get_key_element(): (
+            list(override.sweep_string_iterator())
+            if override.is_sweep_override()
+            else [override.get_value_element_as_str()]
+        )
+        for override in parser.parse_overrides([f"{k}={v}" for k, v in params.items()])
+    }
+
+
+def count_jobs(name: str, overrides: Sequence[str]) -> int:
+    """How many jobs the multirun launches: the experiment file's sweep with ``overrides`` applied."""
+    return math.prod(len(values) for values in swept_values(name, overrides).values())
 
 
 def installed_launchers() -> list[str]:

@@ -1,12 +1,8 @@
 """The fair tuning protocol (docs/tuning.md): one Optuna search per learner x knowledge-exchange method.
 
-Each search is the experiment config ``tune/<learner>_<method>`` (``conf/experiment/tune/``,
-every one from ``tune/base``: the same budget, tuning maps, sampler and number of trials), run as one
-Hydra multirun with the Optuna sweeper into ``OUT/runs/<learner>_<method>/`` (:func:`run_multirun`:
-its trials one after another in one process, ``parallel`` searches at once). Its trials are then read
-back from their run directories — the values from each job's ``.hydra/overrides.yaml``, the objective
-from its replicas' ``metrics.jsonl`` — into ``OUT/tuning.jsonl``, from which alone :func:`analyse`
-writes ``tuned.yaml``, ``tuning.md`` and ``tuning_sensitivity.png``.
+Each search (``conf/experiment/tune/<learner>_<method>``) is one Hydra multirun with the Optuna sweeper; its
+trials are read back from their run directories into ``OUT/tuning.jsonl``, from which alone :func:`analyse`
+writes the tuned values, the table and the figure.
 """
 
 from __future__ import annotations
@@ -18,11 +14,9 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from hydra import compose, initialize_config_dir
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import IntervalSweep
 from hydra.errors import HydraException
-from omegaconf import OmegaConf
 
 from dqn_transfer.analysis.plots import dose_response_figure
 from dqn_transfer.analysis.runs import EvaluationError, load_config, run_objective
@@ -39,9 +33,9 @@ from dqn_transfer.analysis.tuning import (
     tuning_table,
     write_trials,
 )
-from dqn_transfer.config import CONFIG_DIR, register_configs
+from dqn_transfer.config import CONFIG_DIR
 from dqn_transfer.experiments.render import COLORS
-from dqn_transfer.experiments.sweeps import RUNS_DIR, Multirun, job_dirs, run_multirun
+from dqn_transfer.experiments.sweeps import RUNS_DIR, Multirun, composed, job_dirs, run_multirun
 from dqn_transfer.storage.run_dir import RunDir
 
 TRIALS_FILE, TUNED_FILE, TABLE_FILE, FIGURE_FILE = "tuning.jsonl", "tuned.yaml", "tuning.md", "tuning_sensitivity.png"
@@ -93,16 +87,6 @@ def search_named(name: str) -> Search:
     raise TuningError(f"unknown search {name!r} (choose from {', '.join(s.name for s in SEARCHES)})")
 
 
-def composed_sweeper(search: Search, overrides: Sequence[str] = ()) -> dict:
-    """The search's ``hydra.sweeper`` settings, composed from its config with ``overrides``."""
-    register_configs()
-    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-        cfg = compose(
-            config_name="config", overrides=[f"experiment={search.experiment}", *overrides], return_hydra_config=True
-        )
-    return OmegaConf.to_container(cfg.hydra.sweeper)  # type: ignore[return-value]
-
-
 def run_searches(searches: Sequence[Search], profile: str, out: Path, parallel: int, poll_seconds: float = 2.0) -> None:
     """Each search as one multirun into ``OUT/runs/<name>``, ``parallel`` at once, the costliest first; a
     search finished before with the same settings is reused. Raises the first failure's
@@ -110,7 +94,7 @@ def run_searches(searches: Sequence[Search], profile: str, out: Path, parallel: 
     overrides = list(PROFILES[profile])
     multiruns = []
     for search in sorted(searches, key=lambda s: -TRIAL_SECONDS.get(s.learner, 0.0)):
-        trials = int(composed_sweeper(search, overrides)["n_trials"])
+        trials = int(composed(search.experiment, overrides, hydra_config=True).hydra.sweeper.n_trials)
         stamp = {"search": search.name, "profile": profile, "overrides": overrides, "jobs": trials}
         multiruns.append(
             Multirun(search.name, search.experiment, tuple(overrides), out / RUNS_DIR / search.name, trials, stamp)
