@@ -62,3 +62,33 @@ def test_compiled_seeding_makes_numpys_generator_and_its_first_child(key):
 def test_a_negative_seed_is_refused():
     with pytest.raises(ValueError, match="non-negative"):
         tie_draws.entropy_words([3, -1])
+
+
+@kernel
+def _explore(words, rows, agents, num_actions, uniforms, actions):
+    for r in range(rows):
+        for a in range(agents):
+            uniforms[r, a] = tie_draws.uniform(words)
+        for a in range(agents):
+            actions[r, a] = tie_draws.integers(words, num_actions)
+
+
+@pytest.mark.parametrize("seed", [0, 99])
+def test_compiled_exploration_draws_are_epsilon_greedys(seed):
+    """The DQN steps' draws: per step ``rng.random(K)`` then ``rng.integers(0, A, size=K)``, as
+    ``epsilon_greedy`` takes them, with the 32-bit half numpy keeps between calls."""
+    numpy_rng, compiled_rng = np.random.default_rng(seed), np.random.default_rng(seed)
+    steps, agents, num_actions = 500, 3, 5
+    expected_u = np.zeros((steps, agents))
+    expected_a = np.zeros((steps, agents), dtype=np.int64)
+    for t in range(steps):
+        expected_u[t] = numpy_rng.random(agents)
+        expected_a[t] = numpy_rng.integers(0, num_actions, size=agents)
+    words = np.zeros(tie_draws.WORDS, dtype=np.uint64)
+    tie_draws.pack(compiled_rng, words)
+    uniforms, actions = np.zeros((steps, agents)), np.zeros((steps, agents), dtype=np.int64)
+    _explore(words, steps, agents, num_actions, uniforms, actions)
+    tie_draws.unpack(words, compiled_rng)
+    assert uniforms.tobytes() == expected_u.tobytes()
+    np.testing.assert_array_equal(actions, expected_a)
+    assert compiled_rng.bit_generator.state == numpy_rng.bit_generator.state

@@ -247,6 +247,10 @@ class BatchedDQN(Learner, KnowledgeExchange, ExperienceSharing, WarmStart, Gener
         np.copyto(actions, 0, where=~np.asarray(live, dtype=bool))
         return actions
 
+    def greedy_actions(self, obs: np.ndarray) -> np.ndarray:
+        """``argmax_a Q(obs, a)`` of every row, ``obs`` float32 ``[rows, D]`` (the game's observations)."""
+        return self._greedy_actions(self._network_inputs(obs), None)
+
     def best_actions(self, obs: np.ndarray, replica: int | None = None) -> np.ndarray:
         """The first best action of each row (network outputs practically never tie), as a mask."""
         greedy = self._greedy_actions(self._network_inputs(np.asarray(obs, dtype=np.float32), replica), replica)
@@ -256,14 +260,17 @@ class BatchedDQN(Learner, KnowledgeExchange, ExperienceSharing, WarmStart, Gener
 
     # ---------------------------------------------------------------------------- learning
     def update(self, transition: Transition, step: int) -> UpdateStats:
-        """Store the live agents' transitions, train on schedule, sync the target on schedule.
+        """Store the live agents' transitions, then :meth:`learn`."""
+        self.replay.add(transition)
+        return self.learn(step)
+
+    def learn(self, step: int) -> UpdateStats:
+        """Train on schedule, sync the target on schedule (what :meth:`update` does once the step is stored).
 
         ``step`` counts env steps including this one (the same for every replica: they run in
         lockstep). The statistics are averaged over this round's gradient steps (``q_mean``: mean
         ``Q(s, a)`` of the batch), nan if no training.
         """
-        self.replay.add(transition)
-
         stats = self._no_training
         if step > self.learning_starts and step % self.train_freq == 0:
             rounds = [self.gradient_step() for _ in range(self.gradient_steps)]

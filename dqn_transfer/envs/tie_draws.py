@@ -1,4 +1,4 @@
-"""The chest ties' draws inside the compiled rules: numpy's default generator and its ``integers(n)``.
+"""numpy's default generator inside the compiled kernels: ``integers(n)`` and ``random()``.
 
 A replica's chest ties are drawn from its ``numpy.random.Generator`` (``default_rng``: the PCG64 bit
 generator), ``rng.integers(contenders)``. The rules' kernels draw them themselves, so a step never
@@ -7,7 +7,8 @@ kernels advance them exactly as numpy advances its own state (:func:`integers`: 
 step and XSL-RR output, halves of it as 32-bit draws, Lemire's bounded draw as numpy's
 ``random_bounded_uint64`` makes it for a range below 2**32), and the words go back into the generator
 (:func:`unpack`). The same numbers and the same generator state as numpy's, bit for bit
-(``tests/test_tie_draws.py``).
+(``tests/test_tie_draws.py``). The compiled DQN steps draw their exploration the same way
+(:func:`uniform`, :func:`integers`).
 
 A batch of evaluation episodes needs a new generator per episode (and a child of it): :func:`seed`
 makes its packed state from its entropy as ``default_rng`` does (numpy's ``SeedSequence``, then
@@ -30,6 +31,7 @@ _MULTIPLIER_HIGH = np.uint64(0x2360ED051FC65DA4)  # PCG's default 128-bit multip
 _MULTIPLIER_LOW = np.uint64(0x4385DF649FCCF645)
 _LOW32 = np.uint64(0xFFFFFFFF)
 _LOW64 = (1 << 64) - 1
+_TO_UNIT = 2.0**-53
 
 
 def pack(generator: np.random.Generator, words: np.ndarray) -> None:
@@ -103,6 +105,13 @@ def next_uint32(words):
     words[HAS_UINT32] = np.uint64(1)
     words[UINTEGER] = drawn >> np.uint64(32)
     return drawn & _LOW32
+
+
+@kernel
+def uniform(words):
+    """``Generator.random()``: a float64 in ``[0, 1)`` from the top 53 bits of a 64-bit output (numpy's
+    ``next_double``; the buffered 32-bit half is left as it is)."""
+    return np.float64(next_uint64(words) >> np.uint64(11)) * _TO_UNIT
 
 
 @kernel

@@ -37,7 +37,7 @@ class ExchangeMethod:
     moves_transitions: ClassVar[bool] = False  # between the agents' replays (VDN's aligned team steps refuse it)
     fills_replays: ClassVar[bool] = False  # each agent's replay also takes its team-mates' transitions
     at_interval: ClassVar[bool] = False  # exchange() every transfer.exchange_every episodes of a replica
-    in_loop: ClassVar[bool] = True  # a hook acts inside the loop (the compiled tabular steps have none)
+    in_loop: ClassVar[bool] = True  # a hook acts inside the loop (the compiled steps have none)
 
     def __init__(self, transfer: TransferConfig, num_replicas: int) -> None:
         self.transfer = transfer

@@ -12,6 +12,7 @@ from dqn_transfer.exchange.base import ExchangeMethod
 class SharedNetwork(ExchangeMethod):
     name = "shared_network"
     family, needs = "dqn", "applies to a shared network"
+    in_loop = False  # the learner is built with it
 
     @classmethod
     def asked_by(cls, config: TrainConfig) -> str | None:

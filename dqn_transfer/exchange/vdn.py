@@ -15,6 +15,7 @@ from dqn_transfer.exchange.base import ExchangeMethod
 class TeamLoss(ExchangeMethod):
     name = "vdn"
     family, needs = "dqn", "sums the agents' Q-networks"
+    in_loop = False  # the learner's loss (the compiled steps leave a joint replay to Python)
 
     @classmethod
     def asked_by(cls, config: TrainConfig) -> str | None:

@@ -12,8 +12,8 @@ entry order), the update statistics' window, the episode sums and an ended episo
 ``TreasureHunts.reset``), in the same order and the same floats, so a run is the same bit for bit
 either way (``tests/test_tabular_steps.py``, the reference runs). The ended episodes are logged after
 the call, in order (:meth:`Replica.record_episode <dqn_transfer.training.replica.Replica.record_episode>`).
-Runs this does not cover stay in Python (:func:`compiled_steps` says which): exchanges at episode
-ends, advice, shared replay, games without an observation code.
+Runs this does not cover stay in Python (:func:`~dqn_transfer.training.trainer.compiled_steps` says
+which): exchanges at episode ends, advice, shared replay, games without an observation code.
 """
 
 from __future__ import annotations
@@ -23,66 +23,19 @@ from typing import Any
 import numpy as np
 
 from dqn_transfer.agents.random_streams import draw_uniforms
-from dqn_transfer.agents.state_index import DenseIndex
 from dqn_transfer.agents.tabular import DRAWS_PER_AGENT_STEP, TabularLearner
 from dqn_transfer.agents.tabular_kernels import choose_action, update_entry
 from dqn_transfer.compiled import kernel
 from dqn_transfer.enums import Algorithm, RewardMode
 from dqn_transfer.envs import rules
 from dqn_transfer.envs.game import TreasureHunts
-from dqn_transfer.envs.game_batch import GameBatch
 from dqn_transfer.envs.observation_code import encode_rows
-from dqn_transfer.exchange import ExchangeMethod
-
-EPISODES_PER_CALL = 4096  # the most ended episodes one call records before the caller logs them
-
-
-class UpdateWindow:
-    """Each row's mean ``td_loss`` and ``q_mean`` over the updates since the last training-curve point,
-    as running sums: the first step's values (NaN, no update, as 0), then each later step's added, and
-    the count of updates -- the floats of ``numpy.nanmean`` over the window's rows."""
-
-    def __init__(self, rows: int) -> None:
-        self.sums = np.zeros((2, rows))  # td_loss, q_mean
-        self.counts = np.zeros((2, rows), dtype=np.int64)
-        self.steps = np.zeros(1, dtype=np.int64)  # steps in the window (an array: the kernel adds to it)
-
-    def add(self, td_loss: np.ndarray, q_mean: np.ndarray) -> None:
-        """One step's statistics (NaN where a row had no update)."""
-        values = np.stack([td_loss, q_mean]).astype(np.float64)
-        known = ~np.isnan(values)
-        values[~known] = 0.0
-        self.sums[:] = values if self.steps[0] == 0 else self.sums + values
-        self.counts += known
-        self.steps[0] += 1
-
-    def means(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """``(td_loss, q_mean)`` per row (NaN for a row without an update), None for an empty window;
-        the window then starts again."""
-        if self.steps[0] == 0:
-            return None
-        with np.errstate(invalid="ignore", divide="ignore"):
-            means = self.sums / self.counts
-        self.sums[:] = 0.0
-        self.counts[:] = 0
-        self.steps[0] = 0
-        return means[0], means[1]
-
-
-def compiled_steps(
-    learner: Any, games: GameBatch, exchange: ExchangeMethod, schedule: Any, sums: Any, window: UpdateWindow
-) -> TabularSteps | None:
-    """The compiled steps of this run, None where they do not cover it: they need a tabular learner with
-    dense tables on treasure hunts stepped as one batch, and no exchange that acts inside the loop."""
-    if not isinstance(learner, TabularLearner) or not isinstance(games, TreasureHunts):
-        return None
-    covered = isinstance(learner.index, DenseIndex) and learner.advice is None
-    return TabularSteps(learner, games, schedule, sums, window) if covered and not exchange.in_loop else None
+from dqn_transfer.training.loop_kernels import EndedEpisodes, UpdateWindow, add_episode_step
 
 
 class TabularSteps:
-    """The compiled steps of one run (:func:`compiled_steps`), over the arrays the learner, the games,
-    the episode sums and the update window own (changed in place)."""
+    """The compiled steps of one run (:func:`~dqn_transfer.training.trainer.compiled_steps`), over the
+    arrays the learner, the games, the episode sums and the update window own (changed in place)."""
 
     def __init__(self, learner: TabularLearner, games: TreasureHunts, schedule: Any, sums: Any, window: UpdateWindow):
         self.learner, self.games, self.schedule, self.sums, self.window = learner, games, schedule, sums, window
@@ -97,12 +50,7 @@ class TabularSteps:
         self.sarsa = learner.algorithm == Algorithm.sarsa.value
         self.team = games.reward_mode is RewardMode.team
         self.learning = (np.float32(learner.gamma), np.float32(learner.lr))
-        if tuple(sums.team_metrics) != ("treasures_collected", "trap_rate"):
-            raise ValueError(f"the compiled steps log the treasure hunt's episode metrics, not {sums.team_metrics}")
-        # Each ended episode: its step, its replica, then EpisodeSums.ended_values' row.
-        agents = games.num_agents
-        self.ended = np.zeros((max(EPISODES_PER_CALL, games.num_replicas), 2 + 2 * agents + 3))
-        self.num_ended = np.zeros(1, dtype=np.int64)
+        self.ended = EndedEpisodes(games.num_replicas, games.num_agents, sums.team_metrics)
 
     def run(self, step: int, last: int) -> list[tuple[int, int, np.ndarray]]:
         """Joint steps from ``step`` to ``last``; returns each episode that ended on the way, in order, as
@@ -111,7 +59,6 @@ class TabularSteps:
         episodes: list[tuple[int, int, np.ndarray]] = []
         while step < last:
             self.entries[0] = learner.num_entries
-            self.num_ended[0] = 0
             step = _run(
                 step,
                 last,
@@ -140,8 +87,8 @@ class TabularSteps:
                 self.window.counts,
                 self.window.steps,
                 self.draws,
-                self.ended,
-                self.num_ended,
+                self.ended.rows,
+                self.ended.count,
                 self.sarsa,
                 self.team,
                 self.learning,
@@ -152,7 +99,7 @@ class TabularSteps:
             )
             games.keep_draws()
             learner.num_entries = int(self.entries[0])
-            episodes += [(int(row[0]), int(row[1]), row[2:].copy()) for row in self.ended[: self.num_ended[0]]]
+            episodes += self.ended.take()
         return episodes
 
 
@@ -273,27 +220,6 @@ def _run(
         window_steps[0] += 1
         for r in range(replicas):
             next_counters[r] += 1
-        # 4. the episodes' sums (EpisodeSums.add); an ended one recorded (EpisodeSums.ended_values) and restarted
-        for r in range(replicas):
-            for a in range(agents):
-                returns[r, a] += np.float64(out.rewards[r, a])
-                lengths[r, a] += out.acted[r, a]
-                traps[r] += out.trap[r, a]
-            team_return[r] += rules.team_step_return(out, r, team)
-            if not out.ended[r]:
-                continue
-            record = ended[num_ended[0]]
-            num_ended[0] += 1
-            record[0], record[1] = step, r
-            for a in range(agents):
-                record[2 + a] = returns[r, a]
-                record[2 + agents + a] = lengths[r, a]
-                returns[r, a] = 0.0
-                lengths[r, a] = 0
-            record[2 + 2 * agents] = team_return[r]
-            record[3 + 2 * agents] = state.treasures_collected[r]
-            record[4 + 2 * agents] = traps[r] / agents
-            team_return[r] = 0.0
-            traps[r] = 0
-            rules.reset_replica(tables, state, r)
+        # 4. the episodes' sums; an ended episode recorded and its game restarted
+        add_episode_step(step, tables, state, out, team, returns, lengths, traps, team_return, ended, num_ended)
     return step

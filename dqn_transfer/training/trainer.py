@@ -16,8 +16,9 @@ its own run directory). :meth:`Trainer.run` reads top to bottom:
 6. every ``checkpoint_every`` steps, and when a signal asks to stop: a checkpoint of every replica
    (:mod:`dqn_transfer.training.run_state`), its logs on the disk first.
 
-Steps 1-3 of a tabular team on the treasure hunt run compiled (:mod:`~dqn_transfer.training.tabular_steps`),
-many at a time, with the same numbers.
+Steps 1-3 on the treasure hunt run compiled, many at a time, with the same numbers: a tabular team's
+whole (:mod:`~dqn_transfer.training.tabular_steps`), a DQN team's around its forward passes and gradient
+steps (:mod:`~dqn_transfer.training.dqn_steps`); :func:`compiled_steps` says which runs.
 
 The run is planned (validated, its replicas' maps resolved) beforehand, by
 :func:`~dqn_transfer.training.plan.plan_run`.
@@ -43,21 +44,27 @@ from tqdm.contrib.logging import logging_redirect_tqdm
 
 from dqn_transfer import compiled as compiled_kernels
 from dqn_transfer.agents import Learner, Transition, UpdateStats, make_replicas
+from dqn_transfer.agents.dqn_base import BatchedDQN
+from dqn_transfer.agents.state_index import DenseIndex
+from dqn_transfer.agents.tabular import TabularLearner
 from dqn_transfer.config import ConfigError, TrainConfig, plain_yaml, to_plain
 from dqn_transfer.enums import Algorithm, Logger
+from dqn_transfer.envs.game import TreasureHunts
 from dqn_transfer.envs.game_batch import GameBatch, game_batch
 from dqn_transfer.envs.observation_code import observation_code
 from dqn_transfer.evaluation.batched_rollout import evaluate_replicas
 from dqn_transfer.evaluation.rollout import EvaluationStopped
-from dqn_transfer.exchange import exchange_method
+from dqn_transfer.exchange import ExchangeMethod, exchange_method
 from dqn_transfer.storage.checkpoint import CheckpointError, atomic_write, atomic_write_all
 from dqn_transfer.storage.run_dir import RunDir, existing_run_message
 from dqn_transfer.timing import Stopwatch
+from dqn_transfer.training.dqn_steps import DQNSteps
+from dqn_transfer.training.loop_kernels import UpdateWindow
 from dqn_transfer.training.plan import RunPlan
 from dqn_transfer.training.replica import EpisodeSums, EpsilonSchedule, Replica, evaluation_line, metric_text
 from dqn_transfer.training.run_state import encode_checkpoint, load_checkpoint
 from dqn_transfer.training.stop import Interrupted, StopRequest
-from dqn_transfer.training.tabular_steps import UpdateWindow, compiled_steps
+from dqn_transfer.training.tabular_steps import TabularSteps
 from dqn_transfer.transfer.warm_start import apply_transfer, check_warm_start, lineage_table
 
 log = logging.getLogger("dqn_transfer.train")
@@ -481,6 +488,26 @@ def train(
     the caller moves each replica's directory afterwards (a cache entry), the paths the log then names.
     """
     return Trainer(plan, run_dir, sources=sources, tag=tag, final_dirs=final_dirs).run()
+
+
+def compiled_steps(
+    learner: Learner,
+    games: GameBatch,
+    exchange: ExchangeMethod,
+    schedule: EpsilonSchedule,
+    sums: EpisodeSums,
+    window: UpdateWindow,
+) -> TabularSteps | DQNSteps | None:
+    """The compiled steps of this run, None where they do not cover it. They step treasure hunts as one
+    batch, with no exchange that acts inside the loop, and a tabular learner with dense tables and no
+    advice, or a DQN learner with per-agent replay (not VDN's joint one)."""
+    if not isinstance(games, TreasureHunts) or exchange.in_loop:
+        return None
+    if isinstance(learner, TabularLearner) and isinstance(learner.index, DenseIndex) and learner.advice is None:
+        return TabularSteps(learner, games, schedule, sums, window)
+    if isinstance(learner, BatchedDQN) and not learner.replay.joint and learner.shared_experience is None:
+        return DQNSteps(learner, games, schedule, sums, window)
+    return None
 
 
 def next_boundary(step: int, config: TrainConfig, next_checkpoint: int) -> int:

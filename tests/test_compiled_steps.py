@@ -1,7 +1,9 @@
-"""The compiled steps of a tabular run (``training/tabular_steps.py``) against the loop's Python steps:
-the same run bit for bit -- evaluations, tables, visits, entry order, counters, episode records and the
-training curves' points -- in the cases that exercise their parts (chest ties, the coordinator, team
-rewards, a view, Q-learning's max, replicas on several maps, episodes that end on every step)."""
+"""The compiled steps (``training/tabular_steps.py``, ``training/dqn_steps.py``) against the loop's Python
+steps: the same run bit for bit -- evaluations, tables or weights, visits, entry order, replay, Adam's
+moments, random streams, counters, episode records and the training curves' points -- in the cases
+that exercise their parts (chest ties, the coordinator, team rewards, a view, Q-learning's max, DQN's
+and Double DQN's targets, agent ids, both DQN engines, replicas on several maps, a replay that wraps,
+episodes that end on every step)."""
 
 from __future__ import annotations
 
@@ -9,13 +11,13 @@ import dataclasses
 
 import numpy as np
 import pytest
-from test_replicas import SARSA, assert_same_run, config
+from test_replicas import DQN, SARSA, assert_same_run, config
 
 from dqn_transfer.agents.random_streams import draw_uniforms, stream_keys, uniforms
-from dqn_transfer.enums import Algorithm
+from dqn_transfer.enums import Algorithm, Engine
 from dqn_transfer.training import trainer as trainer_module
+from dqn_transfer.training.loop_kernels import UpdateWindow
 from dqn_transfer.training.plan import plan_run
-from dqn_transfer.training.tabular_steps import UpdateWindow
 from dqn_transfer.training.trainer import Trainer
 
 CASES = {
@@ -26,6 +28,17 @@ CASES = {
         env=dict(mode="competitive", reward_mode="team", view_radius=1, step_reward=-0.37),
     ),
     "sarsa_coords_short_episodes": dict(agent=SARSA, seeds=2, env=dict(obs_encoding="coords", max_steps=3)),
+    "double_dqn_replicas_wrapping_replay": dict(
+        agent=dataclasses.replace(DQN, buffer_size=150), seeds=2, maps=2, env=dict(mode="deliberative")
+    ),
+    "dqn_team_agent_ids_short_episodes": dict(
+        agent=dataclasses.replace(
+            DQN, algorithm=Algorithm.dqn, share_parameters=True, agent_id_input=True, train_freq=3
+        ),
+        seeds=2,
+        env=dict(mode="competitive", reward_mode="team", max_steps=3),
+    ),
+    "double_dqn_torch_engine": dict(agent=dataclasses.replace(DQN, engine=Engine.torch), seeds=1, env=dict()),
 }
 
 
