@@ -38,16 +38,14 @@ from dqn_transfer.config.help import help_text
 from dqn_transfer.config.overrides import check_overrides, open_mapping_overrides
 from dqn_transfer.sources.curriculum import curriculum_sources
 from dqn_transfer.sources.resolve import transfer_sources
-from dqn_transfer.storage.checkpoint import CheckpointError, load_training_state
+from dqn_transfer.storage.checkpoint import load_training_state
 from dqn_transfer.storage.run_dir import RunClaim, RunDir, RunDirError, file_in_the_way
 from dqn_transfer.training.plan import plan_run
 from dqn_transfer.training.stop import Interrupted
-from dqn_transfer.training.trainer import Trainer
-from dqn_transfer.transfer.mapping import TransferError
+from dqn_transfer.training.workers import USER_ERRORS, trainer_for
 
 log = logging.getLogger("dqn_transfer.train")
 
-USER_ERRORS = (ConfigError, CheckpointError, TransferError, RunDirError)
 # What a resumed run may change; everything else is the run's own saved config.
 RESUMABLE_KEYS = (
     "total_steps",
@@ -58,6 +56,7 @@ RESUMABLE_KEYS = (
     "eval_pictures",
     "objective",
     "logger",
+    "replicas.workers",
 )
 
 
@@ -339,7 +338,7 @@ def app(cfg: DictConfig) -> float:
             sources = (
                 curriculum_sources(plan, launch_dir) if config.curriculum.stages else transfer_sources(plan, launch_dir)
             )
-            trainer = Trainer(plan, run.path, sources=sources)
+            trainer = trainer_for(plan, run.path, sources)
             trainer.prepare()
             if not plan.chain:
                 announce(run, caught, held)

@@ -185,6 +185,9 @@ class ReplicasConfig:
 
     seeds: int = documented(1, "replicas with consecutive seeds")
     maps: int = documented(1, "replicas with consecutive map seeds (a generated map only)")
+    workers: str = documented(
+        "auto", "processes the replicas are split across: auto (the cores, shared with a sweep's jobs at once) or N"
+    )
 
 
 @dataclass
@@ -329,6 +332,11 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
         _check(0.0 <= _value(cfg, key) <= 1.0, f"{key} must be in [0, 1], got {_value(cfg, key)}")
     for key in _IN_HALF_OPEN_UNIT:
         _check(0.0 < _value(cfg, key) <= 1.0, f"{key} must be in (0, 1], got {_value(cfg, key)}")
+    workers = str(cfg.replicas.workers)
+    _check(
+        workers == "auto" or (workers.isdigit() and int(workers) >= 1),
+        f"replicas.workers must be auto or a number of processes >= 1, got {workers}",
+    )
     _check(0.0 <= env.complexity < 1.0, f"env.complexity must be in [0, 1), got {env.complexity}")
     _check(
         len(agent.hidden) >= 1 and all(h >= 1 for h in agent.hidden),

@@ -194,6 +194,18 @@ def load_training_state(path: str | os.PathLike) -> tuple[dict[str, np.ndarray],
     return _decode(info.path, data, safetensors.numpy.load), info.meta
 
 
+def read_meta(path: str | os.PathLike) -> dict[str, Any]:
+    """A checkpoint's meta from its header alone: no tensor is read, nor verified (a loader does both)."""
+    path = Path(path)
+    try:
+        with path.open("rb") as file:
+            head = file.read(_HEADER_LEN_BYTES)
+            data = head + file.read(int.from_bytes(head, "little")) if len(head) == _HEADER_LEN_BYTES else head
+    except OSError as e:
+        raise CheckpointError(f"{path}: cannot read checkpoint ({e.strerror})") from None
+    return _parse_meta(path, _parse_header(path, data))
+
+
 def _decode(path: Path, data: bytes, load: Callable[[bytes], dict[str, Any]]) -> dict[str, Any]:
     try:
         return load(data)

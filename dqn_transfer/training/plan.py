@@ -80,6 +80,24 @@ class RunPlan:
     targets: tuple[int, ...]
     source_task: bool = False
     chain: tuple[RunPlan, ...] = ()
+    # A share of a batch (share()): the batch's replicas in all, and this share's first one among them.
+    batch_size: int = 0  # 0: the plan is the whole run
+    first_replica: int = 0
+
+    @property
+    def is_lone_run(self) -> bool:
+        """One replica, trained in the run directory itself (a batch's replicas get directories of their own)."""
+        return (self.batch_size or len(self.replicas)) == 1
+
+    def share(self, first: int, count: int) -> RunPlan:
+        """Replicas ``first .. first + count - 1`` of the run, trained into the same run directory by a
+        worker process of their own (:mod:`~dqn_transfer.training.workers`)."""
+        return dataclasses.replace(
+            self,
+            replicas=self.replicas[first : first + count],
+            batch_size=self.batch_size or len(self.replicas),
+            first_replica=self.first_replica + first,
+        )
 
     def lone(self, index: int) -> RunPlan:
         """Replica ``index`` as a run of its own (its config is a lone run's)."""

@@ -32,7 +32,7 @@ import json
 import logging
 import sys
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, NoReturn, cast
 
@@ -99,7 +99,10 @@ class Trainer:
         sources: Sources | None = None,
         tag: str = "",
         final_dirs: Sequence[Path] | None = None,
+        report_step: Callable[[int], None] | None = None,
     ):
+        """``report_step``: called with the step at each training-curve point, instead of a progress bar
+        (a worker's: :mod:`~dqn_transfer.training.workers`)."""
         config = plan.config
         self.plan, self.config = plan, config
         self.run_dir = RunDir(run_dir)
@@ -126,9 +129,10 @@ class Trainer:
         # The run's knowledge exchange (its hooks: dqn_transfer.exchange.base); a resumed run then loads its state.
         self.exchange = exchange_method(config)(config.transfer, len(plan.replicas))
         self.exchange.start(self.learner)
-        lone = len(plan.replicas) == 1
+        self.report_step = report_step
+        lone = plan.is_lone_run
         # null: someone watches a run started by hand, one replica of it; a sweep's jobs are compared by curves
-        pictures = [r == 0 and not in_multirun() for r in range(len(plan.replicas))]
+        pictures = [plan.first_replica + r == 0 and not in_multirun() for r in range(len(plan.replicas))]
         if config.eval_pictures is not None:
             pictures = [config.eval_pictures] * len(plan.replicas)
         per_replica = list(sources) if sources is not None else [None] * len(plan.replicas)
@@ -191,15 +195,15 @@ class Trainer:
                 rep.transfer_info = apply_transfer(rep.config, rep.learner, rep.game, rep.source)
 
     def _write_replica_configs(self) -> None:
-        """Each replica's own composed config, where the readers of a run directory look for it."""
-        if len(self.replicas) == 1:
+        """Each replica's own composed config, where the readers of a run directory look for it; and
+        the batch's index (a share's workers leave it to the process that split the run)."""
+        if self.plan.is_lone_run:
             return
         for rep in self.replicas:
             rep.run_dir.hydra_dir.mkdir(parents=True, exist_ok=True)
             atomic_write(rep.run_dir.config, plain_yaml(rep.plain_config).encode())
-        # With the batch's own config: what resume=true on the batch directory continues with.
-        index = {"replicas": [rep.run_dir.path.name for rep in self.replicas], "config": to_plain(self.config)}
-        atomic_write(self.run_dir.replicas_index, (json.dumps(index, indent=2) + "\n").encode())
+        if not self.plan.batch_size:
+            write_replicas_index(self.plan, self.run_dir)
 
     # --------------------------------------------------------------------- loop
     def run(self) -> dict[str, Any]:
@@ -256,8 +260,9 @@ class Trainer:
             total=config.total_steps,
             initial=self.step,
             # Only on a terminal: in a captured stream (a file, a pipe, a sweep's parallel jobs sharing
-            # one) a bar's carriage returns glue other lines onto it, and nobody watches it there.
-            disable=not config.progress or not sys.stderr.isatty(),
+            # one) a bar's carriage returns glue other lines onto it, and nobody watches it there. A
+            # worker reports its steps to the bar of the process that started it.
+            disable=not config.progress or not sys.stderr.isatty() or self.report_step is not None,
             unit="step",
             dynamic_ncols=True,
             file=sys.stderr,
@@ -295,6 +300,8 @@ class Trainer:
                     refresh=False,
                 )
                 bar.update(step - bar.n)
+                if self.report_step is not None:
+                    self.report_step(step)
             # 6. checkpoint when due, and at a signal (a checkpoint between two steps resumes exactly)
             if step >= replicas[0].counters.next_checkpoint or stop.signum is not None:
                 if step < config.total_steps or stop.signum is not None:  # else written once, after the loop
@@ -488,6 +495,13 @@ def train(
     the caller moves each replica's directory afterwards (a cache entry), the paths the log then names.
     """
     return Trainer(plan, run_dir, sources=sources, tag=tag, final_dirs=final_dirs).run()
+
+
+def write_replicas_index(plan: RunPlan, run_dir: RunDir) -> None:
+    """A batch's index of its replicas' directories, with the batch's own config: what resume=true on
+    the batch directory continues with."""
+    index = {"replicas": [replica.name for replica in plan.replicas], "config": to_plain(plan.config)}
+    atomic_write(run_dir.replicas_index, (json.dumps(index, indent=2) + "\n").encode())
 
 
 def compiled_steps(
