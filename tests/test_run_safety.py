@@ -4,6 +4,7 @@ unknown keys are refused with the nearest valid one, log lines never glue onto t
 
 from __future__ import annotations
 
+import os
 import re
 import signal
 import subprocess
@@ -24,6 +25,7 @@ from conftest import (
     without_timing,
 )
 
+from dqn_transfer.experiments import sweeps
 from dqn_transfer.storage.checkpoint import load_training_state
 
 pytestmark = pytest.mark.slow
@@ -374,3 +376,47 @@ def test_a_sweeps_captured_output_glues_no_line_onto_a_progress_bar(tmp_path, la
     assert_log_lines_start_lines(result.stdout)
     for job in (0, 1):
         assert sum(f"[job {job}] eval step" in line for line in result.stdout.splitlines()) == 7, result.stdout
+
+
+def test_an_interrupted_study_stage_continues_where_it_stopped(tmp_path, monkeypatch, capsys):
+    """A stage of the study (a multirun) stopped by Ctrl-C part-way is run again with the same settings:
+    it continues, each job from its checkpoint, and ends as the stage run in one go; its wall time is
+    both attempts'."""
+    (tmp_path / "map.txt").write_text(MAP)
+    overrides = (
+        *LONG_RUN,
+        *("total_steps=12000", "checkpoint_every=500", "eval_every=500", "replicas.seeds=1", "replicas.maps=1"),
+        *("mode=cooperative", "seed=0,1"),  # 2 jobs, one after the other
+    )
+
+    def stage(name: str) -> sweeps.Multirun:  # claim 1's experiment on LONG_RUN's map and learner
+        return sweeps.Multirun(name, "claim1", overrides, tmp_path / name, 2, {"settings": "same"})
+
+    sweeps.run_multirun(stage("reference"), tmp_path, "basic", 1, poll_seconds=0.2)
+    started: list[subprocess.Popen] = []
+    popen = subprocess.Popen
+
+    def own_group(*args, **kwargs):  # the stage's process in a group of its own, for the Ctrl-C below
+        started.append(popen(*args, start_new_session=True, **kwargs))
+        return started[-1]
+
+    monkeypatch.setattr(sweeps.subprocess, "Popen", own_group)
+    with ThreadPoolExecutor(1) as pool:
+        first = pool.submit(sweeps.run_multirun, stage("stopped"), tmp_path, "basic", 1, poll_seconds=0.2)
+        deadline = time.monotonic() + TRAIN_TIMEOUT
+        while len(metrics(tmp_path / "stopped" / "0")) < 4:  # job 0 in its loop, job 1 not started
+            assert time.monotonic() < deadline and not first.done()
+            time.sleep(0.05)
+        os.killpg(started[0].pid, signal.SIGINT)
+        with pytest.raises(sweeps.ReproduceError):
+            first.result(timeout=120)
+    monkeypatch.undo()
+    assert not sweeps.run_is_complete(tmp_path / "stopped" / "0")
+    capsys.readouterr()
+    sweeps.run_multirun(stage("stopped"), tmp_path, "basic", 1, poll_seconds=0.2)
+    assert "[stopped] continuing where it stopped: 0/2 runs complete" in capsys.readouterr().out
+    for job in ("0", "1"):
+        assert metrics(tmp_path / "stopped" / job) == metrics(tmp_path / "reference" / job)
+        assert agent_digests(tmp_path / "stopped" / job) == agent_digests(tmp_path / "reference" / job)
+    stamp = sweeps.read_stamp(tmp_path / "stopped")
+    assert len(stamp["attempt_seconds"]) == 2 and stamp["wall_seconds"] == sum(stamp["attempt_seconds"])

@@ -9,6 +9,7 @@ before. SIGINT / SIGTERM stop the run after the step in progress, with a checkpo
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -85,11 +86,11 @@ class ClaimRunDir(Callback):
                 )
             )
         used = sorted(d.name for d in sweep.iterdir() if d.is_dir() and RunDir(d).holds_run()) if sweep.is_dir() else []
-        if used:
+        if used and not config.resume:  # resume=true continues the sweep: each job where it stopped
             _exit_with(
                 RunDirError(
                     f"{sweep} already holds the runs of a sweep ({', '.join(used[:5])}"
-                    f"{', ...' if len(used) > 5 else ''}); choose another hydra.sweep.dir"
+                    f"{', ...' if len(used) > 5 else ''}); choose another hydra.sweep.dir, or continue it: resume=true"
                 )
             )
 
@@ -328,6 +329,8 @@ def app(cfg: DictConfig) -> float:
                 config = resume_config(run, cfg, hydra_config.overrides.task, recorded)
             else:
                 config = OmegaConf.to_object(cfg)  # type: ignore[assignment]
+                if hydra_config.mode == RunMode.MULTIRUN and config.resume:
+                    config = dataclasses.replace(config, resume=False)  # a continued sweep's job without a checkpoint
             with warnings.catch_warnings(record=True) as caught:  # said once the plan holds, never before a refusal
                 plan = plan_run(config)
             # Announced once the run really starts: before a transfer source's pretraining or a curriculum's

@@ -213,22 +213,34 @@ def run_multirun(
     poll_seconds: float = 2.0,
 ) -> float:
     """Run ``multirun`` in a subprocess (its log in ``OUT/logs/``), a progress line per change; returns its
-    wall time, 0 when its directory already holds it, finished with the same settings."""
+    wall time (all its attempts'), 0 when its directory already holds it, finished with the same settings.
+    A sweep stopped unfinished (Ctrl-C, a crash) with the same settings continues where it stopped: each
+    job from its last checkpoint, the complete ones as they are (``resume=true`` on the multirun)."""
     name, expected, stamp = multirun.label, multirun.jobs, dict(multirun.stamp)
     # Absolute: the subprocess runs in OUT, where a relative sweep directory would land one level deeper.
     out, sweep_dir = out.resolve(), multirun.sweep_dir.resolve()
     stamp_path = sweep_dir / STAMP_FILE
+    earlier: list[float] = []  # the wall seconds of the attempts before this one
     if sweep_dir.exists() and any(sweep_dir.iterdir()):
         previous = read_stamp(sweep_dir)
         same = previous is not None and {k: previous.get(k) for k in stamp} == stamp
-        if same and len(job_dirs(sweep_dir)) == expected and all(run_is_complete(d) for d in job_dirs(sweep_dir)):
+        if not same:
+            what = "runs of other settings" if previous is not None else "runs this program did not start"
+            raise ReproduceError(
+                f"{sweep_dir} already holds {what}; delete it or choose another --out "
+                "(--report-only analyses what is there)"
+            )
+        assert previous is not None
+        earlier = list(previous.get("attempt_seconds", []))
+        complete = sum(run_is_complete(d) for d in job_dirs(sweep_dir))
+        if "wall_seconds" in previous and complete == len(job_dirs(sweep_dir)) == expected:  # finished
             print(f"[{name}] reusing the {expected} complete runs in {sweep_dir}", flush=True)
             return 0.0
-        what = "runs of other settings" if previous is not None and not same else "unfinished runs"
-        raise ReproduceError(
-            f"{sweep_dir} already holds {what}; delete it or choose another --out "
-            "(--report-only analyses what is there)"
-        )
+        print(f"[{name}] continuing where it stopped: {complete}/{expected} runs complete", flush=True)
+        extra = [*extra, "resume=true"]
+    # The settings first: a sweep stopped unfinished is known by them, and continued.
+    sweep_dir.mkdir(parents=True, exist_ok=True)
+    stamp_path.write_text(json.dumps({**stamp, "attempt_seconds": earlier}, indent=2) + "\n")
     command = [
         sys.executable,
         "-m",
@@ -249,7 +261,7 @@ def run_multirun(
     how = f"{launcher}" + (f", {n_jobs} at a time" if launcher == "joblib" else "")
     print(f"[{name}] {expected} jobs ({how}) -> {sweep_dir}\n[{name}] log: {log_path}", flush=True)
     start = time.perf_counter()
-    with log_path.open("w") as log:
+    with log_path.open("a" if earlier else "w") as log:  # a continued sweep's log goes on
         log.write("$ " + shlex.join(command) + "\n\n")
         log.flush()
         process = subprocess.Popen(command, cwd=out, stdout=log, stderr=subprocess.STDOUT, env=env)
@@ -261,11 +273,12 @@ def run_multirun(
             if now != done and (elapsed - printed >= 10 or now == expected):  # a line per change, at most every 10 s
                 done, printed = now, elapsed
                 print(f"[{name}] {done}/{expected} runs done ({elapsed:.0f} s)", flush=True)
-    elapsed = time.perf_counter() - start
+    attempts = [*earlier, round(time.perf_counter() - start, 1)]
+    stamp_path.write_text(json.dumps({**stamp, "attempt_seconds": attempts}, indent=2) + "\n")
     runs = job_dirs(sweep_dir)
     if process.returncode != 0 or len(runs) != expected or not all(run_is_complete(d) for d in runs):
         raise ReproduceError(failure_message(name, sweep_dir, log_path, expected, process.returncode))
-    stamp["wall_seconds"] = round(elapsed, 1)
-    stamp_path.write_text(json.dumps(stamp, indent=2) + "\n")
+    elapsed = sum(attempts)
+    stamp_path.write_text(json.dumps({**stamp, "attempt_seconds": attempts, "wall_seconds": elapsed}, indent=2) + "\n")
     print(f"[{name}] {expected}/{expected} runs done in {elapsed:.0f} s", flush=True)
     return elapsed
