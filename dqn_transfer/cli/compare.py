@@ -13,7 +13,7 @@ import argparse
 import sys
 
 from dqn_transfer.analysis.compare import compare_runs, format_table
-from dqn_transfer.cli.console import reading_runs
+from dqn_transfer.cli.study_console import reading_runs
 
 
 def main(argv: list[str] | None = None) -> int:

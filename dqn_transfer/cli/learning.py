@@ -16,7 +16,8 @@ import argparse
 from pathlib import Path
 
 from dqn_transfer.analysis.runs import skipped_runs_on_stderr
-from dqn_transfer.cli.console import add_launcher_options, docstring_parser, exit_with, run_study_command
+from dqn_transfer.cli.console import docstring_parser, exit_with
+from dqn_transfer.cli.study_console import add_launcher_options, run_study_command
 from dqn_transfer.experiments.learning import NAMES, TABLES_FILE, run, tables
 from dqn_transfer.experiments.raw_data import DATA_DIR
 from dqn_transfer.experiments.sweeps import choose_launcher, chosen_experiments

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from dqn_transfer.analysis.plots import group_runs, plot_groups
 from dqn_transfer.analysis.runs import find_run_dirs
-from dqn_transfer.cli.console import reading_runs
+from dqn_transfer.cli.study_console import reading_runs
 
 
 def main(argv: list[str] | None = None) -> int:

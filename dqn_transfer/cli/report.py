@@ -13,7 +13,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from dqn_transfer.cli.console import docstring_parser, exit_with, print_verdicts, run_study_command
+from dqn_transfer.cli.console import docstring_parser, exit_with
+from dqn_transfer.cli.study_console import print_verdicts, run_study_command
 from dqn_transfer.experiments.edition import edition_of
 from dqn_transfer.experiments.pipeline import write_report
 from dqn_transfer.experiments.raw_data import DATA_DIR

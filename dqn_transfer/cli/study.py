@@ -25,13 +25,8 @@ import argparse
 from pathlib import Path
 
 from dqn_transfer.analysis.runs import skipped_runs_on_stderr
-from dqn_transfer.cli.console import (
-    add_launcher_options,
-    docstring_parser,
-    exit_with,
-    print_verdicts,
-    run_study_command,
-)
+from dqn_transfer.cli.console import docstring_parser, exit_with
+from dqn_transfer.cli.study_console import add_launcher_options, print_verdicts, run_study_command
 from dqn_transfer.experiments import tuning
 from dqn_transfer.experiments.edition import (
     BUDGETS_FILE,
