@@ -37,7 +37,7 @@ def key_line(page: str, key: str) -> str:
 def test_help_names_every_schema_key_with_its_own_description():
     page = help_text("python train.py")
     keys = schema_fields(TrainConfig)
-    assert len(keys) == 78 and {
+    assert len(keys) == 79 and {
         "agent.lr",
         "agent.engine",
         "agent.mixer",

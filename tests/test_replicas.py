@@ -163,7 +163,11 @@ def test_a_replica_directory_reads_like_a_lone_run(tmp_path):
     replicas = find_run_dirs([batch])
     assert [p.name for p in replicas] == ["seed_4-map_3", "seed_5-map_3", "seed_4-map_4", "seed_5-map_4"]
     own = load_config(batch / "seed_5-map_4")
-    assert own["seed"] == 5 and own["env"]["map_seed"] == 4 and own["replicas"] == {"seeds": 1, "maps": 1}
+    assert (
+        own["seed"] == 5
+        and own["env"]["map_seed"] == 4
+        and own["replicas"] == {"seeds": 1, "maps": 1, "workers": "auto"}
+    )
     assert find_run_dirs([tmp_path]) == sorted(replicas, key=lambda p: p.name)
 
     files = find_checkpoints(batch)  # every replica's agent files, replica by replica

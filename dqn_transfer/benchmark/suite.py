@@ -5,7 +5,8 @@ small, intra-op parallelism costs more in synchronisation than it gains, and on 
 thread that has to wait for a core can make an update tens of times slower). Section 4 shows the
 default-thread figure beside it; the default-thread update timings stop after ``thread_cap_s``. Section
 5's processes run on one thread each; in section 6 SB3 gets every core (one single-threaded process
-per core) and ours one process on one thread: both engines, whose second torch thread measured slower
+per core) and ours one command whose replicas are split across worker processes, one per core
+(``replicas.workers=auto``), each on one thread: both engines, whose second torch thread measured slower
 here (spin-waiting for a core that SB3's processes, or any other job, hold).
 
 Method: :data:`METHOD` (the machine may be shared and noisy: medians of interleaved repeats, paired ratios,
@@ -104,7 +105,7 @@ PROFILES = {
     ),
 }
 
-# Section 6: our process runs each engine on one thread (see the module docstring).
+# Section 6: our command runs each engine on one thread a process (see the module docstring).
 REPLICA_ENGINES = (Engine.numpy, Engine.torch)
 REPLICA_THREADS = 1
 
@@ -385,7 +386,7 @@ def lone_section(sizes: Sizes, seed: int, repeats: int, progress: ProgressFn) ->
 
 
 def replicas_section(sizes: Sizes, seed: int, repeats: int, cores: int, progress: ProgressFn) -> dict[str, Any]:
-    """Section 6: learner-steps/s of one process of R replicas (for each R and each engine, one thread)
+    """Section 6: learner-steps/s of one command of R replicas (for each R and each engine, one thread a process)
     against ``cores`` SB3 processes run side by side; the SB3 figure is measured once per repeat and
     paired with every row of that repeat."""
     loadavg_start = _loadavg()
@@ -408,7 +409,7 @@ def replicas_section(sizes: Sizes, seed: int, repeats: int, cores: int, progress
                     count, steps, seed + r, dataclasses.replace(agent, engine=engine), threads=REPLICA_THREADS
                 )
                 ours[who].append(out)
-                label = f"ours, {engine.value} engine, {count} replica(s) in one process"
+                label = f"ours, {engine.value} engine, {count} replica(s) in one command"
             progress(
                 f"replicas, {label}, {steps} steps, repeat {r + 1}/{repeats}: {out['seconds']:.1f} s, "
                 f"{out['learner_steps_per_s']:.0f} learner-steps/s"

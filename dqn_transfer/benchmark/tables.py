@@ -195,13 +195,14 @@ def _replicas_table(res: Doc) -> list[str]:
     rep = res["replicas"]
     sb3, k = rep["sb3"], rep["team_agents"]
     return _part(
-        f"## 6. Sweep throughput: R replicas of a {k}-agent team in one process, against SB3 one learner "
+        f"## 6. Sweep throughput: R replicas of a {k}-agent team in one command, against SB3 one learner "
         f"per process ({rep['steps']:,} env steps per process)",
         f"{_machine_line(res, rep['load'])} Settings: a cooperative team of {k} DQN agents on a "
         f"{_map(rep['map'])}, {rep['steps']:,} joint env steps, {_hyperparameters(rep['hyperparameters'])}. "
         "Ours: ONE `python -m dqn_transfer.cli.train replicas.seeds=R agent.engine=E "
-        f"threads={rep['ours_threads']}` process (R x {k} "
-        f"learners, one batched learner); learner-steps/s = steps x R x {k} / whole-process wall. SB3: "
+        f"threads={rep['ours_threads']}` command (R x {k} learners, batched; `replicas.workers=auto` splits the "
+        "replicas across worker processes, one per core); learner-steps/s = steps x R x "
+        f"{k} / whole-command wall, CPU of every process it waited for. SB3: "
         f"{rep['sb3_processes']} `DQN.learn` processes (TreasureHunt-v0 of the map, one learner each, one "
         f"torch thread) started together; learner-steps/s = {rep['sb3_processes']} x steps / wall until the "
         f"last exits: {_fmt(sb3['steps_per_s'])} (CPU: {_fmt(sb3['steps_per_cpu_s'])} per "
