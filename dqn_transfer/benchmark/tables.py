@@ -157,7 +157,7 @@ def _map(kwargs: Doc) -> str:
 
 LONE_LABELS = {
     "ours": "ours: `python -m dqn_transfer.cli.train agent.engine=numpy` (`train.py`)",
-    "ours_torch": "ours, torch engine (the default): `python -m dqn_transfer.cli.train`",
+    "ours_torch": "ours, torch engine: `python -m dqn_transfer.cli.train agent.engine=torch`",
     "sb3": 'SB3: `DQN("MlpPolicy", gymnasium.make("TreasureHunt-v0")).learn()`',
     "bare": "bare PyTorch: a CleanRL-style dqn.py loop",
 }
