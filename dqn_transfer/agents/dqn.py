@@ -17,13 +17,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from dqn_transfer.agents.base import ObsLayout, UpdateStats
+from dqn_transfer.agents.base import UpdateStats
 from dqn_transfer.agents.dqn_base import BatchedDQN
 from dqn_transfer.agents.dqn_update import double_dqn_targets, dqn_targets, huber, live_mean, td_losses, team_td_errors
 from dqn_transfer.agents.networks import BatchedMLP
 from dqn_transfer.agents.replay import ReplayBatch
 from dqn_transfer.agents.stacked import FLUSH_EVERY, SMALLEST_NORMAL
-from dqn_transfer.config import AgentConfig, ConfigError
+from dqn_transfer.config import ConfigError
 from dqn_transfer.enums import Device
 
 # Relative lead of the best action's Q-value over the second best above which numpy's argmax is
@@ -92,20 +92,14 @@ class StackedAdam(torch.optim.Adam):
 class DQNLearner(BatchedDQN):
     """:class:`~dqn_transfer.agents.dqn_base.BatchedDQN` in torch, on ``device``."""
 
-    def __init__(
-        self,
-        num_agents: int,
-        obs_layout: ObsLayout,
-        num_actions: int,
-        hp: AgentConfig | None = None,
-        *,
-        seed: int | Sequence[int] = 0,
-        device: torch.device | str = "cpu",
-    ) -> None:
+    def __init__(self, *args: Any, device: torch.device | str = "cpu", **kwargs: Any) -> None:
         """The parameters are :class:`~dqn_transfer.agents.dqn_base.BatchedDQN`'s, and ``device``: where the
         networks live (the replay stays on the host)."""
-        super().__init__(num_agents, obs_layout, num_actions, hp if hp is not None else AgentConfig(), seed)
         self.device = torch.device(device)
+        self._device_weights: dict[str, tuple[np.ndarray, torch.Tensor]] = {}  # name: (host array, its device copy)
+        super().__init__(*args, **kwargs)
+
+    def _build_networks(self, num_actions: int) -> None:
         # Initial weights: torch's generator, on the CPU, so the seed gives the same weights on any device.
         generators = [torch.Generator().manual_seed(s) for s in self.seeds]
         self.q_network = BatchedMLP(self.num_members, self.obs_dim, self.hidden, num_actions, generators, self.device)
@@ -113,7 +107,6 @@ class DQNLearner(BatchedDQN):
         self.target_network.requires_grad_(False)
         self.target_network.update_from(self.q_network, tau=1.0)
         self.optimizer = StackedAdam(self.q_network, lr=self.lr)
-        self._device_weights: dict[str, tuple[np.ndarray, torch.Tensor]] = {}  # name: (host array, its device copy)
 
     def _to_engine(self, array: np.ndarray) -> torch.Tensor:
         return torch.as_tensor(array, device=self.device)

@@ -103,17 +103,25 @@ class BatchedDQN(Learner, KnowledgeExchange, ExperienceSharing, WarmStart, Gener
     optimizer: OptimizerT  # Adam over the online networks' tensors
 
     def __init__(
-        self, num_agents: int, obs_layout: ObsLayout, num_actions: int, hp: AgentConfig, seed: int | Sequence[int]
+        self,
+        num_agents: int,
+        obs_layout: ObsLayout,
+        num_actions: int,
+        hp: AgentConfig | None = None,
+        *,
+        seed: int | Sequence[int] = 0,
     ) -> None:
         """
         :param num_agents: K, the agents of the team (each its own network unless ``share_parameters``)
         :param obs_layout: the observation's named segments ``[(name, size), ...]``
         :param num_actions: A, the discrete actions
-        :param hp: the hyperparameters, documented on :class:`~dqn_transfer.config.AgentConfig` (their
-            one home, shared with the command line); ``hp.algorithm`` picks the DQN or Double DQN target
+        :param hp: the hyperparameters (None: the defaults), documented on
+            :class:`~dqn_transfer.config.AgentConfig` (their one home, shared with the command line);
+            ``hp.algorithm`` picks the DQN or Double DQN target
         :param seed: fixes the initial weights, exploration and replay sampling; a list of R seeds
             makes R replicas, replica r exactly the team a lone learner of ``seed[r]`` would be
         """
+        hp = hp if hp is not None else AgentConfig()
         algorithm = Algorithm(hp.algorithm)
         if algorithm.is_tabular:
             raise ValueError(f"{type(self).__name__} trains the DQN family, not {algorithm.value}")
@@ -159,8 +167,15 @@ class BatchedDQN(Learner, KnowledgeExchange, ExperienceSharing, WarmStart, Gener
         # What update returns when it does not train (read-only: the trainer only reads statistics).
         self._no_training = UpdateStats(np.full(self.num_rows, np.nan), np.full(self.num_rows, np.nan))
         self._loss_weights_cache: tuple[bytes, np.ndarray] | None = None
+        self._build_networks(num_actions)
 
     # ======================================================================== engine hooks
+    @abstractmethod
+    def _build_networks(self, num_actions: int) -> None:
+        """Set :attr:`q_network` (its initial weights drawn from :attr:`seeds`, each replica's as a lone
+        learner's), :attr:`target_network` (a copy) and :attr:`optimizer` (Adam, ``lr``), for
+        :attr:`num_members` members of :attr:`obs_dim` inputs, :attr:`hidden` and ``num_actions`` outputs."""
+
     @abstractmethod
     def _online_q_values(self, inputs: np.ndarray, replica: int | None) -> np.ndarray:
         """The online networks' Q-values of their inputs: ``inputs`` float32 ``[rows, obs_dim] -> [rows, A]``

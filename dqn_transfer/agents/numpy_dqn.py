@@ -20,7 +20,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from dqn_transfer.agents.base import ObsLayout, UpdateStats
+from dqn_transfer.agents.base import UpdateStats
 from dqn_transfer.agents.dqn_base import BatchedDQN
 from dqn_transfer.agents.dqn_update import (
     clip_coefficient,
@@ -33,7 +33,6 @@ from dqn_transfer.agents.dqn_update import (
 )
 from dqn_transfer.agents.replay import ReplayBatch
 from dqn_transfer.agents.stacked import FLUSH_EVERY, SMALLEST_NORMAL, StackedLayout
-from dqn_transfer.config import AgentConfig
 
 WEIGHT_STREAM = 2  # SeedSequence spawn key of the initial weights (0 and 1: exploration and replay)
 
@@ -301,17 +300,7 @@ class NumpyAdam:
 class NumpyDQNLearner(BatchedDQN):
     """:class:`~dqn_transfer.agents.dqn_base.BatchedDQN` in numpy, on the CPU."""
 
-    def __init__(
-        self,
-        num_agents: int,
-        obs_layout: ObsLayout,
-        num_actions: int,
-        hp: AgentConfig | None = None,
-        *,
-        seed: int | Sequence[int] = 0,
-    ) -> None:
-        """The parameters are :class:`~dqn_transfer.agents.dqn_base.BatchedDQN`'s."""
-        super().__init__(num_agents, obs_layout, num_actions, hp if hp is not None else AgentConfig(), seed)
+    def _build_networks(self, num_actions: int) -> None:
         weight_rngs = [np.random.default_rng(np.random.SeedSequence(s, spawn_key=(WEIGHT_STREAM,))) for s in self.seeds]
         self.q_network = NumpyMLP(self.num_members, self.obs_dim, self.hidden, num_actions, weight_rngs)
         self.target_network = NumpyMLP(self.num_members, self.obs_dim, self.hidden, num_actions)
