@@ -127,6 +127,10 @@ def test_stages_are_cached_and_a_changed_stage_retrains_what_follows(tmp_path, c
     assert counted_stages == [30, 40, 50, 31, 40]  # a changed first stage retrains the second too
     assert len([p for p in cache.iterdir() if not p.name.startswith(".")]) == 5  # 2 + the changed 1 + 2
     assert not [p for p in cache.iterdir() if ".partial" in p.name or ".tmp" in p.name]
+    spread = lone_config(cache)
+    spread.replicas.workers = "2"  # how the replicas are spread over processes: not part of a stage
+    curriculum_sources(plan_run(spread), tmp_path)
+    assert counted_stages == [30, 40, 50, 31, 40]  # reused
 
 
 def test_each_stage_starts_from_the_previous_one(tmp_path):

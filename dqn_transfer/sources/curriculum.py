@@ -48,6 +48,8 @@ def stage_hash(config: TrainConfig, layout: str, previous: str | None) -> str:
     plain = {key: value for key, value in to_plain(config).items() if key not in NOT_IN_STAGE_HASH}
     env = {key: value for key, value in plain["env"].items() if key not in NOT_IN_STAGE_ENV_HASH}
     plain["env"] = {**env, "layout_file": None, "layout": layout}
+    # replicas.workers: how the replicas are spread over processes, not what they learn (same bits)
+    plain["replicas"] = {key: value for key, value in plain["replicas"].items() if key != "workers"}
     plain["transfer"] = {
         key: value for key, value in plain["transfer"].items() if key not in NOT_IN_STAGE_TRANSFER_HASH
     }
