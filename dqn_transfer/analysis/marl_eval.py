@@ -49,7 +49,16 @@ from dqn_transfer.enums import Contention
 ENVIRONMENT = "treasurehunt"
 ABSOLUTE = "absolute_metrics"
 # Config keys that place a run in a task and a seed, never used to tell algorithms apart.
-_PLACEMENT_KEYS = {"seed", "env.map_seed", "replicas.seeds", "replicas.maps", "resume", "progress", "threads"}
+_PLACEMENT_KEYS = {
+    "seed",
+    "env.map_seed",
+    "replicas.seeds",
+    "replicas.maps",
+    "replicas.workers",
+    "resume",
+    "progress",
+    "threads",
+}
 
 
 @dataclass(frozen=True)

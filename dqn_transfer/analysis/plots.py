@@ -33,6 +33,7 @@ IGNORED_KEYS = (
     "objective",
     "logger",
     "transfer.cache_dir",
+    "replicas.workers",
 )
 # Keys that name a condition, preferred as labels over what they imply (agent=sarsa implies agent.lr).
 PRIMARY_KEYS = ("agent.algorithm", "env.mode", "transfer.enabled", "env.num_agents", "env.layout_file", "env.layout")
