@@ -405,7 +405,7 @@ def test_tables_of_the_whole_process_sections(process_document):
     assert [line.split()[1] for line in table.splitlines() if line.startswith("## ")] == ["5.", "6."]
     assert [row.split(":")[0] for row in table_rows(table, "## 5.")] == [
         "ours",
-        "ours, torch engine (the default)",
+        "ours, torch engine",
         "SB3",
         "bare PyTorch",
     ]
