@@ -76,7 +76,8 @@ def trainer_for(plan: RunPlan, run_dir: Path, sources: Sources | None = None) ->
     resumed batch whose replicas stopped at different steps)."""
     workers = worker_count(plan.config.replicas.workers, len(plan.replicas))
     resumed_batch = plan.config.resume and len(plan.replicas) > 1
-    split = shares(plan, run_dir, workers) if workers > 1 or resumed_batch else [(0, len(plan.replicas))]
+    forks = "fork" in multiprocessing.get_all_start_methods()  # not on Windows: one process there
+    split = shares(plan, run_dir, workers) if forks and (workers > 1 or resumed_batch) else [(0, len(plan.replicas))]
     return Trainer(plan, run_dir, sources=sources) if len(split) == 1 else ReplicaWorkers(plan, run_dir, split, sources)
 
 
