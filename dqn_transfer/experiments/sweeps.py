@@ -223,14 +223,12 @@ def run_multirun(
     earlier: list[float] = []  # the wall seconds of the attempts before this one
     if sweep_dir.exists() and any(sweep_dir.iterdir()):
         previous = read_stamp(sweep_dir)
-        same = previous is not None and {k: previous.get(k) for k in stamp} == stamp
-        if not same:
-            what = "runs of other settings" if previous is not None else "runs this program did not start"
+        if previous is None or {k: previous.get(k) for k in stamp} != stamp:
+            what = "runs of other settings" if previous is not None else f"runs without their {STAMP_FILE}"
             raise ReproduceError(
                 f"{sweep_dir} already holds {what}; delete it or choose another --out "
                 "(--report-only analyses what is there)"
             )
-        assert previous is not None
         earlier = list(previous.get("attempt_seconds", []))
         complete = sum(run_is_complete(d) for d in job_dirs(sweep_dir))
         if "wall_seconds" in previous and complete == len(job_dirs(sweep_dir)) == expected:  # finished
@@ -266,15 +264,20 @@ def run_multirun(
         log.flush()
         process = subprocess.Popen(command, cwd=out, stdout=log, stderr=subprocess.STDOUT, env=env)
         done, printed = -1, -math.inf
-        while process.poll() is None:
-            time.sleep(poll_seconds)
-            now = sum(run_is_complete(d) for d in job_dirs(sweep_dir))
-            elapsed = time.perf_counter() - start
-            if now != done and (elapsed - printed >= 10 or now == expected):  # a line per change, at most every 10 s
-                done, printed = now, elapsed
-                print(f"[{name}] {done}/{expected} runs done ({elapsed:.0f} s)", flush=True)
-    attempts = [*earlier, round(time.perf_counter() - start, 1)]
-    stamp_path.write_text(json.dumps({**stamp, "attempt_seconds": attempts}, indent=2) + "\n")
+        try:
+            while process.poll() is None:
+                time.sleep(poll_seconds)
+                now = sum(run_is_complete(d) for d in job_dirs(sweep_dir))
+                elapsed = time.perf_counter() - start
+                if now != done and (elapsed - printed >= 10 or now == expected):  # a line per change, at most 10 s
+                    done, printed = now, elapsed
+                    print(f"[{name}] {done}/{expected} runs done ({elapsed:.0f} s)", flush=True)
+        except KeyboardInterrupt:  # the sweep had the same Ctrl-C: its jobs stop at a checkpoint, waited for
+            process.wait()
+            raise
+        finally:
+            attempts = [*earlier, round(time.perf_counter() - start, 1)]
+            stamp_path.write_text(json.dumps({**stamp, "attempt_seconds": attempts}, indent=2) + "\n")
     runs = job_dirs(sweep_dir)
     if process.returncode != 0 or len(runs) != expected or not all(run_is_complete(d) for d in runs):
         raise ReproduceError(failure_message(name, sweep_dir, log_path, expected, process.returncode))
