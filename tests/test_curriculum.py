@@ -103,13 +103,13 @@ def lone_config(cache: Path, first_steps: int = 30, *, replicas: int = 1) -> Tra
 def counted_stages(monkeypatch):
     """The steps of every stage run the curriculum trains (reused stages train nothing)."""
     runs: list[int] = []
-    real = dqn_transfer.sources.curriculum.train
+    real = dqn_transfer.sources.curriculum.train_on_cores
 
     def counted(plan, *args, **kwargs):
         runs.append(plan.config.total_steps)
         return real(plan, *args, **kwargs)
 
-    monkeypatch.setattr(dqn_transfer.sources.curriculum, "train", counted)
+    monkeypatch.setattr(dqn_transfer.sources.curriculum, "train_on_cores", counted)
     return runs
 
 

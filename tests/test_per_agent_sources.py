@@ -88,13 +88,13 @@ def start_value(target: dict, cell: int, treasures: tuple[float, float]) -> np.n
 @pytest.fixture
 def pretrainings(monkeypatch) -> list[TrainConfig]:
     """Every pretraining run started from now on (its config), each still carried out."""
-    real, runs = dqn_transfer.sources.resolve.train, []
+    real, runs = dqn_transfer.sources.resolve.train_on_cores, []
 
     def counted(plan, *args, **kwargs):
         runs.append(plan.config)
         return real(plan, *args, **kwargs)
 
-    monkeypatch.setattr(dqn_transfer.sources.resolve, "train", counted)
+    monkeypatch.setattr(dqn_transfer.sources.resolve, "train_on_cores", counted)
     return runs
 
 

@@ -115,7 +115,7 @@ def test_a_complete_entry_is_reused_without_pretraining(cache, entry, tmp_path, 
     def no_training(*args, **kwargs):
         raise AssertionError("pretrained again")
 
-    monkeypatch.setattr(dqn_transfer.sources.resolve, "train", no_training)
+    monkeypatch.setattr(dqn_transfer.sources.resolve, "train_on_cores", no_training)
     assert transfer_sources(plan_run(config(cache)), tmp_path)[0][0] == checkpoint
     assert REUSING in caplog.text and PRETRAINING not in caplog.text
     assert checkpoint.stat().st_mtime_ns == stamp
@@ -124,7 +124,7 @@ def test_a_complete_entry_is_reused_without_pretraining(cache, entry, tmp_path, 
 @pytest.mark.parametrize("failure", [KeyboardInterrupt, RuntimeError])
 def test_a_failed_pretraining_leaves_nothing(cache, tmp_path, monkeypatch, failure):
     """The pretraining runs to its end (every file written), then fails before it is complete."""
-    real_train, used = dqn_transfer.sources.resolve.train, []
+    real_train, used = dqn_transfer.sources.resolve.train_on_cores, []
 
     def train_then_fail(config, run_dir, **kwargs):
         used.append(Path(run_dir))
@@ -132,12 +132,12 @@ def test_a_failed_pretraining_leaves_nothing(cache, tmp_path, monkeypatch, failu
         assert (Path(run_dir) / "metrics.jsonl").stat().st_size > 0
         raise failure()
 
-    monkeypatch.setattr(dqn_transfer.sources.resolve, "train", train_then_fail)
+    monkeypatch.setattr(dqn_transfer.sources.resolve, "train_on_cores", train_then_fail)
     with pytest.raises(failure):
         transfer_sources(plan_run(config(cache)), tmp_path)[0][0]
     assert used and used[0].parent == cache  # it pretrained beside the entry it would have become ...
     assert listing(cache) == ([], [])  # ... and nothing of it is left
-    monkeypatch.setattr(dqn_transfer.sources.resolve, "train", real_train)
+    monkeypatch.setattr(dqn_transfer.sources.resolve, "train_on_cores", real_train)
     checkpoint = transfer_sources(plan_run(config(cache)), tmp_path)[0][0]  # the next run pretrains afresh
     assert checkpoint_steps(checkpoint) == PRETRAIN_STEPS
 
@@ -280,13 +280,13 @@ def test_replicas_pretrain_their_missing_sources_as_one_batch(cache, tmp_path, m
     the very entry (same hash, same tensors) the lone pretraining of its seed makes. Later, a batch
     reuses them all, and with one entry gone it pretrains only that one, alone."""
     caplog.set_level(logging.INFO, logger="dqn_transfer")
-    real, runs = dqn_transfer.sources.resolve.train, []
+    real, runs = dqn_transfer.sources.resolve.train_on_cores, []
 
     def counted(plan, *args, **kwargs):
         runs.append(plan.config.replicas.seeds)
         return real(plan, *args, **kwargs)
 
-    monkeypatch.setattr(dqn_transfer.sources.resolve, "train", counted)
+    monkeypatch.setattr(dqn_transfer.sources.resolve, "train_on_cores", counted)
     batch = dataclasses.replace(config(cache), replicas=ReplicasConfig(seeds=3))
     per_replica = transfer_sources(plan_run(batch), tmp_path)
     sources = [targets[0] for targets in per_replica]  # the default team: every agent from the one source

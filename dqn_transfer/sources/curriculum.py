@@ -28,7 +28,7 @@ from dqn_transfer.envs.settings import MAP_CHOICE_KEYS
 from dqn_transfer.sources.resolve import resolve_source
 from dqn_transfer.sources.run_cache import RunCache
 from dqn_transfer.training.plan import RunPlan, describe_stage
-from dqn_transfer.training.trainer import train
+from dqn_transfer.training.workers import train_on_cores
 
 log = logging.getLogger("dqn_transfer.sources.curriculum")
 
@@ -133,7 +133,7 @@ def _train_stage(
         f" for {len(indices)} replicas" if len(indices) > 1 else "",
         ", ".join(map(str, final_dirs)),
     )
-    train(
+    train_on_cores(
         run.resuming(resume),
         work_dir,
         sources=None if resume or sources is None else [sources[i] for i in indices],

@@ -31,7 +31,7 @@ from dqn_transfer.sources.run_cache import RunCache
 from dqn_transfer.storage.checkpoint import CheckpointError, find_checkpoints
 from dqn_transfer.storage.run_dir import RunDir, agent_file_name
 from dqn_transfer.training.plan import RunPlan, source_map
-from dqn_transfer.training.trainer import train
+from dqn_transfer.training.workers import train_on_cores
 from dqn_transfer.transfer.mapping import TransferError
 
 log = logging.getLogger("dqn_transfer.transfer")
@@ -121,7 +121,7 @@ def pretrained_sources(plan: RunPlan, pretraining: RunPlan, launch_dir: Path) ->
             what = "a source agent" if len(indices) == 1 else f"{len(indices)} source agents, one per replica,"
             log.info("transfer: pretraining %s on TreasureHunt-v0%s for %d steps into %s", what, on_map, steps, where)
         # The run is trained in a work directory the cache renames to the entry: its lines name the entry.
-        train(run, work_dir, tag=PRETRAINING_TAG, final_dirs=[cache.entry(keys[i]).path for i in indices])
+        train_on_cores(run, work_dir, tag=PRETRAINING_TAG, final_dirs=[cache.entry(keys[i]).path for i in indices])
 
     for i in cache.fill(keys, lambda entry: _reuse(entry, steps), pretrain):
         log.info("transfer: the pretrained source is cached in %s", cache.entry(keys[i]))

@@ -71,14 +71,38 @@ def sweep_jobs_at_once() -> int:
     return n_jobs if n_jobs > 0 else max(1, available_cores() + 1 + n_jobs)
 
 
-def trainer_for(plan: RunPlan, run_dir: Path, sources: Sources | None = None) -> Trainer | ReplicaWorkers:
+def trainer_for(
+    plan: RunPlan,
+    run_dir: Path,
+    sources: Sources | None = None,
+    *,
+    tag: str = "",
+    final_dirs: Sequence[Path] | None = None,
+) -> Trainer | ReplicaWorkers:
     """What trains ``plan`` into ``run_dir``: this process, or worker processes (``replicas.workers``, and a
-    resumed batch whose replicas stopped at different steps)."""
+    resumed batch whose replicas stopped at different steps). The arguments are the
+    :class:`~dqn_transfer.training.trainer.Trainer`'s."""
     workers = worker_count(plan.config.replicas.workers, len(plan.replicas))
     resumed_batch = plan.config.resume and len(plan.replicas) > 1
     forks = "fork" in multiprocessing.get_all_start_methods()  # not on Windows: one process there
     split = shares(plan, run_dir, workers) if forks and (workers > 1 or resumed_batch) else [(0, len(plan.replicas))]
-    return Trainer(plan, run_dir, sources=sources) if len(split) == 1 else ReplicaWorkers(plan, run_dir, split, sources)
+    if len(split) == 1:
+        return Trainer(plan, run_dir, sources=sources, tag=tag, final_dirs=final_dirs)
+    return ReplicaWorkers(plan, run_dir, split, sources, tag=tag, final_dirs=final_dirs)
+
+
+def train_on_cores(
+    plan: RunPlan,
+    run_dir: Path,
+    *,
+    sources: Sources | None = None,
+    tag: str = "",
+    final_dirs: Sequence[Path] | None = None,
+) -> None:
+    """Run (or resume) the planned run into ``run_dir`` as :func:`~dqn_transfer.training.trainer.train`
+    does, in this process or in worker processes (:func:`trainer_for`): a transfer source's pretraining
+    and a curriculum's stages use the cores as the run does."""
+    trainer_for(plan, run_dir, sources, tag=tag, final_dirs=final_dirs).run()
 
 
 def worker_count(setting: str, replicas: int) -> int:
@@ -129,10 +153,22 @@ class ReplicaWorkers:
     :param run_dir: the run directory
     :param split: ``(first, count)`` of each worker's replicas (:func:`shares`)
     :param sources: the transfer sources, one per replica (as the trainer takes them)
+    :param tag: what starts every line the run logs (the trainer's; each worker adds its replicas)
+    :param final_dirs: where each replica's directory ends up (the trainer's)
     """
 
-    def __init__(self, plan: RunPlan, run_dir: Path, split: Sequence[tuple[int, int]], sources: Sources | None):
+    def __init__(
+        self,
+        plan: RunPlan,
+        run_dir: Path,
+        split: Sequence[tuple[int, int]],
+        sources: Sources | None,
+        *,
+        tag: str = "",
+        final_dirs: Sequence[Path] | None = None,
+    ):
         self.plan, self.run_dir, self.split, self.sources = plan, Path(run_dir), list(split), sources
+        self.tag, self.final_dirs = tag, final_dirs
 
     def prepare(self) -> None:
         """What the process that splits the run checks before it starts any worker: a fresh run does
@@ -157,9 +193,15 @@ class ReplicaWorkers:
         for i, (first, count) in enumerate(self.split):
             receive, send = context.Pipe(duplex=False)
             sources = None if self.sources is None else list(self.sources)[first : first + count]
+            final_dirs = None if self.final_dirs is None else list(self.final_dirs)[first : first + count]
+            trainer = dict(
+                sources=sources,
+                tag=f"{self.tag} [replicas {first}-{first + count - 1}]".lstrip(),
+                final_dirs=final_dirs,
+            )
             worker = context.Process(
                 target=_train_share,
-                args=(self.plan.share(first, count), self.run_dir, sources, i, steps, send),
+                args=(self.plan.share(first, count), self.run_dir, trainer, i, steps, send),
                 name=f"replicas-{first}-{first + count - 1}",
             )
             worker.start()
@@ -167,7 +209,8 @@ class ReplicaWorkers:
             workers.append(worker)
             results.append(receive)
         log.info(
-            "%d replicas in %d worker processes (replicas.workers=%s)",
+            "%s%d replicas in %d worker processes (replicas.workers=%s)",
+            f"{self.tag} " if self.tag else "",
             len(self.plan.replicas),
             len(workers),
             self.plan.config.replicas.workers,
@@ -237,9 +280,10 @@ class ReplicaWorkers:
 
 
 def _train_share(
-    plan: RunPlan, run_dir: Path, sources: Sources | None, index: int, steps: Any, send: Connection
+    plan: RunPlan, run_dir: Path, trainer: dict[str, Any], index: int, steps: Any, send: Connection
 ) -> None:
-    """A worker: train ``plan`` (a share) into ``run_dir``; send how it ended to the process that started it."""
+    """A worker: train ``plan`` (a share) into ``run_dir`` (``trainer``: the trainer's other keywords); send
+    how it ended to the process that started it."""
     os.setpgid(0, 0)  # signals come from the parent only (a terminal's Ctrl-C would arrive twice)
 
     def stop_at_once(signum: int, frame: object) -> None:  # until the trainer's loop takes the signals over
@@ -250,9 +294,8 @@ def _train_share(
 
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, stop_at_once)  # not the parent's forwarding
-    last = plan.first_replica + len(plan.replicas) - 1
     try:
-        Trainer(plan, run_dir, sources=sources, tag=f"[replicas {plan.first_replica}-{last}]", report_step=report).run()
+        Trainer(plan, run_dir, **trainer, report_step=report).run()
         send.send(("done",))
     except Interrupted as stop:
         send.send(("interrupted", stop.signum, stop.step))
