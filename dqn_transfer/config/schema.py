@@ -180,7 +180,7 @@ class TransferConfig:
 
 @dataclass
 class ReplicasConfig:
-    """Independent runs batched in one process (docs/sweeps.md): ``seeds`` x ``maps`` replicas, seeds
+    """Independent runs batched in one command (docs/sweeps.md): ``seeds`` x ``maps`` replicas, seeds
     ``seed .. seed + seeds - 1`` crossed with map seeds ``env.map_seed .. env.map_seed + maps - 1``."""
 
     seeds: int = documented(1, "replicas with consecutive seeds")
