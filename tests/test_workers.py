@@ -92,7 +92,7 @@ def test_a_workers_user_error_is_the_runs_one_line(tmp_path, monkeypatch):
 
     monkeypatch.setattr(workers, "Trainer", Refusing)
     with pytest.raises(ConfigError, match="replica 1 cannot start"):
-        workers.ReplicaWorkers(plan, tmp_path / "run", [(0, 1), (1, 1)], None).run()
+        workers.ReplicaWorkers(plan, tmp_path / "run", [(0, 1), (1, 1)]).run()
 
 
 def test_shares_are_even_and_a_resumed_batch_is_grouped_by_step(tmp_path, monkeypatch):

@@ -341,7 +341,7 @@ def app(cfg: DictConfig) -> float:
             sources = (
                 curriculum_sources(plan, launch_dir) if config.curriculum.stages else transfer_sources(plan, launch_dir)
             )
-            trainer = trainer_for(plan, run.path, sources)
+            trainer = trainer_for(plan, run.path, sources=sources)
             trainer.prepare()
             if not plan.chain:
                 announce(run, caught, held)

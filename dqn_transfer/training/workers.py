@@ -71,38 +71,22 @@ def sweep_jobs_at_once() -> int:
     return n_jobs if n_jobs > 0 else max(1, available_cores() + 1 + n_jobs)
 
 
-def trainer_for(
-    plan: RunPlan,
-    run_dir: Path,
-    sources: Sources | None = None,
-    *,
-    tag: str = "",
-    final_dirs: Sequence[Path] | None = None,
-) -> Trainer | ReplicaWorkers:
+def trainer_for(plan: RunPlan, run_dir: Path, **trainer: Any) -> Trainer | ReplicaWorkers:
     """What trains ``plan`` into ``run_dir``: this process, or worker processes (``replicas.workers``, and a
-    resumed batch whose replicas stopped at different steps). The arguments are the
-    :class:`~dqn_transfer.training.trainer.Trainer`'s."""
+    resumed batch whose replicas stopped at different steps). ``trainer``: the
+    :class:`~dqn_transfer.training.trainer.Trainer`'s keywords (``sources``, ``tag``, ``final_dirs``)."""
     workers = worker_count(plan.config.replicas.workers, len(plan.replicas))
     resumed_batch = plan.config.resume and len(plan.replicas) > 1
     forks = "fork" in multiprocessing.get_all_start_methods()  # not on Windows: one process there
     split = shares(plan, run_dir, workers) if forks and (workers > 1 or resumed_batch) else [(0, len(plan.replicas))]
-    if len(split) == 1:
-        return Trainer(plan, run_dir, sources=sources, tag=tag, final_dirs=final_dirs)
-    return ReplicaWorkers(plan, run_dir, split, sources, tag=tag, final_dirs=final_dirs)
+    return Trainer(plan, run_dir, **trainer) if len(split) == 1 else ReplicaWorkers(plan, run_dir, split, **trainer)
 
 
-def train_on_cores(
-    plan: RunPlan,
-    run_dir: Path,
-    *,
-    sources: Sources | None = None,
-    tag: str = "",
-    final_dirs: Sequence[Path] | None = None,
-) -> None:
+def train_on_cores(plan: RunPlan, run_dir: Path, **trainer: Any) -> None:
     """Run (or resume) the planned run into ``run_dir`` as :func:`~dqn_transfer.training.trainer.train`
-    does, in this process or in worker processes (:func:`trainer_for`): a transfer source's pretraining
-    and a curriculum's stages use the cores as the run does."""
-    trainer_for(plan, run_dir, sources, tag=tag, final_dirs=final_dirs).run()
+    does (the same keywords), in this process or in worker processes (:func:`trainer_for`): a transfer
+    source's pretraining and a curriculum's stages use the cores as the run does."""
+    trainer_for(plan, run_dir, **trainer).run()
 
 
 def worker_count(setting: str, replicas: int) -> int:
@@ -162,8 +146,8 @@ class ReplicaWorkers:
         plan: RunPlan,
         run_dir: Path,
         split: Sequence[tuple[int, int]],
-        sources: Sources | None,
         *,
+        sources: Sources | None = None,
         tag: str = "",
         final_dirs: Sequence[Path] | None = None,
     ):
