@@ -10,7 +10,7 @@ observation code, the counter-based draws, epsilon-greedy, SARSA's cached next a
 entry order), the update statistics' window, the episode sums and an ended episode's values and reset
 (:meth:`EpisodeSums.ended_values <dqn_transfer.training.replica.EpisodeSums.ended_values>`,
 ``TreasureHunts.reset``), in the same order and the same floats, so a run is the same bit for bit
-either way (``tests/test_tabular_steps.py``, the reference runs). The ended episodes are logged after
+either way (``tests/test_compiled_steps.py``, the reference runs). The ended episodes are logged after
 the call, in order (:meth:`Replica.record_episode <dqn_transfer.training.replica.Replica.record_episode>`).
 Runs this does not cover stay in Python (:func:`~dqn_transfer.training.trainer.compiled_steps` says
 which): exchanges at episode ends, advice, shared replay, games without an observation code.
