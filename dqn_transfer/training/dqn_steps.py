@@ -28,7 +28,7 @@ from dqn_transfer.compiled import kernel
 from dqn_transfer.enums import RewardMode
 from dqn_transfer.envs import rules, tie_draws
 from dqn_transfer.envs.game import TreasureHunts
-from dqn_transfer.training.loop_kernels import EndedEpisodes, UpdateWindow, add_episode_step
+from dqn_transfer.training.loop_kernels import EndedEpisodes, UpdateWindow, add_episode_step, epsilon_at
 
 # Where a call of the kernel starts a step, and why it returns.
 ACT, FINISH = 0, 1  # start: draw the exploration (ACT), or play the drawn and greedy actions (FINISH)
@@ -164,9 +164,7 @@ def _run(
                 for a in range(agents):
                     row = r * agents + a
                     random_action = tie_draws.integers(explore_words[r], num_actions) if num_actions > 1 else 0
-                    duration = eps_duration[row]
-                    fraction = min(max(step / duration, 0.0), 1.0) if duration > 0 else 1.0
-                    epsilon = eps_start[row] + fraction * (eps_end[row] - eps_start[row])
+                    epsilon = epsilon_at(step, eps_start[row], eps_end[row], eps_duration[row])
                     actions[r, a] = random_action if uniforms[a] < epsilon else -1
                     live[row] = state.live[r, a]
                     wanted = wanted or (live[row] and actions[r, a] < 0)

@@ -1,6 +1,7 @@
 """What the compiled training steps (:mod:`~dqn_transfer.training.tabular_steps`,
 :mod:`~dqn_transfer.training.dqn_steps`) share: the update statistics' window, the record of ended
-episodes, and one joint step's episode sums, with an ended episode's values and restart, as a kernel.
+episodes, the exploration schedule, and one joint step's episode sums, with an ended episode's values
+and restart, as a kernel.
 
 Each is the Python loop's statement compiled, in the same order and the same floats
 (:meth:`EpisodeSums.add <dqn_transfer.training.replica.EpisodeSums.add>`,
@@ -73,6 +74,13 @@ class EndedEpisodes:
         taken = [(int(row[0]), int(row[1]), row[2:].copy()) for row in self.rows[: self.count[0]]]
         self.count[0] = 0
         return taken
+
+
+@kernel
+def epsilon_at(step, start, end, duration):
+    """:func:`~dqn_transfer.agents.schedules.linear_schedules` of one row at ``step``, compiled (the same floats)."""
+    fraction = min(max(step / duration, 0.0), 1.0) if duration > 0 else 1.0
+    return start + fraction * (end - start)
 
 
 @kernel

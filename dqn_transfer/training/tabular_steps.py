@@ -30,7 +30,7 @@ from dqn_transfer.enums import Algorithm, RewardMode
 from dqn_transfer.envs import rules
 from dqn_transfer.envs.game import TreasureHunts
 from dqn_transfer.envs.observation_code import encode_rows
-from dqn_transfer.training.loop_kernels import EndedEpisodes, UpdateWindow, add_episode_step
+from dqn_transfer.training.loop_kernels import EndedEpisodes, UpdateWindow, add_episode_step, epsilon_at
 
 
 class TabularSteps:
@@ -162,9 +162,7 @@ def _run(
             obs, row_maps, size, onehot, chests, bits, slots, offsets, position_codes, view_static, view_chest
         )
         for row in range(rows):
-            duration = eps_duration[row]
-            fraction = min(max(step / duration, 0.0), 1.0) if duration > 0 else 1.0
-            epsilon[row] = eps_start[row] + fraction * (eps_end[row] - eps_start[row])
+            epsilon[row] = epsilon_at(step, eps_start[row], eps_end[row], eps_duration[row])
             r, a = row // agents, row % agents
             draw_uniforms(act_keys[row], act_counters[r], draws)
             chosen = choose_action(q[row, state_ids[row]], epsilon[row], draws)
