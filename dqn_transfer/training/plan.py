@@ -89,6 +89,11 @@ class RunPlan:
         """One replica, trained in the run directory itself (a batch's replicas get directories of their own)."""
         return (self.batch_size or len(self.replicas)) == 1
 
+    def replica_dirs(self, run_dir: Path) -> list[Path]:
+        """Where each replica of the plan is trained: the run directory itself for a lone run, else the
+        replica's own directory in it."""
+        return [run_dir] if self.is_lone_run else [run_dir / replica.name for replica in self.replicas]
+
     def share(self, first: int, count: int) -> RunPlan:
         """Replicas ``first .. first + count - 1`` of the run, trained into the same run directory by a
         worker process of their own (:mod:`~dqn_transfer.training.workers`)."""

@@ -130,7 +130,6 @@ class Trainer:
         self.exchange = exchange_method(config)(config.transfer, len(plan.replicas))
         self.exchange.start(self.learner)
         self.report_step = report_step
-        lone = plan.is_lone_run
         # null: someone watches a run started by hand, one replica of it; a sweep's jobs are compared by curves
         pictures = [plan.first_replica + r == 0 and not in_multirun() for r in range(len(plan.replicas))]
         if config.eval_pictures is not None:
@@ -142,7 +141,7 @@ class Trainer:
             Replica(
                 r,
                 replica.config,
-                self.run_dir.path if lone else self.run_dir.path / replica.name,
+                replica_dir,
                 game,
                 cast(Learner, self.learner.replica(r)),
                 source,
@@ -150,7 +149,9 @@ class Trainer:
                 self.episodes,
                 pictures=pictures[r],
             )
-            for r, (replica, game, source) in enumerate(zip(plan.replicas, games, per_replica))
+            for r, (replica, replica_dir, game, source) in enumerate(
+                zip(plan.replicas, plan.replica_dirs(self.run_dir.path), games, per_replica)
+            )
         ]
         self.prepared = False  # prepare() ran: the run's start is checked (run() then skips it)
         self.games: GameBatch | None = None  # the replicas' games while the loop runs (built when it starts)
@@ -166,14 +167,8 @@ class Trainer:
         """Resume, or start fresh (with transfer if asked); refuses to overwrite another run. Raises a
         user error for a run that cannot start; ``run`` calls it unless the caller did already."""
         self.prepared = True
-        held = [rep.run_dir for rep in self.replicas if rep.run_dir.has_run()]
+        check_start(self.plan, self.run_dir.path)
         if self.config.resume:
-            missing = [str(rep.run_dir) for rep in self.replicas if not rep.run_dir.has_run()]
-            if missing:
-                raise ConfigError(
-                    f"resume=true but {missing[0]} holds no {self.run_dir.training_state.name}: pass the run "
-                    "directory to resume with hydra.run.dir=PATH"
-                )
             for rep in self.replicas:
                 load_checkpoint(rep, self.algorithm)
             steps = sorted({rep.counters.step for rep in self.replicas})
@@ -183,8 +178,6 @@ class Trainer:
                     "(a checkpoint write was cut short); resume each replica on its own"
                 )
             return
-        if held:
-            raise ConfigError(existing_run_message(held[0]))
         if self.config.transfer.enabled and not self.source_task:
             for rep in self.replicas:
                 if rep.source is None:
@@ -495,6 +488,21 @@ def train(
     the caller moves each replica's directory afterwards (a cache entry), the paths the log then names.
     """
     return Trainer(plan, run_dir, sources=sources, tag=tag, final_dirs=final_dirs).run()
+
+
+def check_start(plan: RunPlan, run_dir: Path) -> None:
+    """Refuse, in one line, a start that ``run_dir`` does not allow: ``resume=true`` where a replica holds
+    no checkpoint, a fresh run where one holds a run already."""
+    dirs = [RunDir(path) for path in plan.replica_dirs(run_dir)]
+    if plan.config.resume:
+        missing = [run for run in dirs if not run.has_run()]
+        if missing:
+            raise ConfigError(
+                f"resume=true but {missing[0]} holds no {missing[0].training_state.name}: pass the run "
+                "directory to resume with hydra.run.dir=PATH"
+            )
+    elif held := [run for run in dirs if run.has_run()]:
+        raise ConfigError(existing_run_message(held[0]))
 
 
 def write_replicas_index(plan: RunPlan, run_dir: RunDir) -> None:

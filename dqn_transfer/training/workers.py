@@ -37,10 +37,10 @@ from tqdm import tqdm
 
 from dqn_transfer.config import ConfigError
 from dqn_transfer.storage.checkpoint import CheckpointError, read_meta
-from dqn_transfer.storage.run_dir import RunDir, RunDirError, existing_run_message
+from dqn_transfer.storage.run_dir import RunDir, RunDirError
 from dqn_transfer.training.plan import RunPlan
 from dqn_transfer.training.stop import Interrupted
-from dqn_transfer.training.trainer import Sources, Trainer, in_multirun, write_replicas_index
+from dqn_transfer.training.trainer import Sources, Trainer, check_start, in_multirun, write_replicas_index
 from dqn_transfer.transfer.mapping import TransferError
 
 log = logging.getLogger("dqn_transfer.train")
@@ -97,18 +97,9 @@ def worker_count(setting: str, replicas: int) -> int:
 
 
 def checkpoint_steps(plan: RunPlan, run_dir: Path) -> list[int]:
-    """Each replica's step in its resume state (a resumed batch's)."""
-    run = RunDir(run_dir)
-    steps = []
-    for replica in plan.replicas:
-        state = (run if plan.is_lone_run else RunDir(run.path / replica.name)).training_state
-        if not state.exists():
-            raise ConfigError(
-                f"resume=true but {state.parent.parent} holds no {state.name}: pass the run directory to resume "
-                "with hydra.run.dir=PATH"
-            )
-        steps.append(int(read_meta(state)["counters"]["step"]))
-    return steps
+    """Each replica's step in its resume state (a resumed batch's; refused where a replica has none)."""
+    check_start(plan, run_dir)
+    return [int(read_meta(RunDir(path).training_state)["counters"]["step"]) for path in plan.replica_dirs(run_dir)]
 
 
 def shares(plan: RunPlan, run_dir: Path, workers: int) -> list[tuple[int, int]]:
@@ -155,14 +146,9 @@ class ReplicaWorkers:
         self.tag, self.final_dirs = tag, final_dirs
 
     def prepare(self) -> None:
-        """What the process that splits the run checks before it starts any worker: a fresh run does
-        not overwrite another (each worker checks the rest of its own start)."""
-        if not self.plan.config.resume:
-            held = [
-                RunDir(self.run_dir / r.name) for r in self.plan.replicas if RunDir(self.run_dir / r.name).has_run()
-            ]
-            if held:
-                raise ConfigError(existing_run_message(held[0]))
+        """What the process that splits the run checks before it starts any worker: its directories allow
+        the start (each worker checks the rest of its own start)."""
+        check_start(self.plan, self.run_dir)
 
     def run(self) -> None:
         """Train every share in its worker; raises the first worker's error, or
