@@ -192,6 +192,11 @@ def read_stamp(sweep_dir: Path) -> dict | None:
         return None
 
 
+def write_stamp(sweep_dir: Path, stamp: dict) -> None:
+    """Record a sweep's settings and the wall time of its attempts (``STAMP_FILE``), read by :func:`read_stamp`."""
+    (sweep_dir / STAMP_FILE).write_text(json.dumps(stamp, indent=2) + "\n")
+
+
 @dataclass(frozen=True)
 class Multirun:
     """One Hydra multirun of an experiment config (``python -m dqn_transfer.cli.train -m experiment=...``)."""
@@ -219,7 +224,6 @@ def run_multirun(
     name, expected, stamp = multirun.label, multirun.jobs, dict(multirun.stamp)
     # Absolute: the subprocess runs in OUT, where a relative sweep directory would land one level deeper.
     out, sweep_dir = out.resolve(), multirun.sweep_dir.resolve()
-    stamp_path = sweep_dir / STAMP_FILE
     earlier: list[float] = []  # the wall seconds of the attempts before this one
     if sweep_dir.exists() and any(sweep_dir.iterdir()):
         previous = read_stamp(sweep_dir)
@@ -238,7 +242,7 @@ def run_multirun(
         extra = [*extra, "resume=true"]
     # The settings first: a sweep stopped unfinished is known by them, and continued.
     sweep_dir.mkdir(parents=True, exist_ok=True)
-    stamp_path.write_text(json.dumps({**stamp, "attempt_seconds": earlier}, indent=2) + "\n")
+    write_stamp(sweep_dir, {**stamp, "attempt_seconds": earlier})
     command = [
         sys.executable,
         "-m",
@@ -277,11 +281,11 @@ def run_multirun(
             raise
         finally:
             attempts = [*earlier, round(time.perf_counter() - start, 1)]
-            stamp_path.write_text(json.dumps({**stamp, "attempt_seconds": attempts}, indent=2) + "\n")
+            write_stamp(sweep_dir, {**stamp, "attempt_seconds": attempts})
     runs = job_dirs(sweep_dir)
     if process.returncode != 0 or len(runs) != expected or not all(run_is_complete(d) for d in runs):
         raise ReproduceError(failure_message(name, sweep_dir, log_path, expected, process.returncode))
     elapsed = sum(attempts)
-    stamp_path.write_text(json.dumps({**stamp, "attempt_seconds": attempts, "wall_seconds": elapsed}, indent=2) + "\n")
+    write_stamp(sweep_dir, {**stamp, "attempt_seconds": attempts, "wall_seconds": elapsed})
     print(f"[{name}] {expected}/{expected} runs done in {elapsed:.0f} s", flush=True)
     return elapsed
