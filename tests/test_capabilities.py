@@ -1,6 +1,6 @@
 """The learners' capabilities (dqn_transfer.agents.base), tested through the same methods for both
-families: knowledge exchange, greedy acting, replica views, and the refusal of a learner that lacks
-a capability a configuration asks for."""
+families: knowledge exchange, greedy acting, replica views, and the plan's refusal of a configuration
+whose learner lacks a capability it asks for."""
 
 from __future__ import annotations
 
@@ -11,21 +11,23 @@ import pytest
 
 from dqn_transfer.agents import (
     Experience,
+    ExperienceSharing,
     KnowledgeExchange,
     Learner,
     Team,
     Transition,
+    VisitExchange,
     WarmStart,
     make_learner,
     make_replicas,
-    require,
 )
-from dqn_transfer.config import AgentConfig, ConfigError, TransferConfig
+from dqn_transfer.agents.dqn_base import BatchedDQN
+from dqn_transfer.agents.tabular import TabularLearner
+from dqn_transfer.config import AgentConfig, ConfigError, TrainConfig, TransferConfig, validate
 from dqn_transfer.enums import Algorithm, Engine, Exchange
-from dqn_transfer.exchange import EXCHANGES
+from dqn_transfer.exchange import check_exchange
 from dqn_transfer.exchange.best import exchange_best
 from dqn_transfer.exchange.shared_replay import exchange_replay
-from dqn_transfer.transfer.warm_start import check_warm_start
 
 LAYOUT = [("position", 4)]
 A = 3
@@ -136,65 +138,36 @@ def test_replica_views_have_exactly_their_learners_capabilities():
     dqn = make_replicas(DQN, 2, LAYOUT, A, seeds=[1, 2]).replica(1)
     assert isinstance(tabular, KnowledgeExchange) and not isinstance(tabular, WarmStart)
     assert isinstance(dqn, KnowledgeExchange) and isinstance(dqn, WarmStart)
-    with pytest.raises(ConfigError, match="transfer.freeze.*WarmStart.*qlearning"):
-        require(tabular, WarmStart, "transfer.freeze")
 
 
-class ActingOnly(Team):
-    """A team without knowledge exchange (and nothing else beyond acting and checkpoints)."""
-
-    def __init__(self) -> None:
-        self.algorithm, self.num_agents = "scripted", 2
-
-    def act(self, obs, live, epsilon):
-        return np.zeros(2, np.int64)
-
-    def best_actions(self, obs):
-        return np.ones((2, A), bool)
-
-    def q_values(self, obs):
-        return np.zeros((2, A), np.float32)
-
-    def agent_tensors(self, i):
-        return {}
-
-    def load_agent_tensors(self, i, tensors):
-        pass
-
-    def network_meta(self):
-        return {}
-
-    def training_state(self):
-        return {}, {}
-
-    def load_training_state(self, arrays, meta):
-        pass
+# The capability each exchange's hooks call on the learner (exchange/*.py), stated here apart from the code.
+HOOKS_CALL = {
+    Exchange.best: KnowledgeExchange,
+    Exchange.shared_replay: KnowledgeExchange,
+    Exchange.experience: ExperienceSharing,
+    Exchange.confidence: VisitExchange,
+    Exchange.advice: VisitExchange,
+}
+LEARNER_OF = {Algorithm.sarsa: TabularLearner, Algorithm.qlearning: TabularLearner, Algorithm.dqn: BatchedDQN}
 
 
-@pytest.mark.parametrize(
-    ("exchange", "capability"),
-    [
-        (Exchange.best, "KnowledgeExchange"),
-        (Exchange.shared_replay, "KnowledgeExchange"),
-        (Exchange.experience, "ExperienceSharing"),
-        (Exchange.confidence, "VisitExchange"),
-        (Exchange.advice, "VisitExchange"),
-    ],
-)
-def test_a_learner_without_an_exchanges_capability_is_refused_when_the_run_starts(exchange, capability):
-    method = EXCHANGES[exchange](TransferConfig(exchange=exchange), 1)
-    refusal = f"^transfer.exchange={exchange.value} needs a learner capable of {capability}; scripted is not$"
-    with pytest.raises(ConfigError, match=refusal):
-        method.start(ActingOnly())
-    EXCHANGES[Exchange.none](TransferConfig(), 1).start(ActingOnly())  # no exchange asks nothing of the learner
+@pytest.mark.parametrize("exchange", list(HOOKS_CALL))
+@pytest.mark.parametrize("algorithm", list(LEARNER_OF))
+def test_the_plan_lets_an_exchange_run_exactly_when_its_learner_has_the_capability_its_hooks_call(exchange, algorithm):
+    """The hooks do not check capabilities again: the plan's refusal must cover every learner that lacks one."""
+    config = TrainConfig(agent=AgentConfig(algorithm=algorithm), transfer=TransferConfig(exchange=exchange))
+    if issubclass(LEARNER_OF[algorithm], HOOKS_CALL[exchange]):
+        check_exchange(config)
+    else:
+        with pytest.raises(ConfigError, match=f"^transfer.exchange={exchange.value} .*not agent={algorithm.value}$"):
+            check_exchange(config)
 
 
-def test_a_learner_without_a_capability_is_refused_when_the_run_is_configured():
-    with pytest.raises(ConfigError, match="KnowledgeExchange"):
-        exchange_best(ActingOnly(), np.zeros((1, 2)), 0.5)
-    tabular = make_learner(TABULAR, 2, LAYOUT, A, seed=0)
-    with pytest.raises(ConfigError, match="reset_optimizer=false"):
-        check_warm_start(tabular, TransferConfig(enabled=True, reset_optimizer=False))
-    with pytest.raises(ConfigError, match="transfer.freeze"):
-        check_warm_start(tabular, TransferConfig(enabled=True, freeze=[0]))
-    check_warm_start(tabular, TransferConfig(enabled=True))  # nothing a table lacks
+def test_a_warm_start_a_table_cannot_take_is_refused_when_the_config_is_checked():
+    for transfer, refusal in (
+        (TransferConfig(enabled=True, reset_optimizer=False), "transfer.reset_optimizer=false .* tabular"),
+        (TransferConfig(enabled=True, freeze=[0]), "transfer.freeze .* tabular"),
+    ):
+        with pytest.raises(ConfigError, match=refusal):
+            validate(TrainConfig(agent=TABULAR, transfer=transfer))
+    validate(TrainConfig(agent=TABULAR, transfer=TransferConfig(enabled=True)))  # nothing a table lacks

@@ -403,6 +403,12 @@ BAD_INPUTS = {
     "trap_beside_treasure": (("env.layout_file=trap_map.txt",), ("trap", "beside", "treasure")),
     "resume_empty_dir": (("resume=true",), ("resume",)),
     "infeasible_map": (("env.size=4", "env.complexity=0.99"), ("complexity",)),
+    # refused when the config is checked, before the 20,000-step pretraining of the source
+    "table_carrying_adam": (("agent=sarsa", "transfer=on", "transfer.reset_optimizer=false"), ("tabular",)),
+    "partial_adam_carry": (
+        ("transfer=on", "transfer.reset_optimizer=false", "transfer.targets=[1]"),
+        ("every agent as a target",),
+    ),
 }
 TRAP_MAP = "0.TX\n....\n....\n1..T\n"  # the trap at row 0, col 3 touches the chest at row 0, col 2
 
@@ -438,6 +444,8 @@ def test_messages_name_the_problem_precisely(bad_runs):
     assert "(did you mean agent.lr?)" in bad_runs["misspelt_key"].output
     assert "row 0, col 3" in bad_runs["trap_beside_treasure"].output
     assert "training_state" in bad_runs["resume_empty_dir"].output
+    for case in ("table_carrying_adam", "partial_adam_carry"):
+        assert "pretraining" not in bad_runs[case].output  # refused before the source's pretraining
 
 
 # ------------------------------------------------------------------ 8. never overwrite a run

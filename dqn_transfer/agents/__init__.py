@@ -7,7 +7,7 @@ learner can do is a set of capabilities (:mod:`dqn_transfer.agents.base`): every
 :class:`KnowledgeExchange`; the DQN family also :class:`WarmStart` (freezing layers, carrying optimizer
 state over), :class:`ExperienceSharing` (``transfer.exchange=experience``) and the tabular one
 :class:`VisitExchange` (exchange by visit counts: confidence, advice). Code outside this package calls these
-methods and checks a capability with :func:`require`, never a learner's class.
+methods, never a learner's class; the run's plan has checked that its learner family has them.
 
 The DQN family has two engines (``agent.engine``, whose default ``auto`` means numpy on the CPU and
 torch on a GPU): ``torch`` (:mod:`~dqn_transfer.agents.dqn`) and ``numpy``
@@ -40,7 +40,6 @@ from dqn_transfer.agents.base import (
     break_ties,
     epsilon_greedy,
     joined,
-    require,
 )
 from dqn_transfer.agents.dqn_base import BatchedDQN
 from dqn_transfer.agents.dqn_update import double_dqn_targets, dqn_targets
@@ -82,6 +81,7 @@ __all__ = [
     "VisitExchange",
     "WarmStart",
     "break_ties",
+    "check_device",
     "double_dqn_targets",
     "dqn_targets",
     "epsilon_greedy",
@@ -89,7 +89,6 @@ __all__ = [
     "linear_schedule",
     "make_learner",
     "make_replicas",
-    "require",
     "team_view",
 ]
 
@@ -98,6 +97,13 @@ def __getattr__(name: str) -> Any:
     if name in _TORCH_NAMES:
         return getattr(import_module(_TORCH_NAMES[name]), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def check_device(device: Device | str) -> None:
+    """Refuse ``device=cuda`` where torch sees no CUDA device, when the run is planned (torch is imported
+    for that device only)."""
+    if Device(device) is Device.cuda:
+        import_module("dqn_transfer.agents.dqn").resolve_device(device)
 
 
 def make_learner(

@@ -16,18 +16,18 @@ Capabilities (abstract base classes; a learner is an instance of those it has):
 A :class:`Team` acts and checkpoints; a :class:`Learner` is a team that also learns, batched over R
 independent replicas (rows ``r * K + k``; R = 1 for a lone learner), and :meth:`Learner.replica`
 gives replica r's team, with the learner's capabilities (:mod:`dqn_transfer.agents.replicas`).
-:func:`require` checks a capability, with a configuration error naming what needs it.
+Which capabilities a run needs is checked once, when it is planned, against the learner family its
+configuration builds (:mod:`dqn_transfer.config.schema`, :mod:`dqn_transfer.exchange`).
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Sequence
-from typing import Any, NamedTuple, TypeVar, cast
+from collections.abc import Sequence
+from typing import Any, NamedTuple
 
 import numpy as np
 
-from dqn_transfer.config import ConfigError
 from dqn_transfer.enums import Algorithm
 
 ObsLayout = Sequence[tuple[str, int]]
@@ -188,20 +188,6 @@ class Learner(Team, Learning):
     @abstractmethod
     def replica(self, r: int) -> Team:
         """Replica r's team of K agents (reads and writes this learner's own values)."""
-
-
-Capability = TypeVar("Capability")
-
-
-def require(team: object, capability: Callable[..., Capability], needed_by: str) -> Capability:
-    """``team`` as a learner with ``capability`` (one of the classes above), or a ``ConfigError`` naming
-    what needs it (checked when a run is configured, not in the middle of its loop)."""
-    if not isinstance(team, cast(type, capability)):
-        algorithm = getattr(team, "algorithm", type(team).__name__)
-        raise ConfigError(
-            f"{needed_by} needs a learner capable of {getattr(capability, '__name__', capability)}; {algorithm} is not"
-        )
-    return cast(Capability, team)
 
 
 def break_ties(best: np.ndarray, live: np.ndarray, ties: np.random.Generator | None) -> np.ndarray:

@@ -349,6 +349,10 @@ def validate(cfg: DictConfig | TrainConfig) -> None:
     is_tabular = Algorithm(agent.algorithm).is_tabular
     if is_tabular:
         _check(not transfer.freeze, "transfer.freeze applies to network layers; tabular learners have none")
+        _check(
+            transfer.reset_optimizer,
+            "transfer.reset_optimizer=false carries a source's Adam moments over; tabular learners have none",
+        )
     else:
         # Every batch is drawn from the replay: one smaller than a batch repeats its few transitions in each
         # (SB3 and CleanRL presume buffer_size >= batch_size).

@@ -6,16 +6,17 @@ team-mate that visited it most (if at least ``advice_answer_from`` times), withi
 
 from __future__ import annotations
 
-from dqn_transfer.agents import AdviceRules, Learner, VisitExchange, require
+from typing import cast
+
+from dqn_transfer.agents import AdviceRules, Learner, VisitExchange
 from dqn_transfer.exchange.base import ExchangeMethod
 
 
 class Advice(ExchangeMethod):
     name = "advice"
     family, needs = "tabular", "works on visit counts of table entries"
-    capability = VisitExchange
 
     def start(self, learner: Learner) -> None:
         transfer = self.transfer
         rules = AdviceRules(transfer.advice_ask_below, transfer.advice_answer_from, transfer.advice_budget)
-        require(learner, VisitExchange, "transfer.exchange=advice").start_advice(rules)  # full budgets
+        cast(VisitExchange, learner).start_advice(rules)  # full budgets

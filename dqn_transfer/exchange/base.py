@@ -12,7 +12,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from dqn_transfer.agents import Learner, Team, Transition, require
+from dqn_transfer.agents import Learner, Team, Transition
 from dqn_transfer.config import ConfigError, TrainConfig, TransferConfig
 from dqn_transfer.enums import Algorithm, Exchange, Mixer
 
@@ -33,7 +33,6 @@ class ExchangeMethod:
     name: ClassVar[str]  # as the config spells it
     family: ClassVar[str | None] = None  # the learners it works with (Algorithm.family), None: both
     needs: ClassVar[str] = ""  # what it does that needs them, for the refusal of another learner
-    capability: ClassVar[type | None] = None  # the learner capability (agents.base) its hooks call
     moves_transitions: ClassVar[bool] = False  # between the agents' replays (VDN's aligned team steps refuse it)
     fills_replays: ClassVar[bool] = False  # each agent's replay also takes its team-mates' transitions
     at_interval: ClassVar[bool] = False  # exchange() every transfer.exchange_every episodes of a replica
@@ -50,7 +49,9 @@ class ExchangeMethod:
     # ------------------------------------------------------------------------------------------ the hooks
     @classmethod
     def check(cls, config: TrainConfig) -> None:
-        """At plan time: refuse a configuration the method cannot run, in one line (``ConfigError``)."""
+        """At plan time, the one moment a run's configuration is checked: refuse what the method cannot run,
+        in one line (``ConfigError``). The learner family it asks for has the capabilities
+        (:mod:`dqn_transfer.agents.base`) its hooks call, so the hooks do not check them again."""
         algorithm = Algorithm(config.agent.algorithm)
         if cls.family is not None and algorithm.family != cls.family:
             raise ConfigError(
@@ -63,10 +64,7 @@ class ExchangeMethod:
             )
 
     def start(self, learner: Learner) -> None:
-        """Once the learner is built, before any step (and before a resumed run loads its state): refuse a
-        learner without :attr:`capability`, in one line."""
-        if self.capability is not None:
-            require(learner, self.capability, f"transfer.exchange={self.name}")
+        """Once the learner is built, before any step (and before a resumed run loads its state)."""
 
     def after_step(self, transition: Transition, bounced: np.ndarray) -> None:
         """After every joint step of all replicas: ``transition`` (rows ``r * K + k``) and ``bounced``

@@ -5,9 +5,11 @@ state either table holds. Records ``team/exchange_best_agent``."""
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
-from dqn_transfer.agents import KnowledgeExchange, Team, require
+from dqn_transfer.agents import KnowledgeExchange, Team
 from dqn_transfer.config import ConfigError, TrainConfig
 from dqn_transfer.exchange.base import ExchangeMethod
 
@@ -15,13 +17,12 @@ from dqn_transfer.exchange.base import ExchangeMethod
 def exchange_best(team: Team, window_returns: np.ndarray, tau: float) -> int:
     """Soft-copy the best agent of ``window_returns [episodes, K]`` into the others; returns its index."""
     best = int(np.argmax(window_returns.mean(axis=0)))
-    require(team, KnowledgeExchange, "transfer.exchange=best").soft_copy_best(best, tau)
+    cast(KnowledgeExchange, team).soft_copy_best(best, tau)
     return best
 
 
 class BestCopy(ExchangeMethod):
     name = "best"
-    capability = KnowledgeExchange
     at_interval = True
 
     @classmethod

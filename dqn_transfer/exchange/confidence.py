@@ -4,18 +4,19 @@ by ``confidence_weight`` and the share of the visits (the rule: :mod:`dqn_transf
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
-from dqn_transfer.agents import Team, VisitExchange, require
+from dqn_transfer.agents import Team, VisitExchange
 from dqn_transfer.exchange.base import ExchangeMethod
 
 
 class Confidence(ExchangeMethod):
     name = "confidence"
     family, needs = "tabular", "works on visit counts of table entries"
-    capability = VisitExchange
     at_interval = True
 
     def exchange(self, r: int, team: Team, returns: np.ndarray) -> list[tuple[str, float]]:
-        require(team, VisitExchange, "transfer.exchange=confidence").merge_confident(self.transfer.confidence_weight)
+        cast(VisitExchange, team).merge_confident(self.transfer.confidence_weight)
         return []

@@ -5,16 +5,16 @@ weighing ``experience_lambda`` times its own (the sampling and weights:
 
 from __future__ import annotations
 
-from dqn_transfer.agents import ExperienceSharing, Learner, require
+from typing import cast
+
+from dqn_transfer.agents import ExperienceSharing, Learner
 from dqn_transfer.exchange.base import ExchangeMethod
 
 
 class Experience(ExchangeMethod):
     name = "experience"
     family, needs = "dqn", "samples the team-mates' replays"
-    capability = ExperienceSharing
     moves_transitions = True
 
     def start(self, learner: Learner) -> None:
-        sharing = require(learner, ExperienceSharing, "transfer.exchange=experience")
-        sharing.share_experience(self.transfer.experience_lambda)
+        cast(ExperienceSharing, learner).share_experience(self.transfer.experience_lambda)

@@ -10,11 +10,11 @@ agent-specific transition). The window is kept per replica and saved with checkp
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
-from dqn_transfer.agents import Experience, KnowledgeExchange, Team, Transition, require
+from dqn_transfer.agents import Experience, KnowledgeExchange, Team, Transition
 from dqn_transfer.config import TransferConfig
 from dqn_transfer.exchange.base import ExchangeMethod
 
@@ -22,7 +22,7 @@ from dqn_transfer.exchange.base import ExchangeMethod
 def exchange_replay(team: Team, transitions: Sequence[Transition], bounced: Sequence[np.ndarray]) -> None:
     """Each agent learns from its team-mates' transitions of the window but their obstacle bounces;
     ``bounced[t]``, ``bool [K]``: who moved into an obstacle on step ``t``."""
-    exchange = require(team, KnowledgeExchange, "transfer.exchange=shared_replay")
+    exchange = cast(KnowledgeExchange, team)
     if not transitions:
         return
     window = Transition(*(np.stack(column) for column in zip(*transitions)))  # fields [T, K, ...]
@@ -42,7 +42,6 @@ def exchange_replay(team: Team, transitions: Sequence[Transition], bounced: Sequ
 
 class SharedReplay(ExchangeMethod):
     name = "shared_replay"
-    capability = KnowledgeExchange
     moves_transitions = fills_replays = at_interval = True
 
     def __init__(self, transfer: TransferConfig, num_replicas: int) -> None:

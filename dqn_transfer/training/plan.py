@@ -20,6 +20,7 @@ import yaml
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
+from dqn_transfer.agents import check_device
 from dqn_transfer.config import (
     CONFIG_DIR,
     ConfigError,
@@ -147,6 +148,7 @@ def plan_run(config: TrainConfig, *, source_task: bool = False) -> RunPlan:
 
 def _plan(config: TrainConfig, source_task: bool) -> RunPlan:
     validate(config)
+    check_device(config.device)
     check_exchange(config)
     if config.env.factory is not None:
         return _plan_other_game(config, source_task)

@@ -65,7 +65,7 @@ from dqn_transfer.training.replica import EpisodeSums, EpsilonSchedule, Replica,
 from dqn_transfer.training.run_state import encode_checkpoint, load_checkpoint
 from dqn_transfer.training.stop import Interrupted, StopRequest
 from dqn_transfer.training.tabular_steps import TabularSteps
-from dqn_transfer.transfer.warm_start import apply_transfer, check_warm_start, lineage_table
+from dqn_transfer.transfer.warm_start import apply_transfer, lineage_table
 
 log = logging.getLogger("dqn_transfer.train")
 
@@ -124,8 +124,6 @@ class Trainer:
             threads=config.threads,
             code=observation_code(games),
         )
-        if config.transfer.enabled and not self.source_task:
-            check_warm_start(self.learner, config.transfer)
         # The run's knowledge exchange (its hooks: dqn_transfer.exchange.base); a resumed run then loads its state.
         self.exchange = exchange_method(config)(config.transfer, len(plan.replicas))
         self.exchange.start(self.learner)
@@ -185,7 +183,9 @@ class Trainer:
                         "transfer.enabled: the trainer needs the source checkpoint "
                         "(dqn_transfer.sources.resolve.transfer_sources finds or pretrains it)"
                     )
-                rep.transfer_info = apply_transfer(rep.config, rep.learner, rep.game, rep.source)
+                rep.transfer_info = apply_transfer(
+                    rep.config, rep.learner, rep.game, rep.source, list(self.plan.targets)
+                )
 
     def _write_replica_configs(self) -> None:
         """Each replica's own composed config, where the readers of a run directory look for it; and

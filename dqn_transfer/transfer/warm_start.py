@@ -14,11 +14,11 @@ import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
-from dqn_transfer.agents import Team, WarmStart, require
+from dqn_transfer.agents import Team, WarmStart
 from dqn_transfer.config import TrainConfig, TransferConfig
 from dqn_transfer.enums import Algorithm, Fill
 from dqn_transfer.envs import Game, PettingZooGame, TreasureHuntGame
@@ -48,11 +48,17 @@ log = logging.getLogger("dqn_transfer.transfer")
 
 
 def transfer_targets(config: TrainConfig, num_agents: int) -> list[int]:
-    """The agents that receive the transfer (``transfer.targets``, default all), checked."""
+    """The agents that receive the transfer (``transfer.targets``, default all), checked when the run is
+    planned."""
     targets = list(range(num_agents)) if config.transfer.targets is None else list(config.transfer.targets)
     bad = [i for i in targets if not 0 <= i < num_agents]
     if bad:
         raise TransferError(f"transfer.targets {bad} out of range for {num_agents} agents")
+    if not config.transfer.reset_optimizer and len(targets) != num_agents:  # one Adam step count per stacked parameter
+        raise TransferError(
+            f"transfer.reset_optimizer=false needs every agent as a target (transfer.targets={targets}): "
+            "the agents share Adam's step count"
+        )
     return targets
 
 
@@ -196,22 +202,15 @@ def map_source(config: TrainConfig, game: Game, path: Path, target_layout: Layou
     return MappedSource(path, mapped, meta, plan, embedding, start)
 
 
-def check_warm_start(learner: Team, transfer: TransferConfig) -> None:
-    """Refuse, before any step, a learner without the :class:`~dqn_transfer.agents.WarmStart` capability
-    that ``transfer.freeze`` or ``transfer.reset_optimizer=false`` need."""
-    if transfer.freeze:
-        require(learner, WarmStart, f"transfer.freeze={list(transfer.freeze)}")
-    if not transfer.reset_optimizer:
-        require(learner, WarmStart, "transfer.reset_optimizer=false (an optimizer state to carry over)")
-
-
-def apply_transfer(config: TrainConfig, learner: Team, game: Game, source: Path | Sequence[Path]) -> dict[str, Any]:
-    """Load ``source`` (one checkpoint for every target agent, or one per target) into the target
-    agents (``load_agent_tensors``); keeping layers fixed and carrying the optimizer state over need
-    the learner's :class:`~dqn_transfer.agents.WarmStart` capability. Returns what the run records
-    about its sources."""
+def apply_transfer(
+    config: TrainConfig, learner: Team, game: Game, source: Path | Sequence[Path], targets: list[int]
+) -> dict[str, Any]:
+    """Load ``source`` (one checkpoint for every target agent, or one per target) into the ``targets``
+    (the plan's :func:`transfer_targets`) with ``load_agent_tensors``; keeping layers fixed and carrying
+    the optimizer state over need the learner's :class:`~dqn_transfer.agents.WarmStart` capability (the
+    DQN family: the schema refuses either with a table, the plan a partial carry-over).
+    Returns what the run records about its sources."""
     transfer = config.transfer
-    targets = transfer_targets(config, game.num_agents)
     files = [source] * len(targets) if isinstance(source, Path) else list(source)
     if len(files) != len(targets):
         raise TransferError(f"{len(files)} source checkpoints for {len(targets)} target agents {targets}")
@@ -224,15 +223,9 @@ def apply_transfer(config: TrainConfig, learner: Team, game: Game, source: Path 
     for i, source_i in zip(targets, per_target):
         learner.load_agent_tensors(i, source_i.tensors)
     if not transfer.reset_optimizer:
-        warm_start = require(learner, WarmStart, "transfer.reset_optimizer=false")
-        if len(targets) != game.num_agents:  # Adam keeps one step count per stacked parameter
-            raise TransferError(
-                "transfer.reset_optimizer=false needs every agent as a target "
-                f"(transfer.targets={targets}): the agents share Adam's step count"
-            )
-        carry_optimizer_state(warm_start, per_target, targets)
+        carry_optimizer_state(cast(WarmStart, learner), per_target, targets)
     if transfer.freeze:  # indices were checked against agent.hidden by config.validate
-        require(learner, WarmStart, "transfer.freeze").freeze(list(transfer.freeze))
+        cast(WarmStart, learner).freeze(list(transfer.freeze))
     first = per_target[0]
     log.info(
         "transfer: agents %s start from %s (digest %s...)",
