@@ -69,6 +69,7 @@ class Exchange(Enum):
     experience = "experience"  # DQN: each gradient step also on team-mates' replay samples (SEAC's shared experience)
     confidence = "confidence"  # tables: merge a team-mate's values on the states it visited more (Tan 1993)
     advice = "advice"  # tables: a rarely-visited state's action comes from the most experienced team-mate
+    sham = "sham"  # control: shared_replay's schedule and volume, each agent's own transitions again
 
 
 class Mixer(Enum):

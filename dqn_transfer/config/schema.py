@@ -157,7 +157,7 @@ class TransferConfig:
     exchange: Exchange = documented(
         Exchange.none,
         "knowledge exchange inside the team during training: none | best | shared_replay | experience (DQN) | "
-        "confidence | advice (tabular learners)",
+        "confidence | advice (tabular learners) | sham (control: shared_replay's volume, each agent's own moves)",
     )
     exchange_every: int = documented(20, "episodes between exchanges")
     exchange_tau: float = documented(0.5, "'best': weight of the best agent in the soft copy")

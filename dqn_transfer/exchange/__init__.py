@@ -16,13 +16,15 @@ from dqn_transfer.exchange.best import BestCopy
 from dqn_transfer.exchange.confidence import Confidence
 from dqn_transfer.exchange.experience import Experience
 from dqn_transfer.exchange.none import NoExchange
+from dqn_transfer.exchange.sham import ShamReplay
 from dqn_transfer.exchange.shared_network import SharedNetwork
 from dqn_transfer.exchange.shared_replay import SharedReplay
 from dqn_transfer.exchange.vdn import TeamLoss
 
 # transfer.exchange: the method of each value.
 EXCHANGES: dict[Exchange, type[ExchangeMethod]] = {
-    Exchange(method.name): method for method in (NoExchange, BestCopy, SharedReplay, Experience, Confidence, Advice)
+    Exchange(method.name): method
+    for method in (NoExchange, BestCopy, SharedReplay, Experience, Confidence, Advice, ShamReplay)
 }
 # The methods the learner is built with (agent.*): checked at plan time, no hook of the loop.
 TEAM_METHODS: tuple[type[ExchangeMethod], ...] = (SharedNetwork, TeamLoss)

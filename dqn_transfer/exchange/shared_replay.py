@@ -19,22 +19,24 @@ from dqn_transfer.config import TransferConfig
 from dqn_transfer.exchange.base import ExchangeMethod
 
 
+def window_experience(transitions: Sequence[Transition], bounced: Sequence[np.ndarray]) -> list[Experience]:
+    """Each agent's moves of the window, but its obstacle bounces (``bounced[t]``, ``bool [K]``: who moved
+    into an obstacle on step ``t``); empty ones for an empty window."""
+    window = Transition(*(np.stack(column) for column in zip(*transitions)))  # fields [T, K, ...]
+    bounces = np.stack(bounced)  # [T, K]
+    num_agents = bounces.shape[1]
+    fields = (window.obs, window.actions, window.rewards, window.next_obs, window.terminated)
+    taken = window.live & ~bounces
+    return [Experience(*(column[taken[:, agent], agent] for column in fields)) for agent in range(num_agents)]
+
+
 def exchange_replay(team: Team, transitions: Sequence[Transition], bounced: Sequence[np.ndarray]) -> None:
     """Each agent learns from its team-mates' transitions of the window but their obstacle bounces;
     ``bounced[t]``, ``bool [K]``: who moved into an obstacle on step ``t``."""
-    exchange = cast(KnowledgeExchange, team)
     if not transitions:
         return
-    window = Transition(*(np.stack(column) for column in zip(*transitions)))  # fields [T, K, ...]
-    bounces = np.stack(bounced)  # [T, K]
-    for giver in range(team.num_agents):
-        taken = window.live[:, giver] & ~bounces[:, giver]  # the giver's moves, but its bounces
-        experience = Experience(
-            *(
-                column[taken, giver]
-                for column in (window.obs, window.actions, window.rewards, window.next_obs, window.terminated)
-            )
-        )
+    exchange = cast(KnowledgeExchange, team)
+    for giver, experience in enumerate(window_experience(transitions, bounced)):
         for receiver in range(team.num_agents):
             if receiver != giver:
                 exchange.learn_from(receiver, experience)
@@ -56,10 +58,14 @@ class SharedReplay(ExchangeMethod):
             self.bounced[r].append(bounced[r])
 
     def exchange(self, r: int, team: Team, returns: np.ndarray) -> list[tuple[str, float]]:
-        exchange_replay(team, self.transitions[r], self.bounced[r])
+        self.share(team, self.transitions[r], self.bounced[r])
         self.transitions[r].clear()
         self.bounced[r].clear()
         return []
+
+    def share(self, team: Team, transitions: Sequence[Transition], bounced: Sequence[np.ndarray]) -> None:
+        """What the agents of ``team`` learn from a window (:func:`exchange_replay`)."""
+        exchange_replay(team, transitions, bounced)
 
     def state(self, r: int) -> dict[str, np.ndarray]:
         arrays = {name: np.stack(column) for name, column in zip(Transition._fields, zip(*self.transitions[r]))}
