@@ -21,6 +21,7 @@ from matplotlib.figure import Figure  # no pyplot: no display needed, no global 
 from dqn_transfer.analysis.runs import learning_curve, load_config, steps_before
 from dqn_transfer.analysis.stats import Estimate, curve_band, performance_profile
 from dqn_transfer.analysis.transfer_metrics import Curve
+from dqn_transfer.storage.run_dir import flatten
 
 # Keys that differ between runs of one condition without making it another condition.
 IGNORED_KEYS = (
@@ -42,18 +43,6 @@ ColorOf = Callable[[str], "str | None"]
 
 
 # ------------------------------------------------------------------------------------ groups
-
-
-def flatten(tree: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    """``{"env": {"mode": "x"}}`` -> ``{"env.mode": "x"}``; lists become tuples (hashable)."""
-    flat: dict[str, Any] = {}
-    for key, value in tree.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, dict):
-            flat.update(flatten(value, name + "."))
-        else:
-            flat[name] = tuple(value) if isinstance(value, list) else value
-    return flat
 
 
 def _short(key: str, value: Any) -> str:
