@@ -41,11 +41,11 @@ class SkippedRun(UserWarning):
     """A directory given to a reader that is not a usable run; the message is ``skipped DIR: REASON``."""
 
 
-def read_metrics(run_dir: str | os.PathLike) -> list[dict[str, Any]]:
+def read_metrics(run_dir: str | os.PathLike, warn_incomplete: bool = True) -> list[dict[str, Any]]:
     """All evaluation records of a run, in file order.
 
     A last line without its newline that does not parse is a write cut short by a killed run: it
-    is skipped with a warning. Any other bad line is an error.
+    is skipped, with a warning unless ``warn_incomplete`` is false. Any other bad line is an error.
     """
     path = RunDir(run_dir).metrics
     if not Path(run_dir).exists():
@@ -62,7 +62,8 @@ def read_metrics(run_dir: str | os.PathLike) -> list[dict[str, Any]]:
 
     def bad_line(number: int) -> None:
         if number == len(lines):  # no trailing newline: interrupted append
-            warnings.warn(f"{path}: skipping incomplete last line {number}", IncompleteLastLine, stacklevel=4)
+            if warn_incomplete:
+                warnings.warn(f"{path}: skipping incomplete last line {number}", IncompleteLastLine, stacklevel=4)
             return
         raise EvaluationError(f"{path}: line {number} is not valid JSON") from None
 
@@ -135,9 +136,7 @@ def _unusable_reason(run_dir: Path, need_config: bool = False) -> str | None:
         error = _last_error(files.log)
         return f"no {METRICS_FILE} ({f'{LOG_FILE}: {error}' if error else 'the run has not evaluated'})"
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", IncompleteLastLine)  # the reader warns when it reads the curve
-            records = read_metrics(run_dir)
+        records = read_metrics(run_dir, warn_incomplete=False)  # the reader warns when it reads the curve
     except EvaluationError as err:
         return str(err)
     if not records:
