@@ -134,8 +134,11 @@ def _band_panel(
     ax.legend(fontsize="small", loc=legend_loc)
 
 
-def _save(fig, path: Path, dpi: int, watermark: str | None = None) -> Path:
-    """Write the figure; a ``watermark`` (e.g. a smoke run's "not evidence") is printed across it."""
+def _save(fig, path: Path, title: str | None, watermark: str | None = None, dpi: int = 110) -> Path:
+    """Write the figure under its ``title`` (None: its axes carry their own); a ``watermark`` (e.g. a smoke
+    run's "not evidence") is printed across it."""
+    if title is not None:
+        fig.suptitle(title)
     if watermark:
         fig.text(
             0.5,
@@ -177,7 +180,7 @@ def plot_groups(
     for offset in sorted(set(offsets.values()) - {0}):
         _mark(ax, offset, f"{offset:,} steps before")
     ax.set_title(title or f"{metric_label(metric)}: mean, 95% bootstrap CI and each run")
-    return _save(fig, out, dpi=120)
+    return _save(fig, out, None, dpi=120)
 
 
 def _mark(ax, x: float, text: str) -> None:
@@ -229,8 +232,7 @@ def curves_figure(
         _band_panel(ax, metric, groups, rng, color_of, xlabel + (f"\n{note}" if note else ""), "lower right")
         for x, text in marks:
             _mark(ax, x, text)
-    fig.suptitle(title + "\nmean, 95% bootstrap CI over runs, and each run (thin)")
-    return _save(fig, path, dpi=110, watermark=watermark)
+    return _save(fig, path, title + "\nmean, 95% bootstrap CI over runs, and each run (thin)", watermark)
 
 
 def _whiskers(estimates: Sequence[Estimate]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -281,8 +283,7 @@ def errorbar_figure(
         ax.set_ylabel(ylabel, fontsize="small")
         ax.grid(alpha=0.3)
         ax.legend(fontsize="small")
-    fig.suptitle(title)
-    return _save(fig, path, dpi=110, watermark=watermark)
+    return _save(fig, path, title, watermark)
 
 
 def dot_whisker_figure(
@@ -323,8 +324,7 @@ def dot_whisker_figure(
         ax.set_title(panel_title, fontsize="medium")
         ax.grid(alpha=0.3, axis="x")
         ax.legend(fontsize="small")
-    fig.suptitle(title)
-    return _save(fig, path, dpi=110, watermark=watermark)
+    return _save(fig, path, title, watermark)
 
 
 def profile_figure(
@@ -358,8 +358,7 @@ def profile_figure(
         ax.set_ylabel("fraction of runs with score > tau")
         ax.grid(alpha=0.3)
         ax.legend(fontsize="small")
-    fig.suptitle(title)
-    return _save(fig, path, dpi=110, watermark=watermark)
+    return _save(fig, path, title, watermark)
 
 
 @dataclass(frozen=True)
@@ -395,5 +394,4 @@ def dose_response_figure(
         ax.set_ylabel(ylabel, fontsize="small")
         ax.grid(alpha=0.3)
         ax.legend(fontsize="x-small")
-    fig.suptitle(title)
-    return _save(fig, path, dpi=110)
+    return _save(fig, path, title)
