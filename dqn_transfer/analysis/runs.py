@@ -75,13 +75,13 @@ def read_metrics(run_dir: str | os.PathLike, warn_incomplete: bool = True) -> li
     return records
 
 
-def learning_curve(run_dir: str | os.PathLike, metric: str = "team_return") -> Curve:
+def learning_curve(run_dir: str | os.PathLike, metric: str = "team_return", warn_incomplete: bool = True) -> Curve:
     """``(steps, values)`` of ``metric`` over a run's evaluations, sorted by step.
 
     A resumed run re-evaluates the steps after its last checkpoint; for a repeated step the later
-    record wins, since it belongs to the run that continued.
+    record wins, since it belongs to the run that continued. ``warn_incomplete``: as :func:`read_metrics`.
     """
-    records = read_metrics(run_dir)
+    records = read_metrics(run_dir, warn_incomplete)
     by_step: dict[int, float] = {}
     for record in records:
         if isinstance(record.get(metric), (int, float)) and "step" in record:
@@ -268,7 +268,5 @@ def run_objective(run_dir: str | os.PathLike, objective: str, metric: str = "tea
     if objective not in ("final", "mean"):
         raise ValueError(f"objective is final or mean, got {objective!r}")
     dirs = RunDir(run_dir).replica_dirs() or [Path(run_dir)]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", IncompleteLastLine)
-        values = [learning_curve(d, metric)[1] for d in dirs]
+    values = [learning_curve(d, metric, warn_incomplete=False)[1] for d in dirs]
     return float(np.mean([v[-1] if objective == "final" else v.mean() for v in values]))
