@@ -39,12 +39,14 @@ import json
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 import numpy as np
 
 from dqn_transfer.analysis.transfer_metrics import asymptotic_performance
 from dqn_transfer.enums import Contention
+from dqn_transfer.storage.run_dir import flatten
 
 ENVIRONMENT = "treasurehunt"
 ABSOLUTE = "absolute_metrics"
@@ -77,16 +79,6 @@ def agent_return_metric(agent: int) -> str:
     :param agent: the agent's index in its team.
     """
     return f"agent_{agent}_return"
-
-
-def _flat(config: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
-    out: dict[str, str] = {}
-    for key, value in config.items():
-        if isinstance(value, Mapping):
-            out.update(_flat(value, f"{prefix}{key}."))
-        else:
-            out[f"{prefix}{key}"] = json.dumps(value, sort_keys=True)
-    return out
 
 
 def game_name(config: Mapping[str, Any]) -> str:
@@ -136,7 +128,7 @@ def _names(runs: Sequence[EvaluatedRun]) -> list[tuple[str, str, str]]:
     """(task, algorithm, seed key) of each run; a name shared by two runs of one task and seed takes the
     config keys that differ among the runs of that name."""
     base = [(task_name(r.config), algorithm_name(r.config), f"seed_{r.config['seed']}") for r in runs]
-    flats = [_flat(r.config) for r in runs]
+    flats = [flatten(r.config, partial(json.dumps, sort_keys=True)) for r in runs]
     slots: dict[tuple[str, str, str], list[int]] = {}
     for i, key in enumerate(base):
         slots.setdefault(key, []).append(i)

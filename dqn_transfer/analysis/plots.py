@@ -21,6 +21,7 @@ from matplotlib.figure import Figure  # no pyplot: no display needed, no global 
 from dqn_transfer.analysis.runs import learning_curve, load_config, steps_before
 from dqn_transfer.analysis.stats import Estimate, curve_band, performance_profile
 from dqn_transfer.analysis.transfer_metrics import Curve
+from dqn_transfer.storage.run_dir import flatten
 
 # Keys that differ between runs of one condition without making it another condition.
 IGNORED_KEYS = (
@@ -42,18 +43,6 @@ ColorOf = Callable[[str], "str | None"]
 
 
 # ------------------------------------------------------------------------------------ groups
-
-
-def flatten(tree: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    """``{"env": {"mode": "x"}}`` -> ``{"env.mode": "x"}``; lists become tuples (hashable)."""
-    flat: dict[str, Any] = {}
-    for key, value in tree.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, dict):
-            flat.update(flatten(value, name + "."))
-        else:
-            flat[name] = tuple(value) if isinstance(value, list) else value
-    return flat
 
 
 def _short(key: str, value: Any) -> str:
@@ -145,8 +134,11 @@ def _band_panel(
     ax.legend(fontsize="small", loc=legend_loc)
 
 
-def _save(fig, path: Path, dpi: int, watermark: str | None = None) -> Path:
-    """Write the figure; a ``watermark`` (e.g. a smoke run's "not evidence") is printed across it."""
+def _save(fig, path: Path, title: str | None, watermark: str | None = None, dpi: int = 110) -> Path:
+    """Write the figure under its ``title`` (None: its axes carry their own); a ``watermark`` (e.g. a smoke
+    run's "not evidence") is printed across it."""
+    if title is not None:
+        fig.suptitle(title)
     if watermark:
         fig.text(
             0.5,
@@ -188,7 +180,7 @@ def plot_groups(
     for offset in sorted(set(offsets.values()) - {0}):
         _mark(ax, offset, f"{offset:,} steps before")
     ax.set_title(title or f"{metric_label(metric)}: mean, 95% bootstrap CI and each run")
-    return _save(fig, out, dpi=120)
+    return _save(fig, out, None, dpi=120)
 
 
 def _mark(ax, x: float, text: str) -> None:
@@ -240,8 +232,7 @@ def curves_figure(
         _band_panel(ax, metric, groups, rng, color_of, xlabel + (f"\n{note}" if note else ""), "lower right")
         for x, text in marks:
             _mark(ax, x, text)
-    fig.suptitle(title + "\nmean, 95% bootstrap CI over runs, and each run (thin)")
-    return _save(fig, path, dpi=110, watermark=watermark)
+    return _save(fig, path, title + "\nmean, 95% bootstrap CI over runs, and each run (thin)", watermark)
 
 
 def _whiskers(estimates: Sequence[Estimate]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -292,8 +283,7 @@ def errorbar_figure(
         ax.set_ylabel(ylabel, fontsize="small")
         ax.grid(alpha=0.3)
         ax.legend(fontsize="small")
-    fig.suptitle(title)
-    return _save(fig, path, dpi=110, watermark=watermark)
+    return _save(fig, path, title, watermark)
 
 
 def dot_whisker_figure(
@@ -334,8 +324,7 @@ def dot_whisker_figure(
         ax.set_title(panel_title, fontsize="medium")
         ax.grid(alpha=0.3, axis="x")
         ax.legend(fontsize="small")
-    fig.suptitle(title)
-    return _save(fig, path, dpi=110, watermark=watermark)
+    return _save(fig, path, title, watermark)
 
 
 def profile_figure(
@@ -369,8 +358,7 @@ def profile_figure(
         ax.set_ylabel("fraction of runs with score > tau")
         ax.grid(alpha=0.3)
         ax.legend(fontsize="small")
-    fig.suptitle(title)
-    return _save(fig, path, dpi=110, watermark=watermark)
+    return _save(fig, path, title, watermark)
 
 
 @dataclass(frozen=True)
@@ -406,5 +394,4 @@ def dose_response_figure(
         ax.set_ylabel(ylabel, fontsize="small")
         ax.grid(alpha=0.3)
         ax.legend(fontsize="x-small")
-    fig.suptitle(title)
-    return _save(fig, path, dpi=110)
+    return _save(fig, path, title)

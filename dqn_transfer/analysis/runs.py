@@ -41,11 +41,11 @@ class SkippedRun(UserWarning):
     """A directory given to a reader that is not a usable run; the message is ``skipped DIR: REASON``."""
 
 
-def read_metrics(run_dir: str | os.PathLike) -> list[dict[str, Any]]:
+def read_metrics(run_dir: str | os.PathLike, warn_incomplete: bool = True) -> list[dict[str, Any]]:
     """All evaluation records of a run, in file order.
 
     A last line without its newline that does not parse is a write cut short by a killed run: it
-    is skipped with a warning. Any other bad line is an error.
+    is skipped, with a warning unless ``warn_incomplete`` is false. Any other bad line is an error.
     """
     path = RunDir(run_dir).metrics
     if not Path(run_dir).exists():
@@ -62,7 +62,8 @@ def read_metrics(run_dir: str | os.PathLike) -> list[dict[str, Any]]:
 
     def bad_line(number: int) -> None:
         if number == len(lines):  # no trailing newline: interrupted append
-            warnings.warn(f"{path}: skipping incomplete last line {number}", IncompleteLastLine, stacklevel=4)
+            if warn_incomplete:
+                warnings.warn(f"{path}: skipping incomplete last line {number}", IncompleteLastLine, stacklevel=4)
             return
         raise EvaluationError(f"{path}: line {number} is not valid JSON") from None
 
@@ -74,13 +75,13 @@ def read_metrics(run_dir: str | os.PathLike) -> list[dict[str, Any]]:
     return records
 
 
-def learning_curve(run_dir: str | os.PathLike, metric: str = "team_return") -> Curve:
+def learning_curve(run_dir: str | os.PathLike, metric: str = "team_return", warn_incomplete: bool = True) -> Curve:
     """``(steps, values)`` of ``metric`` over a run's evaluations, sorted by step.
 
     A resumed run re-evaluates the steps after its last checkpoint; for a repeated step the later
-    record wins, since it belongs to the run that continued.
+    record wins, since it belongs to the run that continued. ``warn_incomplete``: as :func:`read_metrics`.
     """
-    records = read_metrics(run_dir)
+    records = read_metrics(run_dir, warn_incomplete)
     by_step: dict[int, float] = {}
     for record in records:
         if isinstance(record.get(metric), (int, float)) and "step" in record:
@@ -135,9 +136,7 @@ def _unusable_reason(run_dir: Path, need_config: bool = False) -> str | None:
         error = _last_error(files.log)
         return f"no {METRICS_FILE} ({f'{LOG_FILE}: {error}' if error else 'the run has not evaluated'})"
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", IncompleteLastLine)  # the reader warns when it reads the curve
-            records = read_metrics(run_dir)
+        records = read_metrics(run_dir, warn_incomplete=False)  # the reader warns when it reads the curve
     except EvaluationError as err:
         return str(err)
     if not records:
@@ -269,7 +268,5 @@ def run_objective(run_dir: str | os.PathLike, objective: str, metric: str = "tea
     if objective not in ("final", "mean"):
         raise ValueError(f"objective is final or mean, got {objective!r}")
     dirs = RunDir(run_dir).replica_dirs() or [Path(run_dir)]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", IncompleteLastLine)
-        values = [learning_curve(d, metric)[1] for d in dirs]
+    values = [learning_curve(d, metric, warn_incomplete=False)[1] for d in dirs]
     return float(np.mean([v[-1] if objective == "final" else v.mean() for v in values]))

@@ -34,7 +34,6 @@ from dqn_transfer.experiments.edition import (
     PILOT_DIR,
     STAGES,
     TUNING_DIR,
-    Edition,
     load_edition,
 )
 from dqn_transfer.experiments.pipeline import (
@@ -99,10 +98,6 @@ def _run_stage(args: argparse.Namespace) -> Path:
     if args.stage == "full":
         with skipped_runs_on_stderr():
             run_full(edition, names, args.profile, out, launcher, args.n_jobs, args.budgets, args.extra)
-    return _report(edition, out)
-
-
-def _report(edition: Edition, out: Path) -> Path:
     report = write_report(edition, out)
     print_verdicts(report)
     return report

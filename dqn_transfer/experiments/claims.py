@@ -72,7 +72,6 @@ GAPS = {
     "deliberative - cooperative": (DELIBERATIVE, COOPERATIVE),
     "cooperative - competitive": (COOPERATIVE, COMPETITIVE),
 }
-NO_PRIMARY = "no runs of the primary comparison"
 
 
 def poi_verdict(p: Estimate) -> str:

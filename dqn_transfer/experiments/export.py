@@ -17,8 +17,8 @@ from dqn_transfer.analysis.marl_eval import (
     game_name,
     marl_eval_tree,
 )
-from dqn_transfer.analysis.runs import EvaluationError, find_run_dirs, load_config
-from dqn_transfer.experiments.raw_data import RunData, latest_by_step, read_data, read_evaluations, run_data
+from dqn_transfer.analysis.runs import EvaluationError, find_run_dirs, load_config, read_metrics
+from dqn_transfer.experiments.raw_data import RunData, latest_by_step, read_data, run_data
 from dqn_transfer.experiments.scoring import FINAL_TAIL
 
 SCORE = "score"
@@ -40,7 +40,7 @@ def agent_returns(run_dir: Path, steps: Sequence[int]) -> dict[str, tuple[float,
     :param run_dir: the run directory.
     :param steps: the evaluation steps the run is exported with.
     """
-    latest = latest_by_step(read_evaluations(run_dir))
+    latest = latest_by_step(read_metrics(run_dir, warn_incomplete=False))
     per_step: list[list[Any]] = [latest[step].get("agent_returns") or [] for step in steps]
     if not per_step or not all(per_step) or len({len(values) for values in per_step}) > 1:
         return {}

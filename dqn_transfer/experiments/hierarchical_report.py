@@ -45,10 +45,9 @@ from dqn_transfer.experiments.raw_data import (
     DATA_SOURCE,
     SMOKE_MARK,
     DataError,
-    RunData,
     experiment_records,
     is_smoke,
-    read_data,
+    read_experiment,
     read_manifest,
 )
 from dqn_transfer.experiments.render import COLORS
@@ -167,16 +166,12 @@ def _negative_control(result: HypothesisResult) -> list[str]:
 
 
 def hypothesis_figure(result: HypothesisResult, path: Path, watermark: str | None) -> None:
-    panels = []
-    for learner in dict.fromkeys(row.learner for row in result.rows):
-        series: dict[str, dict[str, Estimate]] = {}
-        for row in result.rows:
-            if row.learner == learner:
-                series.setdefault(row.mode, {})[row.method] = row.final.mean
-        panels.append((learner, series))
+    panels: dict[str, dict[str, dict[str, Estimate]]] = {}  # learner -> mode -> method -> final score
+    for row in result.rows:
+        panels.setdefault(row.learner, {}).setdefault(row.mode, {})[row.method] = row.final.mean
     dot_whisker_figure(
         path,
-        panels,
+        list(panels.items()),
         "final score (fraction of the optimal team return), mean and 95% CI over maps",
         "Knowledge exchange, teams of 4",
         COLORS.get,
@@ -241,20 +236,19 @@ def claim2_section(result: Claim2Result, figure: str) -> list[str]:
 
 
 def claim2_figure(result: Claim2Result, path: Path, watermark: str | None) -> None:
-    panels = []
-    for level in dict.fromkeys(cell.contention for cell in result.cells):
-        series: dict[str, dict[int, Estimate]] = {}
-        for cell in result.cells:
-            if cell.contention == level:
-                for name, summary in cell.modes.items():
-                    series.setdefault(name, {})[cell.m] = summary.mean
-                    series.setdefault(f"{GREEDY}{name}", {})[cell.m] = result.floors[(level, cell.m, name)]
-        panels.append((f"final score, {level} contention", series))
+    panels: dict[str, dict[str, dict[int, Estimate]]] = {}  # panel title -> series -> m -> final score
+    for cell in result.cells:
+        series = panels.setdefault(f"final score, {cell.contention} contention", {})
+        for name, summary in cell.modes.items():
+            series.setdefault(name, {})[cell.m] = summary.mean
+            series.setdefault(f"{GREEDY}{name}", {})[cell.m] = result.floors[(cell.contention, cell.m, name)]
 
     def color(label: str) -> str | None:  # a mode's greedy team in the mode's colour
         return COLORS.get(label.removeprefix(GREEDY))
 
-    errorbar_figure(path, panels, "agents = chests = traps (10x10 maps)", "Growing the team", color, watermark)
+    errorbar_figure(
+        path, list(panels.items()), "agents = chests = traps (10x10 maps)", "Growing the team", color, watermark
+    )
 
 
 def claim3_section(result: Claim3Result) -> list[str]:
@@ -287,11 +281,6 @@ def claim3_section(result: Claim3Result) -> list[str]:
 # ------------------------------------------------------------------------------------------- the report
 
 
-def _read(data: Path, name: str) -> list[RunData]:
-    path = data / f"{name}.jsonl"
-    return read_data(path) if path.exists() else []
-
-
 def _include(path: Path) -> list[str]:
     return path.read_text().rstrip("\n").splitlines() + [""] if path.exists() else [f"({path.name} is missing)", ""]
 
@@ -317,7 +306,7 @@ def _carry_tuning_figure(results: Path, out: Path) -> bool:
 def write_report(edition: Edition, results: Path, out: Path) -> Path:
     """``OUT/REPORT.md`` and its figures from ``RESULTS/data/`` and the budgets and tuning beside it."""
     data = results / DATA_DIR
-    runs = {name: _read(data, name) for name in edition.experiments}
+    runs = {name: read_experiment(data, name) for name in edition.experiments}
     if not any(runs.values()):
         raise DataError(f"{data} holds no data of {', '.join(edition.experiments)}")
     out.mkdir(parents=True, exist_ok=True)  # after the data are read: bad input leaves no directory behind

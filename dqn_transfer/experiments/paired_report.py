@@ -20,7 +20,7 @@ from dqn_transfer.experiments.raw_data import (
     DataError,
     experiment_records,
     is_smoke,
-    read_data,
+    read_experiment,
     read_manifest,
 )
 from dqn_transfer.experiments.render import Context, Section, render
@@ -62,12 +62,7 @@ def write_report(edition: Edition, results: Path, out: Path) -> Path:
     ctx = Context(Path(out), np.random.default_rng(0), SMOKE_MARK if smoke else None)
     sections: list[Section] = []
     for compute, experiments in SECTIONS.values():
-        runs = [
-            run
-            for name in experiments
-            if (data_dir / f"{name}.jsonl").exists()
-            for run in read_data(data_dir / f"{name}.jsonl")
-        ]
+        runs = [run for name in experiments for run in read_experiment(data_dir, name)]
         if runs:
             try:
                 result = compute(runs, ctx.rng)  # its numbers, then its figures: one generator, a fixed order

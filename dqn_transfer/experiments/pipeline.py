@@ -22,7 +22,6 @@ from pathlib import Path
 from typing import Any
 
 from dqn_transfer.analysis.budget import Budget, BudgetRule, budgets_per_cell
-from dqn_transfer.analysis.plots import flatten
 from dqn_transfer.analysis.transfer_metrics import Curve
 from dqn_transfer.config import to_plain
 from dqn_transfer.experiments import hierarchical_report, paired_report
@@ -51,6 +50,7 @@ from dqn_transfer.experiments.sweeps import (
     run_multirun,
     swept_values,
 )
+from dqn_transfer.storage.run_dir import flatten
 
 CHEST_REWARD = 100.0  # claim 1's maps have no optimum: its curves are counted in chests for the rule
 REPORTS = {"paired": paired_report.write_report, "hierarchical": hierarchical_report.write_report}

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from dqn_transfer.analysis.runs import IncompleteLastLine, load_runs, read_metrics, source_steps
+from dqn_transfer.analysis.runs import load_runs, read_metrics, source_steps
 from dqn_transfer.analysis.transfer_metrics import Curve
 from dqn_transfer.envs.maps import GridMap, optimal_team_return, resolve_map
 from dqn_transfer.envs.settings import MAP_KEYS
@@ -147,17 +147,6 @@ def export_sweep(sweep_dir: Path, experiment: str) -> list[RunData]:
     return sorted(runs, key=lambda r: natural_key(Path(r.name)))
 
 
-def read_evaluations(run_dir: Path) -> list[dict[str, Any]]:
-    """A run directory's evaluation records (``metrics.jsonl``), in file order; a last line a kill cut
-    short is skipped without a warning.
-
-    :param run_dir: the run directory.
-    """
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", IncompleteLastLine)
-        return read_metrics(run_dir)
-
-
 def latest_by_step(records: Sequence[dict[str, Any]]) -> dict[int, dict[str, Any]]:
     """Evaluation records by their step; a step evaluated twice (a resumed run) keeps its later record.
 
@@ -169,7 +158,7 @@ def latest_by_step(records: Sequence[dict[str, Any]]) -> dict[int, dict[str, Any
 def run_data(run_dir: Path, config: dict[str, Any], experiment: str, name: str) -> RunData:
     """One run directory's evaluations as :class:`RunData`; a step evaluated twice (a resumed run) keeps
     its later record."""
-    records = read_evaluations(run_dir)
+    records = read_metrics(run_dir, warn_incomplete=False)
     by_step = latest_by_step(records)
     steps = tuple(sorted(by_step))
     metrics = {
@@ -201,6 +190,12 @@ def read_data(path: Path) -> list[RunData]:
         except (json.JSONDecodeError, KeyError, TypeError, ValueError):
             raise DataError(f"{path}: line {number} is not a run record") from None
     return runs
+
+
+def read_experiment(data_dir: Path, name: str) -> list[RunData]:
+    """The runs of experiment ``name`` in ``data_dir``: ``<name>.jsonl``'s, none without the file."""
+    path = data_dir / f"{name}.jsonl"
+    return read_data(path) if path.exists() else []
 
 
 def machine() -> str:

@@ -100,7 +100,7 @@ def intervals_text(d: Intervals) -> str:
     if not t.has_ci:
         return fmt(t)
     return (
-        f"{t.mean:+.3g}, t [{t.low:+.3g}, {t.high:+.3g}], BCa [{d.bca.low:+.3g}, {d.bca.high:+.3g}], "
+        f"{t_text(d)}, BCa [{d.bca.low:+.3g}, {d.bca.high:+.3g}], "
         f"pct [{d.percentile.low:+.3g}, {d.percentile.high:+.3g}] (n={t.n})"
     )
 
@@ -150,14 +150,17 @@ def maps_text(game: Game) -> str:
 # ------------------------------------------------------------------------------------ figures
 
 
-def _curves_figure(ctx: Context, name: str, panels: list[Panel], title: str, **kwargs) -> str:
-    """``curves_figure`` of the panels, each series coloured by its condition; the figure's file name."""
+def _curves_figures(ctx: Context, name: str, panels: list[Panel], title: str, **kwargs) -> list[str]:
+    """``curves_figure`` of the panels, each series coloured by its condition: the figure's file name, or no
+    figure without panels."""
+    if not panels:
+        return []
     colors = {s.label: COLORS[s.condition] for p in panels for s in p.series if s.condition in COLORS}
     figure_panels = [(p.metric, {s.label: s.curves for s in p.series}) for p in panels]
     path = curves_figure(
         ctx.out / name, figure_panels, title, ctx.rng, color_of=colors.get, watermark=ctx.watermark, **kwargs
     )
-    return path.name
+    return [path.name]
 
 
 def _images(figures: list[str]) -> list[str]:
@@ -180,11 +183,9 @@ def _(r: Hypothesis, ctx: Context) -> Section:
         + (f"{intervals_text(x.difference)} | {fmt(x.p)} |" if x.difference and x.p else "— | — |")
         for x in r.rows
     ]
-    figures = []
+    title = f"Knowledge exchange in a team of {joined(r.game.agents)}"
+    figures = _curves_figures(ctx, "hypothesis.png", r.panels, title)
     if r.panels:
-        figures.append(
-            _curves_figure(ctx, "hypothesis.png", r.panels, f"Knowledge exchange in a team of {joined(r.game.agents)}")
-        )
         path = profile_figure(
             ctx.out / "hypothesis_profiles.png",
             [(f"{learner}, {mode}", scores) for learner, mode, scores in r.profiles],
@@ -231,9 +232,7 @@ def _(r: Claim1, ctx: Context) -> Section:
         f"{' / '.join(_mean_or_na(v, '.1f') for v in x.return_after_clear)} |"
         for x in r.rows
     ]
-    figures = (
-        [_curves_figure(ctx, "claim1.png", r.panels, "One treasure: competitive vs cooperative")] if r.panels else []
-    )
+    figures = _curves_figures(ctx, "claim1.png", r.panels, "One treasure: competitive vs cooperative")
     result = f"difference {t_text(r.difference)} return units" if r.difference else NO_PRIMARY
     g = r.game
     md = [
@@ -353,19 +352,14 @@ def _transfer_row(x: TransferRow, baseline: str) -> str:
 
 @render.register
 def _(r: Transfer, ctx: Context) -> Section:
-    figures = []
-    if r.panels:
-        figures.append(_curves_figure(ctx, "transfer.png", r.panels, "Transfer: target-task steps"))
-        figures.append(
-            _curves_figure(
-                ctx,
-                "transfer_total_steps.png",
-                r.total_panels,
-                "Transfer: total steps (each run starts after its source's pretraining)",
-                xlabel="environment steps, the source's pretraining included",
-                marks=[(c, "sources pretrained") for c in r.source_costs],
-            )
-        )
+    figures = _curves_figures(ctx, "transfer.png", r.panels, "Transfer: target-task steps") + _curves_figures(
+        ctx,
+        "transfer_total_steps.png",
+        r.total_panels,
+        "Transfer: total steps (each run starts after its source's pretraining)",
+        xlabel="environment steps, the source's pretraining included",
+        marks=[(c, "sources pretrained") for c in r.source_costs],
+    )
     result = poi_result(r.p, r.difference)
     md = [
         f"Setting: teams of {joined(r.game.agents)} on {maps_text(r.game)}; {describe(r.evidence)}. The baseline is "
@@ -403,18 +397,14 @@ def _(r: Curriculum, ctx: Context) -> Section:
         f"{' / '.join(fmt(f) for f in x.finals)} | {fmt(x.p)} |"
         for x in r.rows
     ]
-    figures = []
-    if r.panels:
-        figures.append(
-            _curves_figure(
-                ctx,
-                "curriculum.png",
-                r.panels,
-                "Curriculum vs scratch at equal total steps",
-                xlabel="environment steps, the room stage's included",
-                marks=[(c, "room stage ends") for c in r.stage_ends],
-            )
-        )
+    figures = _curves_figures(
+        ctx,
+        "curriculum.png",
+        r.panels,
+        "Curriculum vs scratch at equal total steps",
+        xlabel="environment steps, the room stage's included",
+        marks=[(c, "room stage ends") for c in r.stage_ends],
+    )
     result = "; ".join(f"{x.learner}: P = {fmt(x.p)}" for x in r.rows) or "no runs"
     g, room = r.game, r.room
     team = "both agents" if g.agents == (2,) else f"all {joined(g.agents)} agents"

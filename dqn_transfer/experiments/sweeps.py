@@ -13,7 +13,6 @@ import shlex
 import subprocess
 import sys
 import time
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -141,9 +140,7 @@ def run_is_complete(run_dir: Path) -> bool:
     if config is None or not RunDir(run_dir).has_metrics():
         return False
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            records = read_metrics(run_dir)
+        records = read_metrics(run_dir, warn_incomplete=False)
     except EvaluationError:
         return False
     return bool(records) and max(int(r.get("step", -1)) for r in records) >= int(config.get("total_steps", 0))

@@ -27,6 +27,7 @@ import json
 import os
 import re
 import shutil
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -53,6 +54,28 @@ def agent_file_name(index: int) -> str:
 def natural_key(path: str | os.PathLike) -> list[Any]:
     """Sort ``agent_2`` before ``agent_10`` and Hydra job ``2`` before ``10``."""
     return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", str(path))]
+
+
+def hashable(value: Any) -> Any:
+    """A config value as a dictionary key or set member: a list becomes a tuple."""
+    return tuple(value) if isinstance(value, list) else value
+
+
+def flatten(tree: Mapping[str, Any], leaf: Callable[[Any], Any] = hashable, prefix: str = "") -> dict[str, Any]:
+    """A run's config by dotted keys: ``{"env": {"mode": "x"}}`` -> ``{"env.mode": leaf("x")}``.
+
+    :param tree: the composed config, as plain data.
+    :param leaf: what each value that is not a mapping becomes (by default lists become tuples).
+    :param prefix: put before every key.
+    """
+    flat: dict[str, Any] = {}
+    for key, value in tree.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            flat.update(flatten(value, leaf, f"{name}."))
+        else:
+            flat[name] = leaf(value)
+    return flat
 
 
 @dataclass(frozen=True)

@@ -39,6 +39,8 @@ from tensorboard.plugins.custom_scalar import metadata as custom_scalar_metadata
 from tensorboard.plugins.hparams import summary_v2 as hparams_summary
 from tensorboard.plugins.text import summary_v2 as text_summary
 
+from dqn_transfer.storage.run_dir import flatten
+
 AGENT_TAGS = ("episodic_return", "episodic_length", "td_loss", "q_mean")
 
 
@@ -55,18 +57,9 @@ def episode_tags(num_agents: int, team_metrics: Sequence[str]) -> list[str]:
     ]
 
 
-def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    """``{"agent": {"lr": 1e-3}}`` -> ``{"agent.lr": 1e-3}``; lists become JSON strings."""
-    flat: dict[str, Any] = {}
-    for key, value in tree.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, Mapping):
-            flat.update(flatten(value, f"{name}."))
-        elif isinstance(value, (list, tuple)):
-            flat[name] = json.dumps(list(value))
-        else:
-            flat[name] = value
-    return flat
+def json_list(value: Any) -> Any:
+    """A config value as an hparam: a list or tuple becomes a JSON string."""
+    return json.dumps(list(value)) if isinstance(value, (list, tuple)) else value
 
 
 def histogram(values: np.ndarray, bins: int = 30) -> HistogramProto:
@@ -225,7 +218,7 @@ class RunLogger:
         )
 
     def _write_config(self, config: Mapping[str, Any]) -> None:
-        flat = flatten(config)
+        flat = flatten(config, json_list)
         hparam_values = {key: value for key, value in flat.items() if isinstance(value, (int, float, str, bool))}
         hparam_values.update({key: "null" for key, value in flat.items() if value is None})
         metrics = [hparams_summary.Metric(tag) for tag in self.eval_tags]
