@@ -35,6 +35,7 @@ from dqn_transfer.documented import format_default
 from dqn_transfer.enums import Algorithm
 from dqn_transfer.envs import PettingZooGame, TreasureHuntGame
 from dqn_transfer.envs.settings import DEFAULTS, MAP_KEYS, EnvConfig
+from dqn_transfer.evaluation.rollout import summarize
 from dqn_transfer.evaluation.watch import RecordedEpisode, gif_bytes, watch_team
 from dqn_transfer.sharing.team import TeamError, TrainedTeam, load_team
 from dqn_transfer.storage.checkpoint import CheckpointError, atomic_write_all
@@ -112,16 +113,14 @@ def write_folder(out_dir: Path, files: dict[Path, bytes]) -> None:
 def evaluation(episodes: list[RecordedEpisode]) -> dict[str, Any]:
     """The card's metrics: means over the greedy episodes, with the seeds that reproduce them."""
     results = [episode.result for episode in episodes]
-    returns = np.array([r.team_return for r in results])
+    record = summarize(results)
     return {
         "episodes": len(results),
         "seed": EVAL_SEED,
         "episode_seeds": [[EVAL_SEED, i] for i in range(len(results))],
-        "team_return_mean": round(float(returns.mean()), 3),
-        "team_return_std": round(float(returns.std()), 3),
-        "success_rate": round(float(np.mean([r.success_rate for r in results])), 3),
-        "trap_rate": round(float(np.mean([r.trap_rate for r in results])), 3),
-        "episode_length": round(float(np.mean([r.length for r in results])), 3),
+        "team_return_mean": round(record["team_return"], 3),
+        "team_return_std": round(float(np.std([r.team_return for r in results])), 3),
+        **{key: round(record[key], 3) for key in ("success_rate", "trap_rate", "episode_length")},
         "reproduce": f"dqn-transfer-play $FOLDER --episodes {len(results)} --seed {EVAL_SEED}",
     }
 
