@@ -142,20 +142,15 @@ def warm_start_command(team: TrainedTeam) -> str:
         "transfer.source=$FOLDER",
         f"env.layout_file=$FOLDER/{MAP_FILE}",
     ]
-    defaults = {
-        f.name: format_plain(getattr(DEFAULTS, f.name)) for f in fields(EnvConfig) if f.name not in NOT_IN_COMMAND
-    }
+    # The schema's defaults as the checkpoint's JSON meta spells them (enums by their value).
+    defaults = {f.name: getattr(DEFAULTS, f.name) for f in fields(EnvConfig) if f.name not in NOT_IN_COMMAND}
+    defaults = {key: getattr(value, "value", value) for key, value in defaults.items()}
     overrides += [
         f"env.{key}={format_default(env[key])}" for key, default in defaults.items() if env.get(key, default) != default
     ]  # a key newer than the checkpoint has its default
     if "hidden" in meta["network"]:
         overrides.append(f"'agent.hidden={format_default(meta['network']['hidden'])}'")
     return "python train.py " + " ".join(overrides)
-
-
-def format_plain(value: Any) -> Any:
-    """A schema default as the checkpoint's JSON meta spells it (enums by their value)."""
-    return getattr(value, "value", value)
 
 
 def warm_starts(meta: dict[str, Any]) -> list[dict[str, Any]]:
