@@ -177,8 +177,7 @@ def verify_checkpoint(path: str | os.PathLike, kind: str | None = None) -> Check
 
     ``kind`` (``"agent"`` or ``"training_state"``), when given, must match the file's.
     """
-    info, _ = _read(Path(path), kind)
-    return info
+    return _read(Path(path), kind)[0]
 
 
 def load_agent_checkpoint(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
