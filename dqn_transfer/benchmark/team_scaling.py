@@ -17,11 +17,6 @@ from dqn_transfer.envs import make_game
 from dqn_transfer.timing import Stopwatch
 
 
-def agent_row(transition: Transition, i: int) -> Transition:
-    """Agent i's part of a joint transition, as a one-agent transition (every field ``[1, ...]``)."""
-    return Transition(*(field[i : i + 1] for field in transition))
-
-
 class TeamRig:
     """K agents, batched (``separate=False``) or as K separate learners (``separate=True``).
 
@@ -56,8 +51,8 @@ class TeamRig:
         self.step_count += 1
         transition = Transition(obs, actions, rewards, next_obs, terminated, truncated, live)
         if self.separate:
-            for i, learner in enumerate(self.learners):
-                learner.update(agent_row(transition, i), self.step_count)
+            for i, learner in enumerate(self.learners):  # agent i's row of the joint transition, every field [1, ...]
+                learner.update(Transition(*(field[i : i + 1] for field in transition)), self.step_count)
         else:
             self.learners[0].update(transition, self.step_count)
         self.obs = game.reset(self.rng) if game.done else next_obs

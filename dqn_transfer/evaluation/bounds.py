@@ -61,10 +61,8 @@ class Walker:
             r, c = rows + dr, cols + dc
             inside = (r >= 0) & (r < n) & (c >= 0) & (c < n)
             self.neighbours[:, action] = np.where(inside, r * n + c, np.arange(cells))
-        self.obstacle = np.zeros(cells, dtype=bool)
-        self.obstacle[[r * n + c for r, c in grid_map.obstacles]] = True
-        self.trap = np.zeros(cells, dtype=bool)
-        self.trap[[r * n + c for r, c in grid_map.traps]] = True
+        self.obstacle = np.isin(np.arange(cells), [r * n + c for r, c in grid_map.obstacles])
+        self.trap = np.isin(np.arange(cells), [r * n + c for r, c in grid_map.traps])
         self.chest_at = np.full(cells, -1, dtype=np.int64)
         self.chest_at[[r * n + c for r, c in grid_map.chests]] = np.arange(grid_map.num_treasures)
 

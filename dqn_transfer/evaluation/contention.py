@@ -65,8 +65,7 @@ def contention_rows(
     given = {key: settings.get(key) for key in MAP_KEYS if key not in ("map_seed", "contention")}
     rows = []
     for contention in contentions:
-        stopwatch = Stopwatch()
-        with stopwatch:
+        with Stopwatch() as stopwatch:
             maps = [resolve_map(**given, map_seed=seed, contention=contention) for seed in map_seeds]
         measured = [map_contention(grid_map) for grid_map in maps]
         rows.append(

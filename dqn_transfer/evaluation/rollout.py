@@ -54,9 +54,10 @@ class EpisodeResult(NamedTuple):
     agent_returns: tuple[float, ...] = ()
 
 
-def team_return_of(rewards: np.ndarray, reward_mode: RewardMode) -> float:
-    """Team return of one step from the live agents' rewards: their sum (in team mode every agent
-    already receives the sum, so it is counted once, not K times)."""
+def team_return_of(rewards: np.ndarray, live: np.ndarray, reward_mode: RewardMode) -> float:
+    """Team return of one step from the rewards ``[K]`` of the agents ``live [K]`` before it: their sum (in
+    team mode every agent already receives the sum, so it is counted once, not K times)."""
+    rewards = rewards[live]
     return float(rewards.max() if reward_mode is RewardMode.team and rewards.size else rewards.sum())
 
 
@@ -90,7 +91,7 @@ class EpisodeTally:
 
     def add(self, game: Game, rewards: np.ndarray, live: np.ndarray, trap: np.ndarray) -> None:
         """The step ``game`` just played: its ``rewards``, who was ``live`` before it, who fell in a trap."""
-        step_return = team_return_of(rewards[live], RewardMode(game.reward_mode))
+        step_return = team_return_of(rewards, live, game.reward_mode)
         self.team_return += step_return
         self.agent_returns += rewards
         self.trapped += int(np.sum(trap))

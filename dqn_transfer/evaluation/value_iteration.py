@@ -154,7 +154,7 @@ def _step_from(
     _load(game, state, draw)
     live = game.live
     outcome = game.step(joint)
-    return _state_of(game), team_return_of(outcome.rewards[live], game.reward_mode), outcome.treasures_collected
+    return _state_of(game), team_return_of(outcome.rewards, live, game.reward_mode), outcome.treasures_collected
 
 
 def joint_model(game: TreasureHuntGame) -> JointModel:

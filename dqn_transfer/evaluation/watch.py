@@ -24,7 +24,6 @@ import numpy as np
 from PIL import Image
 
 from dqn_transfer.agents.base import Team
-from dqn_transfer.enums import RewardMode
 from dqn_transfer.envs import Game, PettingZooGame
 from dqn_transfer.envs.game import COLOURS, TreasureHuntGame, text_grid
 from dqn_transfer.envs.pictures import agent_colour, captioned, draw_state
@@ -79,9 +78,7 @@ def record_episode(game: TreasureHuntGame, policy: Policy, rng: np.random.Genera
 
     def on_step(transition, info) -> None:
         observations.append((transition.obs, transition.live))
-        snapshot(
-            frames[-1].team_return + team_return_of(transition.rewards[transition.live], RewardMode(game.reward_mode))
-        )
+        snapshot(frames[-1].team_return + team_return_of(transition.rewards, transition.live, game.reward_mode))
 
     result = play_episode(game, policy, rng, on_step=on_step, on_reset=lambda: snapshot(0.0))
     return RecordedEpisode(game, frames, observations, result)
@@ -115,7 +112,7 @@ def record_drawn_episode(game: PettingZooGame, policy: Policy, rng: np.random.Ge
             frames.append(game.frame())
 
     def on_step(transition, info) -> None:
-        snapshot(returns[-1] + team_return_of(transition.rewards[transition.live], RewardMode(game.reward_mode)))
+        snapshot(returns[-1] + team_return_of(transition.rewards, transition.live, game.reward_mode))
 
     result = play_episode(game, policy, rng, on_step=on_step, on_reset=lambda: snapshot(0.0))
     return DrawnEpisode(game, frames, returns, result)

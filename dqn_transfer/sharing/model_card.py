@@ -35,6 +35,7 @@ from dqn_transfer.documented import format_default
 from dqn_transfer.enums import Algorithm
 from dqn_transfer.envs import PettingZooGame, TreasureHuntGame
 from dqn_transfer.envs.settings import DEFAULTS, MAP_KEYS, EnvConfig
+from dqn_transfer.evaluation.rollout import summarize
 from dqn_transfer.evaluation.watch import RecordedEpisode, gif_bytes, watch_team
 from dqn_transfer.sharing.team import TeamError, TrainedTeam, load_team
 from dqn_transfer.storage.checkpoint import CheckpointError, atomic_write_all
@@ -112,16 +113,14 @@ def write_folder(out_dir: Path, files: dict[Path, bytes]) -> None:
 def evaluation(episodes: list[RecordedEpisode]) -> dict[str, Any]:
     """The card's metrics: means over the greedy episodes, with the seeds that reproduce them."""
     results = [episode.result for episode in episodes]
-    returns = np.array([r.team_return for r in results])
+    record = summarize(results)
     return {
         "episodes": len(results),
         "seed": EVAL_SEED,
         "episode_seeds": [[EVAL_SEED, i] for i in range(len(results))],
-        "team_return_mean": round(float(returns.mean()), 3),
-        "team_return_std": round(float(returns.std()), 3),
-        "success_rate": round(float(np.mean([r.success_rate for r in results])), 3),
-        "trap_rate": round(float(np.mean([r.trap_rate for r in results])), 3),
-        "episode_length": round(float(np.mean([r.length for r in results])), 3),
+        "team_return_mean": round(record["team_return"], 3),
+        "team_return_std": round(float(np.std([r.team_return for r in results])), 3),
+        **{key: round(record[key], 3) for key in ("success_rate", "trap_rate", "episode_length")},
         "reproduce": f"dqn-transfer-play $FOLDER --episodes {len(results)} --seed {EVAL_SEED}",
     }
 
@@ -143,20 +142,15 @@ def warm_start_command(team: TrainedTeam) -> str:
         "transfer.source=$FOLDER",
         f"env.layout_file=$FOLDER/{MAP_FILE}",
     ]
-    defaults = {
-        f.name: format_plain(getattr(DEFAULTS, f.name)) for f in fields(EnvConfig) if f.name not in NOT_IN_COMMAND
-    }
+    # The schema's defaults as the checkpoint's JSON meta spells them (enums by their value).
+    defaults = {f.name: getattr(DEFAULTS, f.name) for f in fields(EnvConfig) if f.name not in NOT_IN_COMMAND}
+    defaults = {key: getattr(value, "value", value) for key, value in defaults.items()}
     overrides += [
         f"env.{key}={format_default(env[key])}" for key, default in defaults.items() if env.get(key, default) != default
     ]  # a key newer than the checkpoint has its default
     if "hidden" in meta["network"]:
         overrides.append(f"'agent.hidden={format_default(meta['network']['hidden'])}'")
     return "python train.py " + " ".join(overrides)
-
-
-def format_plain(value: Any) -> Any:
-    """A schema default as the checkpoint's JSON meta spells it (enums by their value)."""
-    return getattr(value, "value", value)
 
 
 def warm_starts(meta: dict[str, Any]) -> list[dict[str, Any]]:

@@ -30,7 +30,7 @@ import hashlib
 import json
 import os
 import secrets
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -74,14 +74,12 @@ class CheckpointInfo:
 
 def encode_agent_checkpoint(tensors: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> bytes:
     """One agent's arrays and meta as the bytes of its safetensors file (``meta`` is not modified)."""
-    tensors = {name: np.ascontiguousarray(t) for name, t in tensors.items()}
-    return _encode(tensors, meta, AGENT_KIND, safetensors.numpy.save)
+    return _encode(tensors, meta, AGENT_KIND)
 
 
 def encode_training_state(arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> bytes:
     """Resume state, numpy arrays plus JSON meta (no pickle), as the bytes of its file."""
-    arrays = {name: np.ascontiguousarray(a) for name, a in arrays.items()}
-    return _encode(arrays, meta, TRAINING_STATE_KIND, safetensors.numpy.save)
+    return _encode(arrays, meta, TRAINING_STATE_KIND)
 
 
 def save_agent_checkpoint(path: str | os.PathLike, tensors: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> None:
@@ -94,17 +92,18 @@ def save_training_state(path: str | os.PathLike, arrays: Mapping[str, np.ndarray
     atomic_write(Path(path), encode_training_state(arrays, meta))
 
 
-def _encode(tensors: dict[str, Any], meta: Mapping[str, Any], kind: str, serialize: Callable[..., bytes]) -> bytes:
+def _encode(arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any], kind: str) -> bytes:
     # The digest is computed from the serialized tensors (name, dtype, shape, bytes as stored), so
     # the reader checks exactly what is on disk, whatever framework wrote it. Serializing twice
     # costs little next to the training that produced the tensors.
-    digest = tensor_digest(safetensors.deserialize(serialize(tensors)))
+    tensors = {name: np.ascontiguousarray(array) for name, array in arrays.items()}
+    digest = tensor_digest(safetensors.deserialize(safetensors.numpy.save(tensors)))
     full_meta = {**meta, "format_version": FORMAT_VERSION, "kind": kind, "digest": digest}
     try:
         meta_json = json.dumps(full_meta, default=_json_default)
     except (TypeError, ValueError) as e:
         raise CheckpointError(f"{kind} meta is not JSON-serialisable ({e})") from None
-    return serialize(tensors, metadata={META_KEY: meta_json})
+    return safetensors.numpy.save(tensors, metadata={META_KEY: meta_json})
 
 
 def _json_default(value: Any) -> Any:
@@ -178,20 +177,17 @@ def verify_checkpoint(path: str | os.PathLike, kind: str | None = None) -> Check
 
     ``kind`` (``"agent"`` or ``"training_state"``), when given, must match the file's.
     """
-    info, _ = _read(Path(path), kind)
-    return info
+    return _read(Path(path), kind)[0]
 
 
 def load_agent_checkpoint(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Verified arrays and meta of one agent checkpoint; see :func:`verify_checkpoint`."""
-    info, data = _read(Path(path), AGENT_KIND)
-    return _decode(info.path, data, safetensors.numpy.load), info.meta
+    return _load(Path(path), AGENT_KIND)
 
 
 def load_training_state(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Verified arrays and meta written by :func:`save_training_state`."""
-    info, data = _read(Path(path), TRAINING_STATE_KIND)
-    return _decode(info.path, data, safetensors.numpy.load), info.meta
+    return _load(Path(path), TRAINING_STATE_KIND)
 
 
 def read_meta(path: str | os.PathLike) -> dict[str, Any]:
@@ -206,9 +202,11 @@ def read_meta(path: str | os.PathLike) -> dict[str, Any]:
     return _parse_meta(path, _parse_header(path, data))
 
 
-def _decode(path: Path, data: bytes, load: Callable[[bytes], dict[str, Any]]) -> dict[str, Any]:
+def _load(path: Path, kind: str) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Verified arrays and meta of a ``kind`` file."""
+    info, data = _read(path, kind)
     try:
-        return load(data)
+        return safetensors.numpy.load(data), info.meta
     except safetensors.SafetensorError as e:
         raise CheckpointError(f"{path}: cannot decode tensors ({e})") from None
 
