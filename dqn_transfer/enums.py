@@ -153,6 +153,7 @@ class Bound(Enum):
 
     oracle = "oracle"  # the whole map known, agents matched to chests for the least total distance
     greedy = "greedy"  # each agent to its nearest chest believed full, no coordination
+    random = "random"  # each agent a uniformly random action every step: a normalised score's zero
 
 
 def values(enum: type[Enum]) -> tuple[str, ...]:

@@ -68,6 +68,7 @@ ONE_CHEST_TWO_AGENTS = """
 """
 
 BOUNDS = list(Bound)
+SCRIPTED = [Bound.oracle, Bound.greedy]  # they walk shortest paths
 RECORD_KEYS = [
     "team_return",
     "success_rate",
@@ -83,7 +84,7 @@ def game_of(layout: str, **rules) -> TreasureHuntGame:
     return TreasureHuntGame(parse_layout(layout), **rules)
 
 
-@pytest.mark.parametrize("kind", BOUNDS)
+@pytest.mark.parametrize("kind", SCRIPTED)
 def test_one_agent_walks_the_corridor(kind):
     record = evaluate_bound(game_of(CORRIDOR), kind, episodes=2, seed=0)
     assert record == {
@@ -97,7 +98,7 @@ def test_one_agent_walks_the_corridor(kind):
     }
 
 
-@pytest.mark.parametrize("kind", BOUNDS)
+@pytest.mark.parametrize("kind", SCRIPTED)
 def test_the_path_goes_round_a_trap(kind):
     record = evaluate_bound(game_of(TRAP_IN_THE_WAY), kind, episodes=1, seed=0)
     assert (record["team_return"], record["episode_length"], record["trap_rate"]) == (95.0, 6.0, 0.0)
@@ -134,7 +135,7 @@ def unchecked_map(*rows: str) -> GridMap:
     return GridMap(len(rows), rows, cells["T"], cells["X"], cells["0"], frozenset(cells["#"]))
 
 
-@pytest.mark.parametrize("kind", BOUNDS)
+@pytest.mark.parametrize("kind", SCRIPTED)
 def test_an_unreachable_chest_leaves_the_agent_where_it_is(kind):
     # The chest is walled off: the agent at the corner stays (up is off the grid) for all 16 steps.
     walled = unchecked_map("0.#T", "..##", "....", "....")
@@ -169,11 +170,32 @@ def test_a_bound_s_record_has_a_learner_s_keys():
         assert list(evaluate_bound(game, kind, episodes=1, seed=0)) == RECORD_KEYS
 
 
-def test_the_command_prints_both_records(capsys):
+def test_the_command_prints_every_record(capsys):
     assert main(["--layout", SPLIT, "--mode", "cooperative", "--episodes", "2"]) == 0
     lines = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
-    assert [(line["bound"], line["team_return"]) for line in lines] == [("oracle", 190.0), ("greedy", 182.0)]
+    assert [(line["bound"], line["team_return"]) for line in lines[:2]] == [("oracle", 190.0), ("greedy", 182.0)]
+    assert lines[2]["bound"] == "random" and lines[2]["team_return"] < 182.0
     assert all(list(line)[1:] == RECORD_KEYS for line in lines)
+
+
+# The agent at (0, 0) beside the chest at (0, 1), over a wall: right takes the chest, up and left leave it
+# where it is, down bounces it back to its start, each -1. The horizon is 2 * 2 = 4 joint steps. A random
+# agent takes the chest at step t (t = 1..4) with probability (3/4)^(t-1) / 4, for 100 - (t - 1); else -4.
+BESIDE_THE_CHEST = "0T\n##"
+RANDOM_EXPECTED = sum(0.75 ** (t - 1) * 0.25 * (101 - t) for t in range(1, 5)) - 4 * 0.75**4  # 66.30859375
+
+
+def test_the_random_team_scores_what_a_uniform_walk_is_worth():
+    game = TreasureHuntGame(parse_layout(BESIDE_THE_CHEST))
+    record = evaluate_bound(game, Bound.random, episodes=4000, seed=0)
+    # A return's standard deviation here is about 48, so the mean of 4000 is within 2.2 of it 99.6% of the time.
+    assert record["team_return"] == pytest.approx(RANDOM_EXPECTED, abs=2.2)
+    assert evaluate_bound(game, Bound.random, episodes=50, seed=0) == evaluate_bound(
+        game, Bound.random, episodes=50, seed=0
+    )
+    assert evaluate_bound(game, Bound.random, episodes=50, seed=1) != evaluate_bound(
+        game, Bound.random, episodes=50, seed=0
+    )
 
 
 @pytest.mark.parametrize(

@@ -1,4 +1,5 @@
-"""``python -m dqn_transfer.cli.bounds``: the oracle's and the greedy team's evaluation records on one map.
+"""``python -m dqn_transfer.cli.bounds``: the oracle's, the greedy team's and the random team's
+evaluation records on one map.
 
     python -m dqn_transfer.cli.bounds --map-seed 0 --size 8 --num-treasures 4 --num-traps 4 \\
         --num-agents 4 --mode cooperative --episodes 5

@@ -1,6 +1,6 @@
 """Scripted reference teams drawn beside the learners, on the same maps and evaluation episodes.
 
-See docs/bounds.md. There are two:
+See docs/bounds.md. There are three:
 
 * :data:`~dqn_transfer.enums.Bound.oracle`, the upper reference: it sees the whole game (every agent's
   cell, the true chests) and, at every step, matches the live agents to the full chests for the least
@@ -9,8 +9,10 @@ See docs/bounds.md. There are two:
 * :data:`~dqn_transfer.enums.Bound.greedy`, the floor: each agent, from its own observation alone,
   takes one step towards the nearest chest it believes full (or, when its observation carries a
   deliberative ``assignment``, towards that chest), with no coordination.
+* :data:`~dqn_transfer.enums.Bound.random`, the zero of a normalised score: each live agent takes an
+  action drawn uniformly at every step, from a generator of its own.
 
-Both are :data:`~dqn_transfer.evaluation.rollout.Policy` callables played by :func:`play_episode`
+All are :data:`~dqn_transfer.evaluation.rollout.Policy` callables played by :func:`play_episode`
 through the game's own ``step``, so a bound's record is :func:`summarize`'s, key for key.
 
 Paths are the BFS shortest paths of :meth:`~dqn_transfer.envs.maps.GridMap.distances_from`, around
@@ -163,16 +165,32 @@ def greedy_policy(game: TreasureHuntGame) -> Policy:
     return act
 
 
+def random_policy(game: TreasureHuntGame, rng: np.random.Generator) -> Policy:
+    """The uniformly random team of ``game``: every agent draws its action from ``rng`` at every step (a
+    finished agent's draw is ignored)."""
+
+    def act(obs: np.ndarray, live: np.ndarray) -> np.ndarray:
+        return rng.integers(game.num_actions, size=len(live))
+
+    return act
+
+
 POLICIES = {Bound.oracle: oracle_policy, Bound.greedy: greedy_policy}
+RANDOM_TEAM_STREAM = 1_000_033  # the random team's actions: apart from the episodes' tie draws
 
 
 def evaluate_bound(game: TreasureHuntGame, kind: Bound | str, episodes: int, seed: int) -> dict[str, Any]:
     """``episodes`` episodes of the ``kind`` team, as :func:`summarize` records a learner's evaluation.
 
     Episode ``e`` resets with ``evaluation_rng(seed, 0, e)``: the generator of episode ``e`` of a run of
-    ``seed``'s evaluation at step 0, which draws only the winners of chest ties (the bounds draw nothing
-    else).
+    ``seed``'s evaluation at step 0, which draws only the winners of chest ties. The random team draws its
+    actions from one generator of its own, ``default_rng([seed, RANDOM_TEAM_STREAM])``, over the episodes in
+    order.
     """
-    policy = POLICIES[Bound(kind)](game)  # it keeps nothing between steps, so one serves every episode
+    kind = Bound(kind)
+    if kind is Bound.random:
+        policy = random_policy(game, np.random.default_rng([seed, RANDOM_TEAM_STREAM]))
+    else:  # it keeps nothing between steps, so one serves every episode
+        policy = POLICIES[kind](game)
     rngs = (evaluation_rng(seed, 0, episode) for episode in range(episodes))
     return summarize([play_episode(game, policy, rng) for rng in rngs])
