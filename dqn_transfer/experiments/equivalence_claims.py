@@ -1,0 +1,99 @@
+"""The third edition's analysis (``results/VERDICT_RULES.md``): runs to normalised scores over a fixed
+horizon, and a cell's comparisons to outcomes against the smallest effect of interest and to verdicts.
+
+A run's **normalised score** puts the random team of its map at 0 and the oracle at 1
+(:func:`~dqn_transfer.analysis.equivalence.normalised`); its **normalised AUC** (the primary outcome) is
+the mean of that score over the run's evaluations after step 0 up to the horizon, its **final score**
+the mean over the horizon's last 20%. The random team's return is the caller's (it depends on the map, not
+on the run), so every function here is a plain function of the committed data.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+
+from dqn_transfer.analysis.equivalence import Contrast, Outcome, contrast, normalised, outcomes
+from dqn_transfer.experiments.power import differences_by_map
+from dqn_transfer.experiments.raw_data import RunData
+
+HORIZON = 16_000  # every run's env steps
+FINAL_FROM = 13_000  # the final score: the evaluations of the horizon's last 20% (13,000 .. 16,000)
+SESOI = 0.03  # the smallest effect of interest, in normalised AUC (and final score)
+CONTROLS = {"sham": Outcome.equivalent, "warm": Outcome.better}  # each control's required outcome against none
+
+
+class Verdict(Enum):
+    """The main hypothesis in one cell, from its primary methods' outcomes."""
+
+    supported = "SUPPORTED"  # at least one method better
+    contradicted = "CONTRADICTED"  # none better, at least one worse
+    no_useful_effect = "NO USEFUL EFFECT"  # every method equivalent
+    inconclusive = "INCONCLUSIVE"
+
+
+def normalised_curve(run: RunData, random_return: float) -> tuple[np.ndarray, np.ndarray]:
+    """The run's evaluations after step 0 up to the horizon, as normalised scores (the oracle: the map's
+    optimal team return; another game's, LBF's, is 1)."""
+    steps, returns = run.curve()
+    kept = (steps > 0) & (steps <= HORIZON)
+    return steps[kept], np.asarray(normalised(returns[kept], random_return, run.optimal_return or 1.0))
+
+
+def normalised_auc(run: RunData, random_return: float) -> float:
+    """The primary outcome: the mean normalised score over the run's evaluations."""
+    return float(normalised_curve(run, random_return)[1].mean())
+
+
+def final_score(run: RunData, random_return: float) -> float:
+    """The secondary outcome: the mean normalised score of the horizon's last 20%."""
+    steps, scores = normalised_curve(run, random_return)
+    return float(scores[steps >= FINAL_FROM].mean())
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """One condition against ``none`` in a cell: the contrast and its outcome within its family."""
+
+    name: str
+    contrast: Contrast
+    outcome: Outcome
+
+
+def family(
+    runs: Mapping[str, Sequence[RunData]],
+    names: Sequence[str],
+    value: Callable[[RunData], float],
+    against: str = "none",
+) -> list[Comparison]:
+    """Each of ``names`` against ``against``, paired by (map, seed), its outcome Holm-adjusted within them."""
+    contrasts = [contrast(differences_by_map(runs[name], runs[against], value), SESOI) for name in names]
+    return [Comparison(name, c, o) for name, c, o in zip(names, contrasts, outcomes(contrasts))]
+
+
+def verdict(primary: Sequence[Comparison]) -> Verdict:
+    """The main hypothesis in a cell, from its primary family's outcomes."""
+    found = {comparison.outcome for comparison in primary}
+    if Outcome.better in found:
+        return Verdict.supported
+    if Outcome.worse in found:
+        return Verdict.contradicted
+    if found == {Outcome.equivalent}:
+        return Verdict.no_useful_effect
+    return Verdict.inconclusive
+
+
+def failed_controls(controls: Sequence[Comparison]) -> list[str]:
+    """The controls whose outcome is not the one they must have (an empty list: the cell is validated)."""
+    return [c.name for c in controls if c.outcome is not CONTROLS[c.name]]
+
+
+def room(none: Sequence[RunData], value: Callable[[RunData], float]) -> Contrast:
+    """Oracle − ``none`` in a cell: 1 minus its runs' value, over the maps (the most any method could add)."""
+    maps: dict[int, list[float]] = {}
+    for run in none:
+        maps.setdefault(run.map_seed, []).append(1.0 - value(run))
+    return contrast([maps[m] for m in sorted(maps)], SESOI)
