@@ -4,6 +4,8 @@ unknown keys are refused with the nearest valid one, log lines never glue onto t
 
 from __future__ import annotations
 
+import io
+import logging
 import os
 import re
 import signal
@@ -27,6 +29,7 @@ from conftest import (
 
 from dqn_transfer.experiments import sweeps
 from dqn_transfer.storage.checkpoint import load_training_state
+from dqn_transfer.training.trainer import log_above_bars
 
 pytestmark = pytest.mark.slow
 
@@ -347,6 +350,25 @@ def assert_log_lines_start_lines(output: str) -> None:
     for line in output.split("\n"):
         stamps = [match.start() for match in LOG_STAMP.finditer(line)]
         assert stamps in ([], [0]) and (not stamps or "\r" not in line), repr(line)
+
+
+def test_a_log_line_reaches_the_stream_in_one_write(monkeypatch):
+    """Two jobs of a sweep share one pipe: a line written as message, then newline, lets the other job's
+    line in between (a joblib sweep printed ``...eval step 1500: ...[2026-12-06 22:49:09,901]...[job 1]``)."""
+    writes: list[str] = []
+
+    class Recording(io.StringIO):
+        def write(self, s: str) -> int:
+            writes.append(s)
+            return super().write(s)
+
+    monkeypatch.setattr(sys, "stderr", Recording())  # a console stream: the one the bars' redirect takes over
+    logger = logging.getLogger("test_a_log_line_reaches_the_stream_in_one_write")
+    logger.propagate = False
+    logger.addHandler(logging.StreamHandler(sys.stderr))
+    with log_above_bars([logger]):
+        logger.warning("[job 0] eval step 1500: team_return 195.0")
+    assert [w for w in writes if w] == ["[job 0] eval step 1500: team_return 195.0\n"]
 
 
 @pytest.mark.parametrize("launcher", ["basic", "joblib"])

@@ -33,6 +33,7 @@ import logging
 import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
+from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import Any, NoReturn, cast
 
@@ -78,6 +79,22 @@ MMAP_THRESHOLD = 32 * 2**20  # glibc's largest (DEFAULT_MMAP_THRESHOLD_MAX on 64
 _allocator_tuned = False
 
 Sources = Sequence[Path | Sequence[Path]]
+
+
+class WholeLines(tqdm):
+    """A tqdm whose ``write`` hands the stream a message and its newline in one write. tqdm's own writes
+    them apart, and the jobs of a sweep (or a batch's workers) that share a pipe then glue one job's line
+    onto another's."""
+
+    @classmethod
+    def write(cls, s: str, file: Any = None, end: str = "\n", nolock: bool = False) -> None:
+        super().write(s + end, file=file, end="", nolock=nolock)
+
+
+def log_above_bars(loggers: list[logging.Logger] | None = None) -> AbstractContextManager[None]:
+    """Log lines printed above the progress bar, never glued to it, each as one write (:class:`WholeLines`);
+    ``loggers``: the root logger's handlers when None."""
+    return logging_redirect_tqdm(loggers, tqdm_class=WholeLines)
 
 
 class Trainer:
@@ -206,8 +223,7 @@ class Trainer:
         the end of the step in progress, after a checkpoint there).
         """
         keep_freed_memory()
-        with StopRequest() as stop, logging_redirect_tqdm(), tagged(log, self.tag):
-            # logging_redirect_tqdm: log lines print above the bar, never glued to it
+        with StopRequest() as stop, log_above_bars(), tagged(log, self.tag):
             if not self.prepared:
                 self.prepare()
             self.run_dir.path.mkdir(parents=True, exist_ok=True)
