@@ -40,16 +40,7 @@ from dqn_transfer.experiments.hierarchical_claims import (
     mode,
     replicated,
 )
-from dqn_transfer.experiments.raw_data import (
-    DATA_DIR,
-    DATA_SOURCE,
-    SMOKE_MARK,
-    DataError,
-    experiment_records,
-    is_smoke,
-    read_experiment,
-    read_manifest,
-)
+from dqn_transfer.experiments.raw_data import DATA_SOURCE, SMOKE_MARK, DataError, read_evidence, read_experiment
 from dqn_transfer.experiments.render import COLORS
 
 TUNING_TABLE = Path(TUNING_DIR) / "tuning.md"
@@ -87,6 +78,11 @@ def slope_text(s: MeanDifference) -> str:
 def summary_cells(s: Summary) -> str:
     failure = "—" if s.failure is None else fmt(s.failure, 2)
     return f"{fmt(s.mean)} | {fmt(s.iqm)} | {failure}"
+
+
+def _family(title: str, table: list[str], verdict: str) -> list[str]:
+    """A family's table under its title, then its verdict's line."""
+    return [title, "", *table, "", verdict, ""]
 
 
 def _family_table(members: Sequence[Difference], against: str, metric: str) -> list[str]:
@@ -129,18 +125,16 @@ def hypothesis_section(result: HypothesisResult, title: str, figure: str, note: 
         )
     lines += [
         "",
-        f"**Primary family** (SARSA, {result.primary_mode}, final score at B, Holm over the three):",
-        "",
-        *_family_table(result.primary, "none", "final score"),
-        "",
-        f"Verdict: **{result.verdict}**.",
-        "",
-        f"**Secondary family** (Double DQN, {result.primary_mode}, Holm over the three):",
-        "",
-        *_family_table(result.secondary, "none", "final score"),
-        "",
-        f"Secondary verdict: **{result.secondary_verdict}**. Everything else in the table is exploratory.",
-        "",
+        *_family(
+            f"**Primary family** (SARSA, {result.primary_mode}, final score at B, Holm over the three):",
+            _family_table(result.primary, "none", "final score"),
+            f"Verdict: **{result.verdict}**.",
+        ),
+        *_family(
+            f"**Secondary family** (Double DQN, {result.primary_mode}, Holm over the three):",
+            _family_table(result.secondary, "none", "final score"),
+            f"Secondary verdict: **{result.secondary_verdict}**. Everything else in the table is exploratory.",
+        ),
         *_negative_control(result),
     ]
     return lines
@@ -268,12 +262,11 @@ def claim3_section(result: Claim3Result) -> list[str]:
         )
     lines += [
         "",
-        "**Primary family** (SARSA, AUC score over the target's own steps, Holm over the two):",
-        "",
-        *_family_table(result.primary, "scratch_matched", "AUC score"),
-        "",
-        f"Verdict: **{result.verdict}**.",
-        "",
+        *_family(
+            "**Primary family** (SARSA, AUC score over the target's own steps, Holm over the two):",
+            _family_table(result.primary, "scratch_matched", "AUC score"),
+            f"Verdict: **{result.verdict}**.",
+        ),
     ]
     return lines
 
@@ -305,21 +298,17 @@ def _carry_tuning_figure(results: Path, out: Path) -> bool:
 
 def write_report(edition: Edition, results: Path, out: Path) -> Path:
     """``OUT/REPORT.md`` and its figures from ``RESULTS/data/`` and the budgets and tuning beside it."""
-    data = results / DATA_DIR
-    runs = {name: read_experiment(data, name) for name in edition.experiments}
+    evidence = read_evidence(results)
+    runs = {name: read_experiment(evidence.data, name) for name in edition.experiments}
     if not any(runs.values()):
-        raise DataError(f"{data} holds no data of {', '.join(edition.experiments)}")
+        raise DataError(f"{evidence.data} holds no data of {', '.join(edition.experiments)}")
     out.mkdir(parents=True, exist_ok=True)  # after the data are read: bad input leaves no directory behind
-    manifest = read_manifest(data)
-    made = experiment_records(manifest)
-    smoke = is_smoke(made)
-    watermark = SMOKE_MARK if smoke else None
     summary: list[tuple[str, str]] = []
     body: list[str] = []
     treasure = None
     if runs["hypothesis"]:
         treasure = hypothesis(runs["hypothesis"], stream(edition, "hypothesis"))
-        hypothesis_figure(treasure, out / "hypothesis.png", watermark)
+        hypothesis_figure(treasure, out / "hypothesis.png", evidence.watermark)
         body += hypothesis_section(
             treasure, "Main hypothesis: a group that exchanges knowledge learns better", "hypothesis.png"
         )
@@ -329,7 +318,7 @@ def write_report(edition: Edition, results: Path, out: Path) -> Path:
         lbf = hypothesis(
             runs["lbf_hypothesis"], stream(edition, "lbf_hypothesis"), primary_mode=mode(runs["lbf_hypothesis"][0])
         )
-        hypothesis_figure(lbf, out / "lbf_hypothesis.png", watermark)
+        hypothesis_figure(lbf, out / "lbf_hypothesis.png", evidence.watermark)
         body += hypothesis_section(
             lbf,
             "Replication on Level-Based Foraging",
@@ -346,7 +335,7 @@ def write_report(edition: Edition, results: Path, out: Path) -> Path:
         summary.append(("Claim 1", result1.verdict))
     if runs["claim2"]:
         result2 = claim2(runs["claim2"], stream(edition, "claim2"))
-        claim2_figure(result2, out / "claim2.png", watermark)
+        claim2_figure(result2, out / "claim2.png", evidence.watermark)
         body += claim2_section(result2, "claim2.png")
         summary.append(("Claim 2", result2.verdict))
     if runs["transfer"]:  # claim 3's control (scratch_matched) is among them: transfer_aware's wait for it
@@ -359,7 +348,7 @@ def write_report(edition: Edition, results: Path, out: Path) -> Path:
         "",
         *(
             [f"> **{SMOKE_MARK}**: the quick profile checks the pipeline; its numbers are not evidence.", ""]
-            if smoke
+            if evidence.smoke
             else []
         ),
         *([f"> **Not yet run**: {', '.join(missing)}; their questions have no verdict yet.", ""] if missing else []),
@@ -369,16 +358,16 @@ def write_report(edition: Edition, results: Path, out: Path) -> Path:
             else []
         ),
         f"Data: {DATA_SOURCE}. Verdict rules: `{edition.rules}`, tagged `{edition.rules_tag}` at "
-        f"{manifest.get('rules_commit', '?')}, before any of these runs. Intervals are 95% hierarchical-bootstrap "
-        f"intervals over maps (maps, then runs within maps); p-values are two-sided bootstrap p; a family's are "
-        f"Holm-adjusted at {ALPHA:g}.",
+        f"{evidence.manifest.get('rules_commit', '?')}, before any of these runs. Intervals are 95% "
+        "hierarchical-bootstrap intervals over maps (maps, then runs within maps); p-values are two-sided "
+        f"bootstrap p; a family's are Holm-adjusted at {ALPHA:g}.",
         "",
         "| experiment | runs | made on | profile | by code | on | wall time |",
         "|---|---:|---|---|---|---|---:|",
         *[
             f"| {name} | {r.get('runs', '?')} | {r.get('date', '?')} | {r.get('profile', '?')} "
             f"| {r.get('commit', '?')} | {r.get('machine', '?')} | {float(r.get('wall_seconds', 0)) / 60:.1f} min |"
-            for name, r in made.items()
+            for name, r in evidence.records.items()
         ],
         "",
         "| question | verdict |",

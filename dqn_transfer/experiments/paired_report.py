@@ -7,31 +7,21 @@ committed data gives the committed file byte for byte.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from dqn_transfer.experiments.claims import SECTIONS
 from dqn_transfer.experiments.edition import Edition
-from dqn_transfer.experiments.raw_data import (
-    DATA_DIR,
-    DATA_SOURCE,
-    SMOKE_MARK,
-    DataError,
-    experiment_records,
-    is_smoke,
-    read_experiment,
-    read_manifest,
-)
+from dqn_transfer.experiments.raw_data import DATA_SOURCE, DataError, Evidence, read_evidence, read_experiment
 from dqn_transfer.experiments.render import Context, Section, render
 from dqn_transfer.experiments.sweeps import ReproduceError
 
 
-def _header(edition: Edition, manifest: dict[str, Any], smoke: bool) -> list[str]:
+def _header(edition: Edition, evidence: Evidence) -> list[str]:
     lines = [f"# {edition.title}", ""]
-    if smoke:
+    if evidence.smoke:
         lines += [f"> **{edition.profiles['quick'].description}** {edition.report['smoke_advice']}", ""]
-    records = experiment_records(manifest)
+    records, manifest = evidence.records, evidence.manifest
 
     def made(key: str) -> str:  # one value, or each experiment's
         return "/".join(sorted({str(r.get(key, "?")) for r in records.values()})) or "?"
@@ -56,10 +46,9 @@ def _header(edition: Edition, manifest: dict[str, Any], smoke: bool) -> list[str
 
 def write_report(edition: Edition, results: Path, out: Path) -> Path:
     """``OUT/REPORT.md`` and its figures from the raw data in ``RESULTS/data/``."""
-    data_dir = Path(results) / DATA_DIR
-    manifest = read_manifest(data_dir)
-    smoke = is_smoke(experiment_records(manifest))
-    ctx = Context(Path(out), np.random.default_rng(0), SMOKE_MARK if smoke else None)
+    evidence = read_evidence(results)
+    data_dir = evidence.data
+    ctx = Context(Path(out), np.random.default_rng(0), evidence.watermark)
     sections: list[Section] = []
     for compute, experiments in SECTIONS.values():
         runs = [run for name in experiments for run in read_experiment(data_dir, name)]
@@ -71,7 +60,7 @@ def write_report(edition: Edition, results: Path, out: Path) -> Path:
                 raise ReproduceError(f"cannot analyse the {'/'.join(experiments)} data in {data_dir}: {err}") from err
     if not sections:
         raise ReproduceError(f"{data_dir} holds no run data ({', '.join(f'{n}.jsonl' for n in edition.experiments)})")
-    lines = _header(edition, manifest, smoke)
+    lines = _header(edition, evidence)
     lines += ["## Summary", "", "| question | primary comparison | result | verdict |", "|---|---|---|---|"]
     lines += [f"| {s.question} | {s.primary} | {s.result} | **{s.verdict}** |" for s in sections]
     lines += [

@@ -251,3 +251,27 @@ def experiment_records(manifest: dict[str, Any]) -> dict[str, dict[str, Any]]:
 def is_smoke(records: dict[str, dict[str, Any]]) -> bool:
     """Whether data of these records are not evidence: none, or any not made with the full profile."""
     return not records or any(record.get("profile") != "full" for record in records.values())
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """What a report reads of a results directory before its analysis: where its data are, its manifest, each
+    experiment's record (:func:`experiment_records`), and whether they are a smoke run's, not evidence."""
+
+    data: Path
+    manifest: dict[str, Any]
+    records: dict[str, dict[str, Any]]
+    smoke: bool
+
+    @property
+    def watermark(self) -> str | None:
+        """What a figure of smoke data says across it."""
+        return SMOKE_MARK if self.smoke else None
+
+
+def read_evidence(results: Path) -> Evidence:
+    """The :class:`Evidence` of ``RESULTS/data/``."""
+    data = Path(results) / DATA_DIR
+    manifest = read_manifest(data)
+    records = experiment_records(manifest)
+    return Evidence(data, manifest, records, is_smoke(records))
