@@ -123,8 +123,7 @@ def play_looped(
         slots = [(e, r) for e in numbers for r in range(replicas)]  # game g = (e - first) * R + r
         rngs = [evaluation_rng(seeds[r], steps[r], e) for e, r in slots]
         greedy = _greedy_batch(learner, replicas * agents, [rng.spawn(1)[0] for rng in rngs])
-        looped = cast(list[Game], _evaluation_batch(tuple(games), len(numbers)))
-        played = play_episodes(looped, greedy, rngs, stopped=stopped)
+        played = play_episodes(_evaluation_games(tuple(games), len(numbers)), greedy, rngs, stopped=stopped)
         for (_, r), result in zip(slots, played):
             results[r].append(result)
     return results
@@ -139,6 +138,13 @@ def _greedy_batch(learner: Learner, rows: int, ties: Sequence[np.random.Generato
         return np.stack([break_ties(*game) for game in zip(best, live, ties)])
 
     return greedy
+
+
+@lru_cache(maxsize=4)
+def _evaluation_games(games: tuple[Game, ...], episodes: int) -> list[Game]:
+    """``episodes`` games of each of ``games`` (game ``e * R + r``: ``games[r]`` itself for e = 0, else a
+    replica of it), made once for the evaluations of a run."""
+    return [game if e == 0 else game.replica() for e in range(episodes) for game in games]
 
 
 # The joint steps of dense tables' episodes one kernel call plays before a stop asked for is looked at.
@@ -190,14 +196,10 @@ def _recorded_episode(
 
 
 @lru_cache(maxsize=4)
-def _evaluation_batch(games: tuple[Game, ...], episodes: int) -> TreasureHunts | list[Game]:
-    """The evaluation batch of ``episodes`` episodes of each of ``games`` (game ``e * R + r``), built once
-    for the evaluations of a run: one :class:`TreasureHunts` for treasure hunts that fit one batch (its
-    rule tables take longer to build than a lone run's evaluation to play), else the games themselves
-    (``games[r]`` for e = 0, else a replica of it)."""
-    if fit_one_batch(games):
-        return TreasureHunts([game.map for _ in range(episodes) for game in games], **games[0].settings())
-    return [game if e == 0 else game.replica() for e in range(episodes) for game in games]
+def _evaluation_hunts(games: tuple[TreasureHuntGame, ...], episodes: int) -> TreasureHunts:
+    """The batch of ``episodes`` episodes of each of ``games`` (game ``e * R + r``), built once for the
+    evaluations of a run (its rule tables take longer to build than a lone run's evaluation to play)."""
+    return TreasureHunts([game.map for _ in range(episodes) for game in games], **games[0].settings())
 
 
 def _play_episodes(
@@ -222,7 +224,7 @@ def _play_episodes(
         entropy[g, : len(key)] = key
     chest_rng, tie_rng = (np.zeros((len(slots), tie_draws.WORDS), dtype=np.uint64) for _ in range(2))
     tie_draws.seed_with_children(entropy, np.array([len(key) for key in keys]), chest_rng, tie_rng)
-    hunts = cast(TreasureHunts, _evaluation_batch(tuple(games), episodes))
+    hunts = _evaluation_hunts(tuple(games), episodes)
     hunts.restart(chest_rng)
     count = len(slots)
     rows = count * agents  # row n: agent n % K of game n // K, the learner's row (n // K % R) * K + n % K
