@@ -5,12 +5,15 @@ controls and the room."""
 import pytest
 
 from dqn_transfer.analysis.equivalence import Outcome
+from dqn_transfer.envs import PettingZooGame
+from dqn_transfer.evaluation.bounds import evaluate_bound
 from dqn_transfer.experiments.equivalence_claims import (
     Verdict,
     failed_controls,
     family,
     final_score,
     normalised_auc,
+    random_team_return,
     room,
     verdict,
 )
@@ -84,3 +87,28 @@ def test_a_cell_is_validated_only_when_both_controls_come_out_as_they_must():
 def test_the_room_is_what_separates_none_from_the_oracle():
     # none scores 0.5 + 0.05 m - 0.01 s: its map means 0.49 .. 0.69, their mean 0.59, so the room is 0.41.
     assert room(RUNS["none"], auc).mean == pytest.approx(0.41)
+
+
+# An agent beside its chest over a wall (tests/test_bounds.py): a random agent's return is worth 66.31.
+BESIDE_THE_CHEST = {"layout": "0T\n##", "mode": "cooperative"}
+LBF = {"factory": "dqn_transfer.envs.lbf:parallel_env", "kwargs": {"size": 8, "players": 2, "food": 2}, "map_seed": 3}
+
+
+def test_the_random_team_is_played_again_on_each_runs_map_or_instance():
+    def on(env: dict, seed: int = 0) -> RunData:
+        return RunData("cell", "run", {"seed": seed, "env": env}, (500,), {"team_return": (0.0,)}, 0, None)
+
+    beside = random_team_return(on(BESIDE_THE_CHEST))
+    # 100 episodes of a return whose standard deviation is about 48: within 15 of 66.31 99.8% of the time.
+    assert beside == pytest.approx(66.30859375, abs=15.0)
+    assert random_team_return(on(BESIDE_THE_CHEST, seed=7)) == beside  # the map's, whatever the run's seed
+    instance = random_team_return(on({**LBF, "fixed_start": True}))
+    assert 0.0 <= instance <= 1.0  # LBF's normalised team return
+    assert (
+        instance
+        == evaluate_bound(PettingZooGame(LBF["factory"], LBF["kwargs"], 3), "random", episodes=100, seed=0)[
+            "team_return"
+        ]
+    )
+    with pytest.raises(ValueError, match="oracle team walks a treasure hunt's map"):
+        evaluate_bound(PettingZooGame(LBF["factory"], LBF["kwargs"], 3), "oracle", episodes=1, seed=0)

@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from dqn_transfer.enums import Bound
+from dqn_transfer.envs import Game
 from dqn_transfer.envs.game import TreasureHuntGame
 from dqn_transfer.envs.maps import GridMap
 from dqn_transfer.envs.rules import ACTION_MOVES, best_assignment
@@ -165,9 +166,9 @@ def greedy_policy(game: TreasureHuntGame) -> Policy:
     return act
 
 
-def random_policy(game: TreasureHuntGame, rng: np.random.Generator) -> Policy:
-    """The uniformly random team of ``game``: every agent draws its action from ``rng`` at every step (a
-    finished agent's draw is ignored)."""
+def random_policy(game: Game, rng: np.random.Generator) -> Policy:
+    """The uniformly random team of ``game`` (any game): every agent draws its action from ``rng`` at every
+    step (a finished agent's draw is ignored)."""
 
     def act(obs: np.ndarray, live: np.ndarray) -> np.ndarray:
         return rng.integers(game.num_actions, size=len(live))
@@ -179,8 +180,9 @@ POLICIES = {Bound.oracle: oracle_policy, Bound.greedy: greedy_policy}
 RANDOM_TEAM_STREAM = 1_000_033  # the random team's actions: apart from the episodes' tie draws
 
 
-def evaluate_bound(game: TreasureHuntGame, kind: Bound | str, episodes: int, seed: int) -> dict[str, Any]:
-    """``episodes`` episodes of the ``kind`` team, as :func:`summarize` records a learner's evaluation.
+def evaluate_bound(game: Game, kind: Bound | str, episodes: int, seed: int) -> dict[str, Any]:
+    """``episodes`` episodes of the ``kind`` team, as :func:`summarize` records a learner's evaluation; the
+    oracle and the greedy team play the treasure hunt, the random team any game.
 
     Episode ``e`` resets with ``evaluation_rng(seed, 0, e)``: the generator of episode ``e`` of a run of
     ``seed``'s evaluation at step 0, which draws only the winners of chest ties. The random team draws its
@@ -190,7 +192,9 @@ def evaluate_bound(game: TreasureHuntGame, kind: Bound | str, episodes: int, see
     kind = Bound(kind)
     if kind is Bound.random:
         policy = random_policy(game, np.random.default_rng([seed, RANDOM_TEAM_STREAM]))
-    else:  # it keeps nothing between steps, so one serves every episode
+    elif isinstance(game, TreasureHuntGame):  # it keeps nothing between steps, so one serves every episode
         policy = POLICIES[kind](game)
+    else:
+        raise ValueError(f"the {kind.value} team walks a treasure hunt's map; {game.factory} has none")
     rngs = (evaluation_rng(seed, 0, episode) for episode in range(episodes))
     return summarize([play_episode(game, policy, rng) for rng in rngs])

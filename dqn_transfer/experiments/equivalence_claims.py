@@ -4,25 +4,33 @@ horizon, and a cell's comparisons to outcomes against the smallest effect of int
 A run's **normalised score** puts the random team of its map at 0 and the oracle at 1
 (:func:`~dqn_transfer.analysis.equivalence.normalised`); its **normalised AUC** (the primary outcome) is
 the mean of that score over the run's evaluations after step 0 up to the horizon, its **final score**
-the mean over the horizon's last 20%. The random team's return is the caller's (it depends on the map, not
-on the run), so every function here is a plain function of the committed data.
+the mean over the horizon's last 20%. The random team's return on a map (:func:`random_team_return`) is
+played again from the run's recorded config, seeded, so every number here comes from the committed data.
 """
 
 from __future__ import annotations
 
+import functools
+import json
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from enum import Enum
+from typing import Any
 
 import numpy as np
 
 from dqn_transfer.analysis.equivalence import Contrast, Outcome, contrast, normalised, outcomes
+from dqn_transfer.enums import Bound
+from dqn_transfer.envs import Game, PettingZooGame, make_game
+from dqn_transfer.envs.settings import ENV_KEYS
+from dqn_transfer.evaluation.bounds import evaluate_bound
 from dqn_transfer.experiments.power import differences_by_map
 from dqn_transfer.experiments.raw_data import RunData
 
 HORIZON = 16_000  # every run's env steps
 FINAL_FROM = 13_000  # the final score: the evaluations of the horizon's last 20% (13,000 .. 16,000)
 SESOI = 0.03  # the smallest effect of interest, in normalised AUC (and final score)
+RANDOM_EPISODES = 100  # the random team's episodes on a map (seed 0): a normalised score's zero
 CONTROLS = {"sham": Outcome.equivalent, "warm": Outcome.better}  # each control's required outcome against none
 
 
@@ -33,6 +41,23 @@ class Verdict(Enum):
     contradicted = "CONTRADICTED"  # none better, at least one worse
     no_useful_effect = "NO USEFUL EFFECT"  # every method equivalent
     inconclusive = "INCONCLUSIVE"
+
+
+def random_team_return(run: RunData) -> float:
+    """The random team's mean team return on the run's map (the treasure hunt) or instance (another game,
+    ``env.fixed_start``): :data:`RANDOM_EPISODES` episodes of seed 0, the same for every run of the map."""
+    return _random_team_return(json.dumps(run.config["env"], sort_keys=True))
+
+
+@functools.cache
+def _random_team_return(env_json: str) -> float:
+    env: dict[str, Any] = json.loads(env_json)
+    if env.get("factory") is not None:
+        instance = env["map_seed"] if env.get("fixed_start") else None
+        game: Game = PettingZooGame(env["factory"], env.get("kwargs") or {}, instance)
+    else:
+        game = make_game(**{key: env[key] for key in ENV_KEYS if env.get(key) is not None})
+    return float(evaluate_bound(game, Bound.random, RANDOM_EPISODES, seed=0)["team_return"])
 
 
 def normalised_curve(run: RunData, random_return: float) -> tuple[np.ndarray, np.ndarray]:
