@@ -52,6 +52,14 @@ def compose_config(*overrides: str) -> TrainConfig:
         return OmegaConf.to_object(compose(config_name="config", overrides=list(overrides)))  # type: ignore[return-value]
 
 
+def sweep_params(experiment: str) -> dict[str, list[str]]:
+    """The options ``python train.py -m experiment=EXPERIMENT`` sweeps, by key (Hydra's sweeper params)."""
+    register_configs()
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        hydra = compose(config_name="config", overrides=[f"experiment={experiment}"], return_hydra_config=True).hydra
+    return {key: str(value).split(",") for key, value in hydra.sweeper.params.items()}
+
+
 def checked(config: TrainConfig) -> None:
     """What the run plan checks of ``config`` before any map: the schema, then every exchange method it runs."""
     validate(config)

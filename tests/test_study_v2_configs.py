@@ -2,13 +2,10 @@
 learner with its exchange, 3 seeds a map for SARSA and 1 for Double DQN, on evaluation maps 0..M-1."""
 
 import pytest
-from hydra import compose, initialize_config_dir
-from omegaconf import OmegaConf
+from conftest import compose_config, sweep_params
 
-from dqn_transfer.config import CONFIG_DIR, TrainConfig, register_configs, validate
+from dqn_transfer.config import TrainConfig, validate
 from dqn_transfer.enums import Exchange
-
-register_configs()
 
 # The registered methods of the main hypothesis: (learner, exchange, parameter sharing with agent ids, mixer).
 METHODS = {
@@ -27,24 +24,14 @@ METHODS = {
 SEEDS = {"sarsa": 3, "double_dqn": 1}  # the primary learner 3 seeds a map, the deep one 1
 
 
-def _compose(*overrides: str, hydra_config: bool = False):
-    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides), return_hydra_config=hydra_config)
-
-
-def _sweep(experiment: str) -> dict[str, list[str]]:
-    params = _compose(f"experiment={experiment}", hydra_config=True).hydra.sweeper.params
-    return {key: str(value).split(",") for key, value in params.items()}
-
-
 def test_the_hypothesis_sweep_is_every_registered_method_in_both_modes():
-    assert _sweep("v2/hypothesis") == {"method": list(METHODS), "mode": ["cooperative", "deliberative"]}
+    assert sweep_params("v2/hypothesis") == {"method": list(METHODS), "mode": ["cooperative", "deliberative"]}
 
 
 @pytest.mark.parametrize("method", METHODS)
 def test_each_method_is_its_learner_with_its_exchange(method):
     algorithm, exchange, shared_id, mixer = METHODS[method]
-    config: TrainConfig = OmegaConf.to_object(_compose("experiment=v2/hypothesis", f"method={method}"))
+    config: TrainConfig = compose_config("experiment=v2/hypothesis", f"method={method}")
     validate(config)
     assert config.agent.algorithm.value == algorithm
     assert Exchange(config.transfer.exchange).value == exchange
@@ -56,8 +43,8 @@ def test_each_method_is_its_learner_with_its_exchange(method):
 
 
 def test_claim1_runs_sarsa_on_thirty_one_chest_maps():
-    assert _sweep("v2/claim1") == {"mode": ["competitive", "cooperative"]}
-    config: TrainConfig = OmegaConf.to_object(_compose("experiment=v2/claim1", "mode=cooperative"))
+    assert sweep_params("v2/claim1") == {"mode": ["competitive", "cooperative"]}
+    config: TrainConfig = compose_config("experiment=v2/claim1", "mode=cooperative")
     assert config.agent.algorithm.value == "sarsa"
     assert (config.env.num_agents, config.env.num_treasures, config.env.num_traps) == (2, 1, 1)
     assert (config.replicas.maps, config.replicas.seeds, config.env.map_seed) == (30, 3, 0)
@@ -66,13 +53,11 @@ def test_claim1_runs_sarsa_on_thirty_one_chest_maps():
 @pytest.mark.parametrize("condition", ["scratch_matched", "scratch", "same_map", "same_map_own"])
 @pytest.mark.parametrize("method", ["sarsa_none", "double_dqn_none"])
 def test_claim3_runs_every_condition_for_both_learners(condition, method):
-    assert _sweep("v2/transfer") == {
+    assert sweep_params("v2/transfer") == {
         "condition": ["scratch_matched", "scratch", "same_map", "same_map_own"],
         "method": ["sarsa_none", "double_dqn_none"],
     }
-    config: TrainConfig = OmegaConf.to_object(
-        _compose("experiment=v2/transfer", f"condition={condition}", f"method={method}")
-    )
+    config: TrainConfig = compose_config("experiment=v2/transfer", f"condition={condition}", f"method={method}")
     validate(config)
     learner = METHODS[method][0]
     assert (config.replicas.maps, config.replicas.seeds) == (30, SEEDS[learner])
@@ -82,22 +67,22 @@ def test_claim3_runs_every_condition_for_both_learners(condition, method):
 
 
 def test_the_chest_aware_condition_is_swept_for_sarsa_alone():
-    assert _sweep("v2/transfer_aware") == {"condition": ["same_map_own_aware"], "method": ["sarsa_none"]}
-    config: TrainConfig = OmegaConf.to_object(_compose("experiment=v2/transfer_aware"))
+    assert sweep_params("v2/transfer_aware") == {"condition": ["same_map_own_aware"], "method": ["sarsa_none"]}
+    config: TrainConfig = compose_config("experiment=v2/transfer_aware")
     validate(config)
     assert config.agent.algorithm.value == "sarsa" and config.transfer.chest_aware
     assert config.transfer.source_task.value == "per_agent" and (config.replicas.maps, config.replicas.seeds) == (30, 3)
 
 
 def test_claim2_grows_the_team_on_one_map_size_at_two_contentions():
-    assert _sweep("v2/claim2") == {
+    assert sweep_params("v2/claim2") == {
         "env": ["study_fixed/m2", "study_fixed/m3", "study_fixed/m4", "study_fixed/m6"],
         "env.contention": ["high", "low"],
         "mode": ["competitive", "cooperative", "deliberative"],
     }
     for m in (2, 3, 4, 6):
-        config: TrainConfig = OmegaConf.to_object(
-            _compose("experiment=v2/claim2", f"env=study_fixed/m{m}", "env.contention=low", "mode=deliberative")
+        config: TrainConfig = compose_config(
+            "experiment=v2/claim2", f"env=study_fixed/m{m}", "env.contention=low", "mode=deliberative"
         )
         validate(config)
         assert (config.env.size, config.env.num_agents, config.env.num_treasures, config.env.num_traps) == (10, m, m, m)

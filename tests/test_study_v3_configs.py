@@ -3,13 +3,10 @@ horizon with epsilon over its first half, each cell's methods and controls, its 
 paper's two figures restaged beside their population answers."""
 
 import pytest
-from hydra import compose, initialize_config_dir
-from omegaconf import OmegaConf
+from conftest import compose_config, sweep_params
 
-from dqn_transfer.config import CONFIG_DIR, TrainConfig, register_configs, validate
+from dqn_transfer.config import TrainConfig, validate
 from dqn_transfer.enums import Exchange, SourceTask
-
-register_configs()
 
 # method option: (learner, exchange, parameter sharing with agent ids, mixer, warm start)
 SARSA = {
@@ -39,18 +36,8 @@ CELLS = {
 }
 
 
-def _compose(*overrides: str, hydra_config: bool = False):
-    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides), return_hydra_config=hydra_config)
-
-
-def _sweep(experiment: str) -> dict[str, list[str]]:
-    params = _compose(f"experiment={experiment}", hydra_config=True).hydra.sweeper.params
-    return {key: str(value).split(",") for key, value in params.items()}
-
-
 def _config(*overrides: str) -> TrainConfig:
-    config: TrainConfig = OmegaConf.to_object(_compose(*overrides))
+    config = compose_config(*overrides)
     validate(config)
     return config
 
@@ -63,7 +50,7 @@ def _horizon(config: TrainConfig) -> None:
 
 @pytest.mark.parametrize("experiment", CELLS)
 def test_each_cell_sweeps_its_methods_and_controls(experiment):
-    assert _sweep(experiment) == CELLS[experiment][0]
+    assert sweep_params(experiment) == CELLS[experiment][0]
 
 
 @pytest.mark.parametrize(
@@ -101,7 +88,7 @@ def test_each_run_is_its_method_on_its_cell_at_the_horizon(experiment, method, e
 
 def test_figure_1_is_one_chest_cooperative_against_competitive_on_one_map_and_on_thirty():
     for experiment, maps, seeds, map_seed in (("v3/figure1", 1, 10, 6), ("v3/figure1_maps", 30, 3, 0)):
-        assert _sweep(experiment) == {"mode": ["competitive", "cooperative"]}
+        assert sweep_params(experiment) == {"mode": ["competitive", "cooperative"]}
         config = _config(f"experiment={experiment}", "mode=cooperative")
         _horizon(config)
         env = config.env
@@ -111,7 +98,7 @@ def test_figure_1_is_one_chest_cooperative_against_competitive_on_one_map_and_on
 
 def test_figure_2_is_the_three_modes_as_the_team_grows_with_as_many_chests_and_traps():
     for experiment, maps, seeds in (("v3/figure2", 1, 10), ("v3/figure2_maps", 30, 3)):
-        assert _sweep(experiment) == {
+        assert sweep_params(experiment) == {
             "env.num_agents": ["2", "3", "4", "6"],
             "mode": ["competitive", "cooperative", "deliberative"],
         }
