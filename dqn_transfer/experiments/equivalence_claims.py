@@ -24,6 +24,7 @@ from dqn_transfer.enums import Bound
 from dqn_transfer.envs import Game, PettingZooGame, make_game
 from dqn_transfer.envs.settings import ENV_KEYS
 from dqn_transfer.evaluation.bounds import evaluate_bound
+from dqn_transfer.experiments.hierarchical_claims import values_by_map
 from dqn_transfer.experiments.power import differences_by_map
 from dqn_transfer.experiments.raw_data import RunData
 
@@ -118,7 +119,4 @@ def failed_controls(controls: Sequence[Comparison]) -> list[str]:
 
 def room(none: Sequence[RunData], value: Callable[[RunData], float]) -> Contrast:
     """Oracle − ``none`` in a cell: 1 minus its runs' value, over the maps (the most any method could add)."""
-    maps: dict[int, list[float]] = {}
-    for run in none:
-        maps.setdefault(run.map_seed, []).append(1.0 - value(run))
-    return contrast([maps[m] for m in sorted(maps)], SESOI)
+    return contrast(values_by_map(none, lambda run: 1.0 - value(run)), SESOI)
