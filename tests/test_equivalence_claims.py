@@ -23,8 +23,8 @@ STEPS = tuple(range(0, 16_501, 500))  # 0, 500, ..., 16,000 and one evaluation p
 MAPS, SEEDS = 5, 3
 
 
-def run(returns, optimum=180.0, map_seed=0, seed=0, name="run") -> RunData:
-    config = {"seed": seed, "env": {"map_seed": map_seed}}
+def run(returns, optimum=180.0, map_seed=0, seed=0, name="run", **env) -> RunData:
+    config = {"seed": seed, "total_steps": 16_000, "env": {"map_seed": map_seed, **env}}
     return RunData("cell", name, config, STEPS, {"team_return": tuple(returns)}, 0, optimum)
 
 
@@ -35,8 +35,12 @@ def test_the_normalised_outcomes_cover_the_horizon_after_step_0():
     r = run(returns)
     assert normalised_auc(r, -20.0) == pytest.approx(sum(k / 32 for k in range(1, 33)) / 32)  # 0.515625
     assert final_score(r, -20.0) == pytest.approx(sum(k / 32 for k in range(26, 33)) / 7)  # 13,000..16,000: 29/32
-    lbf = run([0.25] * len(STEPS), optimum=None)  # another game: its own return, 1 when all food is loaded
+    # Another game: its own return, 1 when all food is loaded.
+    lbf = run([0.25] * len(STEPS), optimum=None, factory="dqn_transfer.envs.lbf:parallel_env")
     assert normalised_auc(lbf, 0.0) == pytest.approx(0.25)
+    # One chest for two agents, no clean optimum: the chest's reward is the one; 60 over a random team of -40.
+    one_chest = run([20.0] * len(STEPS), optimum=None, num_treasures=1, treasure_reward=100.0)
+    assert normalised_auc(one_chest, -40.0) == pytest.approx(60.0 / 140.0)
 
 
 def condition(score_of, name: str) -> list[RunData]:

@@ -371,7 +371,7 @@ def test_report_without_data_is_a_clear_error(tmp_path, capsys):
     (tmp_path / "data").mkdir()  # data, but no manifest naming their edition
     assert report.main([str(tmp_path)]) == 1
     assert capsys.readouterr().err.splitlines() == [
-        f"error: {tmp_path}/data/manifest.json names no edition: pass --edition (v1, v2)"
+        f"error: {tmp_path}/data/manifest.json names no edition: pass --edition (v1, v2, v3)"
     ]
     assert study.main(["full", "--edition", "v1", "--out", str(tmp_path), "--report-only"]) == 1
     assert capsys.readouterr().err.splitlines() == [

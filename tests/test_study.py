@@ -130,7 +130,7 @@ def test_an_edition_is_refused_a_stage_it_does_not_have_and_an_unknown_edition_i
     assert cli.main(["pilot", "--edition", "v1", "--out", str(tmp_path)]) == 1
     assert capsys.readouterr().err == "error: edition v1 has no pilot stage (its stages: full, report)\n"
     assert cli.main(["full", "--edition", "v9", "--out", str(tmp_path)]) == 1
-    assert capsys.readouterr().err == "error: no edition 'v9' (choose from v1, v2)\n"
+    assert capsys.readouterr().err == "error: no edition 'v9' (choose from v1, v2, v3)\n"
     assert not any(tmp_path.iterdir())  # refused before anything is written
 
 

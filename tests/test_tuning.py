@@ -41,6 +41,7 @@ STRENGTH_KEYS = {
     "double_dqn_shared_replay": {"transfer.exchange_every"},
     "double_dqn_experience": {"transfer.experience_lambda"},
     "double_dqn_shared_id": set(),
+    "double_dqn_vdn": set(),
 }
 
 
@@ -70,7 +71,8 @@ def test_every_search_gets_the_same_budget_on_tuning_maps_disjoint_from_the_eval
         assert sweeper["params"]["agent.lr"].startswith("tag(log, interval("), name
         assert sweeper["sampler"]["_target_"] == "optuna.samplers.TPESampler"
         assert agent["algorithm"] == learner
-        assert cfg["transfer"]["exchange"] == ("none" if method == "shared_id" else method)
+        assert cfg["transfer"]["exchange"] == ("none" if method in ("shared_id", "vdn") else method)
+        assert agent["mixer"] == ("vdn" if method == "vdn" else "none")
         assert agent["share_parameters"] == agent["agent_id_input"] == (method == "shared_id")
         first, count = cfg["env"]["map_seed"], cfg["replicas"]["maps"]
         maps = tuple(range(first, first + count))

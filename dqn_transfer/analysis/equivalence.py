@@ -106,6 +106,8 @@ def power(delta: float, sigma_map: float, sigma_run: float, n_maps: int, n_seeds
     if n_maps < 2:
         raise ValueError(f"power needs two maps or more, got {n_maps}")
     se = math.sqrt((sigma_map**2 + sigma_run**2 / n_seeds) / n_maps)
+    if se == 0.0:  # no spread at all: any difference is seen
+        return 1.0
     df, critical = n_maps - 1, scipy.stats.t.ppf(1.0 - alpha / 2.0, n_maps - 1)
     shift = delta / se
     return float(scipy.stats.nct.sf(critical, df, shift) + scipy.stats.nct.cdf(-critical, df, shift))

@@ -294,17 +294,20 @@ def dot_whisker_figure(
     color_of: ColorOf | None = None,
     watermark: str | None = None,
     reference: float | None = None,
+    shaded: tuple[float, float] | None = None,
 ) -> Path:
     """Panels side by side of estimates of named categories (one row each, e.g. methods), one per
     ``(panel title, {series: {category: estimate}})``: each series a dot with its 95% CI as a whisker, shifted
     up or down by its position so the rows' series stay apart; a vertical ``reference`` line (e.g. the
-    optimum) where given.
+    optimum) where given, and a ``shaded`` band (e.g. the equivalence margins).
     """
     fig, axes = _grid(len(panels), 17 / 3, 4.5)
     for ax, (panel_title, series) in zip(axes, panels):
         categories = list(dict.fromkeys(c for points in series.values() for c in points))
         if reference is not None:
             ax.axvline(reference, color="grey", lw=1)
+        if shaded is not None:
+            ax.axvspan(*shaded, color="grey", alpha=0.15, lw=0)
         for index, (label, points) in enumerate(series.items()):
             offset = 0.15 * (index - (len(series) - 1) / 2)
             rows = [categories.index(c) + offset for c in points]

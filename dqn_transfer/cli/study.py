@@ -22,23 +22,30 @@ or unfinished runs is an error, never overwritten.
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
 
 from dqn_transfer.analysis.runs import skipped_runs_on_stderr
 from dqn_transfer.cli.console import docstring_parser, exit_with
 from dqn_transfer.cli.study_console import add_launcher_options, print_verdicts, run_study_command
 from dqn_transfer.experiments import tuning
+from dqn_transfer.experiments.cell_runs import write_maps
 from dqn_transfer.experiments.edition import (
     BUDGETS_FILE,
     BUDGETS_TABLE,
+    MAPS_FILE,
+    MAPS_TABLE,
     PILOT_DIR,
     STAGES,
     TUNING_DIR,
+    Edition,
     load_edition,
 )
 from dqn_transfer.experiments.pipeline import (
     pilot_budgets,
+    pilot_maps,
     pilot_rule,
+    record_stage,
     run_full,
     run_pilots,
     write_budgets,
@@ -76,16 +83,34 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run_stage(args: argparse.Namespace) -> Path:
-    """The stage ``args.stage`` of ``args.edition``; returns the file it wrote last."""
+    """The stage ``args.stage`` of ``args.edition``; returns the file it wrote last. A stage that runs anything
+    adds its wall time to ``OUT/stages.json``, interrupted or not."""
     edition = load_edition(args.edition)
     edition.check_stage(args.stage)
     out = args.out.expanduser().resolve()
-    if args.stage == "tune":
-        return _tune(args, out / TUNING_DIR)
+    runs = not (args.report_only or args.apply or args.stage == "report")
+    start = time.perf_counter()
+    try:
+        return _tune(args, edition, out / TUNING_DIR) if args.stage == "tune" else _runs_stage(args, edition, out)
+    finally:
+        if runs and (out / TUNING_DIR if args.stage == "tune" else out).is_dir():
+            record_stage(out, args.stage, time.perf_counter() - start)
+
+
+def _runs_stage(args: argparse.Namespace, edition: Edition, out: Path) -> Path:
+    """The pilot, full or report stage."""
     names = chosen_experiments(args.only or ",".join(edition.experiments), edition.experiments, args.n_jobs)
     profile = edition.profile(args.profile)
     launcher = None if args.report_only or args.stage == "report" else choose_launcher(args.launcher)
     print(f"edition {edition.name}, profile {args.profile}: {profile.description}", flush=True)
+    if args.stage == "pilot" and edition.cells:
+        names = [name for name in names if any(cell.experiment == name for cell in edition.cells)]
+        if launcher is not None:
+            with skipped_runs_on_stderr():
+                run_pilots(edition, names, args.profile, out, launcher, args.n_jobs, args.extra)
+        write_maps(out, pilot_maps(edition, out, names, profile))
+        print((out / MAPS_TABLE).read_text())
+        return out / MAPS_FILE
     if args.stage == "pilot":
         data = out / PILOT_DIR / DATA_DIR
         if launcher is not None:
@@ -103,18 +128,31 @@ def _run_stage(args: argparse.Namespace) -> Path:
     return report
 
 
-def _tune(args: argparse.Namespace, out: Path) -> Path:
-    """The tuning stage into ``out``: the searches, or (``--report-only``) their analysis, or (``--apply``) the
-    tuned values into ``conf/tuned/``; prints every file written, returns ``out``."""
-    searches = [tuning.search_named(name.strip()) for name in dict.fromkeys((args.only or "").split(",")) if name]
+def _tune(args: argparse.Namespace, edition: Edition, out: Path) -> Path:
+    """The tuning stage into ``out``: each tuning cell's searches (``--only``: those named), or
+    (``--report-only``) their analysis, or (``--apply``) the tuned values into ``conf/tuned/``; prints every
+    file written, returns ``out``."""
     if args.n_jobs < 1:
         raise ReproduceError(f"--n-jobs must be >= 1, got {args.n_jobs}")
-    if args.apply:
-        written = tuning.apply_tuned(out)
-    elif args.report_only:
-        written = tuning.analyse(out)
-    else:
-        written = tuning.tune(searches or list(tuning.SEARCHES), args.profile, out, args.n_jobs)
+    only = [name.strip() for name in (args.only or "").split(",") if name.strip()]
+    known = [name for cell in edition.tuning for name in cell.searches]
+    unknown = [name for name in only if name not in known]
+    if unknown:
+        raise ReproduceError(f"unknown search {unknown[0]!r} (choose from {', '.join(dict.fromkeys(known))})")
+    if args.apply and any(cell.name for cell in edition.tuning):
+        raise ReproduceError(f"edition {edition.name} runs with its tuned values from OUT: --apply has nothing to do")
+    written: list[Path] = []
+    for cell in edition.tuning:
+        cell_dir = out / cell.name
+        if args.apply:
+            written += tuning.apply_tuned(cell_dir)
+        elif args.report_only:
+            written += tuning.analyse(cell_dir)
+        else:
+            searches = [tuning.search_named(name) for name in cell.searches if not only or name in only]
+            if searches:
+                overrides = (*cell.overrides, *tuning.PROFILES[args.profile])
+                written += tuning.tune(searches, overrides, cell_dir, args.n_jobs, edition.trials_per_dimension)
     for path in written:
         print(path)
     return out

@@ -23,7 +23,10 @@ EDITIONS_DIR = CONFIG_DIR / "edition"
 # A results directory beside its data/: what the tuning, pilot and budget stages write, which the report reads.
 TUNING_DIR, PILOT_DIR, BUDGETS_FILE, BUDGETS_TABLE = "tuning", "pilot", "budgets.json", "budgets.md"
 STAGES = ("tune", "pilot", "full", "report")
-ANALYSES = ("paired", "hierarchical")  # the first edition's claims, the registered hierarchical bootstrap
+# The first edition's claims, the second's hierarchical bootstrap, the third's outcomes against the SESOI.
+ANALYSES = ("paired", "hierarchical", "equivalence")
+MAPS_FILE, MAPS_TABLE = "maps.json", "maps.md"  # the power rule's maps per cell (an edition with cells)
+STAGES_FILE = "stages.json"  # each stage's attempts' wall seconds, which the report states
 
 
 @dataclass(frozen=True)
@@ -36,6 +39,9 @@ class Profile:
     runs: tuple[str, ...] = ()
     runs_of: dict[str, tuple[str, ...]] = field(default_factory=dict)
     rule_cap: int | None = None
+    pilot_maps: int | None = None  # an edition with cells: its pilot's maps (None: the edition's)
+    minimum: int | None = None  # an edition with cells: every cell's fewest maps (None: each cell's own)
+    cap: int | None = None  # an edition with cells: every cell's most maps (None: each cell's own)
 
     def run_overrides(self, experiment: str) -> tuple[str, ...]:
         """The overrides of ``experiment``'s runs under this profile."""
@@ -55,6 +61,33 @@ class Comparison:
 
 
 @dataclass(frozen=True)
+class TuningCell:
+    """One game's tuning: its searches (``conf/experiment/tune/<learner>_<method>``), each run with
+    ``overrides``, into ``OUT/tuning/<name>/`` (``OUT/tuning/`` for an unnamed one)."""
+
+    name: str
+    searches: tuple[str, ...]
+    overrides: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Cell:
+    """A cell of the main hypothesis: the jobs of ``experiment`` whose swept values include ``where``, each
+    condition (its ``method``) at its values tuned in ``tuning``, on between ``minimum`` and ``cap`` maps."""
+
+    name: str
+    experiment: str
+    tuning: str
+    minimum: int
+    cap: int
+    where: dict[str, str] = field(default_factory=dict)
+
+    def holds(self, experiment: str, values: dict[str, str]) -> bool:
+        """Whether a job of ``experiment`` with swept ``values`` is one of this cell's conditions."""
+        return experiment == self.experiment and all(values.get(k) == v for k, v in self.where.items())
+
+
+@dataclass(frozen=True)
 class Edition:
     """One edition of the study (``conf/edition/<name>.yaml``)."""
 
@@ -68,10 +101,15 @@ class Edition:
     analysis: str
     profiles: dict[str, Profile]
     caches: dict[str, tuple[str, str]] = field(default_factory=dict)  # experiment: (config key, OUT's subdirectory)
-    rules_tag: str | None = None  # the git tag that registered the rules (None: the rules file's last commit)
+    rules_tag: str | None = None  # the git tag or commit that registered the rules (None: the rules file's last commit)
     rule: BudgetRule | None = None  # the budget rule of the pilot stage
     comparisons: dict[str, Comparison] = field(default_factory=dict)
     report: dict[str, Any] = field(default_factory=dict)  # the report's text that is the edition's own
+    tuning: tuple[TuningCell, ...] = ()  # the tune stage's searches by game
+    trials_per_dimension: int | None = None  # a search's trials per searched key (None: its file's n_trials)
+    cells: tuple[Cell, ...] = ()  # the main hypothesis' cells (an equivalence edition)
+    pilot_maps: int = 0  # a cell's pilot: its first maps, 0 .. pilot_maps - 1
+    tuned_as: dict[str, str] = field(default_factory=dict)  # a control: the method whose tuned values it runs at
 
     def experiment(self, name: str) -> str:
         """The ``experiment=`` option of one of its experiments."""
@@ -109,6 +147,9 @@ def load_edition(name: str) -> Edition:
                 runs=tuple(value.get("runs", ())),
                 runs_of={experiment: tuple(o) for experiment, o in value.get("runs_of", {}).items()},
                 rule_cap=value.get("rule_cap"),
+                pilot_maps=value.get("pilot_maps"),
+                minimum=value.get("minimum"),
+                cap=value.get("cap"),
             )
             for key, value in spec.pop("profiles").items()
         }
@@ -117,7 +158,14 @@ def load_edition(name: str) -> Edition:
             for experiment, value in spec.pop("comparisons", {}).items()
         }
         rule = spec.pop("rule", None)
+        tuning = spec.pop("tuning", {})
         edition = Edition(
+            tuning=tuple(
+                TuningCell(name, tuple(cell["searches"]), tuple(cell.get("overrides", ())))
+                for name, cell in tuning.get("cells", {}).items()
+            ),
+            trials_per_dimension=tuning.get("trials_per_dimension"),
+            cells=tuple(Cell(name=name, **cell) for name, cell in spec.pop("cells", {}).items()),
             name=name,
             profiles=profiles,
             comparisons=comparisons,

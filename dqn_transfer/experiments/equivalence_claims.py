@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from dqn_transfer.analysis.equivalence import Contrast, Outcome, contrast, normalised, outcomes
+from dqn_transfer.analysis.hierarchical import holm
 from dqn_transfer.enums import Bound
 from dqn_transfer.envs import Game, PettingZooGame, make_game
 from dqn_transfer.envs.settings import ENV_KEYS
@@ -29,7 +30,7 @@ from dqn_transfer.experiments.power import differences_by_map
 from dqn_transfer.experiments.raw_data import RunData
 
 HORIZON = 16_000  # every run's env steps
-FINAL_FROM = 13_000  # the final score: the evaluations of the horizon's last 20% (13,000 .. 16,000)
+FINAL_SHARE = 0.2  # the final score: the evaluations of a run's last 20% (13,000 .. 16,000 at the horizon)
 SESOI = 0.03  # the smallest effect of interest, in normalised AUC (and final score)
 RANDOM_EPISODES = 100  # the random team's episodes on a map (seed 0): a normalised score's zero
 CONTROLS = {"sham": Outcome.equivalent, "warm": Outcome.better}  # each control's required outcome against none
@@ -61,12 +62,22 @@ def _random_team_return(env_json: str) -> float:
     return float(evaluate_bound(game, Bound.random, RANDOM_EPISODES, seed=0)["team_return"])
 
 
+def oracle_return(run: RunData) -> float:
+    """A normalised score's one: the map's optimal team return; another game's, LBF's, is 1; on a map with
+    more agents than chests, which has no clean optimum (the paper's Figure 1), every chest's reward."""
+    if run.optimal_return is not None:
+        return run.optimal_return
+    env = run.config["env"]
+    if env.get("factory") is not None:
+        return 1.0
+    return float(env.get("treasure_reward", 100.0)) * int(env["num_treasures"])
+
+
 def normalised_curve(run: RunData, random_return: float) -> tuple[np.ndarray, np.ndarray]:
-    """The run's evaluations after step 0 up to the horizon, as normalised scores (the oracle: the map's
-    optimal team return; another game's, LBF's, is 1)."""
+    """The run's evaluations after step 0 up to the horizon, as normalised scores (:func:`oracle_return`)."""
     steps, returns = run.curve()
     kept = (steps > 0) & (steps <= HORIZON)
-    return steps[kept], np.asarray(normalised(returns[kept], random_return, run.optimal_return or 1.0))
+    return steps[kept], np.asarray(normalised(returns[kept], random_return, oracle_return(run)))
 
 
 def normalised_auc(run: RunData, random_return: float) -> float:
@@ -75,9 +86,19 @@ def normalised_auc(run: RunData, random_return: float) -> float:
 
 
 def final_score(run: RunData, random_return: float) -> float:
-    """The secondary outcome: the mean normalised score of the horizon's last 20%."""
+    """The secondary outcome: the mean normalised score of the last 20% of the run's steps."""
     steps, scores = normalised_curve(run, random_return)
-    return float(scores[steps >= FINAL_FROM].mean())
+    return float(scores[steps >= (1.0 - FINAL_SHARE) * min(int(run.config["total_steps"]), HORIZON)].mean())
+
+
+def auc_value(run: RunData) -> float:
+    """A run's normalised AUC against its map's random team."""
+    return normalised_auc(run, random_team_return(run))
+
+
+def final_value(run: RunData) -> float:
+    """A run's final score against its map's random team."""
+    return final_score(run, random_team_return(run))
 
 
 @dataclass(frozen=True)
@@ -87,6 +108,8 @@ class Comparison:
     name: str
     contrast: Contrast
     outcome: Outcome
+    p_difference: float  # Holm-adjusted within the family
+    p_equivalence: float
 
 
 def family(
@@ -97,7 +120,11 @@ def family(
 ) -> list[Comparison]:
     """Each of ``names`` against ``against``, paired by (map, seed), its outcome Holm-adjusted within them."""
     contrasts = [contrast(differences_by_map(runs[name], runs[against], value), SESOI) for name in names]
-    return [Comparison(name, c, o) for name, c, o in zip(names, contrasts, outcomes(contrasts))]
+    adjusted = zip(holm([c.p_difference for c in contrasts]), holm([c.p_equivalence for c in contrasts]))
+    return [
+        Comparison(name, c, o, float(pd), float(pe))
+        for name, c, o, (pd, pe) in zip(names, contrasts, outcomes(contrasts), adjusted)
+    ]
 
 
 def verdict(primary: Sequence[Comparison]) -> Verdict:

@@ -7,8 +7,6 @@ checkout), so the same data give the same bytes.
 from __future__ import annotations
 
 import math
-import os
-import shutil
 from collections.abc import Sequence
 from functools import partial
 from pathlib import Path
@@ -40,7 +38,15 @@ from dqn_transfer.experiments.hierarchical_claims import (
     mode,
     replicated,
 )
-from dqn_transfer.experiments.raw_data import DATA_SOURCE, SMOKE_MARK, DataError, read_evidence, read_experiment
+from dqn_transfer.experiments.raw_data import (
+    DATA_SOURCE,
+    SMOKE_MARK,
+    DataError,
+    Evidence,
+    carry_file,
+    read_evidence,
+    read_experiment,
+)
 from dqn_transfer.experiments.render import COLORS
 
 TUNING_TABLE = Path(TUNING_DIR) / "tuning.md"
@@ -274,26 +280,39 @@ def claim3_section(result: Claim3Result) -> list[str]:
 # ------------------------------------------------------------------------------------------- the report
 
 
-def _include(path: Path) -> list[str]:
+def include(path: Path) -> list[str]:
     return path.read_text().rstrip("\n").splitlines() + [""] if path.exists() else [f"({path.name} is missing)", ""]
+
+
+def opening(edition: Edition, evidence: Evidence, missing: Sequence[str], missing_note: str = ".") -> list[str]:
+    """A report's title, and its warnings: smoke data, experiments not yet run (``missing``)."""
+    smoke = f"> **{SMOKE_MARK}**: the quick profile checks the pipeline; its numbers are not evidence."
+    return [
+        f"# {edition.title}",
+        "",
+        *([smoke, ""] if evidence.smoke else []),
+        *([f"> **Not yet run**: {', '.join(missing)}{missing_note}", ""] if missing else []),
+    ]
+
+
+def records_table(evidence: Evidence) -> list[str]:
+    """How each experiment's data were made: runs, date, profile, code commit, machine, wall time."""
+    return [
+        "| experiment | runs | made on | profile | by code | on | wall time |",
+        "|---|---:|---|---|---|---|---:|",
+        *[
+            f"| {name} | {r.get('runs', '?')} | {r.get('date', '?')} | {r.get('profile', '?')} "
+            f"| {r.get('commit', '?')} | {r.get('machine', '?')} | {float(r.get('wall_seconds', 0)) / 60:.1f} min |"
+            for name, r in evidence.records.items()
+        ],
+        "",
+    ]
 
 
 def stream(edition: Edition, question: str) -> np.random.Generator:
     """A question's own random stream, seeded by its experiment's place in the edition's experiments: its digits
     do not change when another question's data arrive."""
     return np.random.default_rng([0, edition.experiments.index(question)])
-
-
-def _carry_tuning_figure(results: Path, out: Path) -> bool:
-    """Whether ``results`` has the tuning figure; copied into ``out`` at the same relative path if that is
-    elsewhere, so that a report written anywhere holds its figures (and is the same bytes)."""
-    figure, beside = results / TUNING_FIGURE, out / TUNING_FIGURE
-    if not figure.is_file():
-        return False
-    if not beside.is_file() or not os.path.samefile(figure, beside):
-        beside.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(figure, beside)
-    return True
 
 
 def write_report(edition: Edition, results: Path, out: Path) -> Path:
@@ -344,14 +363,7 @@ def write_report(edition: Edition, results: Path, out: Path) -> Path:
         summary.append(("Claim 3", result3.verdict))
     missing = [name for name in edition.experiments if not runs[name]]
     header = [
-        f"# {edition.title}",
-        "",
-        *(
-            [f"> **{SMOKE_MARK}**: the quick profile checks the pipeline; its numbers are not evidence.", ""]
-            if evidence.smoke
-            else []
-        ),
-        *([f"> **Not yet run**: {', '.join(missing)}; their questions have no verdict yet.", ""] if missing else []),
+        *opening(edition, evidence, missing, "; their questions have no verdict yet."),
         *(
             ["> Claim 3 compares `transfer_aware`'s runs with the control among `transfer`'s: it waits for them.", ""]
             if runs["transfer_aware"] and not runs["transfer"]
@@ -362,25 +374,18 @@ def write_report(edition: Edition, results: Path, out: Path) -> Path:
         "hierarchical-bootstrap intervals over maps (maps, then runs within maps); p-values are two-sided "
         f"bootstrap p; a family's are Holm-adjusted at {ALPHA:g}.",
         "",
-        "| experiment | runs | made on | profile | by code | on | wall time |",
-        "|---|---:|---|---|---|---|---:|",
-        *[
-            f"| {name} | {r.get('runs', '?')} | {r.get('date', '?')} | {r.get('profile', '?')} "
-            f"| {r.get('commit', '?')} | {r.get('machine', '?')} | {float(r.get('wall_seconds', 0)) / 60:.1f} min |"
-            for name, r in evidence.records.items()
-        ],
-        "",
+        *records_table(evidence),
         "| question | verdict |",
         "|---|---|",
         *[f"| {question} | **{verdict}** |" for question, verdict in summary],
         "",
         "## Tuning (stage 2)",
         "",
-        *_include(results / TUNING_TABLE),
-        *([f"![tuning]({TUNING_FIGURE.as_posix()})", ""] if _carry_tuning_figure(results, out) else []),
+        *include(results / TUNING_TABLE),
+        *([f"![tuning]({TUNING_FIGURE.as_posix()})", ""] if carry_file(results, out, TUNING_FIGURE) else []),
         "## Budgets (stage 3)",
         "",
-        *_include(results / BUDGETS_TABLE),
+        *include(results / BUDGETS_TABLE),
     ]
     report = out / "REPORT.md"
     report.write_text("\n".join(header + body))

@@ -24,8 +24,17 @@ from typing import Any
 from dqn_transfer.analysis.budget import Budget, BudgetRule, budgets_per_cell
 from dqn_transfer.analysis.transfer_metrics import Curve
 from dqn_transfer.config import to_plain
-from dqn_transfer.experiments import hierarchical_report, paired_report
-from dqn_transfer.experiments.edition import BUDGETS_FILE, BUDGETS_TABLE, PILOT_DIR, Edition, Profile
+from dqn_transfer.experiments import equivalence_report, hierarchical_report, paired_report
+from dqn_transfer.experiments.cell_runs import CellMaps, cell_multiruns, maps_per_cell, read_maps
+from dqn_transfer.experiments.edition import (
+    BUDGETS_FILE,
+    BUDGETS_TABLE,
+    MAPS_FILE,
+    PILOT_DIR,
+    STAGES_FILE,
+    Edition,
+    Profile,
+)
 from dqn_transfer.experiments.raw_data import (
     DATA_DIR,
     DataError,
@@ -37,6 +46,7 @@ from dqn_transfer.experiments.raw_data import (
     read_data,
     read_manifest,
     write_data,
+    write_json,
     write_manifest,
 )
 from dqn_transfer.experiments.sweeps import (
@@ -53,7 +63,11 @@ from dqn_transfer.experiments.sweeps import (
 from dqn_transfer.storage.run_dir import flatten
 
 CHEST_REWARD = 100.0  # claim 1's maps have no optimum: its curves are counted in chests for the rule
-REPORTS = {"paired": paired_report.write_report, "hierarchical": hierarchical_report.write_report}
+REPORTS = {
+    "paired": paired_report.write_report,
+    "hierarchical": hierarchical_report.write_report,
+    "equivalence": equivalence_report.write_report,
+}
 
 
 def rules_commit(edition: Edition) -> str:
@@ -137,11 +151,18 @@ def run_pilots(
     n_jobs: int,
     extra: Sequence[str] = (),
 ) -> Path:
-    """Each experiment's sweep with the profile's pilot overrides, then its raw data; returns
-    ``OUT/pilot/data``."""
+    """Each experiment's pilot, then its raw data; returns ``OUT/pilot/data``. An edition with cells pilots
+    its cells' conditions on their first maps (their runs stay among the cells' runs); another runs each
+    experiment's sweep with the profile's pilot overrides."""
     settings = edition.profile(profile)
     data_dir = out / PILOT_DIR / DATA_DIR
     for name in names:
+        if edition.cells:
+            multiruns = cell_multiruns(edition, name, profile, out, maps=None)
+            for multirun in multiruns:
+                run_multirun(multirun, out, launcher, 1, extra)  # one job: its replicas take every core
+            write_data(data_dir / f"{name}.jsonl", export_multiruns(multiruns, out, name))
+            continue
         experiment = edition.experiment(name)
         overrides = (*cache_overrides(edition, name, out / PILOT_DIR), *settings.pilot)
         sweep_dir = out / PILOT_DIR / RUNS_DIR / name
@@ -151,6 +172,22 @@ def run_pilots(
         run_multirun(multirun, out, launcher, n_jobs, extra)
         write_data(data_dir / f"{name}.jsonl", export_sweep(sweep_dir, name))
     return data_dir
+
+
+def export_multiruns(multiruns: Sequence[Multirun], out: Path, name: str) -> list[RunData]:
+    """The runs of experiment ``name``'s multiruns, each named by its path below ``OUT/runs/<name>/``."""
+    runs: list[RunData] = []
+    for multirun in multiruns:
+        prefix = multirun.sweep_dir.relative_to(out / RUNS_DIR / name).as_posix()
+        prefix = "" if prefix == "." else prefix + "/"
+        runs += [dataclasses.replace(r, name=prefix + r.name) for r in export_sweep(multirun.sweep_dir, name)]
+    return runs
+
+
+def pilot_maps(edition: Edition, out: Path, names: Sequence[str], profile: Profile) -> list[CellMaps]:
+    """Each cell's maps by the power rule, from the pilot's raw data of ``names`` alone."""
+    runs = [run for name in names for run in read_data(out / PILOT_DIR / DATA_DIR / f"{name}.jsonl")]
+    return maps_per_cell(edition, runs, profile.minimum, profile.cap)
 
 
 @dataclass(frozen=True)
@@ -251,8 +288,7 @@ def write_budgets(out: Path, groups: Sequence[GroupBudget], rule: BudgetRule) ->
             for g in groups
         ],
     }
-    out.mkdir(parents=True, exist_ok=True)
-    (out / BUDGETS_FILE).write_text(json.dumps(record, indent=1) + "\n")
+    write_json(out / BUDGETS_FILE, record)
     lines = [
         f"Budgets by the registered rule: the median over a job's pilot runs of the least-squares slope of their "
         f"last {rule.fraction:.0%} of evaluations (at least {rule.min_points}), in score per 1,000 steps; the "
@@ -289,9 +325,17 @@ def read_budgets(path: Path) -> dict[tuple[str, tuple[Any, ...]], int]:
 
 
 def _multiruns(
-    edition: Edition, name: str, profile: str, out: Path, budgets: dict[tuple[str, tuple[Any, ...]], int] | None
+    edition: Edition,
+    name: str,
+    profile: str,
+    out: Path,
+    budgets: dict[tuple[str, tuple[Any, ...]], int] | None,
+    maps: dict[str, int] | None,
 ) -> list[Multirun]:
-    """An experiment's multiruns: each comparison group at its budget, or (no budgets) its file's sweep."""
+    """An experiment's multiruns: its cells' conditions on their maps, or each comparison group at its budget,
+    or (neither) its file's sweep."""
+    if maps is not None and any(cell.experiment == name for cell in edition.cells):
+        return cell_multiruns(edition, name, profile, out, maps)
     experiment = edition.experiment(name)
     settings = (*cache_overrides(edition, name, out), *edition.profile(profile).run_overrides(name))
     if budgets is None:
@@ -323,22 +367,22 @@ def run_full(
     """Each experiment's multiruns (none with ``launcher`` None: what ``OUT/runs/`` holds is exported), then
     its raw data and its record in the manifest (profile, code commit, machine, date, wall time, runs; beside
     the edition and its rules' commit); returns ``OUT/data``."""
-    budgets = read_budgets(budgets_file or out / BUDGETS_FILE) if "pilot" in edition.stages else None
+    maps = {c.cell: c.maps for c in read_maps(out / MAPS_FILE).values()} if edition.cells else None
+    budgets = read_budgets(budgets_file or out / BUDGETS_FILE) if edition.rule is not None else None
     data_dir = out / DATA_DIR
     made: dict[str, dict[str, Any]] = {}
     for name in names:
-        runs: list[RunData] = []
-        wall, profiles = 0.0, set()
-        for multirun in _multiruns(edition, name, profile, out, budgets):
-            if launcher is not None:
-                run_multirun(multirun, out, launcher, n_jobs, extra)
-            elif not multirun.sweep_dir.is_dir():
-                continue
-            stamp = read_stamp(multirun.sweep_dir) or {}  # what the runs were made with, even if not by this call
-            wall += float(stamp.get("wall_seconds", 0.0))
-            profiles.add(str(stamp.get("profile", "unknown")))
-            prefix = f"{multirun.sweep_dir.name}/" if budgets is not None else ""
-            runs += [dataclasses.replace(r, name=prefix + r.name) for r in export_sweep(multirun.sweep_dir, name)]
+        multiruns = _multiruns(edition, name, profile, out, budgets, maps)
+        done: list[Multirun] = []
+        for multirun in multiruns:
+            if launcher is not None:  # a cell's multirun is one job: its replicas take every core
+                run_multirun(multirun, out, launcher, 1 if multirun.jobs == 1 else n_jobs, extra)
+            if multirun.sweep_dir.is_dir():
+                done.append(multirun)
+        stamps = [read_stamp(m.sweep_dir) or {} for m in done]  # what the runs were made with, even if not by this call
+        wall = sum(float(stamp.get("wall_seconds", 0.0)) for stamp in stamps)
+        profiles = {str(stamp.get("profile", "unknown")) for stamp in stamps}
+        runs = export_multiruns(done, out, name)
         if runs:
             write_data(data_dir / f"{name}.jsonl", runs)
             made[name] = {
@@ -361,6 +405,18 @@ def run_full(
         },
     )
     return data_dir
+
+
+def record_stage(out: Path, stage: str, seconds: float) -> None:
+    """Add an attempt of ``stage`` (its wall seconds) to ``OUT/stages.json``."""
+    path = out / STAGES_FILE
+    try:
+        stages = json.loads(path.read_text())
+    except (OSError, ValueError):
+        stages = {}
+    stages.setdefault(stage, []).append(round(seconds, 1))
+    out.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(stages, indent=1, sort_keys=True) + "\n")
 
 
 def write_report(edition: Edition, results: Path, out: Path | None = None) -> Path:

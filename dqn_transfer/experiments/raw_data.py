@@ -10,7 +10,9 @@ from __future__ import annotations
 import functools
 import json
 import math
+import os
 import platform
+import shutil
 import subprocess
 import warnings
 from collections.abc import Sequence
@@ -267,6 +269,24 @@ class Evidence:
     def watermark(self) -> str | None:
         """What a figure of smoke data says across it."""
         return SMOKE_MARK if self.smoke else None
+
+
+def write_json(path: Path, record: dict[str, Any]) -> None:
+    """A stage's record (budgets, maps) as indented JSON, its directory made."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(record, indent=1) + "\n")
+
+
+def carry_file(results: Path, out: Path, relative: Path) -> bool:
+    """Whether ``results`` has the file ``relative``; copied into ``out`` at the same relative path if that
+    is elsewhere, so that a report written anywhere holds its figures (and is the same bytes)."""
+    source, beside = results / relative, out / relative
+    if not source.is_file():
+        return False
+    if not beside.is_file() or not os.path.samefile(source, beside):
+        beside.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(source, beside)
+    return True
 
 
 def read_evidence(results: Path) -> Evidence:

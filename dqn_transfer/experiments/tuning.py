@@ -76,7 +76,7 @@ class Search:
 
 
 SEARCHES = tuple(Search("sarsa", m) for m in ("none", "best", "shared_replay", "confidence", "advice")) + tuple(
-    Search("double_dqn", m) for m in ("none", "best", "shared_replay", "experience", "shared_id")
+    Search("double_dqn", m) for m in ("none", "best", "shared_replay", "experience", "shared_id", "vdn")
 )
 
 
@@ -87,17 +87,32 @@ def search_named(name: str) -> Search:
     raise TuningError(f"unknown search {name!r} (choose from {', '.join(s.name for s in SEARCHES)})")
 
 
-def run_searches(searches: Sequence[Search], profile: str, out: Path, parallel: int, poll_seconds: float = 2.0) -> None:
+def run_searches(
+    searches: Sequence[Search],
+    overrides: Sequence[str],
+    out: Path,
+    parallel: int,
+    trials_per_dimension: int | None = None,
+    poll_seconds: float = 2.0,
+) -> None:
     """Each search as one multirun into ``OUT/runs/<name>``, ``parallel`` at once, the costliest first; a
     search finished before with the same settings is reused. Raises the first failure's
-    :class:`~dqn_transfer.experiments.sweeps.ReproduceError` once every search has ended."""
-    overrides = list(PROFILES[profile])
+    :class:`~dqn_transfer.experiments.sweeps.ReproduceError` once every search has ended.
+
+    :param overrides: every search's settings (a profile's, an edition's tuning cell's)
+    :param trials_per_dimension: the trials of a search per searched key (None: the search file's n_trials);
+        ``overrides`` may still set ``hydra.sweeper.n_trials`` (the quick profile does)
+    """
     multiruns = []
     for search in sorted(searches, key=lambda s: -TRIAL_SECONDS.get(s.learner, 0.0)):
-        trials = int(composed(search.experiment, overrides, hydra_config=True).hydra.sweeper.n_trials)
-        stamp = {"search": search.name, "profile": profile, "overrides": overrides, "jobs": trials}
+        own = list(overrides)
+        if trials_per_dimension is not None:
+            dimensions = len(composed(search.experiment, hydra_config=True).hydra.sweeper.params)
+            own.insert(0, f"hydra.sweeper.n_trials={trials_per_dimension * dimensions}")
+        trials = int(composed(search.experiment, own, hydra_config=True).hydra.sweeper.n_trials)
+        stamp = {"search": search.name, "overrides": own, "jobs": trials}
         multiruns.append(
-            Multirun(search.name, search.experiment, tuple(overrides), out / RUNS_DIR / search.name, trials, stamp)
+            Multirun(search.name, search.experiment, tuple(own), out / RUNS_DIR / search.name, trials, stamp)
         )
     with ThreadPoolExecutor(max_workers=parallel) as pool:
         futures = [pool.submit(run_multirun, m, out, "basic", 1, (), poll_seconds) for m in multiruns]
@@ -181,10 +196,17 @@ def analyse(out: Path) -> list[Path]:
     return [out / TRIALS_FILE, out / TUNED_FILE, out / TABLE_FILE, figure]
 
 
-def tune(searches: Sequence[Search], profile: str, out: Path, parallel: int) -> list[Path]:
-    """Run ``searches``, collect their trials into ``OUT/tuning.jsonl`` and analyse them."""
+def tune(
+    searches: Sequence[Search],
+    overrides: Sequence[str],
+    out: Path,
+    parallel: int,
+    trials_per_dimension: int | None = None,
+) -> list[Path]:
+    """Run ``searches`` with ``overrides`` (:func:`run_searches`), collect their trials into
+    ``OUT/tuning.jsonl`` and analyse them."""
     out.mkdir(parents=True, exist_ok=True)
-    run_searches(searches, profile, out, parallel)
+    run_searches(searches, overrides, out, parallel, trials_per_dimension)
     write_trials(out / TRIALS_FILE, collect_trials(searches, out))
     return analyse(out)
 
