@@ -209,6 +209,15 @@ def hand_written_trials() -> list[dict]:
     ]
 
 
+def test_searches_may_have_as_many_trials_per_searched_key_instead_of_as_many_trials(tmp_path):
+    # sarsa_best: 3 trials of 3 keys; double_dqn_none: 1 trial of 1 key; the same effort per key (the third
+    # edition's protocol). With 2 trials of 1 key it is neither (test_bad_trials_are_refused...).
+    write_jsonl(tmp_path, hand_written_trials()[:4])
+    assert tune("--out", str(tmp_path), "--report-only") == 0
+    tuned = yaml.safe_load((tmp_path / "tuning" / "tuned.yaml").read_text())
+    assert tuned["double_dqn"] == {"none": {"agent.lr": 0.002}}
+
+
 def write_jsonl(out: Path, records: list[dict], extra: str = "") -> None:
     """``OUT/tuning/tuning.jsonl``, as the tuning stage writes it."""
     (out / "tuning").mkdir(parents=True, exist_ok=True)

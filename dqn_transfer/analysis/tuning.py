@@ -145,7 +145,8 @@ def read_trials(path: str | os.PathLike) -> list[Trial]:
 
 def check_searches(trials: Sequence[Trial], where: str) -> None:
     """The trials are searches of the protocol: each trial once, each search's trials of one space and one
-    objective, the same objective and the same number of trials (the same budget) for every search."""
+    objective, the same objective and the same effort for every search: as many trials (the second edition's
+    protocol), or as many per searched key (the third's)."""
     by_search: dict[str, list[Trial]] = {}
     for trial in trials:
         by_search.setdefault(trial.search, []).append(trial)
@@ -159,9 +160,13 @@ def check_searches(trials: Sequence[Trial], where: str) -> None:
     if len(kinds) > 1:
         raise TuningError(f"{where}: the trials optimise different objectives ({', '.join(sorted(kinds))})")
     counts = {name: len(group) for name, group in by_search.items()}
-    if len(set(counts.values())) > 1:
+    per_key = {len(group) / len(group[0].space) for group in by_search.values()}
+    if len(set(counts.values())) > 1 and len(per_key) > 1:
         listed = ", ".join(f"{name} {count}" for name, count in counts.items())
-        raise TuningError(f"{where}: the searches have different numbers of trials ({listed}); each gets the same")
+        raise TuningError(
+            f"{where}: the searches have different numbers of trials ({listed}); each gets the same, or the same "
+            "per searched key"
+        )
 
 
 def write_trials(path: Path, trials: Sequence[Trial]) -> None:
