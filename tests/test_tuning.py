@@ -216,6 +216,7 @@ def test_searches_may_have_as_many_trials_per_searched_key_instead_of_as_many_tr
     assert tune("--out", str(tmp_path), "--report-only") == 0
     tuned = yaml.safe_load((tmp_path / "tuning" / "tuned.yaml").read_text())
     assert tuned["double_dqn"] == {"none": {"agent.lr": 0.002}}
+    assert "; each search 1 trials per searched key (1 to 3)." in (tmp_path / "tuning" / "tuning.md").read_text()
 
 
 def write_jsonl(out: Path, records: list[dict], extra: str = "") -> None:

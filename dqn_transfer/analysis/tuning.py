@@ -206,9 +206,17 @@ def tuning_table(trials: Sequence[Trial], best: dict[tuple[str, str], Trial]) ->
     """Markdown: per search, its trials, the best trial's number, objective and values, and the median
     and range of its trials' objectives (how much the searched values matter)."""
     maps = sorted({seed for t in trials for seed in t.per_map})
+    counts = {key: sum((t.learner, t.method) == key for t in trials) for key in best}
+    per_key = {key: count // len(best[key].space) for key, count in counts.items()}
+    effort = (
+        f"each search {next(iter(counts.values()))} trials"
+        if len(set(counts.values())) == 1
+        else f"each search {next(iter(per_key.values()))} trials per searched key "
+        f"({min(counts.values())} to {max(counts.values())})"
+    )
     lines = [
         f"Objective: the {trials[0].objective_kind} team return over a run's evaluations, averaged over "
-        f"{len(maps)} tuning maps (map seeds {maps[0]}..{maps[-1]}); each search {len(trials) // len(best)} trials.",
+        f"{len(maps)} tuning maps (map seeds {maps[0]}..{maps[-1]}); {effort}.",
         "",
         "| learner | method | best trial | best objective | median | range | best values |",
         "| --- | --- | ---: | ---: | ---: | --- | --- |",
