@@ -219,6 +219,13 @@ def test_searches_may_have_as_many_trials_per_searched_key_instead_of_as_many_tr
     assert "; each search 1 trials per searched key (1 to 3)." in (tmp_path / "tuning" / "tuning.md").read_text()
 
 
+def test_a_game_scored_in_0_1_gets_three_decimals_in_the_table(tmp_path):
+    # LBF's team return is at most 1: the hand-written objectives / 100 (sarsa best 0.5 best, -0.05 worst).
+    write_jsonl(tmp_path, [{**r, "objective": r["objective"] / 100} for r in hand_written_trials()])
+    assert tune("--out", str(tmp_path), "--report-only") == 0
+    assert "| sarsa | best | 2 | 0.500 | 0.100 | -0.050 .. 0.500 |" in (tmp_path / "tuning" / "tuning.md").read_text()
+
+
 def write_jsonl(out: Path, records: list[dict], extra: str = "") -> None:
     """``OUT/tuning/tuning.jsonl``, as the tuning stage writes it."""
     (out / "tuning").mkdir(parents=True, exist_ok=True)

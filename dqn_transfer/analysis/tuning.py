@@ -221,12 +221,13 @@ def tuning_table(trials: Sequence[Trial], best: dict[tuple[str, str], Trial]) ->
         "| learner | method | best trial | best objective | median | range | best values |",
         "| --- | --- | ---: | ---: | ---: | --- | --- |",
     ]
+    spec = ".3f" if all(abs(t.objective) <= 1.0 for t in trials) else ".1f"  # a game scored in [0, 1]: LBF
     for (learner, method), trial in best.items():
         values = [t.objective for t in trials if (t.learner, t.method) == (learner, method)]
         chosen = ", ".join(f"`{key}={_value_text(value)}`" for key, value in trial.params.items())
         lines.append(
-            f"| {learner} | {method} | {trial.number} | {trial.objective:.1f} | {np.median(values):.1f} | "
-            f"{min(values):.1f} .. {max(values):.1f} | {chosen} |"
+            f"| {learner} | {method} | {trial.number} | {trial.objective:{spec}} | {np.median(values):{spec}} | "
+            f"{min(values):{spec}} .. {max(values):{spec}} | {chosen} |"
         )
     return "\n".join(lines) + "\n"
 
