@@ -98,6 +98,15 @@ def test_power_is_the_share_of_simulated_studies_whose_t_test_rejects():
     assert power(delta, sigma_map, sigma_run, n_maps, n_seeds) == pytest.approx(simulated, abs=0.012)
 
 
+def test_power_stays_a_probability_where_the_lower_tail_underflows():
+    # The third edition's pilot of L2 (sigma_map 0, sigma_run 0.0642, 85 maps, Holm's 0.05 / 4): the test's
+    # shift is 7.46 standard errors, so the power is the normal approximation's 1 - 4.6e-7 within 1e-6; scipy's
+    # noncentral t cdf of the lower tail there is nan, which it once returned.
+    value = power(0.03, 0.0, 0.0642, 85, 3, 0.05 / 4)
+    assert value == pytest.approx(scipy.stats.norm.sf(scipy.stats.t.ppf(1 - 0.05 / 8, 84) - 7.462), abs=1e-6)
+    assert 0.999 < value <= 1.0
+
+
 def test_maps_for_power_are_the_fewest_that_reach_it():
     n = maps_for_power(0.03, 0.04, 0.06, n_seeds=3, alpha=0.05 / 4)
     assert power(0.03, 0.04, 0.06, n, 3, 0.05 / 4) >= 0.8 > power(0.03, 0.04, 0.06, n - 1, 3, 0.05 / 4)

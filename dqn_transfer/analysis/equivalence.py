@@ -110,7 +110,8 @@ def power(delta: float, sigma_map: float, sigma_run: float, n_maps: int, n_seeds
         return 1.0
     df, critical = n_maps - 1, scipy.stats.t.ppf(1.0 - alpha / 2.0, n_maps - 1)
     shift = delta / se
-    return float(scipy.stats.nct.sf(critical, df, shift) + scipy.stats.nct.cdf(-critical, df, shift))
+    # The lower tail P(T < -c; shift) as P(T > c; -shift): scipy's nct.cdf gives nan where it underflows.
+    return float(scipy.stats.nct.sf(critical, df, shift) + scipy.stats.nct.sf(critical, df, -shift))
 
 
 def maps_for_power(
