@@ -36,6 +36,7 @@ from dqn_transfer.experiments.equivalence_claims import (
     room,
     verdict,
 )
+from dqn_transfer.experiments.hierarchical_claims import MODE_PAIRS, MODES
 from dqn_transfer.experiments.hierarchical_report import include, opening, p_text, records_table
 from dqn_transfer.experiments.power import differences_by_map
 from dqn_transfer.experiments.raw_data import (
@@ -47,10 +48,9 @@ from dqn_transfer.experiments.raw_data import (
     read_experiment,
 )
 from dqn_transfer.experiments.render import COLORS, LEARNER_NAMES
+from dqn_transfer.experiments.scoring import group, learner, mode
 from dqn_transfer.experiments.tuning import FIGURE_FILE, TABLE_FILE
 
-MODES = ("competitive", "cooperative", "deliberative")
-MODE_CONTRASTS = (("deliberative", "cooperative"), ("cooperative", "competitive"))  # Figure 2's, Holm within a size
 TARGET_MINUTES = 120  # the issue's bound on the whole study
 MODE_TABLE = [  # the header of a table of mode differences
     "| difference | mean [95% CI] | maps | p difference | p equivalence | outcome |",
@@ -77,12 +77,10 @@ class CellResult:
 
 def describe_cell(run: RunData) -> str:
     """A cell's learner, game and team, from one of its runs' config."""
-    config = run.config
-    learner = LEARNER_NAMES.get(config["agent"]["algorithm"], config["agent"]["algorithm"])
-    env = config["env"]
+    name, env = LEARNER_NAMES.get(learner(run), learner(run)), run.config["env"]
     if env.get("factory") is not None:
-        return f"{learner}, Level-Based Foraging, {env['kwargs']['players']} players"
-    return f"{learner}, treasure hunt {env['size']}x{env['size']}, {env['num_agents']} agents"
+        return f"{name}, Level-Based Foraging, {env['kwargs']['players']} players"
+    return f"{name}, treasure hunt {env['size']}x{env['size']}, {env['num_agents']} agents"
 
 
 def cell_result(cell: Cell, runs: dict[str, list[RunData]]) -> CellResult:
@@ -210,10 +208,9 @@ def _estimate(c: Contrast) -> Estimate:
 
 
 def by_mode(runs: Sequence[RunData]) -> dict[str, list[RunData]]:
-    found: dict[str, list[RunData]] = {}
-    for run in runs:
-        found.setdefault(str(run.config["env"]["mode"]), []).append(run)
-    return {mode: found[mode] for mode in MODES if mode in found}
+    """Runs by team mode, in the modes' order (competitive, cooperative, deliberative)."""
+    found = group(runs, mode)
+    return {name: found[name] for name in MODES if name in found}
 
 
 def mode_family(runs: Sequence[RunData], pairs: Sequence[tuple[str, str]]) -> list[str]:
@@ -246,7 +243,7 @@ def figure1_section(paper: Sequence[RunData], maps: Sequence[RunData], out: Path
         return []
     lines = ["## The paper's Figure 1, restaged: cooperative against competitive with one treasure", ""]
     if paper:
-        curves = {mode: [r.curve() for r in mode_runs] for mode, mode_runs in by_mode(paper).items()}
+        curves = {name: [r.curve() for r in mode_runs] for name, mode_runs in by_mode(paper).items()}
         curves_figure(
             out / "figure1.png",
             [("team_return", curves)],
@@ -282,8 +279,8 @@ def figure2_section(paper: Sequence[RunData], maps: Sequence[RunData], out: Path
     sizes = sorted({int(r.config["env"]["num_agents"]) for r in (*paper, *maps)})
     if paper:
         series: dict[str, dict[int, Estimate]] = {}
-        for mode, mode_runs in by_mode(paper).items():
-            series[mode] = {
+        for name, mode_runs in by_mode(paper).items():
+            series[name] = {
                 size: t_estimate([final_team_return(r) for r in mode_runs if r.config["env"]["num_agents"] == size])
                 for size in sizes
                 if any(r.config["env"]["num_agents"] == size for r in mode_runs)
@@ -312,7 +309,7 @@ def figure2_section(paper: Sequence[RunData], maps: Sequence[RunData], out: Path
         for size in sizes:
             runs = [r for r in maps if r.config["env"]["num_agents"] == size]
             if runs:
-                lines += [f"{size} agents:", "", *MODE_TABLE, *mode_family(runs, MODE_CONTRASTS), ""]
+                lines += [f"{size} agents:", "", *MODE_TABLE, *mode_family(runs, MODE_PAIRS), ""]  # Holm within a size
     return lines
 
 

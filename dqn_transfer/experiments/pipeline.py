@@ -160,7 +160,7 @@ def run_pilots(
         if edition.cells:
             multiruns = cell_multiruns(edition, name, profile, out, maps=None)
             for multirun in multiruns:
-                run_multirun(multirun, out, launcher, 1, extra)  # one job: its replicas take every core
+                run_multirun(multirun, out, launcher, n_jobs, extra)
             write_data(data_dir / f"{name}.jsonl", export_multiruns(multiruns, out, name))
             continue
         experiment = edition.experiment(name)
@@ -375,8 +375,8 @@ def run_full(
         multiruns = _multiruns(edition, name, profile, out, budgets, maps)
         done: list[Multirun] = []
         for multirun in multiruns:
-            if launcher is not None:  # a cell's multirun is one job: its replicas take every core
-                run_multirun(multirun, out, launcher, 1 if multirun.jobs == 1 else n_jobs, extra)
+            if launcher is not None:
+                run_multirun(multirun, out, launcher, n_jobs, extra)
             if multirun.sweep_dir.is_dir():
                 done.append(multirun)
         stamps = [read_stamp(m.sweep_dir) or {} for m in done]  # what the runs were made with, even if not by this call
@@ -415,8 +415,7 @@ def record_stage(out: Path, stage: str, seconds: float) -> None:
     except (OSError, ValueError):
         stages = {}
     stages.setdefault(stage, []).append(round(seconds, 1))
-    out.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(stages, indent=1, sort_keys=True) + "\n")
+    write_json(path, dict(sorted(stages.items())))
 
 
 def write_report(edition: Edition, results: Path, out: Path | None = None) -> Path:

@@ -219,6 +219,8 @@ def run_multirun(
     A sweep stopped unfinished (Ctrl-C, a crash) with the same settings continues where it stopped: each
     job from its last checkpoint, the complete ones as they are (``resume=true`` on the multirun)."""
     name, expected, stamp = multirun.label, multirun.jobs, dict(multirun.stamp)
+    # No more joblib processes than jobs: a run's replicas.workers=auto share the cores among them.
+    n_jobs = max(1, min(n_jobs, expected))
     # Absolute: the subprocess runs in OUT, where a relative sweep directory would land one level deeper.
     out, sweep_dir = out.resolve(), multirun.sweep_dir.resolve()
     earlier: list[float] = []  # the wall seconds of the attempts before this one
