@@ -2,6 +2,7 @@
 maps with the same trials per searched key, each condition of a cell runs at its tuned values in chunks of
 maps, the power rule sets the maps, and the report gives the registered outcomes from the data alone."""
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -9,16 +10,18 @@ from pathlib import Path
 import pytest
 import scipy.stats
 import yaml
+from conftest import read_metrics, without_timing
 
 from dqn_transfer.cli import study
 from dqn_transfer.config import to_plain
-from dqn_transfer.experiments import cell_runs, tuning
+from dqn_transfer.experiments import cell_runs, sweeps, tuning
 from dqn_transfer.experiments.cell_runs import (
     CellJob,
     CellMaps,
     ComparisonPower,
     cell_jobs,
     chunk_multirun,
+    map_chunks,
     maps_per_cell,
     write_maps,
 )
@@ -107,6 +110,49 @@ def test_a_condition_without_tuned_values_is_refused_in_one_line(tmp_path):
         chunk_multirun(V3, CellJob(s4, {"method": "sarsa_advice", "env": "study/m4_10"}), out, 0, 10, "full", "pilot")
     with pytest.raises(cell_runs.ReproduceError, match="run the tune stage first"):
         chunk_multirun(V3, CellJob(s4, {"method": "sarsa_none"}), tmp_path / "empty", 0, 10, "full", "pilot")
+
+
+def _tuned_double_dqn(tmp_path: Path) -> Path:
+    path = tmp_path / "tuning" / "treasure" / "tuned.yaml"
+    path.parent.mkdir(parents=True)
+    path.write_text(yaml.safe_dump({"double_dqn": {"none": {"agent.lr": 0.001}, "shared_replay": {"agent.lr": 0.002}}}))
+    return tmp_path
+
+
+def test_a_cells_maps_are_split_into_the_fewest_equal_chunks_that_fit_the_memory_bound(tmp_path):
+    out = _tuned_double_dqn(tmp_path)
+    d4 = next(cell for cell in V3.cells if cell.name == "D4")
+    none, shared = (CellJob(d4, {"method": f"double_dqn_{c}"}) for c in ("none", "shared_replay"))
+    # By hand, for a map of D4 (3 seeds x 4 agents; observations one-hot over 10x10 cells + 4 chests: 104 wide;
+    # a replay row 2 x 104 + 3 float32; networks 104-64-64-4, 11,140 parameters x 5 copies x 4 bytes):
+    # shared replay fills each agent's 50,000 rows: 3 x 4 x (50,000 x 211 x 4 + 222,800) = 509 MB a map, so
+    # 3 maps fit in 1.6 GB and 4 do not; without it 16,000 rows: 164.7 MB a map, 1.65 GB for 10 maps.
+    bounded = dataclasses.replace(V3, chunk_gigabytes=1.6)
+    assert map_chunks(bounded, shared, out, 10, 10, "full") == [(10, 3), (13, 3), (16, 2), (18, 2)]
+    assert map_chunks(bounded, none, out, 10, 10, "full") == [(10, 5), (15, 5)]
+    assert map_chunks(dataclasses.replace(V3, chunk_gigabytes=None), shared, out, 10, 10, "full") == [(10, 10)]
+    with pytest.raises(cell_runs.ReproduceError, match=r"one map's replicas need about 0.51 GB"):
+        map_chunks(dataclasses.replace(V3, chunk_gigabytes=0.4), shared, out, 10, 10, "full")
+
+
+def test_a_chunks_runs_are_those_of_one_batch_and_a_finished_chunk_keeps_no_checkpoints(tmp_path):
+    """Maps 0-1 in one multirun and map 1 alone train the same replica bit for bit; once finished, a
+    cell's multirun has deleted its checkpoints (a Double DQN run's hold its replay) and is reused."""
+    out = _tuned_double_dqn(tmp_path)
+    job = CellJob(next(cell for cell in V3.cells if cell.name == "D4"), {"method": "double_dqn_shared_replay"})
+    short = ("replicas.seeds=1", "total_steps=240", "eval_every=120", "agent.learning_starts=60", "eval_episodes=1")
+
+    def run(first: int, count: int) -> Path:
+        multirun = chunk_multirun(V3, job, out, first, count, "full", "full")
+        multirun = dataclasses.replace(multirun, overrides=(*multirun.overrides, *short))
+        sweeps.run_multirun(multirun, out, "basic", 1, poll_seconds=0.2)
+        return multirun.sweep_dir / "0"
+
+    both, alone = run(0, 2), run(1, 1)
+    assert without_timing(read_metrics(both / "seed_0-map_1")) == without_timing(read_metrics(alone))
+    for run_dir in (both / "seed_0-map_0", both / "seed_0-map_1", alone):
+        assert (run_dir / "metrics.jsonl").is_file() and not (run_dir / "checkpoints").exists()
+    assert sweeps.run_is_complete(both) and sweeps.run_is_complete(alone)
 
 
 # ------------------------------------------------------------------------------------------- runs made by hand

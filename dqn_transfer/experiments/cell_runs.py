@@ -16,6 +16,7 @@ minimum and its cap.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
 from collections.abc import Sequence
@@ -24,15 +25,19 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from omegaconf import OmegaConf
 
 from dqn_transfer.analysis.equivalence import ALPHA, POWER_TARGET, maps_for_power, power
 from dqn_transfer.analysis.hierarchical import variance_components
+from dqn_transfer.config import TrainConfig
 from dqn_transfer.experiments.edition import MAPS_FILE, MAPS_TABLE, TUNING_DIR, Cell, Edition
 from dqn_transfer.experiments.equivalence_claims import SESOI, auc_value
 from dqn_transfer.experiments.power import differences_by_map
 from dqn_transfer.experiments.raw_data import RunData, write_json
-from dqn_transfer.experiments.sweeps import RUNS_DIR, Multirun, ReproduceError, swept_values
+from dqn_transfer.experiments.sweeps import RUNS_DIR, Multirun, ReproduceError, composed, swept_values
 from dqn_transfer.experiments.tuning import SEARCHES, TUNED_FILE
+from dqn_transfer.training.plan import memory_estimate
+from dqn_transfer.training.resources import Estimate, gigabytes
 
 CONTROL = "none"  # every comparison of a cell is a condition against the team without exchange
 LEARNERS = tuple(dict.fromkeys(search.learner for search in SEARCHES))
@@ -100,37 +105,81 @@ def tuned_overrides(edition: Edition, job: CellJob, out: Path) -> list[str]:
     return [f"{key}={value!r}" for key, value in sorted(values.items())]
 
 
-def chunk_multirun(
-    edition: Edition, job: CellJob, out: Path, first: int, count: int, profile: str, stage: str
-) -> Multirun:
-    """The multirun of one condition of a cell on maps ``first .. first + count - 1`` (``stage``: the one
-    that runs it, pilot or full), with the profile's settings."""
-    settings = edition.profile(profile).run_overrides(job.cell.experiment)
-    experiment = edition.experiment(job.cell.experiment)
-    overrides = (
+def chunk_overrides(edition: Edition, job: CellJob, out: Path, first: int, count: int, profile: str) -> list[str]:
+    """The overrides of one condition of a cell on maps ``first .. first + count - 1``: its swept values, its
+    tuned values, the maps, and the profile's settings."""
+    return [
         *(f"{key}={value}" for key, value in job.values.items()),
         *tuned_overrides(edition, job, out),
         f"env.map_seed={first}",
         f"replicas.maps={count}",
-        *settings,
-    )
+        *edition.profile(profile).run_overrides(job.cell.experiment),
+    ]
+
+
+def chunk_multirun(
+    edition: Edition, job: CellJob, out: Path, first: int, count: int, profile: str, stage: str
+) -> Multirun:
+    """The multirun of one condition of a cell on maps ``first .. first + count - 1`` (``stage``: the one
+    that runs it, pilot or full), with the profile's settings. Its checkpoints are deleted once it has
+    finished: the study reads its runs' metrics, and a Double DQN run's last checkpoint holds its replay."""
+    experiment = edition.experiment(job.cell.experiment)
+    overrides = tuple(chunk_overrides(edition, job, out, first, count, profile))
     chunk = f"maps-{first}-{first + count - 1}"
     sweep_dir = out / RUNS_DIR / job.cell.experiment / job.cell.name / job.condition / chunk
     stamp = {"experiment": experiment, "stage": stage, "profile": profile, "overrides": list(overrides)}
-    return Multirun(f"{job.cell.name}-{job.condition}-{chunk}", experiment, overrides, sweep_dir, 1, stamp)
+    return Multirun(
+        f"{job.cell.name}-{job.condition}-{chunk}", experiment, overrides, sweep_dir, 1, stamp, keep_checkpoints=False
+    )
+
+
+def map_chunks(
+    edition: Edition, job: CellJob, out: Path, first: int, count: int, profile: str
+) -> list[tuple[int, int]]:
+    """Maps ``first .. first + count - 1`` of a condition as ``(first, count)`` ranges: as few and as equal as
+    keep each one's estimated peak memory (:func:`~dqn_transfer.training.plan.memory_estimate`) within
+    ``edition.chunk_gigabytes``. A replica trains as the lone run of its (map, seed) in any batch, so how the
+    maps are split changes no result."""
+    if edition.chunk_gigabytes is None:
+        return [(first, count)]
+    composed_config = composed(
+        edition.experiment(job.cell.experiment), chunk_overrides(edition, job, out, first, count, profile)
+    )
+    config: TrainConfig = OmegaConf.to_object(composed_config)  # type: ignore[assignment]
+
+    def need(maps: int) -> Estimate | None:
+        return memory_estimate(dataclasses.replace(config, replicas=dataclasses.replace(config.replicas, maps=maps)))
+
+    budget, one_map = edition.chunk_gigabytes * 1e9, need(1)
+    if one_map is None:  # another game's runs are not estimated
+        return [(first, count)]
+    if one_map.total > budget:
+        raise ReproduceError(
+            f"cell {job.cell.name}, {job.condition}: one map's replicas need about {gigabytes(one_map.total)} "
+            f"({one_map.parts()}), more than the edition's chunk_gigabytes={edition.chunk_gigabytes:g}"
+        )
+    parts = next(n for n in range(1, count + 1) if need(-(-count // n)).total <= budget)  # type: ignore[union-attr]
+    size, extra = divmod(count, parts)
+    starts = [first + i * size + min(i, extra) for i in range(parts + 1)]
+    return [(start, end - start) for start, end in zip(starts, starts[1:])]
 
 
 def cell_multiruns(edition: Edition, name: str, profile: str, out: Path, maps: dict[str, int] | None) -> list[Multirun]:
     """The multiruns of experiment ``name``'s cells: each condition on the pilot's maps, then (``maps``: each
-    cell's number, from the power rule) on the rest of its maps."""
+    cell's number, from the power rule) on the rest of its maps, each range in chunks (:func:`map_chunks`)."""
     pilot = edition.profile(profile).pilot_maps or edition.pilot_maps
     swept = swept_values(edition.experiment(name))
     multiruns = []
     for cell in (cell for cell in edition.cells if cell.experiment == name):
+        ranges = [("pilot", 0, pilot)]
+        if maps is not None and maps[cell.name] > pilot:
+            ranges.append(("full", pilot, maps[cell.name] - pilot))
         for job in cell_jobs(edition, cell, swept):
-            multiruns.append(chunk_multirun(edition, job, out, 0, pilot, profile, "pilot"))
-            if maps is not None and maps[cell.name] > pilot:
-                multiruns.append(chunk_multirun(edition, job, out, pilot, maps[cell.name] - pilot, profile, "full"))
+            for stage, first, count in ranges:
+                multiruns += [
+                    chunk_multirun(edition, job, out, start, size, profile, stage)
+                    for start, size in map_chunks(edition, job, out, first, count, profile)
+                ]
     return multiruns
 
 

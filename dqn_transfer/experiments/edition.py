@@ -110,6 +110,7 @@ class Edition:
     cells: tuple[Cell, ...] = ()  # the main hypothesis' cells (an equivalence edition)
     pilot_maps: int = 0  # a cell's pilot: its first maps, 0 .. pilot_maps - 1
     tuned_as: dict[str, str] = field(default_factory=dict)  # a control: the method whose tuned values it runs at
+    chunk_gigabytes: float | None = None  # a cell's multirun's estimated peak memory at most (None: no bound)
 
     def experiment(self, name: str) -> str:
         """The ``experiment=`` option of one of its experiments."""

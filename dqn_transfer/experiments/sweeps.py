@@ -10,6 +10,7 @@ import json
 import math
 import os
 import shlex
+import shutil
 import subprocess
 import sys
 import time
@@ -204,6 +205,7 @@ class Multirun:
     sweep_dir: Path
     jobs: int  # the job directories a finished multirun holds
     stamp: dict  # the settings it runs with: a directory finished with the same ones is reused
+    keep_checkpoints: bool = True  # False: delete its runs' checkpoints once it has finished (its metrics stay)
 
 
 def run_multirun(
@@ -236,6 +238,8 @@ def run_multirun(
         complete = sum(run_is_complete(d) for d in job_dirs(sweep_dir))
         if "wall_seconds" in previous and complete == len(job_dirs(sweep_dir)) == expected:  # finished
             print(f"[{name}] reusing the {expected} complete runs in {sweep_dir}", flush=True)
+            if not multirun.keep_checkpoints:
+                drop_checkpoints(sweep_dir)
             return 0.0
         print(f"[{name}] continuing where it stopped: {complete}/{expected} runs complete", flush=True)
         extra = [*extra, "resume=true"]
@@ -286,5 +290,15 @@ def run_multirun(
         raise ReproduceError(failure_message(name, sweep_dir, log_path, expected, process.returncode))
     elapsed = sum(attempts)
     write_stamp(sweep_dir, {**stamp, "attempt_seconds": attempts, "wall_seconds": elapsed})
+    if not multirun.keep_checkpoints:
+        drop_checkpoints(sweep_dir)
     print(f"[{name}] {expected}/{expected} runs done in {elapsed:.0f} s", flush=True)
     return elapsed
+
+
+def drop_checkpoints(sweep_dir: Path) -> None:
+    """Delete the checkpoints of a multirun's runs (a run of replicas: each replica's); their metrics, config
+    and logs stay. A finished Double DQN run's last checkpoint holds its replay buffers: gigabytes a run."""
+    for job in job_dirs(sweep_dir):
+        for run in (job, *RunDir(job).replica_dirs()):
+            shutil.rmtree(RunDir(run).checkpoints, ignore_errors=True)

@@ -35,7 +35,7 @@ from dqn_transfer.envs import Game, GridMap, PettingZooGame, UnsupportedEnv, mak
 from dqn_transfer.envs.game import game_on
 from dqn_transfer.envs.settings import DEFAULTS, ENV_KEYS, MAP_KEYS, EnvConfig
 from dqn_transfer.exchange import check_exchange
-from dqn_transfer.training.resources import MAX_SIZE, check_memory, check_size
+from dqn_transfer.training.resources import MAX_SIZE, Estimate, check_memory, check_size, estimate
 from dqn_transfer.transfer.warm_start import transfer_targets
 
 
@@ -170,6 +170,16 @@ def _plan(config: TrainConfig, source_task: bool) -> RunPlan:
     transferred = config.transfer.enabled and not source_task
     targets = tuple(transfer_targets(config, num_agents)) if transferred else ()
     return RunPlan(config, tuple(replicas), num_agents, targets, source_task)
+
+
+def memory_estimate(config: TrainConfig) -> Estimate | None:
+    """The memory a run of ``config`` will hold at its peak (:func:`~.resources.estimate`, on its first
+    replica's map, as :func:`plan_run` checks it); None for a game ``env.factory`` names, not estimated."""
+    if config.env.factory is not None:
+        return None
+    check_map_size(config.env)
+    first = _resolve_map(config.env)
+    return estimate(config, first.size, game_on(first, config.env).num_agents, first.num_treasures)
 
 
 def _plan_other_game(config: TrainConfig, source_task: bool) -> RunPlan:
