@@ -37,7 +37,6 @@ from dqn_transfer.experiments.equivalence_claims import (
     verdict,
 )
 from dqn_transfer.experiments.hierarchical_claims import MODE_PAIRS, MODES
-from dqn_transfer.experiments.hierarchical_report import include, opening, p_text, records_table
 from dqn_transfer.experiments.power import differences_by_map
 from dqn_transfer.experiments.raw_data import (
     DATA_SOURCE,
@@ -48,6 +47,7 @@ from dqn_transfer.experiments.raw_data import (
     read_experiment,
 )
 from dqn_transfer.experiments.render import COLORS, LEARNER_NAMES
+from dqn_transfer.experiments.report_parts import include, opening, p_text, records_table
 from dqn_transfer.experiments.scoring import group, learner, mode
 from dqn_transfer.experiments.tuning import FIGURE_FILE, TABLE_FILE
 

@@ -6,7 +6,6 @@ checkout), so the same data give the same bytes.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from functools import partial
 from pathlib import Path
@@ -40,14 +39,13 @@ from dqn_transfer.experiments.hierarchical_claims import (
 )
 from dqn_transfer.experiments.raw_data import (
     DATA_SOURCE,
-    SMOKE_MARK,
     DataError,
-    Evidence,
     carry_file,
     read_evidence,
     read_experiment,
 )
 from dqn_transfer.experiments.render import COLORS
+from dqn_transfer.experiments.report_parts import include, opening, p_text, records_table
 
 TUNING_TABLE = Path(TUNING_DIR) / "tuning.md"
 TUNING_FIGURE = Path(TUNING_DIR) / "tuning_sensitivity.png"
@@ -61,10 +59,6 @@ def signed(e: Estimate, digits: int = 3) -> str:
     if not e.has_ci:
         return f"{e.mean:+.{digits}g} [no interval]"
     return f"{e.mean:+.{digits}g} [{e.low:+.{digits}g}, {e.high:+.{digits}g}]"
-
-
-def p_text(p: float) -> str:
-    return "n/a" if not math.isfinite(p) else f"{p:.3g}"
 
 
 def difference_text(d: Difference) -> str:
@@ -278,35 +272,6 @@ def claim3_section(result: Claim3Result) -> list[str]:
 
 
 # ------------------------------------------------------------------------------------------- the report
-
-
-def include(path: Path) -> list[str]:
-    return path.read_text().rstrip("\n").splitlines() + [""] if path.exists() else [f"({path.name} is missing)", ""]
-
-
-def opening(edition: Edition, evidence: Evidence, missing: Sequence[str], missing_note: str = ".") -> list[str]:
-    """A report's title, and its warnings: smoke data, experiments not yet run (``missing``)."""
-    smoke = f"> **{SMOKE_MARK}**: the quick profile checks the pipeline; its numbers are not evidence."
-    return [
-        f"# {edition.title}",
-        "",
-        *([smoke, ""] if evidence.smoke else []),
-        *([f"> **Not yet run**: {', '.join(missing)}{missing_note}", ""] if missing else []),
-    ]
-
-
-def records_table(evidence: Evidence) -> list[str]:
-    """How each experiment's data were made: runs, date, profile, code commit, machine, wall time."""
-    return [
-        "| experiment | runs | made on | profile | by code | on | wall time |",
-        "|---|---:|---|---|---|---|---:|",
-        *[
-            f"| {name} | {r.get('runs', '?')} | {r.get('date', '?')} | {r.get('profile', '?')} "
-            f"| {r.get('commit', '?')} | {r.get('machine', '?')} | {float(r.get('wall_seconds', 0)) / 60:.1f} min |"
-            for name, r in evidence.records.items()
-        ],
-        "",
-    ]
 
 
 def stream(edition: Edition, question: str) -> np.random.Generator:
