@@ -79,8 +79,9 @@ ALLOWED = {
     "sources": LEAVES | {"envs", "config", "storage", "transfer", "training"},
     "sharing": LEAVES | {"envs", "config", "agents", "storage", "evaluation"},
     "analysis": LEAVES | {"storage"},  # reads run directories, never live objects
-    # runs go through a subprocess; evaluation: the scripted bounds (greedy team) drawn beside the learners
-    "experiments": LEAVES | {"envs", "config", "storage", "analysis", "evaluation"},
+    # runs go through a subprocess; evaluation: the scripted bounds (greedy team) drawn beside the learners;
+    # training: a planned run's memory estimate, which splits a cell's maps into multiruns that fit
+    "experiments": LEAVES | {"envs", "config", "storage", "analysis", "evaluation", "training"},
     "benchmark": LEAVES | {"envs", "config", "agents", "storage", "evaluation", "training"},
     "cli": {part_of(m) for m in GRAPH} - {"dqn_transfer", "cli", "play"},  # the entry points
     "play": {"cli"},  # `python -m dqn_transfer.play`, an alias

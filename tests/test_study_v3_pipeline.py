@@ -5,15 +5,13 @@ maps, the power rule sets the maps, and the report gives the registered outcomes
 import dataclasses
 import json
 import math
-import shutil
 from pathlib import Path
 
 import pytest
 import scipy.stats
 import yaml
-from conftest import missing_beside, read_metrics, without_timing
+from conftest import read_metrics, without_timing
 
-from dqn_transfer.cli import report as report_cli
 from dqn_transfer.cli import study
 from dqn_transfer.config import to_plain
 from dqn_transfer.experiments import cell_runs, sweeps, tuning
@@ -269,24 +267,3 @@ def test_the_stage_times_add_up_the_attempts(tmp_path):
     record_stage(tmp_path, "pilot", 30.04)
     record_stage(tmp_path, "tune", 12.0)
     assert json.loads((tmp_path / "stages.json").read_text()) == {"pilot": [60.0, 30.0], "tune": [12.0]}
-
-
-def test_the_committed_third_edition_report_is_regenerated_from_the_committed_data(tmp_path, capsys):
-    # results/REPORT.md is what `dqn-transfer-report results/v3 --out results` writes from results/v3's data,
-    # tuning tables, maps and stage times alone, byte for byte, its figures beside it.
-    results = Path(__file__).resolve().parents[1] / "results"
-    study_dir = tmp_path / "study"
-    for part in ("data", "tuning"):
-        shutil.copytree(results / "v3" / part, study_dir / part, ignore=shutil.ignore_patterns("runs", "logs"))
-    for part in ("maps.json", "maps.md", "stages.json"):
-        shutil.copy(results / "v3" / part, study_dir / part)
-    out = tmp_path / "elsewhere"
-    assert report_cli.main([str(study_dir), "--out", str(out)]) == 0
-    assert f"wrote {out / 'REPORT.md'}" in capsys.readouterr().out
-    assert (out / "REPORT.md").read_bytes() == (results / "REPORT.md").read_bytes()
-    figures = sorted(path.relative_to(out) for path in out.rglob("*.png"))
-    assert len(figures) >= 5  # the cells', Figure 1's and 2's, each game's tuning
-    for figure in figures:
-        assert (out / figure).read_bytes() == (results / figure).read_bytes(), figure
-    assert missing_beside(results / "REPORT.md") == []
-    assert sum(p.stat().st_size for p in (results / "v3" / "data").iterdir()) < 50 * 2**20
