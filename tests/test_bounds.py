@@ -18,7 +18,7 @@ from dqn_transfer.config import AgentConfig
 from dqn_transfer.enums import Algorithm, Bound
 from dqn_transfer.envs.game import TreasureHuntGame, make_game
 from dqn_transfer.envs.maps import GridMap, optimal_team_return, parse_layout
-from dqn_transfer.evaluation.bounds import evaluate_bound
+from dqn_transfer.evaluation.bounds import evaluate_bound, random_team_return
 from dqn_transfer.evaluation.rollout import evaluate
 
 # 8 moves around the wall: down 3, right 2, up 3. 100 - 7 = 93.
@@ -196,6 +196,22 @@ def test_the_random_team_scores_what_a_uniform_walk_is_worth():
     assert evaluate_bound(game, Bound.random, episodes=50, seed=1) != evaluate_bound(
         game, Bound.random, episodes=50, seed=0
     )
+
+
+# Two agents either side of a chest: both enter it on the first step with probability 1/16, so 200
+# episodes hold a tie, drawn from the episode's generator, all but about once in 400,000; the loser's
+# walk to the second chest depends on which agent it is.
+CHEST_BETWEEN = "0T1\n...\n.T."
+
+
+@pytest.mark.parametrize("mode", ["competitive", "cooperative", "deliberative"])
+@pytest.mark.parametrize("reward_mode", ["individual", "team"])
+def test_the_compiled_random_team_scores_what_the_random_policy_scores(mode, reward_mode):
+    tied = TreasureHuntGame(parse_layout(CHEST_BETWEEN), mode=mode, reward_mode=reward_mode)
+    generated = make_game(size=6, num_agents=5, num_treasures=3, num_traps=3, map_seed=4, mode=mode, max_steps=9)
+    for game, seed in [(tied, 0), (tied, 3), (generated, 1)]:
+        played = evaluate_bound(game, Bound.random, episodes=200, seed=seed)["team_return"]
+        assert random_team_return(game, episodes=200, seed=seed) == played
 
 
 @pytest.mark.parametrize(

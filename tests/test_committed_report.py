@@ -1,6 +1,7 @@
 """The committed third-edition report, ``results/REPORT.md``, is written again from its committed data alone,
-byte for byte (the longest single test of the suite, about 3 minutes: it replays the random team on every map,
-so it sits in a file collected early, where the parallel workers share the rest of the suite around it)."""
+byte for byte (the longest single test of the suite, about a minute: it replays the random team on every map,
+most of it on LBF's Python engine, so it sits in a file collected early, where the parallel workers share the
+rest of the suite around it)."""
 
 import shutil
 from pathlib import Path

@@ -64,16 +64,31 @@ def _neighbours(cell: Cell, size: int, steps: Iterable[Cell] = _STEPS4) -> Itera
             yield rr, cc
 
 
+@functools.cache
+def _cell_neighbours(size: int) -> dict[Cell, tuple[Cell, ...]]:
+    """Each cell's 4-neighbours, in :func:`_neighbours`' order: a contention's candidates are flooded and
+    searched thousands of times. Cached; nothing changes a table."""
+    return {(r, c): tuple(_neighbours((r, c), size)) for r in range(size) for c in range(size)}
+
+
 def _flood(start: Cell, size: int, blocked: set[Cell] | frozenset[Cell]) -> set[Cell]:
     """Cells 4-connected to ``start`` that are not blocked."""
+    neighbours = _cell_neighbours(size)
     seen = {start}
     todo = [start]
     while todo:
-        for nxt in _neighbours(todo.pop(), size):
+        for nxt in neighbours[todo.pop()]:
             if nxt not in seen and nxt not in blocked:
                 seen.add(nxt)
                 todo.append(nxt)
     return seen
+
+
+def _nearest(distances: np.ndarray) -> int:
+    """The index of the least of ``distances`` to each chest (the lower index on equal distance), ignoring
+    the unreachable (``-1``); ``-1`` when none is reachable."""
+    reachable = [(int(d), j) for j, d in enumerate(distances) if d >= 0]
+    return min(reachable)[1] if reachable else -1
 
 
 @dataclass(frozen=True)
@@ -110,23 +125,25 @@ class GridMap:
         deliberative coordinator computes it once per chest.
         """
         blocked = self.obstacles | frozenset(self.traps)
-        dist = np.full((self.size, self.size), -1, dtype=np.int64)
-        dist[cell] = 0
+        neighbours = _cell_neighbours(self.size)
+        steps = {cell: 0}
         queue = deque([cell])
         while queue:
             cur = queue.popleft()
-            for nxt in _neighbours(cur, self.size):
-                if dist[nxt] < 0 and nxt not in blocked:
-                    dist[nxt] = dist[cur] + 1
+            for nxt in neighbours[cur]:
+                if nxt not in steps and nxt not in blocked:
+                    steps[nxt] = steps[cur] + 1
                     queue.append(nxt)
+        dist = np.full((self.size, self.size), -1, dtype=np.int64)
+        rows, cols = zip(*steps)
+        dist[rows, cols] = list(steps.values())
         return dist
 
     def nearest_chest(self, cell: Cell) -> int:
         """The chest nearest ``cell`` by a path avoiding obstacles and traps (the lower number on equal
         distance): the one a lone agent starting there reaches soonest. ``-1``: none reachable."""
         dist = self.distances_from(cell)
-        reachable = [(int(dist[chest]), j) for j, chest in enumerate(self.chests) if dist[chest] >= 0]
-        return min(reachable)[1] if reachable else -1
+        return _nearest(np.array([dist[chest] for chest in self.chests]))
 
     def with_start_of(self, agent: int) -> GridMap:
         """This map with agent ``agent``'s start as agent 0's (the two start digits swapped), so that
@@ -144,8 +161,8 @@ class GridMap:
 
     def nearest_chests(self) -> np.ndarray:
         """``[m]`` each agent's :meth:`nearest_chest` from its start (rule 3 makes every chest reachable on a
-        valid map; ``-1``: none)."""
-        return np.array([self.nearest_chest(start) for start in self.starts])
+        valid map; ``-1``: none), from one search per chest (:meth:`start_distances`)."""
+        return np.array([_nearest(row) for row in self.start_distances()])
 
     def contention(self) -> float:
         """The fraction of agents whose nearest chest (:meth:`nearest_chests`) is also another agent's."""
@@ -430,20 +447,41 @@ def generate_layout(
             f"than num_treasures={num_treasures}"
         )
     counts = (num_treasures, num_traps, num_agents)
+    if isinstance(seed, int):
+        return _seeded_layout(size, counts, complexity, seed, contention, CONTENTION_CANDIDATES)
+    return _layout(size, counts, complexity, seed, contention, CONTENTION_CANDIDATES)
+
+
+def _layout(
+    size: int,
+    counts: tuple[int, int, int],
+    complexity: float,
+    seed: int | None,
+    contention: Contention,
+    candidates: int,
+) -> str:
+    """:func:`generate_layout`'s map, its arguments checked; ``counts``: chests, traps, agents; ``candidates``:
+    how many a contention draws at most."""
+    num_treasures, num_traps, num_agents = counts
     if contention is Contention.any:
         return _draw_layout(size, *counts, complexity, np.random.default_rng(seed))
     entropy = np.random.SeedSequence(seed).entropy  # the seed itself; fresh entropy for None
-    for candidate in range(CONTENTION_CANDIDATES):
+    for candidate in range(candidates):
         rng = np.random.default_rng(np.random.SeedSequence(entropy, spawn_key=(candidate,)))
         layout = _draw_layout(size, *counts, complexity, rng)
         share = parse_layout(layout).contention()
         if share == (HIGH_CONTENTION if contention is Contention.high else 0.0):
             return layout
     raise ValueError(
-        f"no map of contention={contention.value} among the {CONTENTION_CANDIDATES} candidates of seed {seed} "
+        f"no map of contention={contention.value} among the {candidates} candidates of seed {seed} "
         f"(size={size}, num_treasures={num_treasures}, num_traps={num_traps}, num_agents={num_agents}, "
         f"complexity={complexity})"
     )
+
+
+# A seeded map is a function of its arguments, and an analysis plays each map once per mode and team:
+# generating one of contention high or low takes tens of candidates (~50 ms).
+_seeded_layout = functools.lru_cache(maxsize=4096)(_layout)
 
 
 def _draw_layout(

@@ -34,9 +34,10 @@ from typing import Any
 
 import numpy as np
 
+from dqn_transfer.compiled import kernel
 from dqn_transfer.enums import Bound
-from dqn_transfer.envs import Game
-from dqn_transfer.envs.game import TreasureHuntGame
+from dqn_transfer.envs import Game, rules, tie_draws
+from dqn_transfer.envs.game import TreasureHuntGame, TreasureHunts
 from dqn_transfer.envs.maps import GridMap
 from dqn_transfer.envs.rules import ACTION_MOVES, best_assignment
 from dqn_transfer.evaluation.rollout import Policy, evaluation_rng, play_episode, summarize
@@ -198,3 +199,45 @@ def evaluate_bound(game: Game, kind: Bound | str, episodes: int, seed: int) -> d
         raise ValueError(f"the {kind.value} team walks a treasure hunt's map; {game.factory} has none")
     rngs = (evaluation_rng(seed, 0, episode) for episode in range(episodes))
     return summarize([play_episode(game, policy, rng) for rng in rngs])
+
+
+def random_team_return(game: Game, episodes: int, seed: int) -> float:
+    """The random team's mean team return: ``evaluate_bound(game, "random", episodes, seed)["team_return"]``,
+    the same float, played by a compiled kernel on a treasure hunt (:func:`play_drawn`, ~100x faster).
+
+    The episodes' actions can be drawn before they are played: the generator draws ``integers`` from one
+    stream, so a step's K draws in turn are the next K of one long draw."""
+    if not isinstance(game, TreasureHuntGame):
+        return float(evaluate_bound(game, Bound.random, episodes, seed)["team_return"])
+    hunt = TreasureHunts([game.map], **game.settings())
+    longest = episodes * hunt.max_steps * hunt.num_agents  # every step of every episode draws K actions
+    actions = np.random.default_rng([seed, RANDOM_TEAM_STREAM]).integers(hunt.num_actions, size=longest)
+    tie_rngs = np.zeros((episodes, tie_draws.WORDS), dtype=np.uint64)
+    for episode in range(episodes):
+        tie_draws.pack(evaluation_rng(seed, 0, episode), tie_rngs[episode])
+    returns = np.zeros(episodes)
+    play_drawn(actions, tie_rngs, returns, *hunt.rule_constants, *hunt.kernel_arrays())
+    return float(np.mean(returns))
+
+
+@kernel
+def play_drawn(actions, tie_rngs, returns, rewards, max_steps, team, announce, *row):
+    """Episode ``e`` of replica 0 of a :func:`~dqn_transfer.envs.rules.arrays` row, for each episode in
+    turn: reset with the packed tie generator ``tie_rngs[e]``, played to its end with its agents' actions
+    read from ``actions`` in order, from where the episode before stopped; its team return (as
+    :class:`~dqn_transfer.evaluation.rollout.EpisodeTally` sums it) into ``returns[e]``."""
+    tables = rules.Tables(*row[: rules.TABLES_END])
+    state = rules.State(*row[rules.TABLES_END : rules.STATE_END])
+    out = rules.Outcome(*row[rules.STATE_END :])
+    agents = state.pos.shape[1]
+    start = 0
+    for episode in range(len(returns)):
+        state.tie_rng[0] = tie_rngs[episode]
+        rules.reset_replica(tables, state, 0)
+        total = 0.0
+        while state.live[0].any():
+            step_actions = actions[start : start + agents].reshape(1, agents)
+            rules.step(tables, state, step_actions, out, rewards, max_steps, team, announce)
+            total += rules.team_step_return(out, 0, team)
+            start += agents
+        returns[episode] = total

@@ -21,10 +21,9 @@ import numpy as np
 
 from dqn_transfer.analysis.equivalence import Contrast, Outcome, contrast, normalised, outcomes
 from dqn_transfer.analysis.hierarchical import holm
-from dqn_transfer.enums import Bound
 from dqn_transfer.envs import Game, PettingZooGame, make_game
 from dqn_transfer.envs.settings import ENV_KEYS
-from dqn_transfer.evaluation.bounds import evaluate_bound
+from dqn_transfer.evaluation import bounds
 from dqn_transfer.experiments.hierarchical_claims import values_by_map
 from dqn_transfer.experiments.power import differences_by_map
 from dqn_transfer.experiments.raw_data import RunData
@@ -59,7 +58,7 @@ def _random_team_return(env_json: str) -> float:
         game: Game = PettingZooGame(env["factory"], env.get("kwargs") or {}, instance)
     else:
         game = make_game(**{key: env[key] for key in ENV_KEYS if env.get(key) is not None})
-    return float(evaluate_bound(game, Bound.random, RANDOM_EPISODES, seed=0)["team_return"])
+    return bounds.random_team_return(game, RANDOM_EPISODES, seed=0)
 
 
 def oracle_return(run: RunData) -> float:
