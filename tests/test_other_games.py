@@ -139,7 +139,7 @@ def test_lbf_declares_its_segments_in_its_observation_order():
     assert game.obs_layout() == lbf_segments(2, 3)
     assert [name for name, _ in game.obs_layout()] == ["food_0", "food_1", "self", "player_1", "player_2"]
     obs = game.reset(np.random.default_rng(0))
-    env = game.env.game  # lbforaging's own ForagingEnv
+    env = game.env.game  # lbforaging's ForagingEnv (its faster subclass)
     for agent, player in enumerate(env.players):
         self_entry = obs[agent, segment_slices(game.obs_layout())["self"]]
         assert self_entry.tolist() == [*player.position, player.level]
