@@ -12,6 +12,7 @@ import scipy.stats
 import yaml
 from conftest import read_metrics, without_timing
 
+from dqn_transfer.cli import report as report_cli
 from dqn_transfer.cli import study
 from dqn_transfer.config import to_plain
 from dqn_transfer.experiments import cell_runs, sweeps, tuning
@@ -267,3 +268,27 @@ def test_the_stage_times_add_up_the_attempts(tmp_path):
     record_stage(tmp_path, "pilot", 30.04)
     record_stage(tmp_path, "tune", 12.0)
     assert json.loads((tmp_path / "stages.json").read_text()) == {"pilot": [60.0, 30.0], "tune": [12.0]}
+
+
+def test_a_repeat_of_the_study_is_reported_with_its_times_and_whether_its_records_are_these(tmp_path, capsys):
+    runs = _cell("S4", {"best": 0.2})
+    results = _results(tmp_path / "first", runs)
+    record_stage(results, "tune", 600.0)
+    again = _results(tmp_path / "again", runs)  # the same run records, written by another execution
+    made = {"commit": "abc1234", "date": "2026-12-08", "machine": "a 2-core box", "profile": "full", "runs": len(runs)}
+    write_manifest(again / "data", {"edition": "v3", "experiments": {"sarsa": made}})
+    record_stage(again, "tune", 300.0)
+    record_stage(again, "pilot", 120.0)
+    assert report_cli.main([str(results), "--repeat", str(again), "--out", str(tmp_path / "out")]) == 0
+    report = (tmp_path / "out" / "REPORT.md").read_text()
+    assert "(abc1234; 2026-12-08; a 2-core box); its run records are these, byte for byte" in report
+    assert "| pilot | 1 | 2.0 min |\n| tune | 1 | 5.0 min |\n| all | | 7.0 min (target 120 min) |" in report
+    assert "| tune | 1 | 10.0 min |" in report  # the first execution's own times stay
+    write_data(again / "data" / "sarsa.jsonl", _cell("S4", {"best": 0.21}))  # another result: not these records
+    assert report_cli.main([str(results), "--repeat", str(again), "--out", str(tmp_path / "out")]) == 0
+    assert "its run records **differ** from these" in (tmp_path / "out" / "REPORT.md").read_text()
+    capsys.readouterr()
+    (results / "repeat.json").unlink()
+    assert report_cli.main([str(results), "--repeat", str(tmp_path / "unfinished")]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "is not a finished study" in err and not (results / "repeat.json").exists()

@@ -27,6 +27,9 @@ STAGES = ("tune", "pilot", "full", "report")
 ANALYSES = ("paired", "hierarchical", "equivalence")
 MAPS_FILE, MAPS_TABLE = "maps.json", "maps.md"  # the power rule's maps per cell (an edition with cells)
 STAGES_FILE = "stages.json"  # each stage's attempts' wall seconds, which the report states
+# Every stage run again into another directory: its stage times, code, date and machine and its run records'
+# digest, which the report states beside the first execution's (pipeline.record_repeat).
+REPEAT_FILE = "repeat.json"
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,15 @@ from dqn_transfer.analysis.equivalence import POWER_TARGET, Contrast, Outcome, c
 from dqn_transfer.analysis.plots import curves_figure, dot_whisker_figure, errorbar_figure
 from dqn_transfer.analysis.stats import Estimate
 from dqn_transfer.experiments.cell_runs import CONTROL, CellMaps, by_cell, read_maps
-from dqn_transfer.experiments.edition import MAPS_FILE, MAPS_TABLE, STAGES_FILE, TUNING_DIR, Cell, Edition
+from dqn_transfer.experiments.edition import (
+    MAPS_FILE,
+    MAPS_TABLE,
+    REPEAT_FILE,
+    STAGES_FILE,
+    TUNING_DIR,
+    Cell,
+    Edition,
+)
 from dqn_transfer.experiments.equivalence_claims import (
     CONTROLS,
     FINAL_SHARE,
@@ -39,10 +47,12 @@ from dqn_transfer.experiments.equivalence_claims import (
 from dqn_transfer.experiments.hierarchical_claims import MODE_PAIRS, MODES
 from dqn_transfer.experiments.power import differences_by_map
 from dqn_transfer.experiments.raw_data import (
+    DATA_DIR,
     DATA_SOURCE,
     DataError,
     RunData,
     carry_file,
+    data_digest,
     read_evidence,
     read_experiment,
 )
@@ -322,11 +332,33 @@ def stages_table(results: Path) -> list[str]:
         stages: dict[str, list[float]] = json.loads((results / STAGES_FILE).read_text())
     except (OSError, ValueError):
         return ["(no stage times recorded)", ""]
+    return [*times_table(stages), "", *repeat_times(results)]
+
+
+def times_table(stages: dict[str, list[float]]) -> list[str]:
     rows = ["| stage | attempts | wall time |", "|---|---:|---:|"]
     rows += [f"| {stage} | {len(times)} | {sum(times) / 60:.1f} min |" for stage, times in stages.items()]
     total = sum(sum(times) for times in stages.values()) / 60
-    rows.append(f"| all | | {total:.1f} min (target {TARGET_MINUTES} min) |")
-    return [*rows, ""]
+    return [*rows, f"| all | | {total:.1f} min (target {TARGET_MINUTES} min) |"]
+
+
+def repeat_times(results: Path) -> list[str]:
+    """The stage times of the study run again from scratch elsewhere (``repeat.json``), and whether its run
+    records are these, by their digest."""
+    try:
+        repeat: dict[str, Any] = json.loads((results / REPEAT_FILE).read_text())
+    except OSError:
+        return []
+    same = repeat["data_sha256"] == data_digest(results / DATA_DIR)
+    made = "; ".join(", ".join(repeat[key]) for key in ("commit", "date", "machine"))
+    records = "are these, byte for byte" if same else "**differ** from these"
+    return [
+        f"Every stage run again from scratch into another directory ({made}); its run records {records} (sha256 of",
+        "`data/*.jsonl`):",
+        "",
+        *times_table(repeat["stages"]),
+        "",
+    ]
 
 
 def text_list(items: Sequence[str] | None, none: str) -> list[str]:

@@ -31,15 +31,18 @@ from dqn_transfer.experiments.edition import (
     BUDGETS_TABLE,
     MAPS_FILE,
     PILOT_DIR,
+    REPEAT_FILE,
     STAGES_FILE,
     Edition,
     Profile,
 )
 from dqn_transfer.experiments.raw_data import (
     DATA_DIR,
+    MANIFEST,
     DataError,
     RunData,
     code_commit,
+    data_digest,
     export_sweep,
     git_output,
     machine,
@@ -416,6 +419,26 @@ def record_stage(out: Path, stage: str, seconds: float) -> None:
         stages = {}
     stages.setdefault(stage, []).append(round(seconds, 1))
     write_json(path, dict(sorted(stages.items())))
+
+
+def record_repeat(results: Path, repeat: Path) -> Path:
+    """``RESULTS/repeat.json`` from ``repeat``, a directory every stage ran into again: its stage times, the
+    commits, dates and machines of its manifest, and its run records' digest (the report says whether they are
+    the results' own)."""
+    stages, manifest = repeat / STAGES_FILE, repeat / DATA_DIR / MANIFEST
+    if not stages.is_file() or not manifest.is_file():
+        raise ReproduceError(f"{repeat} is not a finished study: it needs {STAGES_FILE} and {DATA_DIR}/{MANIFEST}")
+    made = read_manifest(repeat / DATA_DIR).get("experiments", {}).values()
+    path = results / REPEAT_FILE
+    write_json(
+        path,
+        {
+            **{key: sorted({str(record.get(key)) for record in made}) for key in ("commit", "date", "machine")},
+            "stages": json.loads(stages.read_text()),
+            "data_sha256": data_digest(repeat / DATA_DIR),
+        },
+    )
+    return path
 
 
 def write_report(edition: Edition, results: Path, out: Path | None = None) -> Path:

@@ -8,6 +8,7 @@ directories (checkpoints, TensorBoard logs), which stay out of the repository.
 from __future__ import annotations
 
 import functools
+import hashlib
 import json
 import math
 import os
@@ -230,6 +231,15 @@ def read_manifest(data_dir: Path) -> dict[str, Any]:
         return {}
     except json.JSONDecodeError:
         raise DataError(f"{path} is not valid JSON") from None
+
+
+def data_digest(data_dir: Path) -> str:
+    """The sha256 of a data directory's run records: each ``*.jsonl``'s name and bytes, by name (the manifest,
+    which holds dates, commits and wall times, left out)."""
+    digest = hashlib.sha256()
+    for path in sorted(data_dir.glob("*.jsonl")):
+        digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    return digest.hexdigest()
 
 
 def write_manifest(data_dir: Path, manifest: dict[str, Any]) -> None:
