@@ -33,6 +33,7 @@ from dqn_transfer.agents.dqn_update import (
 )
 from dqn_transfer.agents.replay import ReplayBatch
 from dqn_transfer.agents.stacked import FLUSH_EVERY, SMALLEST_NORMAL, StackedLayout
+from dqn_transfer.compiled import kernel
 
 WEIGHT_STREAM = 2  # SeedSequence spawn key of the initial weights (0 and 1: exploration and replay)
 
@@ -92,7 +93,6 @@ class NumpyMLP(StackedLayout):
         self.grads = self.views(self.flat_grad)
         # Per layer: the weight and the bias as a [M, 1, out] row to broadcast over the batch.
         self._affine = [(self.tensors[2 * l], self.tensors[2 * l + 1][:, None, :]) for l in range(self.num_layers)]
-        self._step: np.ndarray | None = None  # update_from's buffer (a target network's), made at its first use
         if rngs is not None:
             self._initialise(rngs)
 
@@ -180,14 +180,16 @@ class NumpyMLP(StackedLayout):
         ``p <- p + tau * (p_source - p)``."""
         if tau == 1.0:
             np.copyto(self.flat, source.flat)
-            return
-        # In place, through one buffer kept between calls: no temporaries of the parameters' size to
-        # allocate, and the same operations in the same order as ``flat += tau * (source - flat)``.
-        if self._step is None:
-            self._step = np.empty_like(self.flat)
-        step = np.subtract(source.flat, self.flat, out=self._step)
-        step *= np.float32(tau)
-        self.flat += step
+        else:
+            polyak_step(self.flat, source.flat, np.float32(tau))
+
+
+@kernel
+def polyak_step(target: np.ndarray, source: np.ndarray, tau: np.float32) -> None:
+    """``target += tau * (source - target)`` in float32, rounded at each operation as numpy's subtract, scale and
+    add are, in one pass over the parameters instead of three (a Polyak target moves every env step)."""
+    for i in range(target.size):
+        target[i] += (source[i] - target[i]) * tau
 
 
 class NumpyAdam:
