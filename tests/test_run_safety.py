@@ -442,3 +442,37 @@ def test_an_interrupted_study_stage_continues_where_it_stopped(tmp_path, monkeyp
         assert agent_digests(tmp_path / "stopped" / job) == agent_digests(tmp_path / "reference" / job)
     stamp = sweeps.read_stamp(tmp_path / "stopped")
     assert len(stamp["attempt_seconds"]) == 2 and stamp["wall_seconds"] == sum(stamp["attempt_seconds"])
+
+
+def test_a_multiruns_finished_job_is_read_once_while_the_others_run(tmp_path, monkeypatch, capsys):
+    # The study's progress lines poll every job: a finished one (its configs and metrics parsed) is not read
+    # again at every poll, which for a tuning search's 24 jobs of 5 replicas kept the study's process at an eighth of a core.
+    sweep = tmp_path / "sweep"
+    reads: dict[str, int] = {"0": 0, "1": 0}
+    polls = iter([None] * 6)
+
+    class Process:  # the multirun: job 0 is finished from the start, job 1 when the process ends
+        returncode: int | None = None
+
+        def __init__(self, *args, **kwargs):
+            for job in reads:
+                (sweep / job).mkdir()
+
+        def poll(self):
+            self.returncode = next(polls, 0)
+            return self.returncode
+
+    started: list[Process] = []
+
+    def complete(run_dir: Path) -> bool:
+        reads[run_dir.name] += 1
+        return run_dir.name == "0" or started[-1].returncode == 0
+
+    monkeypatch.setattr(sweeps.subprocess, "Popen", lambda *a, **k: started.append(Process()) or started[-1])
+    monkeypatch.setattr(sweeps, "run_is_complete", complete)
+
+    multirun = sweeps.Multirun("search", "claim1", (), sweep, 2, {"settings": "same"})
+    sweeps.run_multirun(multirun, tmp_path, "basic", 1, poll_seconds=0.001)
+    assert "[search] 1/2 runs done" in capsys.readouterr().out
+    assert reads["0"] == 1 + 1  # once while polling, once in the end's check of every job
+    assert reads["1"] == 6 + 1  # at each of the 6 polls while it ran

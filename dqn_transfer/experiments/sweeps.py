@@ -271,10 +271,12 @@ def run_multirun(
         log.flush()
         process = subprocess.Popen(command, cwd=out, stdout=log, stderr=subprocess.STDOUT, env=env)
         done, printed = -1, -math.inf
+        finished: set[Path] = set()  # a finished job stays finished: its configs and metrics are read once
         try:
             while process.poll() is None:
                 time.sleep(poll_seconds)
-                now = sum(run_is_complete(d) for d in job_dirs(sweep_dir))
+                finished |= {d for d in job_dirs(sweep_dir) if d not in finished and run_is_complete(d)}
+                now = len(finished)
                 elapsed = time.perf_counter() - start
                 if now != done and (elapsed - printed >= 10 or now == expected):  # a line per change, at most 10 s
                     done, printed = now, elapsed
