@@ -446,7 +446,8 @@ def test_an_interrupted_study_stage_continues_where_it_stopped(tmp_path, monkeyp
 
 def test_a_multiruns_finished_job_is_read_once_while_the_others_run(tmp_path, monkeypatch, capsys):
     # The study's progress lines poll every job: a finished one (its configs and metrics parsed) is not read
-    # again at every poll, which for a tuning search's 24 jobs of 5 replicas kept the study's process at an eighth of a core.
+    # again at every poll, which for a tuning search's 24 jobs of 5 replicas kept the study's process at an
+    # eighth of a core.
     sweep = tmp_path / "sweep"
     reads: dict[str, int] = {"0": 0, "1": 0}
     polls = iter([None] * 6)
