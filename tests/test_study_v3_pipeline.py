@@ -292,3 +292,7 @@ def test_a_repeat_of_the_study_is_reported_with_its_times_and_whether_its_record
     assert report_cli.main([str(results), "--repeat", str(tmp_path / "unfinished")]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "is not a finished study" in err and not (results / "repeat.json").exists()
+    (again / "stages.json").write_text("{")  # cut short
+    assert report_cli.main([str(results), "--repeat", str(again)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "stages.json is not valid JSON" in err and not (results / "repeat.json").exists()

@@ -347,7 +347,7 @@ def repeat_times(results: Path) -> list[str]:
     records are these, by their digest."""
     try:
         repeat: dict[str, Any] = json.loads((results / REPEAT_FILE).read_text())
-    except OSError:
+    except (OSError, ValueError):  # as stages.json: no record, no line
         return []
     same = repeat["data_sha256"] == data_digest(results / DATA_DIR)
     made = "; ".join(", ".join(repeat[key]) for key in ("commit", "date", "machine"))

@@ -429,12 +429,16 @@ def record_repeat(results: Path, repeat: Path) -> Path:
     if not stages.is_file() or not manifest.is_file():
         raise ReproduceError(f"{repeat} is not a finished study: it needs {STAGES_FILE} and {DATA_DIR}/{MANIFEST}")
     made = read_manifest(repeat / DATA_DIR).get("experiments", {}).values()
+    try:
+        times = json.loads(stages.read_text())
+    except ValueError:
+        raise ReproduceError(f"{stages} is not valid JSON") from None
     path = results / REPEAT_FILE
     write_json(
         path,
         {
             **{key: sorted({str(record.get(key)) for record in made}) for key in ("commit", "date", "machine")},
-            "stages": json.loads(stages.read_text()),
+            "stages": times,
             "data_sha256": data_digest(repeat / DATA_DIR),
         },
     )
