@@ -50,9 +50,10 @@ def test_the_faster_env_observes_and_plays_as_lbforaging(game):
             assert [fast._valid_actions[player] for player in fast.players] == valid
             players = original.n_agents
             width = 3 if original._observe_agent_levels else 2
-            player_rows = np.stack(expected)[:, 3 * original.max_num_food :].reshape(players, players, width)
+            vectors = np.stack(expected)
+            player_rows = vectors[:, 3 * original.max_num_food :].reshape(players, players, width)
             partly_seen += int((player_rows[:, :, 0] == -1).any())
-            food_seen += int((np.stack(expected)[:, : 3 * original.max_num_food : 3] >= 0).any())
+            food_seen += int((vectors[:, : 3 * original.max_num_food : 3] >= 0).any())
             if done:
                 break
             actions = rng.integers(0, 6, size=players).tolist()

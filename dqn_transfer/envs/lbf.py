@@ -61,8 +61,8 @@ def write_observations(
     """
     rows, cols = field.shape
     players = positions.shape[0]
-    food = (out.shape[1] - players * (3 if observe_levels else 2)) // 3
-    entry = 3 if observe_levels else 2
+    entry = ENTRY if observe_levels else ENTRY - 1  # a player's (row, col[, level])
+    food = (out.shape[1] - players * entry) // ENTRY
     for p in range(players):
         obs = out[p]
         row, col = positions[p, 0], positions[p, 1]
