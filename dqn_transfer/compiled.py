@@ -45,7 +45,7 @@ def kernels_fingerprint() -> str:
     digest = hashlib.sha256()
     for path in sorted(PACKAGE.rglob("*.py")):
         text = path.read_bytes()
-        if b"@kernel" in text:
+        if any(decorator in text for decorator in (b"@kernel", b"@array_kernel")):
             digest.update(path.relative_to(PACKAGE).as_posix().encode() + b"\0" + text)
     return digest.hexdigest()[:16]
 
@@ -85,3 +85,10 @@ FIRST_COMPILE = CACHE_DIR is None or not any(CACHE_DIR.rglob("*.nbi"))
 def kernel(function: F) -> F:
     """``function`` compiled by numba in nopython mode, cached on disk when possible."""
     return numba.njit(cache=CACHE)(function)  # type: ignore[return-value]
+
+
+def array_kernel(function: F) -> F:
+    """A :func:`kernel` with numpy's float semantics: a division by zero gives inf or nan, as numpy's does,
+    instead of raising ``ZeroDivisionError``. Without that check in every division LLVM can vectorise the
+    loops (``error_model="numpy"``): for elementwise passes over float arrays."""
+    return numba.njit(cache=CACHE, error_model="numpy")(function)  # type: ignore[return-value]

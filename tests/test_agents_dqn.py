@@ -94,6 +94,31 @@ def test_polyak_target_moves_by_tau_after_each_gradient_step():
         torch.testing.assert_close(new, old + 0.25 * (online - old))
 
 
+@pytest.mark.parametrize("learner_class", [DQNLearner, NumpyDQNLearner])
+def test_a_target_synced_every_step_follows_the_online_weights_of_each_step(learner_class):
+    # The learner applies its syncs late, several in one pass; the target must still be what a sync at the
+    # end of every step makes it, each toward that step's online weights, around gradient steps and an exchange.
+    hp = dict(batch_size=4, buffer_size=32, learning_starts=2, train_freq=3, hidden=[8], tau=0.3)
+    learner = learner_class(2, LAYOUT, A, AgentConfig(algorithm="dqn", **hp), seed=0)
+    tau = np.float32(0.3)
+    expected = [{k[7:]: v for k, v in learner.agent_tensors(i).items() if k.startswith("target.")} for i in range(2)]
+    for step, t in enumerate(random_steps(2, 11), start=1):
+        learner.update(step_of(t, learner.act(t["obs"], t["live"], 0.3)), step)
+        for i, target in enumerate(expected):
+            online = learner.get_member_weights(i)
+            for name in target:
+                target[name] = target[name] + tau * (online[name] - target[name])
+        if step == 6:  # a best copy moves agent 0's online weights between two syncs
+            learner.soft_copy_best(best=1, tau=0.5)
+    for i, target in enumerate(expected):
+        found = {k[7:]: v for k, v in learner.agent_tensors(i).items() if k.startswith("target.")}
+        for name, value in target.items():
+            if learner_class is NumpyDQNLearner:  # the same float32 operations, one by one
+                assert np.array_equal(found[name], value), name
+            else:  # torch's lerp may fuse its multiply-add
+                np.testing.assert_allclose(found[name], value, rtol=1e-6, atol=1e-7)
+
+
 def test_training_starts_after_learning_starts_every_train_freq_steps():
     learner = dqn(learning_starts=3, train_freq=2)
     trained = []

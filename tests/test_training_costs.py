@@ -1,5 +1,5 @@
 """The loop's cheap costs removed, results unchanged: glibc keeps freed memory, the numpy target sync
-runs in place, the last checkpoint is written once, and the evaluation pictures are drawn only where
+and Adam step run in one pass, the last checkpoint is written once, and the evaluation pictures are drawn only where
 someone will look (a lone run, not a sweep's job)."""
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from hydra.types import RunMode
 from omegaconf import OmegaConf
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from dqn_transfer.agents.numpy_dqn import NumpyMLP
+from dqn_transfer.agents.numpy_dqn import NumpyAdam, NumpyMLP
 from dqn_transfer.config import CONFIG_DIR, AgentConfig, ReplicasConfig, TrainConfig
 from dqn_transfer.envs.settings import EnvConfig
 from dqn_transfer.storage.run_dir import RunDir
@@ -42,8 +42,33 @@ def test_the_numpy_target_sync_in_place_rounds_as_the_formula_did():
         target.update_from(online, tau)
         assert np.array_equal(target.flat.view(np.uint32), expected.view(np.uint32))
         online.flat += noise.standard_normal(online.flat.size).astype(np.float32) * np.float32(1e-3)
-    target.update_from(online, 1.0)
+    for _ in range(3):  # three syncs toward the same weights, in one pass
+        expected += np.float32(0.01) * (online.flat - expected)
+    target.update_from(online, 0.01, times=3)
+    assert np.array_equal(target.flat.view(np.uint32), expected.view(np.uint32))
+    target.update_from(online, 1.0, times=2)
     assert np.array_equal(target.flat, online.flat)
+
+
+def test_the_numpy_adam_step_rounds_as_torchs_operations_one_by_one():
+    # torch.optim.Adam's single-tensor arithmetic, one float32 numpy operation at a time, against the one-pass
+    # kernel; gradients from 1e-12 to 10 (subnormal squares), 2,500 parameters (blocks and a remainder).
+    rng = np.random.default_rng(0)
+    n, lr, beta1, beta2, eps = 2_500, 3e-3, 0.9, 0.999, 1e-8
+    param = rng.standard_normal(n).astype(np.float32)
+    grad = np.zeros(n, dtype=np.float32)
+    adam = NumpyAdam(param.copy(), grad, [(0, 1_000), (1_000, n)], lr=lr)
+    exp_avg, exp_avg_sq = np.zeros(n, np.float32), np.zeros(n, np.float32)
+    for step in range(1, 13):
+        grad[:] = rng.standard_normal(n) * 10.0 ** rng.integers(-12, 2, n)
+        exp_avg += (grad - exp_avg) * np.float32(1 - beta1)
+        exp_avg_sq *= np.float32(beta2)
+        exp_avg_sq += grad * grad * np.float32(1 - beta2)
+        denominator = np.sqrt(exp_avg_sq) / np.float32((1 - beta2**step) ** 0.5) + np.float32(eps)
+        param += exp_avg / denominator * np.float32(-lr / (1 - beta1**step))
+        adam.step([0, 1])
+        for ours, theirs in ((adam.flat, param), (adam.exp_avg, exp_avg), (adam.exp_avg_sq, exp_avg_sq)):
+            assert np.array_equal(ours.view(np.uint32), theirs.view(np.uint32)), step
 
 
 def test_glibc_is_told_once_to_keep_freed_memory(monkeypatch):

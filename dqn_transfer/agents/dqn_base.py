@@ -66,7 +66,7 @@ class StackedNetwork(Protocol):
     def num_layers(self) -> int: ...
     def member_state(self, m: int) -> dict[str, np.ndarray]: ...
     def load_member_state(self, m: int, state: dict[str, np.ndarray], name_prefix: str = "") -> None: ...
-    def update_from(self, source: Any, tau: float) -> None: ...
+    def update_from(self, source: Any, tau: float, times: int = 1) -> None: ...
 
 
 class StackedOptimizer(Protocol):
@@ -99,7 +99,6 @@ class BatchedDQN(Learner, KnowledgeExchange, ExperienceSharing, WarmStart, Gener
     """
 
     q_network: NetworkT  # the online networks
-    target_network: NetworkT  # the target networks (``update_from`` the online ones)
     optimizer: OptimizerT  # Adam over the online networks' tensors
 
     def __init__(
@@ -167,6 +166,7 @@ class BatchedDQN(Learner, KnowledgeExchange, ExperienceSharing, WarmStart, Gener
         # What update returns when it does not train (read-only: the trainer only reads statistics).
         self._no_training = UpdateStats(np.full(self.num_rows, np.nan), np.full(self.num_rows, np.nan))
         self._loss_weights_cache: tuple[bytes, np.ndarray] | None = None
+        self._target_syncs_due = 0  # target syncs of past env steps not yet applied (see learn)
         self._build_networks(num_actions)
 
     # ======================================================================== engine hooks
@@ -296,8 +296,27 @@ class BatchedDQN(Learner, KnowledgeExchange, ExperienceSharing, WarmStart, Gener
             stats = UpdateStats(*columns)
 
         if step % self.target_update == 0:
-            self.target_network.update_from(self.q_network, tau=self.tau)
+            # Applied when the target is next read or before the online networks next change: every sync
+            # in between moves toward the same online weights, so a Polyak target's syncs of several env
+            # steps take one pass over the parameters (each rounded as if applied at its own step).
+            self._target_syncs_due += 1
         return stats
+
+    @property
+    def target_network(self) -> NetworkT:
+        """The target networks, with every target sync due so far applied."""
+        self._apply_target_syncs()
+        return self._target_network
+
+    @target_network.setter
+    def target_network(self, network: NetworkT) -> None:
+        self._target_network, self._target_syncs_due = network, 0
+
+    def _apply_target_syncs(self) -> None:
+        """Move the target networks by the syncs due (:meth:`learn`); called before the online ones change."""
+        if self._target_syncs_due:
+            self._target_network.update_from(self.q_network, self.tau, self._target_syncs_due)
+            self._target_syncs_due = 0
 
     @property
     def trainable_layers(self) -> list[int]:
@@ -398,6 +417,7 @@ class BatchedDQN(Learner, KnowledgeExchange, ExperienceSharing, WarmStart, Gener
 
     def set_member_weights(self, i: int, tensors: dict[str, np.ndarray]) -> None:
         """Overwrite agent i's online network (the target follows at its next sync)."""
+        self._apply_target_syncs()
         self.q_network.load_member_state(self._member(i), tensors)
 
     # -------------------------------------------------------------------------- checkpoints
@@ -419,6 +439,7 @@ class BatchedDQN(Learner, KnowledgeExchange, ExperienceSharing, WarmStart, Gener
         m = self._member(i)
         online = {name[2:]: t for name, t in tensors.items() if name.startswith("q.")}
         target = {name[7:]: t for name, t in tensors.items() if name.startswith("target.")}
+        self._apply_target_syncs()
         self.q_network.load_member_state(m, online, name_prefix="q.")
         self.target_network.load_member_state(m, target or online, name_prefix="target." if target else "q.")
 

@@ -136,13 +136,14 @@ class BatchedMLP(nn.Module, StackedLayout):
             bias[m].copy_(torch.as_tensor(state[f"layers.{l}.bias"]))
 
     @torch.no_grad()
-    def update_from(self, source: BatchedMLP, tau: float) -> None:
-        """Move towards ``source``: exact copy when ``tau == 1`` (hard target update), else Polyak
-        ``p <- p + tau * (p_source - p)``."""
+    def update_from(self, source: BatchedMLP, tau: float, times: int = 1) -> None:
+        """Move towards ``source``, ``times`` target syncs in a row: exact copy when ``tau == 1`` (hard target
+        update), else Polyak ``p <- p + tau * (p_source - p)`` ``times`` times."""
         if tau == 1.0:
             torch._foreach_copy_(self.tensors, source.tensors)
         else:
-            torch._foreach_lerp_(self.tensors, source.tensors, tau)
+            for _ in range(times):
+                torch._foreach_lerp_(self.tensors, source.tensors, tau)
 
     @torch.no_grad()
     def clip_grad_norm_(self, max_norm: float) -> None:
