@@ -61,9 +61,30 @@ def test_every_search_gets_eight_trials_per_searched_key(monkeypatch, tmp_path):
     ran = []
     monkeypatch.setattr(tuning, "run_multirun", lambda multirun, *args: ran.append(multirun))
     searches = [tuning.search_named(n) for n in ("sarsa_none", "sarsa_advice", "double_dqn_experience")]
-    tuning.run_searches(searches, TUNING["treasure"].overrides, tmp_path, 1, V3.trials_per_dimension)
+    multiruns = tuning.search_multiruns(searches, TUNING["treasure"].overrides, tmp_path, V3.trials_per_dimension)
+    tuning.run_searches([(m, tmp_path) for m in multiruns], 1)
     # The searched keys, counted by hand in conf/experiment/tune/: lr; lr and three advice keys; lr and lambda.
     assert {m.label: m.jobs for m in ran} == {"sarsa_none": 8, "sarsa_advice": 32, "double_dqn_experience": 16}
+    # The longest first, trials x a trial's seconds: 16 x 20 s, 32 x 6 s, 8 x 6 s.
+    assert [m.label for m in ran] == ["double_dqn_experience", "sarsa_advice", "sarsa_none"]
+
+
+def test_every_tuning_cells_searches_share_one_pool(monkeypatch, tmp_path):
+    # One pool for the treasure hunt's and LBF's searches: a core freed by one cell's last search takes the
+    # other's next, and the longest of both start first; then each cell's trials are analysed in its directory.
+    pooled, analysed = [], []
+    monkeypatch.setattr(tuning, "run_searches", lambda planned, parallel: pooled.extend(planned))
+    monkeypatch.setattr(tuning, "collect_trials", lambda searches, out: [])
+    monkeypatch.setattr(tuning, "write_trials", lambda path, trials: None)
+    monkeypatch.setattr(tuning, "analyse", lambda out: analysed.append(out) or [out / "tuned.yaml"])
+    cells = [
+        ([tuning.search_named("double_dqn_none")], TUNING["treasure"].overrides, tmp_path / "treasure"),
+        ([tuning.search_named("sarsa_none")], TUNING["lbf"].overrides, tmp_path / "lbf"),
+    ]
+    written = tuning.tune(cells, 2, V3.trials_per_dimension)
+    assert [(m.label, out.name) for m, out in pooled] == [("double_dqn_none", "treasure"), ("sarsa_none", "lbf")]
+    assert analysed == [tmp_path / "treasure", tmp_path / "lbf"]
+    assert written == [tmp_path / "treasure" / "tuned.yaml", tmp_path / "lbf" / "tuned.yaml"]
 
 
 def _tuned(tmp_path: Path) -> Path:

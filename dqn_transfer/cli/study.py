@@ -142,17 +142,17 @@ def _tune(args: argparse.Namespace, edition: Edition, out: Path) -> Path:
     if args.apply and any(cell.name for cell in edition.tuning):
         raise ReproduceError(f"edition {edition.name} runs with its tuned values from OUT: --apply has nothing to do")
     written: list[Path] = []
+    cells = []  # (searches, overrides, directory) of each cell to tune: all in one pool
     for cell in edition.tuning:
         cell_dir = out / cell.name
         if args.apply:
             written += tuning.apply_tuned(cell_dir)
         elif args.report_only:
             written += tuning.analyse(cell_dir)
-        else:
-            searches = [tuning.search_named(name) for name in cell.searches if not only or name in only]
-            if searches:
-                overrides = (*cell.overrides, *tuning.PROFILES[args.profile])
-                written += tuning.tune(searches, overrides, cell_dir, args.n_jobs, edition.trials_per_dimension)
+        elif searches := [tuning.search_named(name) for name in cell.searches if not only or name in only]:
+            cells.append((searches, (*cell.overrides, *tuning.PROFILES[args.profile]), cell_dir))
+    if cells:
+        written += tuning.tune(cells, args.n_jobs, edition.trials_per_dimension)
     for path in written:
         print(path)
     return out

@@ -15,6 +15,7 @@ import numpy as np
 from dqn_transfer.envs import Game
 from dqn_transfer.envs.batch import BatchStep, GameBatch
 from dqn_transfer.envs.game import TreasureHunts, fit_one_batch
+from dqn_transfer.envs.pettingzoo_game import PettingZooGame
 
 
 class LoopedGames(GameBatch):
@@ -74,7 +75,15 @@ class LoopedGames(GameBatch):
 
 def game_batch(games: Sequence[Game], rngs: Sequence[np.random.Generator]) -> GameBatch:
     """The replicas' games as one batch, each continuing its game's episode: one :class:`TreasureHunts`
-    for treasure hunts that fit one batch, else a loop over the games."""
+    for treasure hunts that fit one batch; PettingZoo games whose env batches its own games (a static
+    ``batch(games, rngs)`` giving a batch or None, as LBF's ``LevelBasedForaging.batch``) in that batch;
+    else a loop over the games."""
     if fit_one_batch(games):
         return TreasureHunts.of_games(games, rngs)
+    pettingzoo = [game for game in games if isinstance(game, PettingZooGame)]
+    if len(pettingzoo) == len(games):
+        batch = getattr(type(pettingzoo[0].env), "batch", None)
+        batched = batch(pettingzoo, rngs) if batch is not None else None
+        if batched is not None:
+            return batched
     return LoopedGames(games, rngs)

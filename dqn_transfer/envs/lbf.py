@@ -19,11 +19,15 @@ gives it PettingZoo's parallel API (agents ``player_0`` ..) and two changes of m
 Two of lbforaging's methods run again here, faster, with the same results (``tests/test_lbf.py`` plays
 them side by side with the originals): the observation vectors, written by a compiled kernel instead of
 through named tuples and a space check of every vector, and each player's valid actions, read from the
-field as a list (under a profiler the two took 37% of an LBF run's time).
+field as a list (under a profiler the two took 37% of an LBF run's time). And a run's replicas step together:
+:class:`ForagingBatch` plays lbforaging's step rules for all of them in one kernel call
+(:func:`step_foraging`), where each step went through the adapters and lbforaging's Python for each replica;
+their resets stay lbforaging's own (``tests/test_lbf.py`` plays the batch beside the games stepped one by one).
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -31,8 +35,11 @@ from lbforaging.foraging.environment import Action, ForagingEnv
 from pettingzoo import ParallelEnv
 
 from dqn_transfer.compiled import kernel
+from dqn_transfer.envs.batch import BatchStep, GameBatch
+from dqn_transfer.envs.pettingzoo_game import PettingZooGame
 
 ENTRY = 3  # (row, col, level) of one food item or player
+NONE, NORTH, SOUTH, WEST, EAST, LOAD = (action.value for action in Action)  # lbforaging's actions, in its order
 
 
 def lbf_segments(food: int, players: int) -> list[tuple[str, int]]:
@@ -89,6 +96,101 @@ def write_observations(
                 if observe_levels:
                     obs[start + entry * slot + 2] = levels[other]
                 slot += 1
+
+
+@kernel
+def step_foraging(
+    field: np.ndarray,
+    positions: np.ndarray,
+    levels: np.ndarray,
+    actions: np.ndarray,
+    steps: np.ndarray,
+    food_spawned: np.ndarray,
+    max_steps: int,
+    penalty: float,
+    normalize_reward: bool,
+    sight: int,
+    observe_levels: bool,
+    rewards: np.ndarray,
+    done: np.ndarray,
+    food_left: np.ndarray,
+    obs: np.ndarray,
+) -> None:
+    """One step of R LBF games with ``actions [R, P]``, as lbforaging's ``ForagingEnv.step`` plays it: an
+    action the player cannot take is NONE; players move unless another player heads for the same cell; each
+    group of loading players next to a food item loads it if their levels add up to its level (each scoring
+    its level times the food's, over the group's level times the food spawned) or takes ``penalty`` each;
+    the episode ends with no food left or at ``max_steps``. Changes ``field [R, rows, cols]``, ``positions [R,
+    P, 2]`` and ``steps [R]`` in place; writes ``rewards [R, P]``, ``done [R]``, ``food_left [R]`` and every
+    player's observation ``obs [R, P, width]`` (:func:`write_observations`).
+
+    lbforaging takes the loading players in a set's order; here in theirs. No two food items are ever next to
+    one cell (food spawns two cells apart at least), so each loading player has one food item in reach and
+    the groups do not depend on the order."""
+    replicas, players = actions.shape
+    rows, cols = field.shape[1], field.shape[2]
+    targets = np.empty((players, 2), dtype=np.int64)
+    loading = np.zeros(players, dtype=np.bool_)
+    for r in range(replicas):
+        grid, where = field[r], positions[r]
+        steps[r] += 1
+        for p in range(players):
+            row, col, action = where[p, 0], where[p, 1], actions[r, p]
+            dy, dx = (action == SOUTH) - (action == NORTH), (action == EAST) - (action == WEST)
+            if dy != 0 or dx != 0:  # a move onto the field's free cells only (players do not block it)
+                if not (0 <= row + dy < rows and 0 <= col + dx < cols and grid[row + dy, col + dx] == 0):
+                    action, dy, dx = NONE, 0, 0
+            elif action == LOAD:  # lbforaging's adjacent_food: the four neighbours clamped to the field
+                near = grid[max(row - 1, 0), col] + grid[min(row + 1, rows - 1), col]
+                if near + grid[row, max(col - 1, 0)] + grid[row, min(col + 1, cols - 1)] == 0:
+                    action = NONE
+            targets[p, 0], targets[p, 1] = row + dy, col + dx
+            loading[p] = action == LOAD
+            rewards[r, p] = 0.0
+        for p in range(players):  # a player moves unless another one heads for the same cell
+            alone = True
+            for q in range(players):
+                if q != p and targets[q, 0] == targets[p, 0] and targets[q, 1] == targets[p, 1]:
+                    alone = False
+            if alone:
+                where[p, 0], where[p, 1] = targets[p, 0], targets[p, 1]
+        for p in range(players):
+            if not loading[p]:
+                continue
+            row, col = where[p, 0], where[p, 1]
+            # lbforaging's adjacent_food_location, its bounds as they are (row > 1, col > 1)
+            if row > 1 and grid[row - 1, col] > 0:
+                food_row, food_col = row - 1, col
+            elif row < rows - 1 and grid[row + 1, col] > 0:
+                food_row, food_col = row + 1, col
+            elif col > 1 and grid[row, col - 1] > 0:
+                food_row, food_col = row, col - 1
+            elif col < cols - 1 and grid[row, col + 1] > 0:
+                food_row, food_col = row, col + 1
+            else:
+                raise RuntimeError("a loading player has no food in reach")
+            group = np.zeros(players, dtype=np.bool_)  # the loading players next to the food item
+            group_level = 0
+            for q in range(players):
+                dy, dx = abs(where[q, 0] - food_row), abs(where[q, 1] - food_col)
+                if loading[q] and ((dy == 1 and dx == 0) or (dx == 1 and dy == 0)):
+                    group[q] = True
+                    group_level += levels[r, q]
+            food = grid[food_row, food_col]
+            for q in range(players):
+                if group[q]:
+                    loading[q] = False
+                    if group_level < food:
+                        rewards[r, q] -= penalty
+                    elif normalize_reward:
+                        rewards[r, q] = float(levels[r, q] * food) / float(group_level * food_spawned[r])
+                    else:
+                        rewards[r, q] = float(levels[r, q] * food)
+            if group_level >= food:
+                grid[food_row, food_col] = 0
+        food_left[r] = grid.sum() > 0
+        done[r] = not food_left[r] or max_steps <= steps[r]
+        write_observations(grid, where, levels[r], sight, observe_levels, obs[r])
 
 
 class FastForagingEnv(ForagingEnv):
@@ -212,11 +314,114 @@ class LevelBasedForaging(ParallelEnv):
             {agent: {} for agent in agents},
         )
 
+    @staticmethod
+    def batch(games: Sequence[PettingZooGame], rngs: Sequence[np.random.Generator]) -> ForagingBatch | None:
+        """The replicas' games as one :class:`ForagingBatch`, or None where they cannot be: another env
+        among them, other kwargs, or a game that draws."""
+        first = games[0]
+        if any(not isinstance(game.env, LevelBasedForaging) or game.kwargs != first.kwargs for game in games):
+            return None
+        return None if first.kwargs.get("render_mode") is not None else ForagingBatch(games, rngs)
+
     def render(self) -> Any:
         return self.game.render(mode="rgb_array") if self.render_mode == "rgb_array" else None
 
     def close(self) -> None:
         self.game.close()
+
+
+class ForagingBatch(GameBatch):
+    """R LBF games (:class:`~dqn_transfer.envs.pettingzoo_game.PettingZooGame` s of :class:`LevelBasedForaging`
+    with one set of kwargs) stepped together by :func:`step_foraging`: the same steps as
+    :class:`~dqn_transfer.envs.game_batch.LoopedGames` takes through lbforaging's own, to the bit
+    (``tests/test_lbf.py``). A reset, and a checkpoint's episode, go through each replica's own game (lbforaging's
+    reset, the replay of the episode's actions); an episode's state is saved in the one-game format.
+
+    :param games: one game per replica, each at the start of (or inside) the episode to continue
+    :param rngs: each replica's generator, given to the game at every reset
+    """
+
+    def __init__(self, games: Sequence[PettingZooGame], rngs: Sequence[np.random.Generator]) -> None:
+        self.games, self.rngs = list(games), list(rngs)
+        first: FastForagingEnv = games[0].env.game
+        self.num_replicas, self.num_agents = len(self.games), games[0].num_agents
+        self.rules = (first._max_episode_steps, float(first.penalty), bool(first._normalize_reward), first.sight)
+        self.observe_levels = bool(first._observe_agent_levels)
+        self.field = np.zeros((self.num_replicas, *first.field.shape), dtype=first.field.dtype)
+        self.positions = np.zeros((self.num_replicas, self.num_agents, 2), dtype=np.int64)
+        self.levels = np.zeros((self.num_replicas, self.num_agents), dtype=np.int64)
+        self.steps = np.zeros(self.num_replicas, dtype=np.int64)
+        self.food_spawned = np.zeros(self.num_replicas, dtype=np.int64)
+        self.seeds = np.zeros(self.num_replicas, dtype=np.int64)
+        self.actions = np.zeros((self.num_replicas, first._max_episode_steps, self.num_agents), dtype=np.int64)
+        self.action_counts = games[0].action_counts
+        self._obs = np.zeros((self.num_replicas, self.num_agents, games[0].obs_dim), dtype=np.float32)
+        self._live = np.zeros((self.num_replicas, self.num_agents), dtype=bool)
+        for r in range(self.num_replicas):
+            self._take(r)
+
+    def _take(self, r: int) -> None:
+        """Replica r's state from its game (just reset, or replayed to a checkpoint's step)."""
+        env: FastForagingEnv = self.games[r].env.game
+        state = self.games[r].state_dict()
+        self.field[r] = env.field
+        self.positions[r] = [player.position for player in env.players]
+        self.levels[r] = [player.level for player in env.players]
+        self.steps[r], self.food_spawned[r], self.seeds[r] = env.current_step, env._food_spawned, state["seed"]
+        played = np.asarray(state["actions"], dtype=np.int64).reshape(-1, self.num_agents)
+        self.actions[r, : len(played)] = played
+        self._obs[r], self._live[r] = state["obs"], state["live"]
+
+    @property
+    def obs(self) -> np.ndarray:
+        return self._obs
+
+    @property
+    def live(self) -> np.ndarray:
+        return self._live
+
+    def step(self, actions: np.ndarray) -> BatchStep:
+        if not self._live.all():
+            raise RuntimeError("an episode is over: reset its replica before the next step")
+        joint = np.asarray(actions, dtype=np.int64) % self.action_counts  # PettingZooGame's: a mod n
+        self.actions[np.arange(self.num_replicas), self.steps] = joint
+        rewards = np.zeros((self.num_replicas, self.num_agents), dtype=np.float32)
+        done, food_left = np.zeros(self.num_replicas, dtype=bool), np.zeros(self.num_replicas, dtype=bool)
+        self._obs = np.empty_like(self._obs)  # a new array: the last step's observations may still be read
+        max_steps, penalty, normalize_reward, sight = self.rules
+        step_foraging(
+            self.field, self.positions, self.levels, joint, self.steps, self.food_spawned, max_steps, penalty,
+            normalize_reward, sight, self.observe_levels, rewards, done, food_left, self._obs,
+        )  # fmt: skip
+        time_up = done & food_left  # the time limit with food left: a truncation
+        terminated = np.repeat((done & ~time_up)[:, None], self.num_agents, axis=1)
+        truncated = np.repeat(time_up[:, None], self.num_agents, axis=1)
+        self._live = np.repeat(~done[:, None], self.num_agents, axis=1)
+        nothing = np.zeros((self.num_replicas, self.num_agents), dtype=bool)  # no traps, no obstacles
+        none = np.zeros(self.num_replicas, dtype=np.int64)  # no chests
+        return BatchStep(self._obs, rewards, terminated, truncated, nothing, nothing, none, none, done)
+
+    def reset(self, which: np.ndarray) -> None:
+        replicas = np.flatnonzero(which).tolist()
+        if not replicas:
+            return
+        self._obs, self._live = self._obs.copy(), self._live.copy()
+        for r in replicas:
+            self.games[r].reset(self.rngs[r])
+            self._take(r)
+
+    def state_dict(self, replica: int) -> dict[str, Any]:
+        return {
+            "seed": int(self.seeds[replica]),
+            "actions": self.actions[replica, : self.steps[replica]].tolist(),
+            "obs": self._obs[replica].tolist(),
+            "live": self._live[replica].tolist(),
+        }
+
+    def load_state_dict(self, replica: int, state: Mapping[str, Any]) -> None:
+        self.games[replica].load_state_dict(state, self.rngs[replica])
+        self._obs, self._live = self._obs.copy(), self._live.copy()
+        self._take(replica)
 
 
 def parallel_env(**kwargs: Any) -> LevelBasedForaging:

@@ -55,7 +55,7 @@ PROFILES: dict[str, tuple[str, ...]] = {
     "full": (),  # tune/base.yaml's own settings
 }
 # One trial's seconds at the full profile (8,000 steps x 10 maps, one core, measured 2026-12-03: docs/tuning.md),
-# used only to start the longest searches first.
+# used only to start the longest searches first (its ratio matters, not its scale).
 TRIAL_SECONDS = {"sarsa": 6.0, "double_dqn": 20.0}
 
 
@@ -87,24 +87,20 @@ def search_named(name: str) -> Search:
     raise TuningError(f"unknown search {name!r} (choose from {', '.join(s.name for s in SEARCHES)})")
 
 
-def run_searches(
+def search_multiruns(
     searches: Sequence[Search],
     overrides: Sequence[str],
     out: Path,
-    parallel: int,
     trials_per_dimension: int | None = None,
-    poll_seconds: float = 2.0,
-) -> None:
-    """Each search as one multirun into ``OUT/runs/<name>``, ``parallel`` at once, the costliest first; a
-    search finished before with the same settings is reused. Raises the first failure's
-    :class:`~dqn_transfer.experiments.sweeps.ReproduceError` once every search has ended.
+) -> list[Multirun]:
+    """Each search as one multirun into ``OUT/runs/<name>`` (what :func:`run_searches` runs).
 
     :param overrides: every search's settings (a profile's, an edition's tuning cell's)
     :param trials_per_dimension: the trials of a search per searched key (None: the search file's n_trials);
         ``overrides`` may still set ``hydra.sweeper.n_trials`` (the quick profile does)
     """
     multiruns = []
-    for search in sorted(searches, key=lambda s: -TRIAL_SECONDS.get(s.learner, 0.0)):
+    for search in searches:
         own = list(overrides)
         if trials_per_dimension is not None:
             dimensions = len(composed(search.experiment, hydra_config=True).hydra.sweeper.params)
@@ -114,8 +110,22 @@ def run_searches(
         multiruns.append(
             Multirun(search.name, search.experiment, tuple(own), out / RUNS_DIR / search.name, trials, stamp)
         )
+    return multiruns
+
+
+def expected_seconds(multirun: Multirun) -> float:
+    """A search's trials times one trial's seconds (:data:`TRIAL_SECONDS`)."""
+    return multirun.jobs * TRIAL_SECONDS.get(search_named(multirun.stamp["search"]).learner, 0.0)
+
+
+def run_searches(multiruns: Sequence[tuple[Multirun, Path]], parallel: int, poll_seconds: float = 2.0) -> None:
+    """Searches' multiruns, each with its tuning directory (where its log goes), ``parallel`` at once, the
+    longest first (:func:`expected_seconds`), so that the last to start are short and no core waits long
+    at the end; a search finished before with the same settings is reused. Raises the first failure's
+    :class:`~dqn_transfer.experiments.sweeps.ReproduceError` once every search has ended."""
+    longest_first = sorted(multiruns, key=lambda planned: -expected_seconds(planned[0]))
     with ThreadPoolExecutor(max_workers=parallel) as pool:
-        futures = [pool.submit(run_multirun, m, out, "basic", 1, (), poll_seconds) for m in multiruns]
+        futures = [pool.submit(run_multirun, m, out, "basic", 1, (), poll_seconds) for m, out in longest_first]
     for future in futures:
         future.result()
 
@@ -197,18 +207,22 @@ def analyse(out: Path) -> list[Path]:
 
 
 def tune(
-    searches: Sequence[Search],
-    overrides: Sequence[str],
-    out: Path,
+    cells: Sequence[tuple[Sequence[Search], Sequence[str], Path]],
     parallel: int,
     trials_per_dimension: int | None = None,
 ) -> list[Path]:
-    """Run ``searches`` with ``overrides`` (:func:`run_searches`), collect their trials into
-    ``OUT/tuning.jsonl`` and analyse them."""
-    out.mkdir(parents=True, exist_ok=True)
-    run_searches(searches, overrides, out, parallel, trials_per_dimension)
-    write_trials(out / TRIALS_FILE, collect_trials(searches, out))
-    return analyse(out)
+    """Every tuning cell's searches (``(searches, overrides, out)`` each) in one pool (:func:`run_searches`),
+    then each cell's trials collected into its ``OUT/tuning.jsonl`` and analysed."""
+    planned = []
+    for searches, overrides, out in cells:
+        out.mkdir(parents=True, exist_ok=True)
+        planned += [(multirun, out) for multirun in search_multiruns(searches, overrides, out, trials_per_dimension)]
+    run_searches(planned, parallel)
+    written: list[Path] = []
+    for searches, _, out in cells:
+        write_trials(out / TRIALS_FILE, collect_trials(searches, out))
+        written += analyse(out)
+    return written
 
 
 def tuned_options(tuned: dict[str, dict[str, dict[str, Any]]]) -> dict[str, str]:
