@@ -357,6 +357,7 @@ class ForagingBatch(GameBatch):
         self.action_counts = games[0].action_counts
         self._obs = np.zeros((self.num_replicas, self.num_agents, games[0].obs_dim), dtype=np.float32)
         self._live = np.zeros((self.num_replicas, self.num_agents), dtype=bool)
+        self.starts: dict[int, tuple[np.ndarray, ...]] = {}  # a fixed instance's start: field, positions, levels, obs
         for r in range(self.num_replicas):
             self._take(r)
 
@@ -407,8 +408,19 @@ class ForagingBatch(GameBatch):
             return
         self._obs, self._live = self._obs.copy(), self._live.copy()
         for r in replicas:
+            if r in self.starts:  # a fixed instance's start, its reset seed's alone: kept, not played again
+                self.field[r], self.positions[r], self.levels[r], self._obs[r] = self.starts[r]
+                self.steps[r], self._live[r] = 0, True
+                continue
             self.games[r].reset(self.rngs[r])
             self._take(r)
+            if self.games[r].reset_seed is not None:
+                self.starts[r] = (
+                    self.field[r].copy(),
+                    self.positions[r].copy(),
+                    self.levels[r].copy(),
+                    self._obs[r].copy(),
+                )
 
     def state_dict(self, replica: int) -> dict[str, Any]:
         return {
