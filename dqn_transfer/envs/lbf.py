@@ -35,7 +35,8 @@ from lbforaging.foraging.environment import Action, ForagingEnv
 from pettingzoo import ParallelEnv
 
 from dqn_transfer.compiled import kernel
-from dqn_transfer.envs.batch import BatchStep, GameBatch
+from dqn_transfer.envs.batch import BatchStep
+from dqn_transfer.envs.game_batch import LoopedGames
 from dqn_transfer.envs.pettingzoo_game import PettingZooGame
 
 ENTRY = 3  # (row, col, level) of one food item or player
@@ -330,21 +331,22 @@ class LevelBasedForaging(ParallelEnv):
         self.game.close()
 
 
-class ForagingBatch(GameBatch):
+class ForagingBatch(LoopedGames):
     """R LBF games (:class:`~dqn_transfer.envs.pettingzoo_game.PettingZooGame` s of :class:`LevelBasedForaging`
     with one set of kwargs) stepped together by :func:`step_foraging`: the same steps as
     :class:`~dqn_transfer.envs.game_batch.LoopedGames` takes through lbforaging's own, to the bit
-    (``tests/test_lbf.py``). A reset, and a checkpoint's episode, go through each replica's own game (lbforaging's
-    reset, the replay of the episode's actions); an episode's state is saved in the one-game format.
+    (``tests/test_lbf.py``). A reset goes through the replica's own game (lbforaging's reset), a fixed instance's
+    only once: its start is kept. A checkpoint's episode is replayed there too, and saved in the one-game format.
 
     :param games: one game per replica, each at the start of (or inside) the episode to continue
     :param rngs: each replica's generator, given to the game at every reset
     """
 
     def __init__(self, games: Sequence[PettingZooGame], rngs: Sequence[np.random.Generator]) -> None:
-        self.games, self.rngs = list(games), list(rngs)
-        first: FastForagingEnv = games[0].env.game
-        self.num_replicas, self.num_agents = len(self.games), games[0].num_agents
+        super().__init__(games, rngs)
+        self.envs: list[FastForagingEnv] = [game.env.game for game in games]  # where a reset leaves its state
+        self.fixed = [game.reset_seed is not None for game in games]  # a fixed instance: the same start each time
+        first = self.envs[0]
         self.rules = (first._max_episode_steps, float(first.penalty), bool(first._normalize_reward), first.sight)
         self.observe_levels = bool(first._observe_agent_levels)
         self.field = np.zeros((self.num_replicas, *first.field.shape), dtype=first.field.dtype)
@@ -355,16 +357,13 @@ class ForagingBatch(GameBatch):
         self.seeds = np.zeros(self.num_replicas, dtype=np.int64)
         self.actions = np.zeros((self.num_replicas, first._max_episode_steps, self.num_agents), dtype=np.int64)
         self.action_counts = games[0].action_counts
-        self._obs = np.zeros((self.num_replicas, self.num_agents, games[0].obs_dim), dtype=np.float32)
-        self._live = np.zeros((self.num_replicas, self.num_agents), dtype=bool)
         self.starts: dict[int, tuple[np.ndarray, ...]] = {}  # a fixed instance's start: field, positions, levels, obs
         for r in range(self.num_replicas):
             self._take(r)
 
     def _take(self, r: int) -> None:
         """Replica r's state from its game (just reset, or replayed to a checkpoint's step)."""
-        env: FastForagingEnv = self.games[r].env.game
-        state = self.games[r].state_dict()
+        env, state = self.envs[r], self.games[r].state_dict()
         self.field[r] = env.field
         self.positions[r] = [player.position for player in env.players]
         self.levels[r] = [player.level for player in env.players]
@@ -372,14 +371,6 @@ class ForagingBatch(GameBatch):
         played = np.asarray(state["actions"], dtype=np.int64).reshape(-1, self.num_agents)
         self.actions[r, : len(played)] = played
         self._obs[r], self._live[r] = state["obs"], state["live"]
-
-    @property
-    def obs(self) -> np.ndarray:
-        return self._obs
-
-    @property
-    def live(self) -> np.ndarray:
-        return self._live
 
     def step(self, actions: np.ndarray) -> BatchStep:
         if not self._live.all():
@@ -414,7 +405,7 @@ class ForagingBatch(GameBatch):
                 continue
             self.games[r].reset(self.rngs[r])
             self._take(r)
-            if self.games[r].reset_seed is not None:
+            if self.fixed[r]:
                 self.starts[r] = (
                     self.field[r].copy(),
                     self.positions[r].copy(),
