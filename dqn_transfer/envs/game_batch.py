@@ -76,13 +76,13 @@ class LoopedGames(GameBatch):
 def game_batch(games: Sequence[Game], rngs: Sequence[np.random.Generator]) -> GameBatch:
     """The replicas' games as one batch, each continuing its game's episode: one :class:`TreasureHunts`
     for treasure hunts that fit one batch; PettingZoo games whose env batches its own games (a static
-    ``batch(games, rngs)`` giving a batch or None, as LBF's ``LevelBasedForaging.batch``) in that batch;
+    ``batch_games(games, rngs)`` giving a batch or None, as LBF's ``LevelBasedForaging.batch_games``) in that batch;
     else a loop over the games."""
     if fit_one_batch(games):
         return TreasureHunts.of_games(games, rngs)
     pettingzoo = [game for game in games if isinstance(game, PettingZooGame)]
     if len(pettingzoo) == len(games):
-        batch = getattr(type(pettingzoo[0].env), "batch", None)
+        batch = getattr(type(pettingzoo[0].env), "batch_games", None)
         batched = batch(pettingzoo, rngs) if batch is not None else None
         if batched is not None:
             return batched

@@ -316,7 +316,7 @@ class LevelBasedForaging(ParallelEnv):
         )
 
     @staticmethod
-    def batch(games: Sequence[PettingZooGame], rngs: Sequence[np.random.Generator]) -> ForagingBatch | None:
+    def batch_games(games: Sequence[PettingZooGame], rngs: Sequence[np.random.Generator]) -> ForagingBatch | None:
         """The replicas' games as one :class:`ForagingBatch`, or None where they cannot be: another env
         among them, other kwargs, or a game that draws."""
         first = games[0]
