@@ -116,6 +116,25 @@ def test_another_game_s_replicas_evaluated_side_by_side_equal_evaluating_them_on
     assert len({record["team_return"] for record in one_by_one}) > 1  # not vacuous: the replicas differ
 
 
+@pytest.mark.parametrize("fixed", [True, False], ids=["fixed_instances", "drawn_starts"])
+@pytest.mark.parametrize("games_per_batch", [GAMES_PER_BATCH, 4])  # 1 batch; 3 batches of 1 or 2 episodes
+def test_lbf_replicas_evaluated_as_one_batch_equal_evaluating_them_one_by_one(fixed, games_per_batch, monkeypatch):
+    """LBF's evaluation games stepped as one ForagingBatch (the episodes that end early played on uncounted)
+    give every record of each replica's episodes played alone, bit for bit."""
+    monkeypatch.setattr(batched_rollout, "GAMES_PER_BATCH", games_per_batch)
+    kwargs = dict(size=6, players=2, food=2, max_player_level=2, max_steps=20)
+    games = [PettingZooGame("dqn_transfer.envs.lbf:parallel_env", kwargs, 50 + r if fixed else None) for r in range(3)]
+    learner = trained(Algorithm.qlearning, games, steps=400)
+    teams = [learner.replica(r) for r in range(3)]
+    steps = [0, 400, 800]
+    evaluations = evaluate_replicas(learner, teams, [game.replica() for game in games], 5, SEEDS, steps, [False] * 3)
+    one_by_one = [evaluate(team, game, 5, seed, step) for team, game, seed, step in zip(teams, games, SEEDS, steps)]
+    assert [evaluation.record for evaluation in evaluations] == one_by_one
+    assert len({record["team_return"] for record in one_by_one}) > 1  # not vacuous: the replicas differ
+    if fixed:  # and some episodes end before others (these greedy teams finish no drawn start)
+        assert len({record["episode_length"] for record in one_by_one}) > 1
+
+
 def test_without_the_batched_learner_each_replica_is_evaluated_through_its_team():
     games = [TreasureHuntGame(parse_layout(generate_layout(6, 2, 2, 2, 0.1, seed))) for seed in (1, 2, 3)]
     learner = trained(Algorithm.qlearning, games, steps=200)

@@ -73,17 +73,21 @@ class LoopedGames(GameBatch):
         self._obs[replica], self._live[replica] = obs, self.games[replica].live
 
 
+def env_batch(games: Sequence[Game], rngs: Sequence[np.random.Generator]) -> GameBatch | None:
+    """The games as the batch their env makes of them, or None: PettingZoo games whose ParallelEnv class has a
+    static ``batch_games(games, rngs)`` (giving a batch, or None where it cannot take these games), as LBF's
+    ``LevelBasedForaging.batch_games``."""
+    pettingzoo = [game for game in games if isinstance(game, PettingZooGame)]
+    if len(pettingzoo) < len(games):
+        return None
+    batch_games = getattr(type(pettingzoo[0].env), "batch_games", None)
+    return None if batch_games is None else batch_games(pettingzoo, rngs)
+
+
 def game_batch(games: Sequence[Game], rngs: Sequence[np.random.Generator]) -> GameBatch:
     """The replicas' games as one batch, each continuing its game's episode: one :class:`TreasureHunts`
-    for treasure hunts that fit one batch; PettingZoo games whose env batches its own games (a static
-    ``batch_games(games, rngs)`` giving a batch or None, as LBF's ``LevelBasedForaging.batch_games``) in that batch;
-    else a loop over the games."""
+    for treasure hunts that fit one batch, their env's own batch where it has one (:func:`env_batch`), else a
+    loop over the games."""
     if fit_one_batch(games):
         return TreasureHunts.of_games(games, rngs)
-    pettingzoo = [game for game in games if isinstance(game, PettingZooGame)]
-    if len(pettingzoo) == len(games):
-        batch = getattr(type(pettingzoo[0].env), "batch_games", None)
-        batched = batch(pettingzoo, rngs) if batch is not None else None
-        if batched is not None:
-            return batched
-    return LoopedGames(games, rngs)
+    return env_batch(games, rngs) or LoopedGames(games, rngs)

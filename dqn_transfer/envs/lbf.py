@@ -358,8 +358,9 @@ class ForagingBatch(LoopedGames):
         self.actions = np.zeros((self.num_replicas, first._max_episode_steps, self.num_agents), dtype=np.int64)
         self.action_counts = games[0].action_counts
         self.starts: dict[int, tuple[np.ndarray, ...]] = {}  # a fixed instance's start: field, positions, levels, obs
-        for r in range(self.num_replicas):
-            self._take(r)
+        for r, env in enumerate(self.envs):
+            if env.players[0].position is not None:  # a game never reset holds no state: its first reset gives it
+                self._take(r)
 
     def _take(self, r: int) -> None:
         """Replica r's state from its game (just reset, or replayed to a checkpoint's step)."""

@@ -31,6 +31,7 @@ from dqn_transfer.agents.tabular import TabularLearner
 from dqn_transfer.enums import RewardMode
 from dqn_transfer.envs import Game, tie_draws
 from dqn_transfer.envs.game import TreasureHuntGame, TreasureHunts, fit_one_batch
+from dqn_transfer.envs.game_batch import env_batch
 from dqn_transfer.evaluation import greedy_steps
 from dqn_transfer.evaluation.rollout import (
     BatchPolicy,
@@ -41,6 +42,7 @@ from dqn_transfer.evaluation.rollout import (
     evaluation_rng,
     greedy_policy,
     never,
+    play_batch,
     play_episodes,
     summarize,
 )
@@ -123,10 +125,22 @@ def play_looped(
         slots = [(e, r) for e in numbers for r in range(replicas)]  # game g = (e - first) * R + r
         rngs = [evaluation_rng(seeds[r], steps[r], e) for e, r in slots]
         greedy = _greedy_batch(learner, replicas * agents, [rng.spawn(1)[0] for rng in rngs])
-        played = play_episodes(_evaluation_games(tuple(games), len(numbers)), greedy, rngs, stopped=stopped)
+        played = _play_side_by_side(_evaluation_games(tuple(games), len(numbers)), greedy, rngs, stopped)
         for (_, r), result in zip(slots, played):
             results[r].append(result)
     return results
+
+
+def _play_side_by_side(
+    games: Sequence[Game], policy: BatchPolicy, rngs: Sequence[np.random.Generator], stopped: Callable[[], bool]
+) -> list[EpisodeResult]:
+    """One episode of each game (reset with its generator), all side by side: as the batch their env makes of
+    them where it makes one (LBF's), else through :func:`~dqn_transfer.evaluation.rollout.play_episodes`."""
+    batch = env_batch(games, rngs)
+    if batch is None:
+        return play_episodes(games, policy, rngs, stopped=stopped)
+    batch.reset(np.ones(len(games), dtype=bool))
+    return play_batch(batch, games, policy, stopped)
 
 
 def _greedy_batch(learner: Learner, rows: int, ties: Sequence[np.random.Generator]) -> BatchPolicy:

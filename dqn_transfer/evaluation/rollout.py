@@ -18,6 +18,7 @@ import numpy as np
 from dqn_transfer.agents.base import Team, Transition
 from dqn_transfer.enums import RewardMode
 from dqn_transfer.envs import Game
+from dqn_transfer.envs.batch import GameBatch
 
 # (obs [K, D], live [K]) -> actions [K]; actions of agents that are not live are ignored.
 Policy = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -147,6 +148,27 @@ def play_episodes(
                 on_step(g, transition, outcome.info)
             tallies[g].add(game, outcome.rewards, live[g], outcome.trap)
             obs[g] = outcome.obs
+    return [tally.result(game) for tally, game in zip(tallies, games)]
+
+
+def play_batch(
+    batch: GameBatch, games: Sequence[Game], policy: BatchPolicy, stopped: Callable[[], bool] = never
+) -> list[EpisodeResult]:
+    """:func:`play_episodes` of ``games`` stepped as one ``batch`` (each game just reset, the batch made of
+    them then): one episode of every game, each one's tally as :func:`play_episodes` keeps it. A batch steps
+    all its games, so a game whose episode has ended is reset and played on until the last has ended, those
+    steps not counted (its episode's generators are not drawn from afterwards)."""
+    tallies = [EpisodeTally(game.num_agents) for game in games]
+    ended = np.zeros(len(games), dtype=bool)
+    while not ended.all():
+        if stopped():
+            raise EvaluationStopped
+        live = batch.live
+        step = batch.step(policy(batch.obs, live))
+        for g in np.flatnonzero(~ended).tolist():
+            tallies[g].add(games[g], step.rewards[g], live[g], step.trap[g])
+        ended |= step.episode_end
+        batch.reset(step.episode_end)
     return [tally.result(game) for tally, game in zip(tallies, games)]
 
 
