@@ -107,13 +107,20 @@ def test_another_game_s_replicas_evaluated_side_by_side_equal_evaluating_them_on
     episode's seed): all replicas' episodes through the one episode loop give every record bit for bit."""
     monkeypatch.setattr(batched_rollout, "GAMES_PER_BATCH", games_per_batch)
     games = [PettingZooGame("corridor_env:parallel_env", {"length": 5, "slip": 0.3}) for _ in SEEDS]
-    learner = trained(algorithm, games, steps=300)
+    records_side_by_side_and_alone(algorithm, games, steps=300)
+
+
+def records_side_by_side_and_alone(algorithm: Algorithm, games: list, steps: int) -> list[dict]:
+    """A learner trained ``steps`` on ``games`` (a replica each) evaluated at three steps: the records of all
+    replicas' evaluations side by side, checked equal to each one's alone and to differ between replicas."""
+    learner = trained(algorithm, games, steps=steps)
     teams = [learner.replica(r) for r in range(3)]
-    steps = [0, 300, 500]
-    evaluations = evaluate_replicas(learner, teams, [game.replica() for game in games], 5, SEEDS, steps, [False] * 3)
-    one_by_one = [evaluate(team, game, 5, seed, step) for team, game, seed, step in zip(teams, games, SEEDS, steps)]
+    at = [0, steps, 2 * steps]
+    evaluations = evaluate_replicas(learner, teams, [game.replica() for game in games], 5, SEEDS, at, [False] * 3)
+    one_by_one = [evaluate(team, game, 5, seed, step) for team, game, seed, step in zip(teams, games, SEEDS, at)]
     assert [evaluation.record for evaluation in evaluations] == one_by_one
     assert len({record["team_return"] for record in one_by_one}) > 1  # not vacuous: the replicas differ
+    return one_by_one
 
 
 @pytest.mark.parametrize("fixed", [True, False], ids=["fixed_instances", "drawn_starts"])
@@ -124,13 +131,7 @@ def test_lbf_replicas_evaluated_as_one_batch_equal_evaluating_them_one_by_one(fi
     monkeypatch.setattr(batched_rollout, "GAMES_PER_BATCH", games_per_batch)
     kwargs = dict(size=6, players=2, food=2, max_player_level=2, max_steps=20)
     games = [PettingZooGame("dqn_transfer.envs.lbf:parallel_env", kwargs, 50 + r if fixed else None) for r in range(3)]
-    learner = trained(Algorithm.qlearning, games, steps=400)
-    teams = [learner.replica(r) for r in range(3)]
-    steps = [0, 400, 800]
-    evaluations = evaluate_replicas(learner, teams, [game.replica() for game in games], 5, SEEDS, steps, [False] * 3)
-    one_by_one = [evaluate(team, game, 5, seed, step) for team, game, seed, step in zip(teams, games, SEEDS, steps)]
-    assert [evaluation.record for evaluation in evaluations] == one_by_one
-    assert len({record["team_return"] for record in one_by_one}) > 1  # not vacuous: the replicas differ
+    one_by_one = records_side_by_side_and_alone(Algorithm.qlearning, games, steps=400)
     if fixed:  # and some episodes end before others (these greedy teams finish no drawn start)
         assert len({record["episode_length"] for record in one_by_one}) > 1
 

@@ -56,13 +56,17 @@ class LoopedGames(GameBatch):
         )
 
     def reset(self, which: np.ndarray) -> None:
-        replicas = np.flatnonzero(which).tolist()
-        if not replicas:
-            return
-        self._obs, self._live = self._obs.copy(), self._live.copy()
-        for r in replicas:
+        for r in self._to_reset(which):
             self._obs[r] = self.games[r].reset(self.rngs[r])
             self._live[r] = self.games[r].live
+
+    def _to_reset(self, which: np.ndarray) -> list[int]:
+        """The replicas of the mask ``which``; if any, the observation arrays are copied first, so that the arrays
+        a step returned keep what it saw."""
+        replicas = np.flatnonzero(which).tolist()
+        if replicas:
+            self._obs, self._live = self._obs.copy(), self._live.copy()
+        return replicas
 
     def state_dict(self, replica: int) -> dict[str, Any]:
         return self.games[replica].state_dict()

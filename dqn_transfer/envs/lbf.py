@@ -395,11 +395,7 @@ class ForagingBatch(LoopedGames):
         return BatchStep(self._obs, rewards, terminated, truncated, nothing, nothing, none, none, done)
 
     def reset(self, which: np.ndarray) -> None:
-        replicas = np.flatnonzero(which).tolist()
-        if not replicas:
-            return
-        self._obs, self._live = self._obs.copy(), self._live.copy()
-        for r in replicas:
+        for r in self._to_reset(which):
             if r in self.starts:  # a fixed instance's start, its reset seed's alone: kept, not played again
                 self.field[r], self.positions[r], self.levels[r], self._obs[r] = self.starts[r]
                 self.steps[r], self._live[r] = 0, True
