@@ -347,8 +347,14 @@ class ForagingBatch(LoopedGames):
         self.envs: list[FastForagingEnv] = [game.env.game for game in games]  # where a reset leaves its state
         self.fixed = [game.reset_seed is not None for game in games]  # a fixed instance: the same start each time
         first = self.envs[0]
-        self.rules = (first._max_episode_steps, float(first.penalty), bool(first._normalize_reward), first.sight)
-        self.observe_levels = bool(first._observe_agent_levels)
+        # step_foraging's settings, in its order: max_steps, penalty, normalize_reward, sight, observe_levels
+        self.rules = (
+            first._max_episode_steps,
+            float(first.penalty),
+            bool(first._normalize_reward),
+            first.sight,
+            bool(first._observe_agent_levels),
+        )
         self.field = np.zeros((self.num_replicas, *first.field.shape), dtype=first.field.dtype)
         self.positions = np.zeros((self.num_replicas, self.num_agents, 2), dtype=np.int64)
         self.levels = np.zeros((self.num_replicas, self.num_agents), dtype=np.int64)
@@ -381,10 +387,9 @@ class ForagingBatch(LoopedGames):
         rewards = np.zeros((self.num_replicas, self.num_agents), dtype=np.float32)
         done, food_left = np.zeros(self.num_replicas, dtype=bool), np.zeros(self.num_replicas, dtype=bool)
         self._obs = np.empty_like(self._obs)  # a new array: the last step's observations may still be read
-        max_steps, penalty, normalize_reward, sight = self.rules
         step_foraging(
-            self.field, self.positions, self.levels, joint, self.steps, self.food_spawned, max_steps, penalty,
-            normalize_reward, sight, self.observe_levels, rewards, done, food_left, self._obs,
+            self.field, self.positions, self.levels, joint, self.steps, self.food_spawned, *self.rules, rewards, done,
+            food_left, self._obs,
         )  # fmt: skip
         time_up = done & food_left  # the time limit with food left: a truncation
         terminated = np.repeat((done & ~time_up)[:, None], self.num_agents, axis=1)
@@ -419,8 +424,7 @@ class ForagingBatch(LoopedGames):
         }
 
     def load_state_dict(self, replica: int, state: Mapping[str, Any]) -> None:
-        self.games[replica].load_state_dict(state, self.rngs[replica])
-        self._obs, self._live = self._obs.copy(), self._live.copy()
+        super().load_state_dict(replica, state)  # the episode replayed in the replica's own game
         self._take(replica)
 
 

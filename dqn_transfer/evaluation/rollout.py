@@ -168,7 +168,8 @@ def play_batch(
         for g in np.flatnonzero(~ended).tolist():
             tallies[g].add(games[g], step.rewards[g], live[g], step.trap[g])
         ended |= step.episode_end
-        batch.reset(step.episode_end)
+        if not ended.all():  # after the last episode's end no game plays on
+            batch.reset(step.episode_end)
     return [tally.result(game) for tally, game in zip(tallies, games)]
 
 
