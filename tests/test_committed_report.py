@@ -13,12 +13,12 @@ from dqn_transfer.cli import report as report_cli
 
 def test_the_committed_third_edition_report_is_regenerated_from_the_committed_data(tmp_path, capsys):
     # results/REPORT.md is what `dqn-transfer-report results/v3 --out results` writes from results/v3's data,
-    # tuning tables, maps and stage times alone, byte for byte, its figures beside it.
+    # tuning tables, maps, stage times and its repeat's record alone, byte for byte, its figures beside it.
     results = Path(__file__).resolve().parents[1] / "results"
     study_dir = tmp_path / "study"
     for part in ("data", "tuning"):
         shutil.copytree(results / "v3" / part, study_dir / part, ignore=shutil.ignore_patterns("runs", "logs"))
-    for part in ("maps.json", "maps.md", "stages.json"):
+    for part in ("maps.json", "maps.md", "stages.json", "repeat.json"):
         shutil.copy(results / "v3" / part, study_dir / part)
     out = tmp_path / "elsewhere"
     assert report_cli.main([str(study_dir), "--out", str(out)]) == 0

@@ -302,7 +302,7 @@ def test_a_repeat_of_the_study_is_reported_with_its_times_and_whether_its_record
     record_stage(again, "pilot", 120.0)
     assert report_cli.main([str(results), "--repeat", str(again), "--out", str(tmp_path / "out")]) == 0
     report = (tmp_path / "out" / "REPORT.md").read_text()
-    assert "(abc1234; 2026-12-08; a 2-core box); its run records are these, byte for byte" in report
+    assert "(abc1234; 2026-12-08; a 2-core box):\nits run records are these, byte for byte" in report
     assert "| pilot | 1 | 2.0 min |\n| tune | 1 | 5.0 min |\n| all | | 7.0 min (target 120 min) |" in report
     assert "| tune | 1 | 10.0 min |" in report  # the first execution's own times stay
     write_data(again / "data" / "sarsa.jsonl", _cell("S4", {"best": 0.21}))  # another result: not these records

@@ -353,8 +353,8 @@ def repeat_times(results: Path) -> list[str]:
     made = "; ".join(", ".join(repeat[key]) for key in ("commit", "date", "machine"))
     records = "are these, byte for byte" if same else "**differ** from these"
     return [
-        f"Every stage run again from scratch into another directory ({made}); its run records {records} (sha256 of",
-        "`data/*.jsonl`):",
+        f"Every stage run again from scratch into another directory ({made}):",
+        f"its run records {records} (sha256 of `data/*.jsonl`).",
         "",
         *times_table(repeat["stages"]),
         "",
